@@ -1,0 +1,1 @@
+"""DDPG + Hindsight Experience Replay in PyTorch (see ../shared/DESIGN.md)."""

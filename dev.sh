@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The one set-up entry point: builds .venv from this project's own files, then runs a job.
+#   bash dev.sh demo    the main job (see README)
+#   bash dev.sh test    the test suite (what .ci/run calls)
+#   bash dev.sh shell   prints the activate line of the environment
+# Environment: PYTHON (interpreter for the venv, default python3), VENV (default .venv),
+# TORCH_INDEX_URL (an index serving PyTorch's CPU wheels, for machines whose default index
+# only serves the CUDA build).
+set -euo pipefail
+cd "$(dirname "$0")"
+venv=${VENV:-.venv}
+python=${PYTHON:-python3}
+stamp="$venv/.installed-$(cat pyproject.toml constraints.txt | sha1sum | cut -c1-12)"
+if [ ! -f "$stamp" ]; then
+  echo "dev.sh: setting up $venv (first run only, about two minutes)" >&2
+  "$python" -m venv "$venv"
+  torch_args=()
+  if [ -n "${TORCH_INDEX_URL:-}" ]; then torch_args=(--index-url "$TORCH_INDEX_URL"); fi
+  # torch first and pinned, so that nothing later can pull the CUDA build in as a dependency.
+  "$venv/bin/python" -m pip install -q "${torch_args[@]}" "torch==2.13.0"
+  "$venv/bin/python" -m pip install -q -c constraints.txt -e ".[test]"
+  "$venv/bin/python" - <<'PY'
+import torch, sys
+if torch.version.cuda is not None:
+    sys.exit(f"dev.sh: torch {torch.__version__} is a CUDA build; set TORCH_INDEX_URL to a CPU index")
+PY
+  rm -f "$venv"/.installed-*
+  touch "$stamp"
+fi
+job=${1:-}
+shift || true
+case "$job" in
+  demo) exec "$venv/bin/python" -m ur5kin.demo "$@" ;;
+  test) exec "$venv/bin/python" -m pytest "$@" ;;
+  shell) echo "source $venv/bin/activate" ;;
+  *) echo "usage: bash dev.sh demo|test|shell [args...]" >&2; exit 2 ;;
+esac

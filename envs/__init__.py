@@ -1,0 +1,1 @@
+"""The UR5 Reacher Gymnasium environment (see ../shared/DESIGN.md)."""

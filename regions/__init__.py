@@ -1,0 +1,1 @@
+"""Goal constraint regions of the UR5 Reacher task (see ../shared/DESIGN.md)."""

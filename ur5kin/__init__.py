@@ -1,0 +1,34 @@
+"""UR5 kinematics on Pinocchio: forward kinematics, Jacobians and analytic inverse kinematics.
+
+Every quantity is in the robot's ``base_link`` frame, SI units (m, rad); the end effector is the
+URDF frame ``tool0``. ``q`` is ``(..., 6)``: shoulder_pan, shoulder_lift, elbow, wrist_1, wrist_2,
+wrist_3. In this URDF all zeros stretches the arm along +x and a negative shoulder_lift raises it.
+"""
+
+from ur5kin.model import (
+    BASE_FRAME,
+    JOINT_NAMES,
+    LINK_NAMES,
+    TOOL_FRAME,
+    UR5Geometry,
+    effort_limits,
+    geometry,
+    load_model,
+    resolve_package_uri,
+    urdf_path,
+    velocity_limits,
+)
+
+__all__ = [
+    "BASE_FRAME",
+    "JOINT_NAMES",
+    "LINK_NAMES",
+    "TOOL_FRAME",
+    "UR5Geometry",
+    "effort_limits",
+    "geometry",
+    "load_model",
+    "resolve_package_uri",
+    "urdf_path",
+    "velocity_limits",
+]
