@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 URDF_RELPATH = "robots/ur_description/urdf/ur5_robot.urdf"
-"""Path of the UR5 URDF inside example-robot-data's data folder (the ROS "kinetic" ur_description)."""
+"""The UR5 URDF inside example-robot-data's data folder (the ROS "kinetic" ur_description)."""
 
 TOOL_FRAME = "tool0"
 """The end-effector frame."""

@@ -1,0 +1,77 @@
+"""Input checks of the public ur5kin functions: each error names the value and the expectation."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+ROTATION_TOL = 1e-6
+"""Largest deviation of ``R^T R`` from the identity, and of ``det R`` from 1, accepted in a pose."""
+
+
+def _describe(x: Any) -> str:
+    text = np.array2string(np.asarray(x), threshold=12, precision=6)
+    return text if len(text) < 200 else text[:200] + "..."
+
+
+def joint_array(q: Any, name: str = "q", n: int = 6) -> np.ndarray:
+    """Return ``q`` as a float64 array of shape ``(..., n)``, or raise ``ValueError``.
+
+    Parameters
+    ----------
+    q : array_like, (..., n) float, rad
+    name : str
+        Name used in the error message.
+    n : int
+        Expected trailing dimension.
+    """
+    try:
+        arr = np.asarray(q, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be an array of joint angles (rad); got {q!r}") from err
+    if arr.ndim == 0 or arr.shape[-1] != n:
+        raise ValueError(
+            f"{name} must have shape (..., {n}) (joint angles in rad, joints 1-{n}); "
+            f"got shape {arr.shape}"
+        )
+    check_finite(arr, name)
+    return arr
+
+
+def check_finite(arr: np.ndarray, name: str) -> None:
+    """Raise ``ValueError`` naming the first non-finite entry of ``arr``."""
+    finite = np.isfinite(arr)
+    if not finite.all():
+        where = tuple(int(i) for i in np.argwhere(~finite)[0])
+        raise ValueError(
+            f"{name} must be finite; {name}[{', '.join(map(str, where))}] = {arr[where]}"
+        )
+
+
+def pose_array(pose: Any, name: str = "pose") -> np.ndarray:
+    """Return ``pose`` as a float64 ``(..., 4, 4)`` rigid transform, or raise ``ValueError``.
+
+    A rigid transform has an orthonormal rotation block with determinant +1 (to
+    :data:`ROTATION_TOL`) and a last row of ``[0, 0, 0, 1]``.
+    """
+    try:
+        arr = np.asarray(pose, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be a 4 x 4 homogeneous transform; got {pose!r}") from err
+    if arr.ndim < 2 or arr.shape[-2:] != (4, 4):
+        raise ValueError(f"{name} must have shape (..., 4, 4); got shape {arr.shape}")
+    check_finite(arr, name)
+    rot = arr[..., :3, :3]
+    ortho = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-2, -1))
+    det = np.linalg.det(rot)
+    bottom = np.abs(arr[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
+    bad = (ortho > ROTATION_TOL) | (np.abs(det - 1.0) > ROTATION_TOL) | (bottom > 0.0)
+    if np.any(bad):
+        idx = tuple(int(i) for i in np.argwhere(np.atleast_1d(bad))[0]) if bad.ndim else ()
+        one = arr[idx] if idx else arr
+        raise ValueError(
+            f"{name} must be a rigid transform (orthonormal rotation with det +1 within "
+            f"{ROTATION_TOL}, last row [0, 0, 0, 1]); got {_describe(one)}"
+        )
+    return arr

@@ -1,0 +1,153 @@
+"""Public forward kinematics: ``fk``, ``fk_pose``, ``link_poses`` and ``jacobian``.
+
+Each function takes ``q (..., 6)`` in rad and answers in the ``base_link`` frame. A single
+configuration ``(6,)`` goes through Pinocchio (fastest for one call); a batch goes through the
+closed form of :mod:`ur5kin.closed_form`; a torch tensor stays a tensor (any device, float32 or
+float64) and goes through the same closed form in torch.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import pinocchio as pin
+
+from ur5kin import closed_form
+from ur5kin.checks import check_finite, joint_array
+from ur5kin.model import TOOL_FRAME, load_model
+
+_local = threading.local()
+
+
+def _pinocchio() -> tuple[pin.Model, pin.Data, int]:
+    """The shared model with a ``Data`` of this thread's own (Pinocchio's model/data split)."""
+    cached = getattr(_local, "pin", None)
+    if cached is None:
+        model = load_model()
+        cached = (model, model.createData(), model.getFrameId(TOOL_FRAME))
+        _local.pin = cached
+    return cached
+
+
+def _check_tensor(q: Any) -> Any:
+    if q.ndim == 0 or q.shape[-1] != 6:
+        raise ValueError(
+            f"q must have shape (..., 6) (joint angles in rad, joints 1-6); got shape "
+            f"{tuple(q.shape)}"
+        )
+    if not q.is_floating_point():
+        raise ValueError(f"q must be a float32 or float64 tensor; got dtype {q.dtype}")
+    import torch
+
+    if not bool(torch.isfinite(q).all()):
+        check_finite(q.detach().cpu().numpy(), "q")
+    return q
+
+
+def fk(q: Any) -> Any:
+    """Position of tool0.
+
+    Parameters
+    ----------
+    q : (..., 6) float array_like or torch.Tensor, rad
+        Joint angles, joints 1-6.
+
+    Returns
+    -------
+    p : (..., 3) float, m, ``base_link`` frame
+        ndarray for array input (``(6,)`` gives ``(3,)``); a tensor of the same dtype and device
+        for tensor input.
+
+    Raises
+    ------
+    ValueError
+        When the last dimension is not 6 or an entry is NaN or infinite.
+    """
+    if closed_form._torch_if_tensor(q) is not None:
+        return closed_form.position(_check_tensor(q))
+    q = joint_array(q)
+    if q.ndim == 1:
+        model, data, frame = _pinocchio()
+        pin.forwardKinematics(model, data, q)
+        return pin.updateFramePlacement(model, data, frame).translation.copy()
+    return closed_form.chunked(closed_form.position, q, (3,))
+
+
+def fk_pose(q: Any) -> Any:
+    """Pose of tool0.
+
+    Parameters
+    ----------
+    q : (..., 6) float array_like or torch.Tensor, rad
+
+    Returns
+    -------
+    T : (..., 4, 4) float
+        Homogeneous transform of tool0 in ``base_link`` (translation in m).
+    """
+    if closed_form._torch_if_tensor(q) is not None:
+        return closed_form.tool_pose(_check_tensor(q))
+    q = joint_array(q)
+    if q.ndim == 1:
+        model, data, frame = _pinocchio()
+        pin.forwardKinematics(model, data, q)
+        return pin.updateFramePlacement(model, data, frame).homogeneous.copy()
+    return closed_form.chunked(closed_form.tool_pose, q, (4, 4))
+
+
+def link_poses(q: Any) -> Any:
+    """Poses of every link and of tool0.
+
+    Parameters
+    ----------
+    q : (..., 6) float array_like or torch.Tensor, rad
+
+    Returns
+    -------
+    T : (..., 8, 4, 4) float
+        Transforms in ``base_link`` of base_link, shoulder_link, upper_arm_link, forearm_link,
+        wrist_1_link, wrist_2_link, wrist_3_link and tool0 (translation in m).
+    """
+    if closed_form._torch_if_tensor(q) is not None:
+        return closed_form.link_poses(_check_tensor(q))
+    q = joint_array(q)
+    return closed_form.chunked(closed_form.link_poses, q, (8, 4, 4))
+
+
+def jacobian(q: Any) -> Any:
+    """Geometric Jacobian of tool0.
+
+    Parameters
+    ----------
+    q : (..., 6) float array_like or torch.Tensor, rad
+
+    Returns
+    -------
+    J : (..., 6, 6) float
+        ``[v; w] = J @ dq``: rows 0-2 give the linear velocity of the tool0 origin (m/s), rows
+        3-5 the angular velocity (rad/s), both in ``base_link`` axes (Pinocchio's
+        ``LOCAL_WORLD_ALIGNED``); columns are joints 1-6 (per rad/s).
+    """
+    if closed_form._torch_if_tensor(q) is not None:
+        return closed_form.jacobian_from_poses(closed_form.link_poses(_check_tensor(q)))
+    q = joint_array(q)
+    if q.ndim == 1:
+        model, data, frame = _pinocchio()
+        return pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED).copy()
+    return closed_form.chunked(
+        lambda x: closed_form.jacobian_from_poses(closed_form.link_poses(x)), q, (6, 6)
+    )
+
+
+def fk_torch(q: Any) -> Any:
+    """tool0 position for a torch tensor ``q (..., 6)`` (rad), any device, float32/float64.
+
+    Same as :func:`fk` on a tensor; named for code that wants to say it works on tensors.
+    """
+    import torch
+
+    if not isinstance(q, torch.Tensor):
+        raise ValueError(f"fk_torch expects a torch.Tensor; got {type(q).__name__}")
+    return fk(q)
+
