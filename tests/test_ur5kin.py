@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -287,3 +291,27 @@ def test_geometry_rejects_a_model_of_another_layout() -> None:
     model.jointPlacements[3] = placement
     with pytest.raises(RuntimeError, match="joint 3 placement"):
         ur5kin.UR5Geometry.from_model(model)
+
+
+def _run_module(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
+                          timeout=120, check=True)
+
+
+def test_bench_cli_reports_every_path_against_the_loop() -> None:
+    out = json.loads(_run_module("ur5kin.bench", "--n", "3000", "--rounds", "1", "--json").stdout)
+    paths = {p["name"]: p for p in out["paths"]}
+    assert paths["pinocchio python loop"]["ratio_to_loop"] == pytest.approx(1.0)
+    assert {"numpy closed form (float64)", "torch cpu float64", "torch cpu float32"} <= set(paths)
+    assert all(p["max_error_m"] < 1e-5 and p["configs_per_s"] > 0 for p in out["paths"])
+
+
+def test_bench_cli_rejects_bad_flags() -> None:
+    proc = subprocess.run([sys.executable, "-m", "ur5kin.bench", "--n", "0"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "--n" in proc.stderr
+
+
+def test_demo_cli_runs() -> None:
+    out = _run_module("ur5kin.demo", "--batch", "1000").stdout
+    assert "constrained start" in out and "IK of a random pose" in out

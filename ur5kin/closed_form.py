@@ -20,6 +20,9 @@ from ur5kin.model import UR5Geometry, geometry
 CHUNK = 16384
 """Rows per block in the numpy path: small enough that the temporaries stay in cache."""
 
+TORCH_CPU_CHUNK = 65536
+"""Rows per block for CPU tensors: cache-sized, yet large enough for torch's intra-op threads."""
+
 
 def array_module(x: Any) -> ModuleType:
     """``numpy`` for numpy input, ``torch`` for a torch tensor (imported only then)."""
@@ -190,12 +193,22 @@ def jacobian_from_poses(poses: Any) -> Any:
     return xp.concatenate([xp.swapaxes(linear, -1, -2), xp.swapaxes(axes, -1, -2)], axis=-2)
 
 
-def chunked(func: Any, q: np.ndarray, out_tail: tuple[int, ...]) -> np.ndarray:
-    """Apply a batched numpy ``func`` to ``q (..., 6)`` in blocks of :data:`CHUNK` rows."""
+def chunked(func: Any, q: Any, out_tail: tuple[int, ...]) -> Any:
+    """Apply a batched ``func`` to ``q (..., 6)`` in cache-sized blocks of rows.
+
+    numpy arrays go in blocks of :data:`CHUNK` rows, CPU tensors in blocks of
+    :data:`TORCH_CPU_CHUNK`; GPU tensors in one piece.
+    """
+    xp = array_module(q)
     flat = q.reshape(-1, q.shape[-1])
-    if len(flat) <= CHUNK:
+    on_cpu = xp is np or flat.device.type == "cpu"
+    block = (CHUNK if xp is np else TORCH_CPU_CHUNK) if on_cpu else len(flat)
+    if len(flat) <= block:
         return func(flat).reshape(*q.shape[:-1], *out_tail)
-    out = np.empty((len(flat), *out_tail), dtype=q.dtype)
-    for start in range(0, len(flat), CHUNK):
-        out[start : start + CHUNK] = func(flat[start : start + CHUNK])
+    if xp is np:
+        out = np.empty((len(flat), *out_tail), dtype=q.dtype)
+    else:
+        out = xp.empty((len(flat), *out_tail), dtype=q.dtype, device=q.device)
+    for start in range(0, len(flat), block):
+        out[start : start + block] = func(flat[start : start + block])
     return out.reshape(*q.shape[:-1], *out_tail)

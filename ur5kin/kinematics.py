@@ -65,7 +65,7 @@ def fk(q: Any) -> Any:
         When the last dimension is not 6 or an entry is NaN or infinite.
     """
     if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.position(_check_tensor(q))
+        return closed_form.chunked(closed_form.position, _check_tensor(q), (3,))
     q = joint_array(q)
     if q.ndim == 1:
         model, data, frame = _pinocchio()
@@ -87,7 +87,7 @@ def fk_pose(q: Any) -> Any:
         Homogeneous transform of tool0 in ``base_link`` (translation in m).
     """
     if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.tool_pose(_check_tensor(q))
+        return closed_form.chunked(closed_form.tool_pose, _check_tensor(q), (4, 4))
     q = joint_array(q)
     if q.ndim == 1:
         model, data, frame = _pinocchio()
@@ -110,7 +110,7 @@ def link_poses(q: Any) -> Any:
         wrist_1_link, wrist_2_link, wrist_3_link and tool0 (translation in m).
     """
     if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.link_poses(_check_tensor(q))
+        return closed_form.chunked(closed_form.link_poses, _check_tensor(q), (8, 4, 4))
     q = joint_array(q)
     return closed_form.chunked(closed_form.link_poses, q, (8, 4, 4))
 
@@ -130,14 +130,16 @@ def jacobian(q: Any) -> Any:
         ``LOCAL_WORLD_ALIGNED``); columns are joints 1-6 (per rad/s).
     """
     if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.jacobian_from_poses(closed_form.link_poses(_check_tensor(q)))
+        return closed_form.chunked(_batched_jacobian, _check_tensor(q), (6, 6))
     q = joint_array(q)
     if q.ndim == 1:
         model, data, frame = _pinocchio()
         return pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED).copy()
-    return closed_form.chunked(
-        lambda x: closed_form.jacobian_from_poses(closed_form.link_poses(x)), q, (6, 6)
-    )
+    return closed_form.chunked(_batched_jacobian, q, (6, 6))
+
+
+def _batched_jacobian(q: Any) -> Any:
+    return closed_form.jacobian_from_poses(closed_form.link_poses(q))
 
 
 def fk_torch(q: Any) -> Any:
