@@ -1,1 +1,18 @@
-"""DDPG + Hindsight Experience Replay in PyTorch (see ../shared/DESIGN.md)."""
+"""DDPG + Hindsight Experience Replay in PyTorch (see ../shared/DESIGN.md).
+
+K independent agents train in one process through stacked networks; ``python -m
+ddpg_her.train`` runs the paper's protocol, and `load` returns a trained policy for analysis.
+"""
+
+from ddpg_her.config import AgentConfig, Exploration, HERStrategy
+
+__all__ = ["EVAL_COLUMNS", "AgentConfig", "Exploration", "HERStrategy", "Policy", "load"]
+
+
+def __getattr__(name: str):
+    # torch loads only when needed, so that `python -m ddpg_her.train --help` answers at once.
+    if name in ("EVAL_COLUMNS", "Policy", "load"):
+        from ddpg_her import run
+
+        return getattr(run, name)
+    raise AttributeError(f"module 'ddpg_her' has no attribute {name!r}")

@@ -1,0 +1,162 @@
+"""Per-agent replay buffers and Hindsight Experience Replay relabelling.
+
+HER is done once per episode, as the paper describes: after each episode its transitions go into
+the buffer together with relabelled copies whose goal is an achieved goal of the episode, with
+rewards recomputed by the env's own ``compute_reward``. Every copy ends at its first relabelled
+success, as a real episode ends at its first success.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ddpg_her.config import HERStrategy
+from ddpg_her.spaces import ActionScale, goal_input
+
+GoalFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""``f(achieved_goal (L, goal_dim), desired_goal (L, goal_dim), action (L, act_dim)) -> (L,)``:
+the env's reward or its success test for L transitions, the action in env units."""
+
+
+@dataclass
+class Episode:
+    """One agent's episode of L steps, everything in env units.
+
+    observation : (L + 1, obs_dim), achieved_goal : (L + 1, goal_dim) (row t is the state before
+    action t, row L the final state), desired_goal : (goal_dim,), action : (L, act_dim),
+    reward : (L,), terminated : (L,) bool (True only on a last step that ended in success; a
+    time-limit truncation is not termination, so it keeps bootstrapping).
+    """
+
+    observation: np.ndarray
+    achieved_goal: np.ndarray
+    desired_goal: np.ndarray
+    action: np.ndarray
+    reward: np.ndarray
+    terminated: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.action)
+
+
+def her_goal_steps(strategy: HERStrategy, length: int, k: int,
+                   rng: np.random.Generator) -> np.ndarray:
+    """Which achieved goals the relabelled copies pursue: indices into ``achieved_goal``, 1..L.
+
+    final: ``[L]``; future: k indices uniform in 1..L; none: empty.
+    """
+    if strategy is HERStrategy.FINAL:
+        return np.array([length])
+    if strategy is HERStrategy.FUTURE:
+        return rng.integers(1, length + 1, size=k)
+    return np.zeros(0, dtype=int)
+
+
+def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, success_fn: GoalFn) -> Episode:
+    """A copy of ``ep`` that pursues ``ep.achieved_goal[goal_step]``, cut at its first success.
+
+    The copy's transition t keeps (s_t, a_t, s_t+1) and gets the reward and the success of
+    reaching s_t+1's achieved goal, computed by the env. The achieved goal at ``goal_step`` is hit
+    exactly by transition ``goal_step - 1``, so a success always comes, at that step or earlier,
+    and the copy ends there, terminated.
+    """
+    if not 1 <= goal_step <= len(ep):
+        raise ValueError(f"goal_step must be in 1..{len(ep)}, got {goal_step}")
+    goal = ep.achieved_goal[goal_step]
+    goals = np.broadcast_to(goal, ep.achieved_goal[1:].shape)
+    success = np.asarray(success_fn(ep.achieved_goal[1:], goals, ep.action), dtype=bool)
+    n = int(np.argmax(success)) + 1 if success.any() else len(ep)
+    reward = np.asarray(reward_fn(ep.achieved_goal[1:n + 1], goals[:n], ep.action[:n]),
+                        dtype=np.float64)
+    return Episode(
+        observation=ep.observation[:n + 1],
+        achieved_goal=ep.achieved_goal[:n + 1],
+        desired_goal=goal.copy(),
+        action=ep.action[:n],
+        reward=reward,
+        terminated=success[:n].copy(),
+    )
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Columns of one packed transition row: ``[x, u, r, x2, terminated]``.
+
+    x, x2 : network inputs before and after the step (see `goal_input`), u : action in actor
+    units, r : reward, terminated : 1.0 where the episode ended in success (no bootstrapping).
+    """
+
+    in_dim: int
+    act_dim: int
+
+    @property
+    def width(self) -> int:
+        return 2 * self.in_dim + self.act_dim + 2
+
+    def split(self, rows: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """rows : (..., width) -> x, u, r, x2, terminated with shapes (..., in_dim),
+        (..., act_dim), (..., 1), (..., in_dim), (..., 1)."""
+        i, a = self.in_dim, self.act_dim
+        return (rows[..., :i], rows[..., i:i + a], rows[..., i + a:i + a + 1],
+                rows[..., i + a + 1:2 * i + a + 1], rows[..., 2 * i + a + 1:])
+
+
+def pack(ep: Episode, scale: ActionScale) -> np.ndarray:
+    """The episode's transitions as packed rows, ``(L, layout.width)`` float32."""
+    x = goal_input(ep.observation, ep.achieved_goal, ep.desired_goal)
+    u = scale.to_actor(ep.action)
+    return np.concatenate(
+        [x[:-1], u, ep.reward[:, None], x[1:], ep.terminated[:, None]], axis=1
+    ).astype(np.float32)
+
+
+class ReplayBuffer:
+    """K ring buffers of packed transitions, one per agent, preallocated on the device.
+
+    Transition number t (counted from the start of training) of agent k lives in row
+    ``t % capacity``; once full the oldest is overwritten. Sampling is uniform over the stored
+    rows, agent k drawing its indices from its own generator.
+    """
+
+    def __init__(self, k: int, capacity: int, layout: Layout, *, dtype: torch.dtype, device):
+        self.k, self.capacity, self.layout = k, capacity, layout
+        self.rows = torch.empty(k, capacity, layout.width, dtype=dtype, device=device)
+        self.total = np.zeros(k, dtype=np.int64)
+        self._agents = torch.arange(k, device=device)[:, None]
+
+    def size(self, k: int) -> int:
+        return int(min(self.total[k], self.capacity))
+
+    def put(self, k: int, start: int, rows: np.ndarray) -> None:
+        """Write ``rows : (L, width)`` as agent k's transitions ``start .. start + L - 1``."""
+        if len(rows) > self.capacity:  # only the last `capacity` would survive
+            start += len(rows) - self.capacity
+            rows = rows[-self.capacity:]
+        pos = (start + np.arange(len(rows))) % self.capacity
+        self.rows[k, torch.from_numpy(pos).to(self.rows.device)] = torch.from_numpy(
+            np.asarray(rows)).to(self.rows)
+        self.total[k] = max(self.total[k], start + len(rows))
+
+    def add(self, k: int, rows: np.ndarray) -> None:
+        """Append ``rows : (L, width)`` to agent k's buffer."""
+        self.put(k, int(self.total[k]), rows)
+
+    def since(self, k: int, start: int) -> tuple[int, np.ndarray]:
+        """Agent k's transitions from number ``start`` on that are still stored:
+        (first number, rows (n, width))."""
+        first = max(start, int(self.total[k]) - self.capacity)
+        pos = (first + np.arange(int(self.total[k]) - first)) % self.capacity
+        return first, self.rows[k, torch.from_numpy(pos).to(self.rows.device)].cpu().numpy()
+
+    def sample(self, batch_size: int,
+               generators: Sequence[torch.Generator]) -> tuple[torch.Tensor, ...]:
+        """Uniform minibatches for all agents: x, u, r, x2, terminated, each (K, batch, ...)."""
+        idx = torch.stack([
+            torch.randint(self.size(k), (batch_size,), generator=g, device=self.rows.device)
+            for k, g in enumerate(generators)
+        ])
+        return self.layout.split(self.rows[self._agents, idx])

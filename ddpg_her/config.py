@@ -1,0 +1,182 @@
+"""The agent's configuration: every number of the paper's Table I and every choice it leaves open.
+
+Each field's docstring is its documentation and its ``--help`` text (see `field_docs`).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import enum
+import inspect
+import itertools
+import textwrap
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+
+class Exploration(str, enum.Enum):
+    """How the exploration rate nu perturbs the actor's action during training."""
+
+    GAUSSIAN = "gaussian"
+    """a + N(0, nu^2) per joint and step, nu in actor units (1 = half the action range)."""
+    OU = "ou"
+    """a + Ornstein-Uhlenbeck noise (theta = ``ou_theta``, sigma = nu, dt = 1 step), reset per
+    episode, as in Lillicrap et al. 2016."""
+    EPSILON = "epsilon"
+    """With probability nu per step, a uniformly random action instead of the actor's."""
+
+
+class HERStrategy(str, enum.Enum):
+    """Which achieved goals the relabelled copies of an episode pursue."""
+
+    NONE = "none"
+    """No relabelling: plain DDPG."""
+    FINAL = "final"
+    """One copy whose goal is the final achieved goal (the paper's choice)."""
+    FUTURE = "future"
+    """``her_k`` copies, each with the achieved goal of a uniformly drawn step of the episode."""
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """DDPG + HER as in Lewis, Moll, Kavraki 2019 (Table I), with the open choices made explicit.
+
+    The episode length T = 100 of Table I belongs to the task (the env's time limit), not here.
+    Defaults marked "Table I" are the paper's; the others are our choices, each with its reason.
+    """
+
+    # --- Table I -------------------------------------------------------------------------------
+    gamma: float = 0.98
+    """Discount factor gamma (Table I)."""
+    buffer_size: int = 1_000_000
+    """Replay buffer capacity B per agent, transitions (real and relabelled together); the
+    oldest are overwritten first; sampling is uniform (Table I)."""
+    batch_size: int = 64
+    """Minibatch size N, transitions per update (Table I)."""
+    exploration_rate: float = 0.01
+    """Exploration rate nu (Table I, 0.01). The paper does not define it; its meaning is set by
+    --exploration: std of Gaussian noise or OU sigma in actor units (fraction of the half action
+    range, so 0.01 is 0.0314 rad for joint angles in [-pi, pi]), or the per-step probability of
+    a uniformly random action."""
+    tau: float = 0.001
+    """Target update ratio tau: target <- (1 - tau) target + tau online, after every update
+    (Table I)."""
+    actor_lr: float = 1e-4
+    """Actor learning rate lambda_mu, Adam (Table I)."""
+    critic_lr: float = 1e-3
+    """Critic learning rate lambda_Q, Adam (Table I)."""
+    episodes: int = 20_000
+    """Training episodes M per agent (Table I). May be raised on --resume to extend a run."""
+    eval_every: int = 100
+    """Training episodes between two test sessions (paper: 100)."""
+    eval_episodes: int = 100
+    """Test episodes of the deterministic policy per session; the success count is out of this
+    many (paper: 100)."""
+    hidden_sizes: tuple[int, int] = (400, 300)
+    """Units of the two hidden ReLU layers of actor and critic (Lillicrap et al. 2016: 400 300).
+    The action enters the critic at its second layer; the actor's tanh output is scaled to the
+    action box."""
+    final_init: float = 3e-3
+    """Final layers of actor and critic are initialised uniform in +-final_init (Lillicrap et al.);
+    the hidden layers uniform in +-1/sqrt(fan_in)."""
+    her_strategy: HERStrategy = HERStrategy.FINAL
+    """Hindsight relabelling after each episode: final (paper), future, or none."""
+    her_k: int = 4
+    """Relabelled copies per episode for --her-strategy future (final always appends one)."""
+
+    # --- choices the paper leaves open ---------------------------------------------------------
+    exploration: Exploration = Exploration.GAUSSIAN
+    """Meaning of the exploration rate: gaussian | ou | epsilon. Gaussian by default: the paper's
+    actions are absolute joint angles, where temporally correlated OU noise only drifts the
+    target, and Gaussian noise is what DDPG + HER (Andrychowicz et al. 2017) uses."""
+    ou_theta: float = 0.15
+    """Mean reversion of OU noise per step (Lillicrap et al.: 0.15); used with --exploration ou."""
+    warmup_episodes: int = 0
+    """Episodes of uniformly random actions before the actor acts, and before the first update.
+    0 by default: absolute joint-angle targets redrawn every step make the arm shake in place,
+    which teaches little; HER already gives the actor's own episodes reachable goals."""
+    updates_per_episode: int = 100
+    """Gradient updates of each agent after each training episode (the paper does not say).
+    100 = one per step of a full T = 100 episode; counting per episode rather than per step
+    keeps K agents whose episodes end at different steps in lockstep."""
+    normalize_obs: bool = True
+    """Normalise the network input by running mean and std of the stored inputs, clipped to
+    +-obs_clip (as in Andrychowicz et al. 2017). The paper does not say; joint angles (rad),
+    velocities (rad/s), accelerations (rad/s^2) and positions (m) differ by orders of magnitude,
+    and unnormalised inputs learn far slower."""
+    obs_clip: float = 5.0
+    """Normalised inputs are clipped to +-obs_clip, standard deviations."""
+    norm_eps: float = 0.01
+    """Lower bound of the normaliser's standard deviation, in the input's units."""
+    critic_l2: float = 0.0
+    """L2 weight decay of the critic (Lillicrap et al. used 1e-2; Table I lists none)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "her_strategy", HERStrategy(self.her_strategy))
+        object.__setattr__(self, "exploration", Exploration(self.exploration))
+        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+        checks = {
+            "gamma": 0.0 <= self.gamma <= 1.0,
+            "buffer_size": self.buffer_size >= self.batch_size,
+            "batch_size": self.batch_size >= 1,
+            "exploration_rate": self.exploration_rate >= 0.0,
+            "tau": 0.0 < self.tau <= 1.0,
+            "actor_lr": self.actor_lr > 0.0,
+            "critic_lr": self.critic_lr > 0.0,
+            "episodes": self.episodes >= 0,
+            "eval_every": self.eval_every >= 1,
+            "eval_episodes": self.eval_episodes >= 1,
+            "hidden_sizes": len(self.hidden_sizes) == 2 and min(self.hidden_sizes) >= 1,
+            "final_init": self.final_init > 0.0,
+            "her_k": self.her_k >= 1,
+            "ou_theta": 0.0 <= self.ou_theta <= 1.0,
+            "warmup_episodes": self.warmup_episodes >= 0,
+            "updates_per_episode": self.updates_per_episode >= 0,
+            "obs_clip": self.obs_clip > 0.0,
+            "norm_eps": self.norm_eps > 0.0,
+            "critic_l2": self.critic_l2 >= 0.0,
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(
+                "invalid agent configuration: "
+                + ", ".join(f"{n}={getattr(self, n)!r}" for n in bad)
+                + " (see AgentConfig's field docs for the valid ranges)"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready values (enums as strings, tuples as lists)."""
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = v.value if isinstance(v, enum.Enum) else list(v) if isinstance(
+                v, tuple) else v
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> AgentConfig:
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"unknown agent configuration keys {sorted(unknown)}")
+        return cls(**d)
+
+
+@cache
+def field_docs(cls: type) -> dict[str, str]:
+    """The attribute docstrings of a dataclass, {field name: text}, read from its source."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs = {}
+    for node, nxt in itertools.pairwise(body):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(nxt, ast.Expr)
+            and isinstance(nxt.value, ast.Constant)
+            and isinstance(nxt.value.value, str)
+        ):
+            docs[node.target.id] = " ".join(inspect.cleandoc(nxt.value.value).split())
+    return docs

@@ -1,0 +1,174 @@
+"""``python -m ddpg_her.train``: train DDPG + HER agents on the UR5 Reacher, one run folder each.
+
+Examples::
+
+    python -m ddpg_her.train --region farbox --joints 3 --seed 0 --episodes 1500
+    python -m ddpg_her.train --region farbox --joints 3 --seeds 0 1 2 3 4   # 5 agents at once
+    python -m ddpg_her.train --region farbox --joints 3 --seed 0 --resume   # continue a run
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import enum
+import json
+import re
+import sys
+import typing
+from collections.abc import Sequence
+from typing import Any
+
+from ddpg_her.config import AgentConfig, field_docs
+
+DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
+JOINTS = range(2, 7)
+
+
+def _task_option(text: str) -> tuple[str, Any]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+def _add_config_flags(group: argparse._ArgumentGroup) -> None:
+    """One flag per AgentConfig field, its docstring as help."""
+    docs = field_docs(AgentConfig)
+    hints = typing.get_type_hints(AgentConfig)
+    for f in dataclasses.fields(AgentConfig):
+        flag = "--" + f.name.replace("_", "-")
+        kind = hints[f.name]
+        help_text = docs[f.name].replace("%", "%%") + " (default: %(default)s)"
+        if kind is bool:
+            group.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default,
+                               help=help_text)
+        elif isinstance(kind, type) and issubclass(kind, enum.Enum):
+            group.add_argument(flag, choices=[e.value for e in kind], default=f.default.value,
+                               help=help_text)
+        elif typing.get_origin(kind) is tuple:
+            group.add_argument(flag, type=int, nargs=len(typing.get_args(kind)),
+                               default=list(f.default), metavar="N", help=help_text)
+        else:
+            group.add_argument(flag, type=kind, default=f.default, help=help_text)
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m ddpg_her.train",
+        description="Train DDPG + HER (Lewis, Moll, Kavraki 2019, Table I) on a goal-reaching "
+                    "task. Every --eval-every training episodes, --eval-episodes test episodes "
+                    "of the deterministic policy; each seed's run folder gets spec.json, "
+                    "eval.csv (episode, successes, tests, mean_return, mean_final_distance_m, "
+                    "env_steps, wall_s) and checkpoints.",
+    )
+    task = parser.add_argument_group("task")
+    task.add_argument("--region", required=True,
+                      help="goal constraint region: a name (unconstrained, zheight, closebox, "
+                           "farbox, farbox_tall) or a spec such as box:... (see regions.parse)")
+    task.add_argument("--joints", type=int, default=3,
+                      help="controlled joints n, 2..6; joints 1..n move (default: %(default)s)")
+    task.add_argument("--task", type=_task_option, action="append", default=[],
+                      metavar="KEY=VALUE",
+                      help="override a field of the task specification (VALUE read as JSON, "
+                           "else as a string); repeatable, e.g. --task reward=sparse")
+    task.add_argument("--env-id", default="UR5Reach-v0",
+                      help="Gymnasium id of the goal env; 'module:Id' imports module first "
+                           "(default: %(default)s)")
+
+    run = parser.add_argument_group("run")
+    seeds = run.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=int, default=0, help="seed of the run (default: 0)")
+    seeds.add_argument("--seeds", type=int, nargs="+", metavar="SEED",
+                       help="train one independent agent per seed in this process, batched")
+    run.add_argument("--out", default=None,
+                     help="run folder; may use {region}, {joints}, {seed}. Default "
+                          f"{DEFAULT_OUT}. With several seeds and no {{seed}} in it, each "
+                          "seed's folder is OUT/s{seed}")
+    run.add_argument("--resume", action="store_true",
+                     help="continue the run(s) in the run folder(s) from the last checkpoint "
+                          "(a folder that does not exist yet starts afresh); the task and agent "
+                          "flags must match the run's, except --episodes, which may grow")
+    run.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
+                     help="torch device of networks and replay buffers (default: cpu); "
+                          "runs are bitwise repeatable on the CPU")
+    run.add_argument("--threads", type=int, default=None,
+                     help="torch CPU threads (default: torch's choice)")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--no-tensorboard", action="store_true",
+                     help="no TensorBoard logs even when tensorboard is installed")
+
+    _add_config_flags(parser.add_argument_group(
+        "agent (Table I of the paper, and our choices where it is silent)"))
+    return parser
+
+
+def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) -> list[str]:
+    """The run folder of each seed (see --out)."""
+    safe_region = re.sub(r"[^A-Za-z0-9_.-]+", "_", region).strip("_") or "region"
+    template = out or DEFAULT_OUT
+    if len(seeds) > 1 and "{seed}" not in template:
+        template = template.rstrip("/") + "/s{seed}"
+    dirs = [template.format(region=safe_region, joints=joints, seed=s) for s in seeds]
+    if len(set(dirs)) != len(dirs):
+        raise ValueError(f"--out {template!r} gives several seeds the same folder")
+    return dirs
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = make_parser()
+    args = parser.parse_args(argv)
+    if args.joints not in JOINTS:
+        parser.error(f"--joints must be in 2..6, got {args.joints}")
+    seeds = args.seeds if args.seeds is not None else [args.seed]
+    if len(set(seeds)) != len(seeds):
+        parser.error(f"--seeds must be distinct, got {seeds}")
+    if args.threads is not None and args.threads < 1:
+        parser.error(f"--threads must be >= 1, got {args.threads}")
+    try:
+        config = AgentConfig(**{f.name: getattr(args, f.name)
+                                for f in dataclasses.fields(AgentConfig)})
+    except ValueError as e:
+        parser.error(str(e))
+
+    import gymnasium
+    import torch
+
+    if args.env_id == "UR5Reach-v0":
+        import envs  # noqa: F401  (registers UR5Reach-v0)
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: no CUDA device is available to torch")
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
+
+    from ddpg_her.trainer import Trainer
+
+    env_kwargs = {"region": args.region, "n_joints": args.joints, **dict(args.task)}
+    try:
+        dirs = run_dirs(args.out, args.region, args.joints, seeds)
+        trainer = Trainer(args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume,
+                          device=args.device, progress=not args.no_progress,
+                          tensorboard=not args.no_tensorboard,
+                          command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])])
+    except (ValueError, TypeError, gymnasium.error.Error) as e:
+        parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
+    try:
+        rows = trainer.run()
+    except KeyboardInterrupt:
+        print("interrupted; continue with the same command and --resume", file=sys.stderr)
+        return 130
+    finally:
+        trainer.close()
+    for d, seed, r in zip(dirs, seeds, rows, strict=True):
+        last = f"{r[-1]['successes']}/{r[-1]['tests']} at episode {r[-1]['episode']}" if r \
+            else "no test session yet"
+        print(f"seed {seed}: {last} -> {d}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

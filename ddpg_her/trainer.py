@@ -1,0 +1,384 @@
+"""The paper's training protocol for K independent agents in one process.
+
+Every training episode each agent runs one episode in its own env copy (all K in lockstep),
+stores it and its HER copies in its own buffer, then all agents make ``updates_per_episode``
+batched updates. Every ``eval_every`` episodes each agent runs ``eval_episodes`` test episodes of
+its deterministic policy, and every run folder gets its eval row and a checkpoint.
+
+Agent k's randomness comes from its seed alone (env episodes, initial weights, exploration, HER
+goals, minibatches), so K = 1 and K > 1 train agent k alike, and a resumed run continues exactly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ddpg_her.agent import DDPG
+from ddpg_her.buffer import Layout, ReplayBuffer, her_goal_steps, pack, relabel
+from ddpg_her.config import AgentConfig
+from ddpg_her.exploration import Explorer
+from ddpg_her.run import FORMAT, RunFolder, git_revision, versions
+from ddpg_her.spaces import goal_input
+from ddpg_her.vecenv import GoalVecEnv, rollout
+
+# Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
+_INIT, _EXPLORE, _SAMPLE, _TRAIN_ENV, _EVAL_ENV = range(5)
+
+
+def stream_seed(seed: int, *key: int) -> int:
+    """A 32-bit seed for the random stream ``key`` of the run with ``seed``."""
+    return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1)[0])
+
+
+class Trainer:
+    """Trains one agent per seed, writing one run folder per seed (see `ddpg_her.run`).
+
+    env_id, env_kwargs : ``gymnasium.make(env_id, **env_kwargs)`` makes the task; seeds : (K,)
+    ints; run_dirs : K folders; resume : continue the runs in ``run_dirs`` from their last common
+    checkpoint (runs absent there start afresh) instead of refusing existing folders.
+    """
+
+    def __init__(self, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig,
+                 seeds: Sequence[int], run_dirs: Sequence[str | Path], *, resume: bool = False,
+                 device: str = "cpu", dtype: torch.dtype = torch.float32,
+                 progress: bool = True, tensorboard: bool = True,
+                 command: Sequence[str] | None = None):
+        seeds = [int(s) for s in seeds]
+        if not seeds or len(set(seeds)) != len(seeds):
+            raise ValueError(f"need one or more distinct seeds, got {seeds}")
+        if len(run_dirs) != len(seeds):
+            raise ValueError(f"need one run folder per seed: {len(seeds)} seeds, "
+                             f"{len(run_dirs)} folders")
+        self.config, self.seeds, self.k = config, seeds, len(seeds)
+        self.device = torch.device(device)
+        self.progress, self.tensorboard = progress, tensorboard
+        self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
+        self.envs = GoalVecEnv(env_id, self.k, **self.env_kwargs)
+        self._eval_envs: GoalVecEnv | None = None
+        envs = self.envs
+        self.scale = envs.scale
+        self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)
+        self.folders = [RunFolder(d) for d in run_dirs]
+
+        self.agent = DDPG(
+            config, self.layout.in_dim, self.layout.act_dim, dtype=dtype, device=self.device,
+            init_generators=[torch.Generator().manual_seed(stream_seed(s, _INIT)) for s in seeds])
+        self.buffer = ReplayBuffer(self.k, config.buffer_size, self.layout, dtype=dtype,
+                                   device=self.device)
+        self.rngs = [np.random.default_rng(stream_seed(s, _EXPLORE)) for s in seeds]
+        self.sample_generators = [
+            torch.Generator(self.device).manual_seed(stream_seed(s, _SAMPLE)) for s in seeds]
+        self.explorer = Explorer(config, self.rngs, envs.scale.dim)
+
+        self.episode = 0
+        self.env_steps = np.zeros(self.k, dtype=np.int64)
+        self.wall_s = 0.0
+        self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
+        self._saved_total = np.zeros(self.k, dtype=np.int64)
+        self._kept_totals: list[np.ndarray] = []
+        self.specs = [self._spec(s, command) for s in seeds]
+        self._open(resume)
+
+    # --- run folders ----------------------------------------------------------------------------
+    def _spec(self, seed: int, command: Sequence[str] | None) -> dict[str, Any]:
+        envs = self.envs
+        return {
+            "format": FORMAT,
+            "env_id": self.env_id,
+            "env_kwargs": self.env_kwargs,
+            "task": envs.task,
+            "seed": seed,
+            "agent": self.config.to_dict(),
+            "dims": {"obs_dim": envs.obs_dim, "goal_dim": envs.goal_dim,
+                     "act_dim": envs.scale.dim, "action_low": envs.scale.low.tolist(),
+                     "action_high": envs.scale.high.tolist(),
+                     "max_episode_steps": envs.max_steps},
+            "versions": versions(),
+            "git": git_revision(),
+            "command": list(command) if command is not None else sys.argv,
+            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        }
+
+    @staticmethod
+    def _differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+        """Keys that make two specs different tasks or agents (``episodes`` may grow)."""
+        diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims")
+                 if not json_equal(old.get(key), new.get(key))]
+        old_agent = {k: v for k, v in old.get("agent", {}).items() if k != "episodes"}
+        new_agent = {k: v for k, v in new["agent"].items() if k != "episodes"}
+        diffs += [f"agent.{k}" for k in sorted(set(old_agent) | set(new_agent))
+                  if not json_equal(old_agent.get(k), new_agent.get(k))]
+        return diffs
+
+    def _open(self, resume: bool) -> None:
+        existing = [f for f in self.folders if f.exists()]
+        if existing and not resume:
+            raise ValueError(f"{existing[0].path} already holds a run; pass --resume to "
+                             "continue it, or choose another --out")
+        for f, spec in zip(self.folders, self.specs, strict=True):
+            if f.exists():
+                old = f.read_spec()
+                diffs = self._differences(old, spec)
+                if diffs:
+                    raise ValueError(
+                        f"{f.path} holds a run of another task or agent; differing: "
+                        + ", ".join(f"{d} (was {lookup(old, d)!r}, now {lookup(spec, d)!r})"
+                                    for d in diffs))
+                old["agent"]["episodes"] = self.config.episodes
+                f.write_spec(old)
+            else:
+                f.write_spec(spec)
+                f.write_eval([])
+        have = [set(f.checkpoints()) for f in self.folders]
+        if not any(have):
+            for f in self.folders:
+                f.prune(upto=0, keep_from=0)
+            return
+        common = set.intersection(*have)
+        if not common:
+            raise ValueError(
+                "the run folders have no checkpoint at a common episode ("
+                + ", ".join(f"{f.path}: {sorted(h)}" for f, h in zip(self.folders, have,
+                                                                     strict=True))
+                + "); resume them separately")
+        self._restore(max(common))
+
+    def _restore(self, episode: int) -> None:
+        states = [f.load_checkpoint(episode) for f in self.folders]
+        self.agent.load_agent_states([s["agent"] for s in states])
+        for k, (f, s) in enumerate(zip(self.folders, states, strict=True)):
+            self.rngs[k].bit_generator.state = s["rng"]["explore"]
+            self.sample_generators[k].set_state(s["rng"]["sample"])
+            for start, rows in f.chunks(upto=episode):
+                self.buffer.put(k, start, rows)
+            if self.buffer.total[k] != s["buffer_total"]:
+                raise RuntimeError(f"{f.path}: the buffer chunks hold {self.buffer.total[k]} "
+                                   f"transitions, the checkpoint expects {s['buffer_total']}")
+            self.env_steps[k] = s["env_steps"]
+            self.rows[k] = list(s["rows"])
+            f.prune(upto=episode, keep_from=s["buffer_total"] - self.config.buffer_size)
+            f.write_eval(self.rows[k])
+        self.episode = episode
+        self.wall_s = float(states[0]["wall_s"])
+        self._saved_total = self.buffer.total.copy()
+        self._kept_totals = [self._saved_total]
+
+    def _save(self) -> None:
+        """Buffer chunk, then checkpoint, then eval.csv, for every run folder."""
+        self._kept_totals = [*self._kept_totals[-1:], self.buffer.total.copy()]
+        for k, f in enumerate(self.folders):
+            start, rows = self.buffer.since(k, int(self._saved_total[k]))
+            f.save_chunk(self.episode, start, rows)
+            f.save_checkpoint(self.episode, {
+                "episode": self.episode,
+                "env_steps": int(self.env_steps[k]),
+                "wall_s": self.wall_s,
+                "rows": self.rows[k],
+                "buffer_total": int(self.buffer.total[k]),
+                "agent": self.agent.agent_state(k),
+                "rng": {"explore": self.rngs[k].bit_generator.state,
+                        "sample": self.sample_generators[k].get_state()},
+            })
+            f.write_eval(self.rows[k])
+            oldest = int(self._kept_totals[0][k]) - self.config.buffer_size
+            f.prune(upto=self.episode, keep_from=oldest)
+        self._saved_total = self.buffer.total.copy()
+
+    # --- the protocol ---------------------------------------------------------------------------
+    def _inputs(self, obs: dict[str, np.ndarray], m: int) -> torch.Tensor:
+        """Env observations of K * m copies (agent-major) -> network input (K, m, in_dim)."""
+        x = goal_input(obs["observation"], obs["achieved_goal"], obs["desired_goal"])
+        return torch.from_numpy(x.reshape(self.k, m, -1)).to(self.device, self.buffer.rows.dtype)
+
+    def train_episode(self) -> np.ndarray:
+        """One exploring episode per agent, stored with its HER copies; returns successes (K,)."""
+        warm = self.episode < self.config.warmup_episodes
+        self.explorer.reset()
+
+        def policy(obs, active):
+            u = np.zeros((self.k, self.scale.dim)) if warm else \
+                self.agent.act(self._inputs(obs, 1))[:, 0].double().cpu().numpy()
+            return self.scale.to_env(self.explorer(u, active, uniform=warm))
+
+        seeds = [stream_seed(s, _TRAIN_ENV, self.episode) for s in self.seeds]
+        episodes, success = rollout(self.envs, policy, seeds)
+        for k, ep in enumerate(episodes):
+            goals = her_goal_steps(self.config.her_strategy, len(ep), self.config.her_k,
+                                   self.rngs[k])
+            copies = [relabel(ep, int(j), self.envs.reward_fn, self.envs.success_fn)
+                      for j in goals]
+            rows = np.concatenate([pack(e, self.scale) for e in [ep, *copies]])
+            self.buffer.add(k, rows)
+            self.agent.normalizer.update(k, rows[:, :self.layout.in_dim])
+            self.env_steps[k] += len(ep)
+        return success
+
+    def learn(self, updates: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``updates`` DDPG steps of every agent; mean critic and actor losses (K,)."""
+        losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
+        for _ in range(updates):
+            batch = self.buffer.sample(self.config.batch_size, self.sample_generators)
+            critic_loss, actor_loss = self.agent.update(*batch)
+            losses[0] += critic_loss
+            losses[1] += actor_loss
+        return losses / max(updates, 1)
+
+    def evaluate(self) -> list[dict[str, Any]]:
+        """A test session: ``eval_episodes`` deterministic episodes per agent, run in parallel.
+
+        The goals of session i come from (seed, i) alone. Returns one eval row per agent,
+        without its ``wall_s``.
+        """
+        m = self.config.eval_episodes
+        if self._eval_envs is None:
+            self._eval_envs = GoalVecEnv(self.env_id, self.k * m, **self.env_kwargs)
+        session = self.episode // self.config.eval_every
+
+        def policy(obs, active):
+            u = self.agent.act(self._inputs(obs, m)).reshape(self.k * m, -1)
+            return self.scale.to_env(u.double().cpu().numpy())
+
+        seeds = [stream_seed(s, _EVAL_ENV, session, i) for s in self.seeds for i in range(m)]
+        episodes, success = rollout(self._eval_envs, policy, seeds)
+        rows = []
+        for k in range(self.k):
+            eps = episodes[k * m:(k + 1) * m]
+            rows.append({
+                "episode": self.episode,
+                "successes": int(success[k * m:(k + 1) * m].sum()),
+                "tests": m,
+                "mean_return": round(float(np.mean([e.reward.sum() for e in eps])), 6),
+                "mean_final_distance_m": round(float(np.mean(
+                    [np.linalg.norm(e.achieved_goal[-1] - e.desired_goal) for e in eps])), 6),
+                "env_steps": int(self.env_steps[k]),
+            })
+        return rows
+
+    def run(self) -> list[list[dict[str, Any]]]:
+        """Train to ``config.episodes``; returns every agent's eval rows."""
+        cfg = self.config
+        bar = _progress(self.progress, cfg.episodes, self.episode, self.k)
+        writers = [_tb_writer(f.path, self.episode) if self.tensorboard else None
+                   for f in self.folders]
+        losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
+        train_successes = np.zeros(self.k)
+        interval_start, interval_updates, interval_episodes = time.perf_counter(), 0, 0
+        tick = time.perf_counter()
+        try:
+            while self.episode < cfg.episodes:
+                train_successes += self.train_episode()
+                if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
+                    losses += self.learn(cfg.updates_per_episode)
+                    interval_updates += cfg.updates_per_episode
+                self.episode += 1
+                interval_episodes += 1
+                now = time.perf_counter()
+                self.wall_s += now - tick
+                tick = now
+                done = self.episode == cfg.episodes
+                if self.episode % cfg.eval_every == 0:
+                    new_rows = self.evaluate()
+                    now = time.perf_counter()
+                    self.wall_s += now - tick
+                    tick = now
+                    for rows, row in zip(self.rows, new_rows, strict=True):
+                        rows.append({**row, "wall_s": round(self.wall_s, 2)})
+                    seconds = now - interval_start
+                    stats = {
+                        "train/critic_loss": losses[0] / max(interval_episodes, 1),
+                        "train/actor_loss": losses[1] / max(interval_episodes, 1),
+                        "train/success_rate": train_successes / max(interval_episodes, 1),
+                        "perf/agent_updates_per_s": np.full(
+                            self.k, self.k * interval_updates / seconds),
+                    }
+                    _log(writers, self.rows, stats, self.episode)
+                    losses.zero_()
+                    train_successes[:] = 0
+                    interval_start, interval_updates, interval_episodes = now, 0, 0
+                    self._save()
+                    if bar is not None:
+                        bar.set_postfix_str(_postfix(bar, self.rows), refresh=False)
+                elif done:
+                    self._save()
+                if bar is not None:
+                    bar.update(1)
+        finally:
+            if bar is not None:
+                bar.close()
+            for w in writers:
+                if w is not None:
+                    w.close()
+        return self.rows
+
+    def close(self) -> None:
+        self.envs.close()
+        if self._eval_envs is not None:
+            self._eval_envs.close()
+
+
+def json_equal(a: Any, b: Any) -> bool:
+    """Equality of two values as JSON would store them (tuples are lists)."""
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def lookup(d: dict[str, Any], dotted: str) -> Any:
+    for part in dotted.split("."):
+        d = d.get(part) if isinstance(d, dict) else None
+    return d
+
+
+def _progress(enabled: bool, total: int, initial: int, k: int):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, unit="ep", dynamic_ncols=True,
+                desc=f"train {k} agent{'s' if k > 1 else ''}")
+
+
+def _postfix(bar, rows: list[list[dict[str, Any]]]) -> str:
+    """Latest success counts and the projected finish (clock time)."""
+    hits = "/".join(str(r[-1]["successes"]) for r in rows)
+    text = f"hits {hits} of {rows[0][-1]['tests']}"
+    rate = bar.format_dict.get("rate")
+    if rate:
+        left = (bar.total - bar.n) / rate
+        finish = datetime.datetime.now() + datetime.timedelta(seconds=left)
+        text += f", done ~{finish:%a %H:%M}"
+    return text
+
+
+def _tb_writer(path: Path, episode: int):
+    """A TensorBoard writer in ``path/tb``, or None when tensorboard is not installed."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    return SummaryWriter(str(path / "tb"), purge_step=episode + 1)
+
+
+def _log(writers, rows, stats: dict[str, Any], episode: int) -> None:
+    for k, w in enumerate(writers):
+        if w is None:
+            continue
+        row = rows[k][-1]
+        w.add_scalar("eval/success_rate", row["successes"] / row["tests"], episode)
+        w.add_scalar("eval/mean_return", row["mean_return"], episode)
+        w.add_scalar("eval/mean_final_distance_m", row["mean_final_distance_m"], episode)
+        for name, v in stats.items():
+            value = float(v[k])
+            if math.isfinite(value):
+                w.add_scalar(name, value, episode)
+        with contextlib.suppress(Exception):
+            w.flush()

@@ -1,0 +1,175 @@
+"""ddpg_her's stacked K-agent DDPG against K separate, plainly written DDPG agents."""
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from ddpg_her.agent import DDPG
+from ddpg_her.config import AgentConfig
+
+IN, ACT, HIDDEN = 7, 2, (32, 24)
+
+
+class RefCritic(nn.Module):
+    """Lillicrap's critic written with nn.Linear: the action joins at the second layer."""
+
+    def __init__(self):
+        super().__init__()
+        self.l1 = nn.Linear(IN, HIDDEN[0])
+        self.l2 = nn.Linear(HIDDEN[0] + ACT, HIDDEN[1])
+        self.l3 = nn.Linear(HIDDEN[1], 1)
+
+    def forward(self, x, u):
+        h = torch.relu(self.l1(x))
+        return self.l3(torch.relu(self.l2(torch.cat([h, u], -1))))
+
+
+def ref_actor() -> nn.Module:
+    return nn.Sequential(nn.Linear(IN, HIDDEN[0]), nn.ReLU(), nn.Linear(*HIDDEN), nn.ReLU(),
+                         nn.Linear(HIDDEN[1], ACT), nn.Tanh())
+
+
+def copy_slice(stacked: nn.Module, ref: nn.Module, k: int) -> None:
+    """Our layer stores W as (K, in, out); nn.Linear as (out, in)."""
+    ref_linears = [m for m in ref.modules() if isinstance(m, nn.Linear)]
+    ours = [stacked.l1, stacked.l2, stacked.l3]
+    with torch.no_grad():
+        for mine, theirs in zip(ours, ref_linears, strict=True):
+            theirs.weight.copy_(mine.weight[k].T)
+            theirs.bias.copy_(mine.bias[k, 0])
+
+
+def assert_slice_equal(stacked: nn.Module, ref: nn.Module, k: int, tol: float) -> None:
+    ref_linears = [m for m in ref.modules() if isinstance(m, nn.Linear)]
+    for mine, theirs in zip([stacked.l1, stacked.l2, stacked.l3], ref_linears, strict=True):
+        torch.testing.assert_close(mine.weight[k].T, theirs.weight, atol=tol, rtol=0)
+        torch.testing.assert_close(mine.bias[k, 0], theirs.bias, atol=tol, rtol=0)
+
+
+class RefAgent:
+    """One DDPG agent exactly as Lillicrap et al. write it, with its own normaliser stats."""
+
+    def __init__(self, config: AgentConfig, stacked: DDPG, k: int, data: np.ndarray):
+        self.config = config
+        self.actor, self.critic = ref_actor().double(), RefCritic().double()
+        copy_slice(stacked.actor, self.actor, k)
+        copy_slice(stacked.critic, self.critic, k)
+        self.actor_t, self.critic_t = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
+        self.mean = torch.from_numpy(data.mean(0))
+        self.std = torch.from_numpy(np.maximum(data.std(0), config.norm_eps))
+
+    def norm(self, x):
+        c = self.config.obs_clip
+        return torch.clamp((x - self.mean) / self.std, -c, c)
+
+    def update(self, x, u, r, x2, term):
+        cfg = self.config
+        x, x2 = self.norm(x), self.norm(x2)
+        with torch.no_grad():
+            y = r + cfg.gamma * (1 - term) * self.critic_t(x2, self.actor_t(x2))
+        critic_loss = ((self.critic(x, u) - y) ** 2).mean()
+        self.critic_opt.zero_grad()
+        critic_loss.backward()
+        self.critic_opt.step()
+        actor_loss = -self.critic(x, self.actor(x)).mean()
+        self.actor_opt.zero_grad()
+        actor_loss.backward()
+        self.actor_opt.step()
+        with torch.no_grad():
+            for net, target in ((self.actor, self.actor_t), (self.critic, self.critic_t)):
+                for p, pt in zip(net.parameters(), target.parameters(), strict=True):
+                    pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
+        return critic_loss.item(), actor_loss.item()
+
+
+def make_agent(k: int, config: AgentConfig, seed0: int = 0) -> DDPG:
+    gens = [torch.Generator().manual_seed(seed0 + i) for i in range(k)]
+    return DDPG(config, IN, ACT, init_generators=gens, dtype=torch.float64)
+
+
+def test_k_stacked_agents_equal_k_separate_agents_after_200_updates():
+    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01)
+    k, n = 3, 64
+    agent = make_agent(k, config)
+    rng = np.random.default_rng(0)
+    # each agent's normaliser sees its own data, with a different scale per agent
+    data = [rng.normal(size=(500, IN)) * (1 + i) + i for i in range(k)]
+    for i in range(k):
+        agent.normalizer.update(i, data[i][:200])
+        agent.normalizer.update(i, data[i][200:])
+    refs = [RefAgent(config, agent, i, data[i]) for i in range(k)]
+
+    for _ in range(200):
+        batch = [torch.from_numpy(rng.normal(size=(k, n, d)) * 3) for d in (IN, ACT, 1, IN)]
+        batch[1] = torch.tanh(batch[1])
+        term = torch.from_numpy((rng.random((k, n, 1)) < 0.2).astype(float))
+        critic_loss, actor_loss = agent.update(*batch, term)
+        for i, ref in enumerate(refs):
+            c, a = ref.update(*(b[i] for b in batch), term[i])
+            assert critic_loss[i].item() == pytest.approx(c, rel=1e-10, abs=1e-10)
+            assert actor_loss[i].item() == pytest.approx(a, rel=1e-10, abs=1e-10)
+    for i, ref in enumerate(refs):
+        assert_slice_equal(agent.actor, ref.actor, i, 1e-10)
+        assert_slice_equal(agent.critic, ref.critic, i, 1e-10)
+        assert_slice_equal(agent.actor_target, ref.actor_t, i, 1e-10)
+        assert_slice_equal(agent.critic_target, ref.critic_t, i, 1e-10)
+    # and they did move: the agents are not trivially equal to their initial weights
+    assert not torch.allclose(agent.actor.l1.weight, make_agent(k, config).actor.l1.weight)
+
+
+def test_soft_target_update_is_the_formula():
+    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.25)
+    agent = make_agent(2, config)
+    with torch.no_grad():  # targets apart from the online nets, so the lerp shows
+        for p in list(agent.actor_target.parameters()) + list(agent.critic_target.parameters()):
+            p.add_(1.0)
+    before = [p.clone() for p in agent._target]
+    batch = [torch.randn(2, 8, d, dtype=torch.float64) for d in (IN, ACT, 1, IN)]
+    agent.update(*batch, torch.zeros(2, 8, 1, dtype=torch.float64))
+    for old, online, new in zip(before, agent._online, agent._target, strict=True):
+        torch.testing.assert_close(new, 0.75 * old + 0.25 * online, atol=1e-12, rtol=0)
+
+
+def test_lillicrap_initialisation():
+    config = AgentConfig(hidden_sizes=(400, 300))
+    agent = DDPG(config, 15, 3, init_generators=[torch.Generator().manual_seed(0)])
+    for net in (agent.actor, agent.critic):
+        for layer, fan_in in ((net.l1, 15), (net.l2, net.l2.weight.shape[1])):
+            bound = 1 / np.sqrt(fan_in)
+            assert layer.weight.abs().max() <= bound and layer.bias.abs().max() <= bound
+            assert layer.weight.abs().max() > 0.9 * bound  # uniform over the whole range
+        assert net.l3.weight.abs().max() <= 3e-3 and net.l3.bias.abs().max() <= 3e-3
+    assert agent.critic.l2.weight.shape[1] == 400 + 3  # the action enters at layer 2
+    # targets start equal to the online networks
+    for p, pt in zip(agent._online, agent._target, strict=True):
+        assert torch.equal(p, pt)
+
+
+def test_an_agents_initial_weights_depend_on_its_generator_alone():
+    config = AgentConfig(hidden_sizes=HIDDEN)
+    alone = make_agent(1, config, seed0=5)
+    batch = make_agent(3, config, seed0=3)  # generators seeded 3, 4, 5
+    for p_alone, p_batch in zip(alone._online, batch._online, strict=True):
+        assert torch.equal(p_alone[0], p_batch[2])
+
+
+def test_agent_state_round_trip_continues_identically():
+    config = AgentConfig(hidden_sizes=HIDDEN)
+    a, b = make_agent(2, config), make_agent(2, config, seed0=9)
+    batches = [[torch.randn(2, 8, d, dtype=torch.float64) for d in (IN, ACT, 1, IN)]
+               for _ in range(6)]
+    term = torch.zeros(2, 8, 1, dtype=torch.float64)
+    a.normalizer.update(1, np.random.default_rng(0).normal(size=(10, IN)))
+    for batch in batches[:3]:
+        a.update(*batch, term)
+    b.load_agent_states([a.agent_state(0), a.agent_state(1)])
+    for batch in batches[3:]:
+        a.update(*batch, term)
+        b.update(*batch, term)
+    for p, q in zip(a._online + a._target, b._online + b._target, strict=True):
+        assert torch.equal(p, q)

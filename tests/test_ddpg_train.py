@@ -1,0 +1,217 @@
+"""ddpg_her's training protocol, run folders and command line, on the toy goal env."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import toy_goal_env
+from toy_goal_env import ENV_ID
+
+import ddpg_her
+from ddpg_her.config import AgentConfig
+from ddpg_her.run import EVAL_COLUMNS, RunFolder
+from ddpg_her.trainer import Trainer
+
+TASK = {"region": "box", "n_joints": 2}
+# Tiny but complete: 4 test sessions, a buffer that wraps around several times.
+TINY = AgentConfig(episodes=12, eval_every=3, eval_episodes=4, hidden_sizes=(16, 16),
+                   updates_per_episode=4, buffer_size=70, batch_size=8, exploration_rate=0.3)
+TESTS_DIR = Path(__file__).parent
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def train(dirs, seeds=(0,), config=TINY, **kwargs):
+    trainer = Trainer(ENV_ID, TASK, config, list(seeds), [str(d) for d in dirs],
+                      progress=False, tensorboard=False, **kwargs)
+    try:
+        return trainer.run()
+    finally:
+        trainer.close()
+
+
+def eval_table(run_dir) -> list[list[str]]:
+    """eval.csv without its wall-clock column, the one column allowed to differ."""
+    with open(Path(run_dir) / "eval.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert tuple(rows[0]) == EVAL_COLUMNS
+    return [row[:-1] for row in rows]
+
+
+def test_same_seed_same_eval_csv_other_seed_other_csv(tmp_path):
+    train([tmp_path / "a"], seeds=[3])
+    train([tmp_path / "b"], seeds=[3])
+    train([tmp_path / "c"], seeds=[4])
+    table = eval_table(tmp_path / "a")
+    assert [r[0] for r in table[1:]] == ["3", "6", "9", "12"]
+    assert table == eval_table(tmp_path / "b")
+    assert table != eval_table(tmp_path / "c")
+
+
+def test_batched_agents_train_as_they_would_alone(tmp_path):
+    """Seeds 1 and 2 trained together give each the run folder it gets trained alone."""
+    train([tmp_path / "k2-s1", tmp_path / "k2-s2"], seeds=[1, 2])
+    train([tmp_path / "k1-s2"], seeds=[2])
+    assert eval_table(tmp_path / "k2-s2") == eval_table(tmp_path / "k1-s2")
+    assert eval_table(tmp_path / "k2-s1") != eval_table(tmp_path / "k2-s2")
+
+
+class Crash(Exception):
+    pass
+
+
+def test_resume_after_a_crash_gives_the_uninterrupted_eval_csv(tmp_path, monkeypatch):
+    train([tmp_path / "whole"])
+
+    # Crash in the middle of episode 8, between the checkpoints of episodes 6 and 9.
+    original = Trainer.train_episode
+
+    def crashing(self):
+        if self.episode == 7:
+            raise Crash
+        return original(self)
+
+    monkeypatch.setattr(Trainer, "train_episode", crashing)
+    with pytest.raises(Crash):
+        train([tmp_path / "cut"])
+    monkeypatch.setattr(Trainer, "train_episode", original)
+    assert [r[0] for r in eval_table(tmp_path / "cut")[1:]] == ["3", "6"]
+    train([tmp_path / "cut"], resume=True)
+    assert eval_table(tmp_path / "cut") == eval_table(tmp_path / "whole")
+    # the final agents are identical too, not only their test scores
+    a, b = (RunFolder(tmp_path / d).load_checkpoint(12)["agent"] for d in ("whole", "cut"))
+    for name in ("actor", "critic_target"):
+        for key in a[name]:
+            assert torch.equal(a[name][key], b[name][key])
+
+
+def test_crash_between_checkpoint_and_eval_csv_repeats_and_skips_nothing(tmp_path, monkeypatch):
+    """Killed while saving: seed 0's checkpoint of episode 9 written, seed 1's not yet."""
+    train([tmp_path / "w0", tmp_path / "w1"], seeds=[0, 1])
+    original = RunFolder.write_eval
+
+    def dying(self, rows):
+        if rows and rows[-1]["episode"] == 9:
+            raise Crash  # after seed 0's checkpoint 9, before its eval.csv and seed 1's save
+        return original(self, rows)
+
+    monkeypatch.setattr(RunFolder, "write_eval", dying)
+    dirs = [tmp_path / "c0", tmp_path / "c1"]
+    with pytest.raises(Crash):
+        train(dirs, seeds=[0, 1])
+    monkeypatch.setattr(RunFolder, "write_eval", original)
+    assert 9 in RunFolder(dirs[0]).checkpoints() and 9 not in RunFolder(dirs[1]).checkpoints()
+    train(dirs, seeds=[0, 1], resume=True)  # resumes both from episode 6
+    assert eval_table(dirs[0]) == eval_table(tmp_path / "w0")
+    assert eval_table(dirs[1]) == eval_table(tmp_path / "w1")
+
+
+def test_resume_extends_a_finished_run(tmp_path):
+    train([tmp_path / "long"], config=TINY.__class__(**{**TINY.to_dict(), "episodes": 15}))
+    train([tmp_path / "short"])
+    train([tmp_path / "short"], config=TINY.__class__(**{**TINY.to_dict(), "episodes": 15}),
+          resume=True)
+    assert eval_table(tmp_path / "short") == eval_table(tmp_path / "long")
+
+
+def test_resume_refuses_another_task_or_agent_and_plain_runs_refuse_existing(tmp_path):
+    train([tmp_path / "r"])
+    other = AgentConfig(**{**TINY.to_dict(), "gamma": 0.9})
+    with pytest.raises(ValueError, match=r"another task or agent.*agent\.gamma"):
+        Trainer(ENV_ID, TASK, other, [0], [str(tmp_path / "r")], resume=True)
+    with pytest.raises(ValueError, match=r"another task or agent.*env_kwargs"):
+        Trainer(ENV_ID, {**TASK, "n_joints": 3}, TINY, [0], [str(tmp_path / "r")], resume=True)
+    with pytest.raises(ValueError, match="already holds a run"):
+        Trainer(ENV_ID, TASK, TINY, [0], [str(tmp_path / "r")])
+
+
+def test_run_folder_contents_and_load(tmp_path):
+    train([tmp_path / "run"], seeds=[7])
+    spec = json.loads((tmp_path / "run" / "spec.json").read_text())
+    assert spec["seed"] == 7 and spec["env_id"] == ENV_ID
+    assert spec["task"] == toy_goal_env.ToyTaskSpec(n_joints=2).to_dict()
+    assert spec["agent"] == TINY.to_dict()
+    assert {"torch", "numpy", "gymnasium", "python"} <= set(spec["versions"])
+    assert "revision" in spec["git"]
+    rows = RunFolder(tmp_path / "run").read_eval()
+    assert [int(r["episode"]) for r in rows] == [3, 6, 9, 12]
+    assert all(int(r["tests"]) == 4 and 0 <= int(r["successes"]) <= 4 for r in rows)
+    assert [int(r["env_steps"]) for r in rows] == sorted(int(r["env_steps"]) for r in rows)
+    assert sorted(RunFolder(tmp_path / "run").checkpoints()) == [9, 12]  # the last two
+
+    policy = ddpg_her.load(tmp_path / "run")
+    env = toy_goal_env.ToyReach(n_joints=2)
+    obs, _ = env.reset(seed=0)
+    a = policy(obs)
+    assert a.shape == (2,) and np.all(np.abs(a) <= 2.0)
+    batch = {k: np.stack([v, v + 0.5]) for k, v in obs.items()}
+    both = policy(batch)
+    assert both.shape == (2, 2)
+    np.testing.assert_allclose(both[0], a, atol=1e-6)
+    assert not np.allclose(both[0], both[1])
+
+
+def test_learns_the_toy_task_in_seconds(tmp_path):
+    config = AgentConfig(episodes=80, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
+                         updates_per_episode=40, actor_lr=1e-3, tau=0.05,
+                         exploration="epsilon", exploration_rate=0.3)
+    rows = train([tmp_path / "learn"], seeds=[0], config=config)[0]
+    hits = [r["successes"] for r in rows]
+    assert hits[0] <= 3, hits  # an untrained policy hits next to nothing ...
+    assert hits[-1] >= 18, hits  # ... after 80 episodes most goals
+    assert rows[-1]["mean_final_distance_m"] < 0.3 * rows[0]["mean_final_distance_m"]
+
+
+# --- the command line -------------------------------------------------------------------------
+def cli(*args, cwd=None):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS_DIR), os.environ.get(
+        "PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, "-m", "ddpg_her.train", *args],
+                          capture_output=True, text=True, env=env, cwd=cwd, timeout=300)
+
+
+def test_cli_help_lists_every_flag_with_units():
+    out = cli("--help")
+    assert out.returncode == 0, out.stderr
+    for field in AgentConfig.__dataclass_fields__:
+        assert "--" + field.replace("_", "-") in out.stdout
+    for text in ("--region", "--joints", "--seeds", "--resume", "--device", "rad", "0.98",
+                 "transitions"):
+        assert text in out.stdout
+
+
+def test_cli_tiny_run_and_its_errors(tmp_path):
+    tiny = ["--env-id", f"toy_goal_env:{ENV_ID}", "--region", "box", "--joints", "2",
+            "--episodes", "2", "--eval-every", "1", "--eval-episodes", "2",
+            "--hidden-sizes", "8", "8", "--updates-per-episode", "2", "--threads", "1",
+            "--no-progress"]
+    out = cli(*tiny, "--seeds", "0", "1", "--out", str(tmp_path / "runs"))
+    assert out.returncode == 0, out.stderr
+    for seed in (0, 1):
+        assert len(RunFolder(tmp_path / "runs" / f"s{seed}").read_eval()) == 2
+    assert "seed 1:" in out.stdout
+
+    def fails(*args, message):
+        out = cli(*args)
+        assert out.returncode == 2, out.stderr
+        assert "usage:" in out.stderr and message in out.stderr, out.stderr
+
+    run = ["--out", str(tmp_path / "runs" / "s0")]
+    fails(*tiny, *run, message="already holds a run")
+    fails(*tiny, *run, "--resume", "--gamma", "0.5", message="agent.gamma")
+    fails(*tiny, "--joints", "7", message="--joints must be in 2..6, got 7")
+    fails(*tiny[:3], "nowhere", "--out", str(tmp_path / "x"), message="unknown region 'nowhere'")
+    fails(*tiny, "--gamma", "1.5", message="gamma=1.5")
+    fails(*tiny, "--exploration", "boltzmann", message="invalid choice")
