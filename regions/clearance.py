@@ -356,11 +356,11 @@ def _blocks(q: np.ndarray, func: Any, tail: tuple[int, ...], dtype: Any = float)
     """Apply ``func`` to ``q (..., 6)`` in blocks of :data:`CHUNK` rows."""
     flat = q.reshape(-1, 6)
     if len(flat) <= CHUNK:
-        return func(flat).reshape(*q.shape[:-1], *tail)
+        return func(flat).reshape((*q.shape[:-1], *tail))
     out = np.empty((len(flat), *tail), dtype=dtype)
     for start in range(0, len(flat), CHUNK):
         out[start : start + CHUNK] = func(flat[start : start + CHUNK])
-    return out.reshape(*q.shape[:-1], *tail)
+    return out.reshape((*q.shape[:-1], *tail))
 
 
 def _exact(flat: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ SURFACE_JOINTS = 2
 DEFAULT_RESOLUTION = 0.05
 """Voxel edge (m) of the workspace estimate by default."""
 
-DEFAULT_SAMPLES = 200_000
+DEFAULT_SAMPLES = 800_000
 """Joint-space samples per (joint count, start pose) by default."""
 
 
@@ -266,7 +266,8 @@ def _json_value(value: Any) -> Any:
     return value
 
 
-def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspace) -> CoverageRow:
+def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspace,
+                 q_start: Any = None) -> CoverageRow:
     """Coverage statistics of ``region`` for the sub-chain behind ``samples``.
 
     Parameters
@@ -276,16 +277,32 @@ def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspa
         Uniform joint-space samples of the sub-chain (they give acceptance and distances).
     voxels : VoxelWorkspace
         Voxelisation of ``samples``' plane-clear tool0 positions (the workspace estimate).
+    q_start : (6,) float, rad, optional
+        Start configuration of the row (distances and ``start_inside`` use its tool0);
+        ``samples.q_start`` by default. The samples only depend on its held joints n+1..6, so
+        one set of samples serves every start that agrees there.
+
+    Raises
+    ------
+    ValueError
+        When ``q_start``'s held joints differ from those of ``samples``.
     """
-    start = samples.start_position
+    n = samples.n_joints
+    if q_start is None:
+        q_start = samples.q_start
+    start_q = joint_array(q_start, "q_start")
+    if start_q.shape != (6,) or not np.array_equal(start_q[n:], samples.q_start[n:]):
+        raise ValueError(f"q_start {list(np.ravel(start_q))} must be 6 angles (rad) whose held "
+                         f"joints {n + 1}..6 equal the samples' {list(samples.q_start[n:])}")
+    start = tool_positions(start_q[None], samples.base_height)[0]
     accepted = samples.clear & region.contains(samples.goals)
     distances = np.linalg.norm(samples.goals[accepted] - start, axis=-1)
     workspace, workspace_err = voxels.volume, voxels.error
     covered, covered_err = voxels.covered(region)
     return CoverageRow(
         region=region.name,
-        joints=samples.n_joints,
-        start=samples.q_start,
+        joints=n,
+        start=tuple(float(x) for x in start_q),
         region_volume_m3=region.volume,
         region_volume_exact=region.volume_is_exact,
         workspace_volume_m3=workspace,
@@ -298,5 +315,5 @@ def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspa
         start_inside=bool(region.contains(start)),
         resolution_m=voxels.resolution,
         samples=samples.count,
-        workspace_is_surface=samples.n_joints <= SURFACE_JOINTS,
+        workspace_is_surface=n <= SURFACE_JOINTS,
     )

@@ -92,7 +92,7 @@ SPEC_FORMS = (
     "box:XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX (m, world frame)",
     "zmax:ZMAX (0 <= z <= ZMAX m) or z:ZMIN,ZMAX, cut to the arm's reach",
     "mesh:PATH (a closed mesh file, m, world frame)",
-    "json:PATH or PATH.json (a region's to_dict() saved as JSON), or inline JSON {...}",
+    "json:PATH or PATH.json (a region's to_dict() saved as JSON), or inline JSON {{...}}",
 )
 """The forms :func:`parse` accepts, for help texts."""
 
