@@ -286,6 +286,7 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     names = list(study.region_objects)
     fig, axes = plt.subplots(2, len(names), figsize=(3.6 * len(names), 6.4), squeeze=False)
@@ -307,20 +308,18 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
         for row, (i, j, label) in enumerate(((0, 2, "x-z side"), (0, 1, "x-y top"))):
             ax = axes[row, col]
             ax.scatter(ws.goals[cloud, i], ws.goals[cloud, j], s=1, c="0.75", lw=0,
-                       label="workspace")
+                       rasterized=True)
             ax.scatter(ws.goals[goals, i], ws.goals[goals, j], s=1.5, c="tab:blue", lw=0,
-                       label="accepted goals")
+                       rasterized=True)
             if region.is_bounded:
                 try:
                     ring = _outline(np.asarray(region.mesh.vertices)[:, [i, j]])
                     outlines[region.name][label] = ring.tolist()
-                    ax.plot(ring[:, 0], ring[:, 1], c="tab:red", lw=1.2, label="region")
+                    ax.plot(ring[:, 0], ring[:, 1], c="tab:red", lw=1.2)
                 except ValueError:
                     pass
-            ax.plot(tip[i], tip[j], marker="*", ms=11, c="tab:orange", mec="k",
-                    label="start tool0")
-            ax.plot(0.0, settings.base_height if j == 2 else 0.0, marker="s", c="k", ms=5,
-                    label="base")
+            ax.plot(tip[i], tip[j], marker="*", ms=11, c="tab:orange", mec="k")
+            ax.plot(0.0, settings.base_height if j == 2 else 0.0, marker="s", c="k", ms=5)
             if j == 2:
                 ax.axhline(0.0, c="k", lw=0.8)
             ax.set_aspect("equal")
@@ -330,10 +329,18 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
         for r in study.rows:
             if r.region == region.name and r.joints == n_joints:
                 table_rows.append(r.full_row())
-    axes[0, 0].legend(loc="upper left", fontsize=6, markerscale=3)
+    handles = [Line2D([], [], ls="", marker="o", ms=4, c="0.75", label="workspace samples"),
+               Line2D([], [], ls="", marker="o", ms=4, c="tab:blue", label="accepted goals"),
+               Line2D([], [], c="tab:red", label="region outline"),
+               Line2D([], [], ls="", marker="*", ms=10, c="tab:orange", mec="k",
+                      label="start tool0"),
+               Line2D([], [], ls="", marker="s", ms=5, c="k", label="robot base"),
+               Line2D([], [], c="k", lw=0.8, label="plane z = 0")]
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8,
+               frameon=False)
     fig.suptitle(f"Goal regions over the reachable workspace ({n_joints} joints, base at "
                  f"{settings.base_height} m; start: {settings.start})", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=130)
     plt.close(fig)

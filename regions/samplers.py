@@ -335,20 +335,31 @@ class CartesianSampler(GoalSampler):
             )
         if not isinstance(self.wrist_tries, int | np.integer) or self.wrist_tries < 1:
             raise ValueError(f"wrist_tries must be an integer >= 1; got {self.wrist_tries!r}")
-        box = np.array([np.maximum(self.region.bounds[0], reach_ball(self.base_height).bounds[0]),
-                        np.minimum(self.region.bounds[1], reach_ball(self.base_height).bounds[1])])
+        super().__post_init__()
+
+    @functools.cached_property
+    def sampling_box(self) -> np.ndarray:
+        """Where proposals are drawn, ``(2, 3) m`` (world): the region's bounds cut to the box
+        around the reach ball.
+
+        Raises
+        ------
+        UnreachableRegionError
+            When the two do not overlap.
+        """
+        reach = reach_ball(self.base_height).bounds
+        box = np.array([np.maximum(self.region.bounds[0], reach[0]),
+                        np.minimum(self.region.bounds[1], reach[1])])
         if np.any(box[1] <= box[0]):
             raise UnreachableRegionError(
                 f"region {self.region.name!r} (bounds {self.region.bounds.tolist()} m) lies "
-                f"outside the box {reach_ball(self.base_height).bounds.tolist()} m that holds "
-                "every tool0 position"
+                f"outside the box {reach.tolist()} m that holds every tool0 position"
             )
-        object.__setattr__(self, "_box", box)
-        super().__post_init__()
+        return box
 
     def _propose(self, count: int, rng: np.random.Generator
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        lo, hi = self._box  # type: ignore[attr-defined]
+        lo, hi = self.sampling_box
         points = lo + (hi - lo) * rng.random((count, 3))
         inside = self.region.contains(points)
         candidates = np.flatnonzero(inside & reach_ball(self.base_height).contains(points))

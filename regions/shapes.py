@@ -336,57 +336,59 @@ class Intersection(Region):
     def bounds(self) -> np.ndarray:
         return _box_bounds(np.stack([part.bounds for part in self.parts]))
 
-    def _closed_form(self) -> tuple[np.ndarray, Ball | None] | None:
-        """``(box_bounds, ball)`` when the parts are axis-aligned slabs and at most one ball."""
+    def _closed_form(self) -> tuple[str, np.ndarray, Ball | None] | None:
+        """The intersection as a known shape, when it is one.
+
+        Returns ``("empty", box, None)``, ``("box", box, None)`` (an axis-aligned box, maybe
+        unbounded), ``("zone", box, ball)`` (the ball between the heights ``box[:, 2]``) or None
+        (anything else: a mesh, two balls, a box cutting a ball's sides).
+        """
         boxes = [p for p in self.parts if isinstance(p, Box | ZLimit)]
         balls = [p for p in self.parts if isinstance(p, Ball)]
         if len(boxes) + len(balls) != len(self.parts) or len(balls) > 1:
             return None
         box = _box_bounds(np.stack([b.bounds for b in boxes])) if boxes else np.array(
             [[-np.inf] * 3, [np.inf] * 3])
-        return box, (balls[0] if balls else None)
+        if not balls:
+            return ("empty" if np.any(box[1] <= box[0]) else "box"), box, None
+        ball = balls[0]
+        c, r = np.asarray(ball.center), ball.radius
+        box = np.array([np.maximum(box[0], c - r), np.minimum(box[1], c + r)])
+        if np.any(box[1] <= box[0]):
+            return "empty", box, None
+        if np.all(box[0, :2] <= c[:2] - r) and np.all(box[1, :2] >= c[:2] + r):
+            return "zone", box, ball
+        corners = np.array(np.meshgrid(*box.T, indexing="ij")).reshape(3, -1).T
+        if np.all(ball.contains(corners)):
+            return "box", box, None
+        return None
 
     @property
     def volume(self) -> float:
-        exact = self._exact_volume()
-        return exact if exact is not None else _grid_volume(self)
+        form = self._closed_form()
+        if form is None:
+            return _grid_volume(self)
+        kind, box, ball = form
+        if kind == "empty":
+            return 0.0
+        if kind == "zone":
+            assert ball is not None
+            return _ball_zone_volume(ball.center[2], ball.radius, box[0, 2], box[1, 2])
+        return float(np.prod(box[1] - box[0]))
 
     @property
     def volume_is_exact(self) -> bool:
-        return self._exact_volume() is not None
-
-    def _exact_volume(self) -> float | None:
-        form = self._closed_form()
-        if form is None:
-            return None
-        box, ball = form
-        if np.any(box[1] < box[0]):
-            return 0.0
-        if ball is None:
-            return float(np.prod(box[1] - box[0]))
-        c, r = np.asarray(ball.center), ball.radius
-        if np.all(box[0, :2] <= c[:2] - r) and np.all(box[1, :2] >= c[:2] + r):
-            return _ball_zone_volume(c[2], r, box[0, 2], box[1, 2])
-        corners = np.array(np.meshgrid(*box.T, indexing="ij")).reshape(3, -1).T
-        if np.all(np.isfinite(corners)) and np.all(ball.contains(corners)):
-            return float(np.prod(box[1] - box[0]))
-        return None
+        return self._closed_form() is not None
 
     @property
     def mesh(self) -> trimesh.Trimesh:
         form = self._closed_form()
-        if form is not None:
-            box, ball = form
-            if ball is None and np.all(np.isfinite(box)):
-                return trimesh.creation.box(bounds=box)
-            if ball is not None:
-                c, r = np.asarray(ball.center), ball.radius
-                if np.all(box[0, :2] <= c[:2] - r) and np.all(box[1, :2] >= c[:2] + r):
-                    z_lo, z_hi = max(box[0, 2], c[2] - r), min(box[1, 2], c[2] + r)
-                    if z_lo < z_hi:
-                        return _revolved(c, r, z_lo, z_hi)
-                if self._exact_volume() == float(np.prod(box[1] - box[0])):
-                    return trimesh.creation.box(bounds=box)
+        if form is not None and form[0] == "zone":
+            _, box, ball = form
+            assert ball is not None
+            return _revolved(np.asarray(ball.center), ball.radius, box[0, 2], box[1, 2])
+        if form is not None and form[0] == "box" and np.all(np.isfinite(form[1])):
+            return trimesh.creation.box(bounds=form[1])
         raise ValueError(
             f"no mesh for intersection {self.name!r} of {[p.kind for p in self.parts]}: only "
             "boxes, z-limits and a ball cut by heights (or containing the box) are meshed"
