@@ -386,7 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "start angles), 1-6")
     parser.add_argument("--samples", type=int, default=d.samples,
                         help="uniform joint-space samples per joint count (and held-joint "
-                        "angles); the workspace estimate needs about 25 per voxel")
+                        "angles); the workspace estimate wants >= 10 per voxel of the reach "
+                        "ball's 6.9 m^3 box (see --convergence)")
     parser.add_argument("--seed", type=int, default=d.seed, help="seed of every generator")
     parser.add_argument("--resolution", type=float, default=d.resolution,
                         help="voxel edge of the workspace estimate (m)")

@@ -11,14 +11,14 @@ is the third row of the link's pose in ``base_link``. Two answers are offered:
 - :func:`capsule_heights`: a conservative lower bound, from one capsule per link fitted around
   the same geometry (a capsule's lowest point is an end point's height minus the radius).
 
-:func:`plane_clear` uses the capsules as a filter and the exact hull only where a capsule dips
-below the margin, so its answer is the exact one at nearly the capsules' cost.
+:func:`plane_clear` uses the capsules as a filter and a link's exact hull only where its capsule
+dips below the margin, so its answer is the exact one at nearly the capsules' cost.
 
 The base link is reported but never checked: it is fixed to its mount at ``base_height``, so its
 clearance is a property of the mounting, not of ``q`` (its mesh reaches 3 mm below
 ``base_link``'s origin, so it touches the plane when ``base_height`` < 0.003 m). The shoulder
 link only turns about the vertical axis, so its height never changes either; it is checked
-anyway because it is free to do so.
+anyway, at no cost.
 
 Self-collisions are not checked: the paper's task has only the plane.
 """
@@ -45,8 +45,8 @@ MOVING_LINKS = slice(1, N_LINKS)
 """Links whose clearance depends on ``q`` (all but the fixed base link): the ones checked."""
 
 CHUNK = 4096
-"""Configurations per block in the batched kernels: keeps the ``(block, 7, 4)`` rows and the
-``(block, n_vertices)`` heights in cache-sized temporaries."""
+"""Configurations per block in the batched kernels: keeps the ``(13, block)`` features and the
+``(V, block)`` vertex heights in cache-sized temporaries."""
 
 PREFILTER_MIN = 256
 """Batches at least this large go through the capsule filter first in :func:`plane_clear`;

@@ -36,10 +36,14 @@ DEFAULT_RESOLUTION = 0.05
 """Voxel edge (m) of the workspace estimate by default."""
 
 DEFAULT_SAMPLES = 800_000
-"""Joint-space samples per (joint count, start pose) by default."""
+"""Joint-space samples per (joint count, held-joint angles) by default: about 15 per voxel of the
+reach ball's box (6.9 m^3) at the default resolution."""
+
+WORKSPACE_CHUNK = 1 << 16
+"""Samples per block of :func:`sample_workspace` (bounds the memory of the clearance check)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class WorkspaceSamples:
     """Uniform joint-space samples of an n-joint sub-chain and where they put tool0.
 
@@ -72,7 +76,7 @@ class WorkspaceSamples:
 
 
 def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int,
-                     rng: np.random.Generator, chunk: int = 1 << 16) -> WorkspaceSamples:
+                     rng: np.random.Generator, chunk: int = WORKSPACE_CHUNK) -> WorkspaceSamples:
     """Draw ``count`` uniform joint-space samples and evaluate their tool0 and plane clearance.
 
     Parameters
@@ -104,7 +108,7 @@ def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int
     return WorkspaceSamples(int(n_joints), tuple(float(x) for x in start), h, goals, clear)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class VoxelWorkspace:
     """Voxel-occupancy estimate of a reachable workspace.
 

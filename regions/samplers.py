@@ -79,7 +79,7 @@ class SamplingLimits:
             raise ValueError(f"bad sampling limits: {self!r}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class GoalBatch:
     """Goals and the arm configurations that reach them.
 
