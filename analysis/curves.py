@@ -1,0 +1,140 @@
+"""Learning curves: successes over seeds against training episodes, one panel per setting.
+
+    python -m analysis.curves RUNS_ROOT... --out fig.png
+
+Each panel is a (region, joints) setting, laid out like the paper's figures (a row per region, a
+column per joint count): the mean over seeds with a 65 % Student-t confidence interval, each seed
+faintly, and the paper's stated asymptote dashed where it gives one. The plotted numbers go to a
+CSV beside the figure (``fig.csv``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from analysis.paper import PAPER_RESULTS
+from analysis.runs import (
+    CONFIDENCE,
+    PERCENT,
+    Run,
+    aligned_successes,
+    find_runs,
+    group_by_setting,
+    mean_ci,
+)
+
+REGION_ORDER = ("unconstrained", "zheight", "closebox", "farbox", "farbox_tall")
+"""Rows of the figure, in the paper's order; other regions follow alphabetically."""
+
+CSV_COLUMNS = ("region", "joints", "episode", "seeds", "mean_successes", "ci_low", "ci_high")
+"""Columns of the CSV beside the figure; successes are per 100 test goals, the interval is clipped
+to 0-100."""
+
+
+def curve_rows(groups: dict[tuple[str, int], list[Run]], level: float) -> list[dict]:
+    """The plotted numbers: one row per setting and evaluation episode."""
+    rows = []
+    for (region, joints), runs in groups.items():
+        episode, successes = aligned_successes(runs)
+        if len(episode) == 0:
+            continue
+        mean, low, high = mean_ci(successes, level, PERCENT)
+        for i, e in enumerate(episode):
+            rows.append({"region": region, "joints": joints, "episode": int(e),
+                         "seeds": len(runs), "mean_successes": round(float(mean[i]), 4),
+                         "ci_low": round(float(low[i]), 4), "ci_high": round(float(high[i]), 4)})
+    return rows
+
+
+def _layout(settings: Sequence[tuple[str, int]]) -> tuple[list[str], list[int]]:
+    regions = sorted({r for r, _ in settings},
+                     key=lambda r: (REGION_ORDER.index(r) if r in REGION_ORDER else 99, r))
+    return regions, sorted({j for _, j in settings})
+
+
+def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> None:
+    """Draw the panels to ``out`` (any matplotlib format)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    regions, joints = _layout(list(groups))
+    fig, axes = plt.subplots(len(regions), len(joints), squeeze=False, sharex=True, sharey=True,
+                             figsize=(3.2 * len(joints) + 0.6, 2.6 * len(regions) + 0.6))
+    for i, region in enumerate(regions):
+        for j, n in enumerate(joints):
+            ax = axes[i][j]
+            runs = groups.get((region, n))
+            if not runs:
+                ax.set_visible(False)
+                continue
+            episode, successes = aligned_successes(runs)
+            for seed_curve in successes:
+                ax.plot(episode, seed_curve, color="0.6", lw=0.6, alpha=0.5)
+            mean, low, high = mean_ci(successes, level, PERCENT)
+            ax.fill_between(episode, low, high, color="C0", alpha=0.3, lw=0)
+            ax.plot(episode, mean, color="C0", lw=1.6, label=f"mean of {len(runs)} seeds")
+            paper = PAPER_RESULTS.get((region, n))
+            if paper is not None and paper.approx_success is not None:
+                ax.axhline(paper.approx_success, color="C3", ls="--", lw=1, label="paper (text)")
+            ax.set_title(f"{region}, joints 1-{n}", fontsize=9)
+            ax.set_ylim(-2, 102)
+            ax.grid(alpha=0.3)
+            if i == len(regions) - 1 or not groups.get((regions[min(i + 1, len(regions) - 1)], n)):
+                ax.set_xlabel("training episodes")
+            if j == 0:
+                ax.set_ylabel("goals hit / 100")
+    first = next(a for row in axes for a in row if a.get_visible())
+    first.legend(loc="upper left", fontsize=7, framealpha=0.8)
+    fig.suptitle(f"Test successes, mean and {level:.0%} confidence interval over seeds",
+                 fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def write_csv(rows: list[dict], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.curves", description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("roots", nargs="+", metavar="RUNS_ROOT",
+                        help="folders searched (recursively) for run folders with spec.json")
+    parser.add_argument("--out", type=Path, default=Path("curves.png"),
+                        help="figure file (.png, .pdf, .svg); the CSV goes beside it")
+    parser.add_argument("--confidence", type=float, default=CONFIDENCE,
+                        help="two-sided confidence level of the band (fraction)")
+    args = parser.parse_args(argv)
+    if not 0.0 < args.confidence < 1.0:
+        parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
+    try:
+        runs = find_runs(args.roots)
+    except FileNotFoundError as err:
+        parser.error(str(err))
+    groups = {k: v for k, v in group_by_setting(runs).items() if any(len(r.episode) for r in v)}
+    if not groups:
+        parser.error(f"no run with evaluations below {', '.join(args.roots)}")
+    rows = curve_rows(groups, args.confidence)
+    plot(groups, args.out, args.confidence)
+    csv_path = args.out.with_suffix(".csv")
+    write_csv(rows, csv_path)
+    print(f"{len(runs)} runs in {len(groups)} settings -> {args.out} and {csv_path}",
+          file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

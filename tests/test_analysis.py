@@ -1,0 +1,152 @@
+"""analysis: run discovery, statistics, curves, report and the sweep, on tiny toy-env runs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from analysis import report, runs, sweep
+from analysis.paper import PAPER_GRID
+
+TESTS = Path(__file__).parent
+TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--eval-every", "2", "--eval-episodes", "4",
+       "--hidden-sizes", "8", "8", "--updates-per-episode", "2"]
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(TESTS), str(TESTS.parent), os.environ.get("PYTHONPATH", "")])}
+
+
+def _module(*args: str, check: bool = True) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
+                          env=_env(), timeout=300, check=check)
+
+
+def _fake_run(folder: Path, region: str, joints: int, seed: int, successes: list[int],
+              episodes: int = 10_000) -> None:
+    """A run folder as ddpg_her.train writes it (spec.json, eval.csv), with chosen successes."""
+    folder.mkdir(parents=True)
+    spec = {"format": "ddpg_her-run-1", "env_id": "UR5Reach-v0",
+            "env_kwargs": {"region": region, "n_joints": joints}, "seed": seed,
+            "agent": {"episodes": episodes}}
+    (folder / "spec.json").write_text(json.dumps(spec))
+    with open(folder / "eval.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["episode", "successes", "tests", "mean_return", "mean_final_distance_m",
+                    "env_steps", "wall_s"])
+        for i, s in enumerate(successes):
+            w.writerow([100 * (i + 1), s, 100, -1.0, 0.2, 100 * (i + 1) * 100, i])
+
+
+def test_mean_ci_matches_student_t() -> None:
+    values = np.array([[10.0, 50.0], [20.0, 55.0], [40.0, 65.0], [30.0, 60.0]])
+    mean, low, high = runs.mean_ci(values, 0.65)
+    half = stats.t.ppf(0.825, 3) * values.std(axis=0, ddof=1) / 2.0
+    np.testing.assert_allclose(mean, [25.0, 57.5])
+    np.testing.assert_allclose(high - mean, half)
+    np.testing.assert_allclose(mean - low, half)
+    _, low, high = runs.mean_ci(np.array([[0.0], [0.0], [30.0]]), 0.65, runs.PERCENT)
+    assert low[0] == 0.0 and high[0] <= 100.0
+    with pytest.raises(ValueError, match="level"):
+        runs.mean_ci(values, 1.5)
+
+
+def test_report_summarises_and_checks_the_papers_orderings(tmp_path: Path) -> None:
+    curves = {("farbox", 3): [60, 95, 97], ("unconstrained", 3): [20, 35, 40],
+              ("zheight", 3): [10, 15, 20], ("unconstrained", 2): [80, 92, 95]}
+    for (region, joints), curve in curves.items():
+        for seed in range(2):
+            _fake_run(tmp_path / f"{region}-j{joints}" / f"s{seed}", region, joints, seed,
+                      [s + seed for s in curve])
+    found = runs.find_runs([tmp_path])
+    assert len(found) == 8 and all(not r.finished for r in found)
+    summaries = {k: report.summarise(v) for k, v in runs.group_by_setting(found).items()}
+    far = summaries[("farbox", 3)]
+    assert far.final[0] == pytest.approx(97.5) and far.first_high == (200, 200)
+    checks = {claim: holds for claim, holds, _ in report.ordering_checks(summaries)}
+    assert checks["farbox far above unconstrained (3-6 joints)"] is True
+    assert checks["unconstrained (3-6 joints) above zheight and closebox"] is True
+    assert checks["2 joints high (unconstrained)"] is True
+    out = _module("analysis.report", str(tmp_path), "--out", str(tmp_path / "r.md")).stdout
+    assert "| farbox | 3 | 2 | 300 | 97.5" in out and "nearly 100 %" in out
+    assert (tmp_path / "r.md").read_text() == out
+
+
+def test_report_says_no_when_an_ordering_fails(tmp_path: Path) -> None:
+    _fake_run(tmp_path / "a", "farbox", 3, 0, [30])
+    _fake_run(tmp_path / "b", "unconstrained", 3, 0, [40])
+    summaries = {k: report.summarise(v)
+                 for k, v in runs.group_by_setting(runs.find_runs([tmp_path])).items()}
+    verdicts = {claim: holds for claim, holds, _ in report.ordering_checks(summaries)}
+    assert verdicts["farbox far above unconstrained (3-6 joints)"] is False
+
+
+def test_curves_writes_figure_and_the_plotted_numbers(tmp_path: Path) -> None:
+    for seed, curve in enumerate([[10, 20], [30, 40], [20, 60]]):
+        _fake_run(tmp_path / f"s{seed}", "farbox", 3, seed, curve)
+    _module("analysis.curves", str(tmp_path), "--out", str(tmp_path / "fig" / "c.png"))
+    assert (tmp_path / "fig" / "c.png").stat().st_size > 1000
+    with open(tmp_path / "fig" / "c.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [float(r["mean_successes"]) for r in rows] == [20.0, 40.0]
+    half = stats.t.ppf(0.825, 2) * 10.0 / np.sqrt(3)
+    assert float(rows[0]["ci_high"]) == pytest.approx(20.0 + half, abs=1e-3)
+
+
+def test_commands_fail_clearly_without_runs(tmp_path: Path) -> None:
+    for module in ("analysis.curves", "analysis.report"):
+        proc = _module(module, str(tmp_path / "missing"), check=False)
+        assert proc.returncode == 2 and "does not exist" in proc.stderr
+        proc = _module(module, str(tmp_path), check=False)
+        assert proc.returncode == 2 and "no run with evaluations" in proc.stderr
+
+
+def test_sweep_dry_run_lists_the_papers_55_runs(tmp_path: Path) -> None:
+    proc = _module("analysis.sweep", "--grid", "paper", "--dry-run", "--out", str(tmp_path))
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 55 == len(PAPER_GRID) * 5
+    assert sum("farbox " in line and "joints=6" in line for line in lines) == 5
+    assert all(line.startswith("new") for line in lines)
+
+
+def test_sweep_runs_skips_finished_and_resumes(tmp_path: Path) -> None:
+    def args(episodes: int) -> list[str]:
+        return ["analysis.sweep", "--setting", "box:2", "--seeds", "2", "--episodes",
+                str(episodes), "--out", str(tmp_path), "--workers", "1", "--", *TOY]
+
+    _module(*args(4))
+    for seed in (0, 1):
+        assert runs.read_run(tmp_path / "box-j2" / f"s{seed}").finished
+    log = (tmp_path / "logs" / "box-j2.log").read_text()
+    again = _module(*args(4)).stderr
+    assert "1 of 1 settings already finished" in again
+    assert (tmp_path / "logs" / "box-j2.log").read_text() == log  # nothing re-ran
+    _module(*args(6))
+    run = runs.read_run(tmp_path / "box-j2" / "s0")
+    assert run.finished and run.episode.tolist() == [2, 4, 6]  # resumed: no row lost or repeated
+
+
+def test_sweep_on_a_local_ray_instance(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    proc = _module("analysis.sweep", "--setting", "box:2", "--setting", "box:3", "--seeds", "1",
+                   "--episodes", "2", "--out", str(tmp_path), "--ray-address", "local",
+                   "--threads", "1", "--", *TOY)
+    assert proc.returncode == 0, proc.stderr
+    for joints in (2, 3):
+        assert runs.read_run(tmp_path / f"box-j{joints}" / "s0").finished
+
+
+def test_parse_setting_rejects_bad_text() -> None:
+    assert sweep.parse_setting("box:0,1,0,1,0,1:3") == ("box:0,1,0,1,0,1", 3)
+    for bad in ("farbox", "farbox:7", ":3", "farbox:x"):
+        with pytest.raises(Exception, match="REGION:JOINTS"):
+            sweep.parse_setting(bad)
