@@ -44,9 +44,15 @@ N_LINKS = 7
 MOVING_LINKS = slice(1, N_LINKS)
 """Links whose clearance depends on ``q`` (all but the fixed base link): the ones checked."""
 
-CHUNK = 4096
-"""Configurations per block in the batched kernels: keeps the ``(13, block)`` features and the
-``(V, block)`` vertex heights in cache-sized temporaries."""
+CHUNK = 8192
+"""Configurations per block of :func:`link_heights` and :func:`capsule_heights`: bounds the
+``(V, block)`` vertex heights (V = 359) to 24 MB."""
+
+FILTER_CHUNK = 32768
+"""Configurations per block of :func:`plane_clear` on large batches. Its temporaries are
+smaller (at most the 100 witnesses' heights per configuration), and fewer, larger matrix
+products matter: a multi-threaded BLAS pays a fixed cost per product, which grows sharply on a
+machine whose cores are busy."""
 
 PREFILTER_MIN = 256
 """Batches at least this large go through the capsule filter first in :func:`plane_clear`;
@@ -294,26 +300,51 @@ def _lowest_candidates(points: np.ndarray, coefficients: np.ndarray) -> np.ndarr
     return points[ConvexHull(flat).vertices]
 
 
-@functools.cache
-def _kernels() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Constant matrices of the height kernels, so that each is one product with the features.
+WITNESS_DIRECTIONS = np.array(
+    [d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)], dtype=float) - 1.0
+"""The 26 directions (faces, edges and corners of a cube, in a link's frame) along which each
+link's extreme vertices become its *witnesses*: real vertices, so the lowest of them is an upper
+bound of the link's lowest point."""
 
-    Returns ``vertex_heights (V, 13)``: ``vertex_heights @ features`` are the heights above
-    ``base_link`` of every candidate lowest vertex of every link, link by link; ``bounds (8,)``:
-    where each link's rows start (and the last ends); ``end_heights (14, 13)``: the same for the
-    capsules' end points (two rows per link); ``radii (7, 1)``.
+
+@dataclass(frozen=True)
+class _Kernels:
+    """Constant matrices of the height kernels: each height is one product with the features.
+
+    ``vertex_heights (V, 13) @ features (13, B)`` gives the height above ``base_link`` of every
+    vertex that can be a link's lowest, link after link (rows ``bounds[k]:bounds[k + 1]``);
+    ``witness_heights`` and ``witness_bounds`` the same for each link's witnesses;
+    ``end_heights (14, 13)`` for the capsules' end points (rows 2k, 2k + 1); ``radii (7, 1)``.
     """
+
+    vertex_heights: np.ndarray
+    bounds: np.ndarray
+    witness_heights: np.ndarray
+    witness_bounds: np.ndarray
+    end_heights: np.ndarray
+    radii: np.ndarray
+
+
+def _stack(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    bounds = np.concatenate([[0], np.cumsum([len(b) for b in blocks])]).astype(np.intp)
+    return np.vstack(blocks), bounds
+
+
+@functools.cache
+def _kernels() -> _Kernels:
+    """Build the :class:`_Kernels` once from the collision geometry."""
     A = _row_coefficients(ur5kin.geometry())
     links = collision_geometry()
-    blocks, ends = [], np.ones((N_LINKS, 4, 2))
+    vertices, witnesses, ends = [], [], np.ones((N_LINKS, 4, 2))
     for k, link in enumerate(links):
         points = _lowest_candidates(link.hull, A[:, k])
-        blocks.append(np.hstack([points, np.ones((len(points), 1))]) @ A[:, k].T)
+        extreme = np.unique(np.argmax(points @ WITNESS_DIRECTIONS.T, axis=0))
+        for block, chosen in ((vertices, points), (witnesses, points[extreme])):
+            block.append(np.hstack([chosen, np.ones((len(chosen), 1))]) @ A[:, k].T)
         ends[k, :3, 0], ends[k, :3, 1] = link.capsule.a, link.capsule.b
-    bounds = np.concatenate([[0], np.cumsum([len(b) for b in blocks])]).astype(np.intp)
     end_heights = np.einsum("fkj,kje->kef", A, ends).reshape(2 * N_LINKS, len(FEATURES))
     radii = np.array([[link.capsule.radius] for link in links])
-    return np.vstack(blocks), bounds, end_heights, radii
+    return _Kernels(*_stack(vertices), *_stack(witnesses), end_heights, radii)
 
 
 def link_z_rows(q: Any) -> np.ndarray:
@@ -352,34 +383,39 @@ def check_base_height(base_height: Any) -> float:
     return h
 
 
-def _blocks(q: np.ndarray, func: Any, tail: tuple[int, ...], dtype: Any = float) -> np.ndarray:
-    """Apply ``func`` to ``q (..., 6)`` in blocks of :data:`CHUNK` rows."""
+def _blocks(q: np.ndarray, func: Any, tail: tuple[int, ...], dtype: Any = float,
+            chunk: int = CHUNK) -> np.ndarray:
+    """Apply ``func`` to ``q (..., 6)`` in blocks of ``chunk`` rows."""
     flat = q.reshape(-1, 6)
-    if len(flat) <= CHUNK:
+    if len(flat) <= chunk:
         return func(flat).reshape((*q.shape[:-1], *tail))
     out = np.empty((len(flat), *tail), dtype=dtype)
-    for start in range(0, len(flat), CHUNK):
-        out[start : start + CHUNK] = func(flat[start : start + CHUNK])
+    for start in range(0, len(flat), chunk):
+        out[start : start + chunk] = func(flat[start : start + chunk])
     return out.reshape((*q.shape[:-1], *tail))
+
+
+def _link_minima(heights: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Per-link minima ``(7, B)`` of stacked per-vertex heights ``(V, B)``."""
+    if heights.shape[1] < LOOP_MIN:
+        return np.minimum.reduceat(heights, bounds[:-1], axis=0)
+    out = np.empty((len(bounds) - 1, heights.shape[1]))
+    for k in range(len(bounds) - 1):
+        np.min(heights[bounds[k] : bounds[k + 1]], axis=0, out=out[k])
+    return out
 
 
 def _exact(flat: np.ndarray) -> np.ndarray:
     """Exact lowest height of each link above ``base_link``, ``(B, 7)``, for ``flat (B, 6)``."""
-    vertex_heights, bounds, _, _ = _kernels()
-    heights = vertex_heights @ _features(flat)
-    if len(flat) < LOOP_MIN:
-        return np.minimum.reduceat(heights, bounds[:-1], axis=0).T
-    out = np.empty((N_LINKS, len(flat)))
-    for k in range(N_LINKS):
-        np.min(heights[bounds[k] : bounds[k + 1]], axis=0, out=out[k])
-    return out.T
+    kernels = _kernels()
+    return _link_minima(kernels.vertex_heights @ _features(flat), kernels.bounds).T
 
 
 def _capsule_lows(features: np.ndarray) -> np.ndarray:
     """Lowest capsule point of each link above ``base_link``, ``(7, B)``, from ``(13, B)``."""
-    _, _, end_heights, radii = _kernels()
-    ends = end_heights @ features
-    return np.minimum(ends[0::2], ends[1::2]) - radii
+    kernels = _kernels()
+    ends = kernels.end_heights @ features
+    return np.minimum(ends[0::2], ends[1::2]) - kernels.radii
 
 
 def _capsules(flat: np.ndarray) -> np.ndarray:
@@ -390,18 +426,28 @@ def _capsules(flat: np.ndarray) -> np.ndarray:
 def _clear_filtered(flat: np.ndarray, threshold: float) -> np.ndarray:
     """Exact clearance ``(B,) bool`` of the moving links, at ``threshold`` m above base_link.
 
-    The capsules decide every (configuration, link) pair whose capsule stays above the
-    threshold; each remaining pair gets the exact min over that link's vertices alone.
+    Three tiers, each deciding what it can: a capsule above the threshold proves its link clear;
+    a witness vertex below it proves the configuration blocked; each (configuration, link) pair
+    left gets the exact min over that link's vertices.
     """
-    vertex_heights, bounds, _, _ = _kernels()
+    kernels = _kernels()
     features = _features(flat)
     unsure = _capsule_lows(features)[MOVING_LINKS] < threshold  # (6, B)
+    rows = np.flatnonzero(unsure.any(axis=0))
     clear = np.ones(len(flat), dtype=bool)
-    for k, link_unsure in enumerate(unsure, start=MOVING_LINKS.start):
-        idx = np.flatnonzero(link_unsure & clear)
+    if not len(rows):
+        return clear
+    sub = features[:, rows]
+    witnessed = _link_minima(kernels.witness_heights @ sub, kernels.witness_bounds)
+    blocked = (witnessed[MOVING_LINKS] < threshold).any(axis=0)
+    open_rows = ~blocked
+    # Lower links first: the wrist is the likeliest to reach the plane, and the cheapest.
+    for k in reversed(range(MOVING_LINKS.start, N_LINKS)):
+        idx = np.flatnonzero(unsure[k - MOVING_LINKS.start, rows] & open_rows)
         if len(idx):
-            lows = (vertex_heights[bounds[k] : bounds[k + 1]] @ features[:, idx]).min(axis=0)
-            clear[idx] = lows >= threshold
+            block = kernels.vertex_heights[kernels.bounds[k] : kernels.bounds[k + 1]]
+            open_rows[idx] = (block @ sub[:, idx]).min(axis=0) >= threshold
+    clear[rows] = open_rows
     return clear
 
 
@@ -473,4 +519,4 @@ def plane_clear(q: Any, base_height: float, margin: float = 0.0) -> np.ndarray:
             return _exact(flat)[:, MOVING_LINKS].min(axis=-1) >= threshold
         return _clear_filtered(flat, threshold)
 
-    return _blocks(q, clear, (), dtype=bool)
+    return _blocks(q, clear, (), dtype=bool, chunk=FILTER_CHUNK)
