@@ -411,8 +411,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="draw the regions over the workspace (x-z side and x-y top views); "
                         "writes FILE.json and FILE.csv with the drawn data beside it")
     parser.add_argument("--plot-joints", type=int, default=None, metavar="N",
-                        help="joint count of the plotted workspace (default: 3 if listed in "
-                        "--joints, else the largest)")
+                        help="joint count of the plotted workspace; None: 3 if listed in "
+                        "--joints, else the largest")
     parser.add_argument("--convergence", action="store_true",
                         help="instead of the table, print the workspace volume for voxel edges "
                         + ", ".join(map(str, CONVERGENCE_RESOLUTIONS)) + " m (samples scaled "
