@@ -1,0 +1,205 @@
+"""Many copies of the Reacher stepped in one call: a Gymnasium ``VectorEnv`` for trainers."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from envs.core import ReachCore
+from envs.reach import RENDER_MODES, make_task
+from envs.reward import compute_reward, compute_success
+from envs.spec import TaskSpec
+
+INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit")
+"""Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""
+
+
+class BatchedReach(gymnasium.vector.VectorEnv):
+    """N copies of ``UR5Reach-v0`` advanced together by one batched dynamics call.
+
+    Copy i behaves exactly like ``gymnasium.make("UR5Reach-v0", ...)`` reset with seed
+    ``seed + i`` (same goals; same trajectories up to floating-point rounding, since the batch
+    goes through Pinocchio's ``abaInParallel``). ``gymnasium.make_vec("UR5Reach-v0",
+    num_envs=N)`` builds this class.
+
+    Parameters
+    ----------
+    num_envs : int
+        N, the number of copies.
+    spec : TaskSpec or its dict form, optional
+        The task (defaults as :class:`TaskSpec`); ``**overrides`` change fields.
+    autoreset_mode : gymnasium.vector.AutoresetMode or str
+        What happens to a copy whose episode ended (terminated or truncated):
+
+        - ``next_step`` (default, Gymnasium's): the next ``step`` resets it instead of stepping
+          it; its action is ignored, and it returns the first observation of the new episode
+          with reward 0 and both flags False.
+        - ``same_step``: it is reset within the same ``step``; the returned observation is the
+          new episode's first, and the episode's last observation and info are in
+          ``info["final_obs"]`` / ``info["final_info"]`` (masks ``info["_final_obs"]``).
+        - ``disabled``: never reset automatically; call ``reset(options={"reset_mask": done})``.
+    render_mode : {"rgb_array", "human"}, optional
+        ``render()`` draws every copy (one frame each).
+
+    Observations are the single env's Dict with a leading (N,) axis; ``info`` holds
+    :data:`INFO_KEYS` as (N, ...) arrays, each with a ``_key`` mask.
+    """
+
+    def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 render_mode: str | None = None, **overrides: Any) -> None:
+        if not isinstance(num_envs, int | np.integer) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError as err:
+            raise ValueError(f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}; "
+                             f"got {autoreset_mode!r}") from err
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
+                             f"{render_mode!r}")
+        self.task = make_task(spec, overrides)
+        self.num_envs = int(num_envs)
+        self.render_mode = render_mode
+        self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
+                         "render_fps": self.task.control_hz}
+        self._core = ReachCore(self.task, self.num_envs)
+        self.single_observation_space, self.single_action_space = self._core.single_spaces()
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._ended = np.zeros(self.num_envs, dtype=bool)  # episodes awaiting a next-step reset
+        self._all = np.arange(self.num_envs)
+        self._true = np.ones(self.num_envs, dtype=bool)
+        self._renderers: list[Any] = []
+
+    @property
+    def dt(self) -> float:
+        """Duration of one step (s)."""
+        return self.task.dt
+
+    # ------------------------------------------------------------------ VectorEnv API
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Reset copies (all of them, or ``options["reset_mask"]`` (N,) bool).
+
+        ``seed``: an int seeds copy i with ``seed + i``; a sequence gives each copy its seed;
+        None keeps each copy's generator (fresh entropy on the first reset).
+        ``options["goal"]``: ``(m, 3)`` m goals for the m copies reset, instead of drawing them.
+        """
+        options = dict(options or {})
+        unknown = sorted(set(options) - {"reset_mask", "goal"})
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {unknown}; known: 'reset_mask', 'goal'")
+        mask = np.asarray(options.get("reset_mask", self._true), dtype=bool)
+        if mask.shape != (self.num_envs,):
+            raise ValueError(f"options['reset_mask'] must be ({self.num_envs},) bool; got shape "
+                             f"{mask.shape}")
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, int | np.integer):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed must be an int, None or {self.num_envs} seeds; got "
+                                 f"{len(seeds)} seeds")
+        index = np.flatnonzero(mask)
+        for i in index:
+            if seeds[i] is not None or self._rngs[i] is None:
+                self._rngs[i] = seeding.np_random(seeds[i])[0]
+        goals = None
+        if "goal" in options:
+            goals = np.asarray(options["goal"], dtype=np.float64)
+            if goals.shape != (len(index), 3) or not np.all(np.isfinite(goals)):
+                raise ValueError(f"options['goal'] must be ({len(index)}, 3) finite goals (m, "
+                                 f"world frame), one per copy reset; got shape {goals.shape}")
+        self._core.reset(index, [self._rngs[i] for i in index], goals)
+        self._ended[index] = False
+        return self._observation(), self._info()
+
+    def step(self, actions: Any) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
+                                          np.ndarray, dict[str, Any]]:
+        """Step every copy with ``actions (N, n)``; see the class docstring for episode ends.
+
+        Returns observations (dict of (N, ...) arrays), rewards (N,), terminations (N,),
+        truncations (N,) and infos (dict of (N, ...) arrays with ``_key`` masks).
+        """
+        core, n = self._core, self.task.n_joints
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape != (self.num_envs, n) or not np.isfinite(a).all():
+            raise ValueError(f"actions must be a finite ({self.num_envs}, {n}) array (the "
+                             f"{self.task.control_mode} commands of joints 1..{n}); got shape "
+                             f"{a.shape}")
+        mode = self.metadata["autoreset_mode"]
+        core.step(a)
+        if mode == AutoresetMode.NEXT_STEP and self._ended.any():
+            index = np.flatnonzero(self._ended)
+            core.reset(index, [self._rngs[i] for i in index])
+        terminated, truncated = core.terminated.copy(), core.truncated.copy()
+        reward = core.reward.copy()
+        info = self._info()
+        done = terminated | truncated
+        if mode == AutoresetMode.NEXT_STEP:
+            self._ended = done
+        elif mode == AutoresetMode.SAME_STEP and done.any():
+            final_obs = np.empty(self.num_envs, dtype=object)
+            final_info = np.empty(self.num_envs, dtype=object)
+            last = self._observation()
+            for i in np.flatnonzero(done):
+                final_obs[i] = {key: value[i] for key, value in last.items()}
+                final_info[i] = {key: info[key][i] for key in INFO_KEYS}
+            info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info,
+                        _final_info=done.copy())
+            index = np.flatnonzero(done)
+            core.reset(index, [self._rngs[i] for i in index])
+        return self._observation(), reward, terminated, truncated, info
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        core = self._core
+        return {"observation": core.observation.copy(), "achieved_goal": core.achieved.copy(),
+                "desired_goal": core.goal.copy()}
+
+    def _info(self) -> dict[str, Any]:
+        info = self._core.info_arrays()
+        info.update({f"_{key}": self._true.copy() for key in INFO_KEYS})
+        return info
+
+    # ------------------------------------------------------------------ GoalEnv functions
+    def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
+        """The task's reward, vectorised (see :meth:`envs.UR5ReachEnv.compute_reward`)."""
+        return compute_reward(achieved_goal, desired_goal, info, self.task)
+
+    def compute_terminated(self, achieved_goal: Any, desired_goal: Any, info: Any
+                           ) -> np.ndarray:
+        """Success, if ``terminate_on_success`` (as :meth:`envs.UR5ReachEnv.compute_terminated`)."""
+        return compute_success(achieved_goal, desired_goal, self.task) & \
+            self.task.terminate_on_success
+
+    # ------------------------------------------------------------------ rendering
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """One frame per copy in ``rgb_array`` mode (see :mod:`envs.render`); None otherwise."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode")
+            return None
+        from envs.render import ReachRenderer
+
+        while len(self._renderers) < self.num_envs:
+            self._renderers.append(ReachRenderer(self.task, human=self.render_mode == "human"))
+        core = self._core
+        frames = tuple(r.draw(core.dynamics.q[i], core.goal[i], success=bool(core.success[i]),
+                              contact=bool(core.dynamics.contact[i]))
+                       for i, r in enumerate(self._renderers))
+        return None if self.render_mode == "human" else frames
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for renderer in self._renderers:
+            renderer.close()
+        self._renderers = []

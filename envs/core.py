@@ -1,0 +1,162 @@
+"""B copies of the Reacher task as arrays: goals, dynamics, observations, rewards, episode ends.
+
+The single env (:class:`envs.reach.UR5ReachEnv`, B = 1) and the batched one
+(:class:`envs.batched.BatchedReach`) are thin Gymnasium faces over this one class, so they
+cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+import regions
+import ur5kin
+from envs.dynamics import ArmDynamics, command_bounds
+from envs.reward import goal_distance, reach_reward
+from envs.spec import TaskSpec
+
+
+@functools.lru_cache(maxsize=64)
+def goal_sampler(region: str, n_joints: int, start_q: tuple[float, ...], base_height: float,
+                 kind: str) -> regions.GoalSampler:
+    """The goal sampler of a task (shared between envs: it is immutable and takes the rng).
+
+    Built once per distinct task, because construction probes the region's acceptance (and
+    raises :class:`regions.UnreachableRegionError` for a region the joints cannot reach).
+    """
+    cls = regions.JointSpaceSampler if kind == "joint" else regions.CartesianSampler
+    return cls(regions.parse(region, base_height), n_joints, start_q, base_height)
+
+
+def task_sampler(task: TaskSpec) -> regions.GoalSampler:
+    """:func:`goal_sampler` for ``task``."""
+    return goal_sampler(task.region, task.n_joints, task.start_q, task.base_height,
+                        task.goal_sampler)
+
+
+class ReachCore:
+    """B copies of the task, stepped together.
+
+    Parameters
+    ----------
+    task : TaskSpec
+    num_copies : int
+        B.
+
+    Attributes
+    ----------
+    goal : (B, 3) float, m, world frame
+        Desired goals.
+    achieved : (B, 3) float, m, world frame
+        tool0 positions (base at (0, 0, base_height)).
+    observation : (B, 3n) float
+        [theta (rad), theta_dot (rad/s), theta_ddot (rad/s^2)] of joints 1..n.
+    action : (B, n) float
+        The last actions as applied (clipped to :attr:`action_low`, :attr:`action_high`).
+    distance, reward : (B,) float
+        tool0-goal distance (m) and reward after the last step.
+    success, terminated, truncated : (B,) bool
+    elapsed : (B,) int
+        Steps since each copy's reset.
+
+    Arrays are overwritten in place by every call; copy what you keep.
+    """
+
+    def __init__(self, task: TaskSpec, num_copies: int) -> None:
+        self.task = task
+        n, B = task.n_joints, num_copies
+        self.sampler = task_sampler(task)
+        self.dynamics = ArmDynamics(task, num_copies)
+        self.action_low, self.action_high = command_bounds(task)
+        self.goal = np.zeros((B, 3))
+        self.achieved = np.zeros((B, 3))
+        self.observation = np.zeros((B, 3 * n))
+        self.action = np.zeros((B, n))
+        self.distance = np.zeros(B)
+        self.reward = np.zeros(B)
+        self.success = np.zeros(B, dtype=bool)
+        self.terminated = np.zeros(B, dtype=bool)
+        self.truncated = np.zeros(B, dtype=bool)
+        self.elapsed = np.zeros(B, dtype=np.int64)
+        self._obs_views = (self.observation[:, :n], self.observation[:, n : 2 * n],
+                           self.observation[:, 2 * n :])
+        self._start = np.asarray(task.start_q)
+
+    def reset(self, index: Sequence[int] | np.ndarray, rngs: Sequence[np.random.Generator],
+              goals: np.ndarray | None = None) -> None:
+        """Start new episodes in copies ``index``: arm at rest at the start pose, new goals.
+
+        Parameters
+        ----------
+        index : (m,) int
+            Copies to reset.
+        rngs : sequence of m numpy.random.Generator
+            Each copy's generator; copy ``index[j]``'s goal is drawn from ``rngs[j]`` alone.
+        goals : (m, 3) float, m, world frame, optional
+            Goals to use instead of drawing them.
+        """
+        index = np.asarray(index, dtype=np.intp)
+        if goals is None:
+            goals = np.array([self.sampler.sample(1, rng).goals[0] for rng in rngs])
+        self.goal[index] = goals
+        self.dynamics.reset(self._start, index)
+        self.elapsed[index] = 0
+        self.action[index] = 0.0
+        self.terminated[index] = False
+        self.truncated[index] = False
+        self.reward[index] = 0.0
+        self._observe()
+
+    def step(self, action: np.ndarray) -> None:
+        """Apply ``action (B, n)`` (clipped to the action box) to every copy for one step."""
+        np.clip(action, self.action_low, self.action_high, out=self.action)
+        self.dynamics.step(self.action)
+        self.elapsed += 1
+        self._observe()
+        task = self.task
+        self.reward[:] = reach_reward(self.distance, self.action, task)
+        np.logical_and(self.success, task.terminate_on_success, out=self.terminated)
+        np.greater_equal(self.elapsed, task.max_episode_steps, out=self.truncated)
+
+    def _observe(self) -> None:
+        """Refresh observation, achieved goal, distance and success from the dynamics."""
+        dyn, n = self.dynamics, self.task.n_joints
+        theta, theta_dot, theta_ddot = self._obs_views
+        theta[:] = dyn.q[:, :n]
+        theta_dot[:] = dyn.v[:, :n]
+        theta_ddot[:] = dyn.acceleration[:, :n]
+        dyn.tool_positions(self.achieved)
+        self.distance[:] = goal_distance(self.achieved, self.goal)
+        np.less_equal(self.distance, self.task.success_radius, out=self.success)
+
+    def single_spaces(self) -> tuple[gymnasium.spaces.Dict, gymnasium.spaces.Box]:
+        """Observation and action space of one copy.
+
+        The observation is a goal-env Dict: ``observation (3n,)`` bounded by the URDF joint
+        position and velocity limits (the dynamics enforce both; the acceleration is
+        unbounded), ``achieved_goal`` and ``desired_goal`` ``(3,)`` unbounded; the action box is
+        :func:`envs.dynamics.command_bounds`. All float64.
+        """
+        model, n = ur5kin.load_model(), self.task.n_joints
+        vel = ur5kin.velocity_limits()[:n]
+        low = np.concatenate([model.lowerPositionLimit[:n], -vel, np.full(n, -np.inf)])
+        high = np.concatenate([model.upperPositionLimit[:n], vel, np.full(n, np.inf)])
+        box = gymnasium.spaces.Box
+        observation = gymnasium.spaces.Dict({
+            "observation": box(low, high, dtype=np.float64),
+            "achieved_goal": box(-np.inf, np.inf, (3,), np.float64),
+            "desired_goal": box(-np.inf, np.inf, (3,), np.float64),
+        })
+        return observation, box(self.action_low, self.action_high, dtype=np.float64)
+
+    def info_arrays(self) -> dict[str, Any]:
+        """Per-copy step information as arrays (the batched env's info)."""
+        dyn = self.dynamics
+        return {"action": self.action.copy(), "distance": self.distance.copy(),
+                "is_success": self.success.copy(), "contact": dyn.contact.copy(),
+                "joint_limit": dyn.limit_stop.copy()}

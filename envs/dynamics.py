@@ -1,0 +1,482 @@
+"""The arm's physics: Pinocchio forward dynamics of the UR5 under a joint PD controller.
+
+One job: advance B copies of the 6-joint arm by one control step. Per substep of length
+``h = 1 / sim_hz``, in this order (semi-implicit Euler)::
+
+    tau   = clip(kp_e (q_ref - q) + kd_e (v_ref - v) + tau_ff + g(q),  -effort, effort)
+    a     = ABA(q, v, tau)                          # Pinocchio's articulated-body algorithm
+    v'    = clip(v + h a,  -v_max, v_max)           # URDF velocity limits
+    q'    = q + h v'
+
+``g(q)`` is the gravity torque (gravity compensation, optional); the effort and velocity limits
+are the URDF's. The controlled joints 1..n follow the command, whose meaning depends on the
+control mode; joints n+1..6 are held at their start angles by the same PD:
+
+============  ====================================  ===========================================
+mode          controlled joints 1..n                held joints n+1..6
+============  ====================================  ===========================================
+position      PD to the commanded angles (rad)      PD to the start angles
+velocity      ``kd (v_cmd - v)``, v_cmd in rad/s    PD to the start angles
+torque        the commanded torque (N m)            PD to the start angles
+============  ====================================  ===========================================
+
+Stops (inelastic, the same model for both): after the substeps, every substep configuration is
+checked for plane clearance (one batched :func:`regions.link_heights` call) and against the URDF
+joint position limits. If some substep violates either, the copy goes back to the last valid
+substep state with its velocity set to zero: it stops dead for the rest of the control step,
+the way an arm hitting a rigid table or an end stop with no bounce would. ``contact`` /
+``limit_stop`` report it for the step.
+
+The clearance check is skipped when it provably cannot fail: the height of any point of the arm
+changes by at most ``sum_i r_i |dq_i|`` between two configurations (``r_i`` bounds the distance
+of any collision-geometry point from joint i's axis; joint 1's axis is vertical, so
+``r_1 = 0``), so a copy whose last known clearance exceeds that bound over the step's substeps
+is clear without looking. The skip changes the cost, never the answer.
+
+Time-scaled units: the integrator state is ``(q, w)`` with ``w = h v`` (rad per substep) and
+Pinocchio sees a model whose gravity is scaled by ``h^2``, with torques scaled by ``h^2``. The
+equations of motion are quadratic in velocity and linear in torque and gravity, so ABA then
+returns ``h^2 a`` exactly, and each Euler substep is two additions. This saves four array
+operations per substep: a third of the per-substep Python overhead.
+
+The reported acceleration is the mean over the control step of the acceleration the integrator
+realised, ``(v(t + dt) - v(t)) / dt``; it equals the mean of ABA's accelerations when no
+velocity limit or stop acted during the step.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pinocchio as pin
+
+import regions
+import ur5kin
+
+if TYPE_CHECKING:
+    from envs.spec import TaskSpec
+
+INERTIA_SAMPLES = 4096
+"""Configurations sampled (uniform in [-pi, pi]^6) to bound the diagonal of the mass matrix."""
+
+INERTIA_SEED = 5
+"""Seed of that sample, fixed so the bounds (and the checks on them) are reproducible."""
+
+
+
+def _clip_fallback(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, out: np.ndarray) -> np.ndarray:
+    return np.minimum(np.maximum(x, lo, out=out), hi, out=out)
+
+
+clip = getattr(getattr(np, "_core", np).umath, "clip", _clip_fallback)
+"""``clip(x, lo, hi, out=out)``: numpy's clip ufunc itself. ``np.clip`` wraps it in Python
+argument handling that costs several times the ufunc call on 6-vectors, in the hot loop."""
+
+
+@functools.cache
+def joint_inertia_bounds() -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest diagonal entry of the UR5's mass matrix, per joint.
+
+    Returns
+    -------
+    low, high : (6,) float, kg m^2
+        Min and max of ``M_ii(q)`` over :data:`INERTIA_SAMPLES` configurations (joints 2-4 in
+        [-pi, pi], the others do not change the diagonal); an estimate from a sample, accurate
+        to well under 1 % for this arm.
+    """
+    model = ur5kin.load_model()
+    data = model.createData()
+    q = np.random.default_rng(INERTIA_SEED).uniform(-np.pi, np.pi, (INERTIA_SAMPLES, 6))
+    diag = np.array([np.diag(pin.crba(model, data, qi)) for qi in q])
+    return diag.min(axis=0), diag.max(axis=0)
+
+
+def pd_gains(bandwidth: float, damping_ratio: float, inertia: Any
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """PD gains that give each joint, taken alone, a pole pair at ``bandwidth``.
+
+    Parameters
+    ----------
+    bandwidth : float, rad/s
+        Natural frequency w of each joint's closed loop.
+    damping_ratio : float
+        zeta (1 = critically damped).
+    inertia : (6,) float, kg m^2
+        The inertia each joint is designed for (the defaults use the largest diagonal entry of
+        the mass matrix, :func:`joint_inertia_bounds`, so lighter poses are better damped).
+
+    Returns
+    -------
+    kp : (6,) float, N m/rad
+        ``inertia * w^2``.
+    kd : (6,) float, N m s/rad
+        ``2 zeta inertia w``.
+    """
+    inertia = np.asarray(inertia, dtype=float)
+    return inertia * bandwidth**2, 2.0 * damping_ratio * inertia * bandwidth
+
+
+def pd_stability_violations(kp: Any, kd: Any, h: float) -> list[str]:
+    """Joints whose PD loop is unstable under semi-implicit Euler with step ``h``.
+
+    For one joint of inertia I, the substep maps ``(q, h v)`` by the matrix
+    ``[[1 - a, 1 - b], [-a, 1 - b]]`` with ``a = kp h^2 / I``, ``b = kd h / I``; it is stable
+    (Jury's test) iff ``0 < b < 2`` and ``a + 2 b < 4``. This checks that at each joint's
+    smallest diagonal inertia (:func:`joint_inertia_bounds`), where the loop is fastest. It is a
+    necessary condition; the coupled loop is tested on sampled configurations in the test suite.
+
+    Parameters
+    ----------
+    kp : (6,) float, N m/rad
+    kd : (6,) float, N m s/rad
+    h : float, s
+
+    Returns
+    -------
+    problems : list of str
+        One message per unstable joint (empty when all pass).
+    """
+    low, _ = joint_inertia_bounds()
+    a = np.asarray(kp, dtype=float) * h**2 / low
+    b = np.asarray(kd, dtype=float) * h / low
+    return [
+        f"joint {j + 1}: kd h / I = {b[j]:.3g} (need < 2), kp h^2 / I + 2 kd h / I = "
+        f"{a[j] + 2 * b[j]:.3g} (need < 4) at I = {low[j]:.4g} kg m^2"
+        for j in range(6) if not (0.0 < b[j] < 2.0 and a[j] + 2.0 * b[j] < 4.0)
+    ]
+
+
+@functools.cache
+def height_lipschitz() -> np.ndarray:
+    """Bounds ``R (6, 6)`` (m/rad): ``|dz/dq_i| <= R[i, k]`` for every collision point of link k.
+
+    Rows are joints 1-6, columns the moving links shoulder_link .. wrist_3_link. A point of link
+    k (moved by joints 1..k) lies at most ``sum_{j=i+1..k} |t_j| + max|p|`` from joint i's
+    origin, ``t_j`` being joint j's placement offset and ``p`` the link's convex-hull vertices
+    in its own frame; that bounds its distance from joint i's axis, hence its speed per rad of
+    joint i. Joint 1 turns about the vertical axis and never changes a height (row 0 is zero),
+    and joint i does not move links before it.
+    """
+    model = ur5kin.load_model()
+    offsets = [float(np.linalg.norm(model.jointPlacements[j].translation)) for j in range(7)]
+    reach = [float(np.linalg.norm(link.hull, axis=1).max())
+             for link in regions.collision_geometry()]
+    R = np.zeros((6, 6))
+    for i in range(2, 7):  # joint i (1-based) moves links i..6; link k is the child of joint k
+        for k in range(i, 7):
+            R[i - 1, k - 1] = sum(offsets[i + 1 : k + 1]) + reach[k]
+    return R
+
+
+def _last_valid(invalid: np.ndarray) -> np.ndarray:
+    """Per column of ``invalid (K+1, m) bool``, the index before its first True (K if none)."""
+    first = np.argmax(invalid, axis=0)
+    return np.where(invalid.any(axis=0), first - 1, invalid.shape[0] - 1)
+
+
+def command_bounds(task: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The box of valid commands for the controlled joints in the task's control mode.
+
+    Returns
+    -------
+    low, high : (n,) float
+        Position: the joint-space goal range ``[-pi, pi]`` (rad, :data:`regions.samplers.
+        JOINT_LIMIT`); velocity: the URDF velocity limits (rad/s); torque: the URDF effort
+        limits (N m).
+    """
+    n = task.n_joints
+    if task.control_mode == "position":
+        high = np.full(n, regions.samplers.JOINT_LIMIT)
+    elif task.control_mode == "velocity":
+        high = ur5kin.velocity_limits()[:n]
+    else:
+        high = ur5kin.effort_limits()[:n]
+    return -high, high.copy()
+
+
+class ArmDynamics:
+    """B copies of the UR5 under the task's controller, advanced one control step at a time.
+
+    Parameters
+    ----------
+    task : TaskSpec
+        Start pose, controlled joints, control mode, gains, rates, base height, plane margin.
+    num_copies : int
+        B, the number of independent arms.
+
+    Attributes
+    ----------
+    q : (B, 6) float, rad
+        Joint angles now.
+    v : (B, 6) float, rad/s
+        Joint velocities now.
+    acceleration : (B, 6) float, rad/s^2
+        Mean realised acceleration over the last step (zero after a reset).
+    contact : (B,) bool
+        Whether the last step stopped on the plane.
+    limit_stop : (B,) bool
+        Whether the last step stopped at a URDF joint position limit.
+
+    The arrays are owned by this object and overwritten by every step; copy what you keep.
+    One copy (B = 1) calls Pinocchio's ``aba`` and ``computeGeneralizedGravity`` directly;
+    more go through ``abaInParallel`` and ``rneaInParallel`` (one thread: measured faster than
+    two on small batches, and it leaves the other core to the learner).
+    """
+
+    def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:
+        if not isinstance(num_copies, int | np.integer) or num_copies < 1:
+            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
+        self.task = task
+        B, K, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
+        self.num_copies = B
+        base = ur5kin.load_model()
+        # the time-scaled model: gravity * h^2, so that ABA returns h^2 * a (module docstring)
+        self.model = pin.Model(base)
+        self.model.gravity = pin.Motion(np.asarray(base.gravity.linear) * h * h,
+                                        np.asarray(base.gravity.angular))
+        self.data = self.model.createData()
+        self._pool = pin.ModelPool(self.model, 1) if B > 1 else None
+        self._tool = self.model.getFrameId(ur5kin.TOOL_FRAME)
+
+        kp, kd = np.asarray(task.kp) * h * h, np.asarray(task.kd) * h
+        self._kp_eff, self._kd_eff = kp.copy(), kd.copy()
+        if task.control_mode != "position":
+            self._kp_eff[:n] = 0.0
+        if task.control_mode == "torque":
+            self._kd_eff[:n] = 0.0
+        # command -> b: kp q_cmd (position), kd (h v_cmd) (velocity), h^2 tau_cmd (torque)
+        self._command_gain = {"position": kp[:n], "velocity": kd[:n] * h,
+                              "torque": np.full(n, h * h)}[task.control_mode]
+        self._effort = ur5kin.effort_limits() * h * h
+        self._w_max = ur5kin.velocity_limits() * h
+        lo, hi = np.asarray(base.lowerPositionLimit), np.asarray(base.upperPositionLimit)
+        self._q_mid, self._q_half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        self._start = np.asarray(task.start_q, dtype=float)
+        self._lipschitz = height_lipschitz()
+        # no point of link k falls more than K w_max . R[:, k] within one step
+        # (|q_k - q_0| <= k w_max): links with more clearance than that skip the exact check
+        self._plane_screen = task.plane_margin + K * (self._w_max @ self._lipschitz)
+        # likewise a joint farther than K w_max from its limits cannot pass them in one step
+        self._limit_screen = self._q_half - K * self._w_max
+        self._w_to_v = 1.0 / h
+        self._w_to_accel = 1.0 / (h * task.dt)
+
+        # Substep history of the rows x = [q, w, b] (w = h v; b the constant part of the
+        # scaled torque within a step: kp q_ref of position control, the torque command, ...).
+        # Row 0 is the step's start. With b in the row, the PD torque is one product:
+        # tau = x @ gains = b - kp_e q - kd_e w.
+        self._X = np.zeros((K + 1, B, 18))
+        self._Q, self._W = self._X[..., :6], self._X[..., 6:12]
+        self._X[..., 12 + n : 18] = kp[n:] * self._start[n:]  # held joints: PD to the start
+        self._command_bias = self._X[..., 12 : 12 + n]
+        gains = np.zeros((18, 6))
+        gains[:6] = -np.diag(self._kp_eff)
+        gains[6:12] = -np.diag(self._kd_eff)
+        gains[12:] = np.eye(6)
+        self._gains = gains
+        self._tau = np.zeros((B, 6))
+        self._tmp = np.zeros((B, 6))
+        self._gravity_out = np.zeros((B, 6))
+        self._accel_out = np.zeros((B, 6))
+        self._zeros = np.zeros((B, 6))
+
+        # the state is the last history row: a step starts by copying it to row 0
+        self.q = self._Q[K]
+        self._w = self._W[K]
+        self.q[:] = self._start
+        self.v = np.zeros((B, 6))
+        self.acceleration = np.zeros((B, 6))
+        self.contact = np.zeros(B, dtype=bool)
+        self.limit_stop = np.zeros(B, dtype=bool)
+        self._clearance = np.tile(self._link_heights(self._start), (B, 1))  # (B, 6) lower bounds
+
+        X = self._X[:, 0] if B == 1 else self._X  # 1-D rows for Pinocchio's single calls
+        self._rows = [(X[k], X[k, ..., :6], X[k, ..., 6:12], X[k + 1, ..., :6],
+                       X[k + 1, ..., 6:12]) for k in range(K)]
+        one = 0 if B == 1 else slice(None)
+        self._tau_row, self._zeros_row = self._tau[one], self._zeros[one]
+        self._gravity, self._accel = self._kernels()
+
+    # ------------------------------------------------------------------ Pinocchio kernels
+    def _kernels(self) -> tuple[Any, Any]:
+        """``gravity(q) -> h^2 g(q)`` and ``accel(q, w, tau) -> h^2 a`` for the copies' rows.
+
+        One copy binds Pinocchio's single-configuration functions (``functools.partial`` adds
+        no Python frame); more wrap the parallel ones, which write into preallocated arrays.
+        """
+        model, data = self.model, self.data
+        if self._pool is None:
+            return (functools.partial(pin.computeGeneralizedGravity, model, data),
+                    functools.partial(pin.aba, model, data))
+        pool, g_out, a_out, zeros = self._pool, self._gravity_out, self._accel_out, self._zeros
+
+        def gravity(q: np.ndarray) -> np.ndarray:
+            pin.rneaInParallel(1, pool, q.T, zeros.T, zeros.T, g_out.T)
+            return g_out
+
+        def accel(q: np.ndarray, w: np.ndarray, tau: np.ndarray) -> np.ndarray:
+            pin.abaInParallel(1, pool, q.T, w.T, tau.T, a_out.T)
+            return a_out
+
+        return gravity, accel
+
+    def _link_heights(self, q: np.ndarray) -> np.ndarray:
+        """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""
+        return regions.link_heights(q, self.task.base_height)[..., 1:]
+
+    # ------------------------------------------------------------------ public API
+    def reset(self, q: Any, index: Any = None) -> None:
+        """Put copies at rest at configurations ``q``.
+
+        Parameters
+        ----------
+        q : (6,) or (m, 6) float, rad
+            Configurations, clear of the plane and within the joint limits.
+        index : None, int, slice, (m,) int or (B,) bool
+            Which copies (all when None).
+
+        Raises
+        ------
+        ValueError
+            When a configuration is not clear of the plane by the task's margin.
+        """
+        sel = slice(None) if index is None else index
+        q = np.asarray(q, dtype=float)
+        heights = self._link_heights(q)
+        if np.any(heights < self.task.plane_margin):
+            raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
+                             f"{heights.min():.4f} m, below the plane margin "
+                             f"{self.task.plane_margin} m")
+        self.q[sel] = q
+        self.v[sel] = 0.0
+        self._w[sel] = 0.0
+        self.acceleration[sel] = 0.0
+        self.contact[sel] = False
+        self.limit_stop[sel] = False
+        self._clearance[sel] = heights
+
+    def step(self, command: np.ndarray) -> None:
+        """Advance every copy by one control step of ``task.substeps`` substeps.
+
+        Parameters
+        ----------
+        command : (B, n) float
+            Per copy, the command of joints 1..n in the control mode's unit (rad, rad/s or
+            N m), already within :func:`command_bounds`.
+        """
+        task, K = self.task, self.task.substeps
+        # b of the controlled joints, in every row of the step (scaled: module docstring)
+        np.multiply(self._command_gain, command, out=self._command_bias)
+        X = self._X
+        X[0, :, :12] = X[K, :, :12]
+
+        # Positional ``out`` arguments: keyword parsing costs ~10 % of a 6-vector ufunc call.
+        dot, add, clip_ = np.dot, np.add, clip
+        gains, tau = self._gains, self._tau_row
+        effort, neg_effort = self._effort, -self._effort
+        w_max, neg_w_max = self._w_max, -self._w_max
+        gravity, accel = self._gravity, self._accel
+        if not task.gravity_compensation:
+            def gravity(q: np.ndarray) -> np.ndarray:
+                return self._zeros_row
+        for x, q, w, q1, w1 in self._rows:
+            dot(x, gains, tau)
+            add(tau, gravity(q), tau)
+            clip_(tau, neg_effort, effort, tau)
+            add(w, accel(q, w, tau), w1)
+            clip_(w1, neg_w_max, w_max, w1)
+            add(q, w1, q1)
+        self._finish_step()
+
+    # ------------------------------------------------------------------ stops
+    def _finish_step(self) -> None:
+        """Apply the joint-limit and plane stops, then publish the new state.
+
+        Cheap screens decide which copies need the exact tests: a joint can pass its limit only
+        if it starts within a step's travel (``K w_max``) of it, and a link can touch the plane
+        only if its clearance is below a step's worth of fall (see ``__init__``). One copy
+        takes a scalar path (array bookkeeping costs more than the tests on a batch of one);
+        both paths are tested against each other.
+        """
+        if self.num_copies == 1:
+            self._finish_one()
+        else:
+            self._finish_many()
+        W, K = self._W, self.task.substeps
+        np.subtract(W[K], W[0], out=self.acceleration)
+        self.acceleration *= self._w_to_accel
+        np.multiply(W[K], self._w_to_v, out=self.v)
+
+    def _finish_one(self) -> None:
+        Q, W, K, margin = self._Q[:, 0], self._W[:, 0], self.task.substeps, self.task.plane_margin
+        stop_limit = stop_plane = K  # the last valid substep
+        if np.greater(np.abs(Q[0] - self._q_mid), self._limit_screen).any():
+            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (K+1,)
+            if beyond.any():
+                stop_limit = int(np.argmax(beyond)) - 1
+        heights = None
+        if (self._clearance[0] < self._plane_screen).any():
+            heights = self._link_heights(Q)  # (K+1, 6): one call for all substeps
+            below = heights.min(axis=-1) < margin
+            below[0] = False  # the step's start state is clear by construction
+            if below.any():
+                stop_plane = int(np.argmax(below)) - 1
+        stop = min(stop_limit, stop_plane)
+        self.contact[0] = stop < K and stop == stop_plane
+        self.limit_stop[0] = stop < K and stop == stop_limit
+        if stop < K:
+            Q[K] = Q[stop]  # back to the last valid substep ...
+            W[K] = 0.0  # ... and stopped dead
+        if heights is not None:
+            self._clearance[0] = heights[stop]
+        else:  # link heights change by at most |dq| @ R (height_lipschitz)
+            self._clearance[0] -= np.abs(Q[K] - Q[0]) @ self._lipschitz
+
+    def _finish_many(self) -> None:
+        Q, W, K, B = self._Q, self._W, self.task.substeps, self.num_copies
+        stop_limit = stop_plane = None  # per copy: the last valid substep, K if none failed
+        if np.greater(np.abs(Q[0] - self._q_mid), self._limit_screen).any():
+            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (K+1, B)
+            if beyond.any():
+                stop_limit = _last_valid(beyond)
+        risky = (self._clearance < self._plane_screen).any(axis=-1)
+        heights = None
+        if risky.any():
+            idx = np.flatnonzero(risky)
+            heights = self._link_heights(Q[:, idx])  # (K+1, m, 6): one call for all substeps
+            below = heights.min(axis=-1) < self.task.plane_margin
+            below[0] = False  # the step's start state is clear by construction
+            if below.any():
+                stop_plane = np.full(B, K)
+                stop_plane[idx] = _last_valid(below)
+        stop = np.full(B, K)
+        for part in (stop_limit, stop_plane):
+            if part is not None:
+                np.minimum(stop, part, out=stop)
+        stopped = stop < K
+        np.logical_and(stopped, stop == (K if stop_plane is None else stop_plane),
+                       out=self.contact)
+        np.logical_and(stopped, stop == (K if stop_limit is None else stop_limit),
+                       out=self.limit_stop)
+        if stopped.any():
+            rows = np.flatnonzero(stopped)
+            Q[K, rows] = Q[stop[rows], rows]  # back to the last valid substep ...
+            W[K, rows] = 0.0  # ... and stopped dead
+        # link heights change by at most |dq| @ R (height_lipschitz): new lower bounds, or the
+        # exact heights where they were just computed
+        self._clearance -= np.abs(Q[K] - Q[0]) @ self._lipschitz
+        if heights is not None:
+            self._clearance[idx] = heights[stop[idx], np.arange(len(idx))]
+
+    # ------------------------------------------------------------------ kinematics
+    def tool_positions(self, out: np.ndarray) -> np.ndarray:
+        """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``."""
+        if self._pool is None:
+            pin.forwardKinematics(self.model, self.data, self.q[0])
+            out[0] = pin.updateFramePlacement(self.model, self.data, self._tool).translation
+        else:
+            out[:] = ur5kin.fk(self.q)
+        out[:, 2] += self.task.base_height
+        return out

@@ -1,0 +1,257 @@
+"""``UR5Reach-v0``: the paper's UR5 Reacher as a Gymnasium goal env (see :class:`UR5ReachEnv`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from envs.core import ReachCore
+from envs.reward import ACTION_KEY, compute_reward, compute_success
+from envs.spec import TaskSpec
+
+RENDER_MODES = ("human", "rgb_array")
+"""Render modes of the env: a matplotlib window, or frames as ``(H, W, 3) uint8`` arrays."""
+
+
+def make_task(spec: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str, Any]
+              ) -> TaskSpec:
+    """The task from a :class:`TaskSpec` (or its dict form) and field overrides.
+
+    ``region`` may be a name, a region string or a :class:`regions.Region`; a changed region
+    brings its default start pose unless ``start_q`` is given too.
+
+    Raises
+    ------
+    ValueError
+        For an unknown field name or a bad value (see :class:`TaskSpec`).
+    """
+    if spec is None:
+        return TaskSpec.from_dict(dict(overrides))
+    if isinstance(spec, Mapping):
+        spec = TaskSpec.from_dict(spec)
+    elif not isinstance(spec, TaskSpec):
+        raise ValueError(f"spec must be a TaskSpec, its to_dict() form or None; got "
+                         f"{type(spec).__name__}")
+    return spec.replace(**overrides) if overrides else spec
+
+
+class UR5ReachEnv(gymnasium.Env):
+    """Move the UR5's end effector (``tool0``) to a goal drawn from a goal constraint region.
+
+    The paper's task (Lewis, Moll, Kavraki 2019; DESIGN.md): a UR5 on an impermeable ground
+    plane, joints 1..n under a 50 Hz controller, a new goal every episode. Every number below
+    is a field of the task (:class:`envs.TaskSpec`, ``env.unwrapped.task``); the tables give
+    the defaults. World frame: ground plane z = 0, robot base at (0, 0, ``base_height`` = 0.1 m),
+    +x along the arm at all-zero joint angles.
+
+    ## Action Space
+
+    ``Box(low, high, (n,), float64)``, the command of joints 1..n (``n_joints`` = n, 2-6).
+    Actions outside the box are clipped; a non-finite action raises ``ValueError``.
+
+    | Num | Action, by ``control_mode``                 | Min                 | Max        | Unit  |
+    |-----|---------------------------------------------|---------------------|------------|-------|
+    | i   | ``position`` (default): joint i+1's target  | -pi                 | pi         | rad   |
+    | i   | ``velocity``: joint i+1's target velocity   | -3.15 (wrists -3.2) | 3.15 (3.2) | rad/s |
+    | i   | ``torque``: torque on joint i+1, plus g(q)  | -150 (wrists -28)   | 150 (28)   | N m   |
+
+    A joint PD controller with gravity compensation makes the torques (``kp``, ``kd``: poles at
+    30 rad/s), saturated at the URDF effort limits (150, 150, 150, 28, 28, 28 N m); joints
+    n+1..6 are held at their start angles by the same PD. Pinocchio's ABA integrates the whole
+    arm at ``sim_hz`` = 1000 Hz (20 substeps a step, semi-implicit Euler), velocities saturated
+    at the URDF limits. The plane and the URDF joint limits stop the arm dead (inelastic); see
+    :mod:`envs.dynamics`.
+
+    ## Observation Space
+
+    A ``Dict`` of ``float64`` arrays. ``observation``, ``(3n,)``:
+
+    | Num      | Observation                                | Min          | Max        | Unit    |
+    |----------|--------------------------------------------|--------------|------------|---------|
+    | 0..n-1   | theta, angles of joints 1..n               | -2 pi (elbow -pi) | 2 pi (pi) | rad |
+    | n..2n-1  | theta_dot, velocities of joints 1..n       | -3.15 (-3.2) | 3.15 (3.2) | rad/s   |
+    | 2n..3n-1 | theta_ddot, mean acceleration over the step | -Inf        | Inf        | rad/s^2 |
+
+    | Key               | Observation                               | Min  | Max | Unit |
+    |-------------------|-------------------------------------------|------|-----|------|
+    | ``desired_goal``  | goal x, y, z, world frame, ``(3,)``       | -Inf | Inf | m    |
+    | ``achieved_goal`` | tool0 x, y, z, world frame, ``(3,)``      | -Inf | Inf | m    |
+
+    The paper's flat state ``[theta, theta_dot, theta_ddot, goal - fk(theta), goal]``
+    (3n + 6 values) is :class:`envs.FlatObservation` of this env.
+
+    ## Rewards
+
+    With ``d`` the tool0-goal distance after the step and ``a`` the action as applied:
+
+    | ``reward_type``        | Reward per step                             | Unit        |
+    |------------------------|---------------------------------------------|-------------|
+    | ``dense`` (paper eq. 2) | ``-1.0 d - 1.0 |a|^2 + 100 * 1{d <= 0.1}`` | d in m, a in rad |
+    | ``sparse``             | ``100 * 1{d <= 0.1}``                       | d in m      |
+
+    The numbers are ``distance_weight``, ``action_weight``, ``success_reward`` and
+    ``success_radius``. ``compute_reward(achieved_goal, desired_goal, info)`` is vectorised
+    over any batch; the dense reward reads the action from ``info["action"]`` (a dict of batched
+    arrays, or a list/array of step infos as Stable-Baselines3's HER buffer passes them with
+    ``copy_info_dict=True``). ``reward == env.compute_reward(obs["achieved_goal"],
+    obs["desired_goal"], info)`` holds exactly.
+
+    ## Starting State
+
+    | Item             | Value                                                    | Unit    |
+    |------------------|----------------------------------------------------------|---------|
+    | joint angles     | region ``unconstrained``: (0, 0, 0, 0, 0, 0)             | rad     |
+    | joint angles     | other regions: (0, -pi/4, pi/2, 0, 0, 0)                 | rad     |
+    | joint velocities | 0                                                        | rad/s   |
+    | theta_ddot       | 0                                                        | rad/s^2 |
+    | goal             | tool0 at joints 1..n uniform in [-pi, pi] (the others at | m       |
+    |                  | the start), kept when in the region with the arm clear   |         |
+    |                  | of the plane (``goal_sampler="joint"``)                  |         |
+
+    ``reset(seed=s)`` reproduces goals and trajectories exactly; ``reset(options={"goal":
+    (x, y, z)})`` sets the goal (m, world frame) instead of drawing it.
+
+    ## Episode End
+
+    | End          | When                                                          | Unit  |
+    |--------------|---------------------------------------------------------------|-------|
+    | terminated   | d <= ``success_radius`` = 0.1 (if ``terminate_on_success``)   | m     |
+    | truncated    | after ``max_episode_steps`` = 100 steps (2 s at 50 Hz)        | steps |
+
+    Set the episode length in the task (``spec=TaskSpec(max_episode_steps=50)``): Gymnasium's
+    ``make(..., max_episode_steps=50)`` adds an outer time limit that the task does not see.
+
+    ## Info
+
+    | Key             | Content                                                 | Unit       |
+    |-----------------|---------------------------------------------------------|------------|
+    | ``action``      | the action as applied (clipped), ``(n,)``               | action's   |
+    | ``distance``    | d, tool0 to goal                                        | m          |
+    | ``is_success``  | d <= ``success_radius``                                 | -          |
+    | ``contact``     | the arm hit the ground plane during the step and stopped | -         |
+    | ``joint_limit`` | a joint hit its URDF limit during the step and stopped  | -          |
+
+    ## Arguments
+
+    ``gymnasium.make("UR5Reach-v0", region="zheight", n_joints=3, **fields)`` takes any
+    :class:`TaskSpec` field as a keyword, or ``spec=TaskSpec(...)`` (and overrides), and
+    ``render_mode`` (``"rgb_array"`` or ``"human"``). ``region``: a registered name
+    (``unconstrained``, ``zheight``, ``closebox``, ``farbox``, ``farbox_tall``), a string of
+    :func:`regions.parse`, or a :class:`regions.Region`.
+
+    ## Version History
+
+    - v0: first version.
+    """
+
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}  # noqa: RUF012
+
+    def __init__(self, spec: TaskSpec | Mapping[str, Any] | None = None,
+                 render_mode: str | None = None, **overrides: Any) -> None:
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
+                             f"{render_mode!r}")
+        self.task = make_task(spec, overrides)
+        task, n = self.task, self.task.n_joints
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": task.control_hz}
+        self._core = ReachCore(task, 1)
+        self.observation_space, self.action_space = self._core.single_spaces()
+        self._n = n
+        self._renderer: Any = None
+
+    @property
+    def dt(self) -> float:
+        """Duration of one step (s): 1 / control_hz = 0.02 by default."""
+        return self.task.dt
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        goals = None
+        if options:
+            unknown = sorted(set(options) - {"goal"})
+            if unknown:
+                raise ValueError(f"unknown reset option(s) {unknown}; the only option is 'goal'")
+            goal = np.asarray(options["goal"], dtype=np.float64)
+            if goal.shape != (3,) or not np.all(np.isfinite(goal)):
+                raise ValueError(f"options['goal'] must be 3 finite numbers (x, y, z in m, world "
+                                 f"frame); got {options['goal']!r}")
+            goals = goal[None]
+        self._core.reset([0], [self.np_random], goals)
+        core = self._core
+        info = {"distance": float(core.distance[0]), "is_success": bool(core.success[0])}
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(), info
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (self._n,) or not np.isfinite(a).all():
+            raise ValueError(f"action must be {self._n} finite numbers (the "
+                             f"{self.task.control_mode} command of joints 1..{self._n}); got "
+                             f"{action!r}")
+        core = self._core
+        core.step(a.reshape(1, self._n))
+        dyn = core.dynamics
+        info = {
+            ACTION_KEY: core.action[0].copy(),
+            "distance": float(core.distance[0]),
+            "is_success": bool(core.success[0]),
+            "contact": bool(dyn.contact[0]),
+            "joint_limit": bool(dyn.limit_stop[0]),
+        }
+        if self.render_mode == "human":
+            self.render()
+        return (self._observation(), float(core.reward[0]), bool(core.terminated[0]),
+                bool(core.truncated[0]), info)
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        core = self._core
+        return {"observation": core.observation[0].copy(),
+                "achieved_goal": core.achieved[0].copy(),
+                "desired_goal": core.goal[0].copy()}
+
+    # ------------------------------------------------------------------ GoalEnv API
+    def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
+        """Reward for reaching ``achieved_goal (..., 3)`` m when aiming at ``desired_goal
+        (..., 3)`` m; ``info`` carries the action (see the Rewards section). Returns ``(...)``."""
+        return compute_reward(achieved_goal, desired_goal, info, self.task)
+
+    def compute_terminated(self, achieved_goal: Any, desired_goal: Any, info: Any
+                           ) -> np.ndarray:
+        """Whether such transitions end the episode: success, if ``terminate_on_success``."""
+        return compute_success(achieved_goal, desired_goal, self.task) & \
+            self.task.terminate_on_success
+
+    def compute_truncated(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
+        """Always False: truncation depends on the step count, not on the goals."""
+        return np.zeros(np.shape(achieved_goal)[:-1], dtype=bool)
+
+    # ------------------------------------------------------------------ rendering
+    def render(self) -> np.ndarray | None:
+        """Draw the arm, the goal and the region (see :mod:`envs.render`).
+
+        Returns an ``(H, W, 3) uint8`` frame in ``rgb_array`` mode, None in ``human`` mode.
+        """
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass "
+                                  "render_mode='rgb_array' or 'human' to gymnasium.make")
+            return None
+        if self._renderer is None:
+            from envs.render import ReachRenderer
+
+            self._renderer = ReachRenderer(self.task, human=self.render_mode == "human")
+        core = self._core
+        return self._renderer.draw(core.dynamics.q[0], core.goal[0],
+                                   success=bool(core.success[0]),
+                                   contact=bool(core.dynamics.contact[0]))
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,109 @@
+"""The Reacher's reward and success test, vectorised over any batch (the GoalEnv functions).
+
+``compute_reward(achieved_goal, desired_goal, info, task)`` is what
+``env.unwrapped.compute_reward`` calls. HER libraries recompute rewards for relabelled goals
+with it, passing ``info`` as one dict of batched arrays or as a list/array of per-transition
+dicts (Stable-Baselines3); the dense reward reads the action from ``info["action"]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from envs.spec import TaskSpec
+
+ACTION_KEY = "action"
+"""The ``info`` key that carries the action (as applied, after clipping) to the dense reward."""
+
+
+def goal_distance(achieved_goal: Any, desired_goal: Any) -> np.ndarray:
+    """Euclidean distance between goals.
+
+    Parameters
+    ----------
+    achieved_goal, desired_goal : (..., 3) float array_like, m, world frame
+        Broadcast against each other.
+
+    Returns
+    -------
+    d : (...) float, m
+    """
+    diff = np.subtract(achieved_goal, desired_goal, dtype=np.float64)
+    return np.sqrt(np.square(diff).sum(axis=-1))
+
+
+def info_actions(info: Any) -> np.ndarray:
+    """The actions ``info`` carries: ``(..., n)`` float.
+
+    Parameters
+    ----------
+    info : dict, or sequence / object ndarray of dicts
+        A dict whose ``"action"`` is an ``(..., n)`` array, or per-transition dicts each with an
+        ``(n,)`` action (their batch shape is kept).
+
+    Raises
+    ------
+    ValueError
+        When an action is missing, naming the fix for Stable-Baselines3's HER buffer.
+    """
+    if isinstance(info, Mapping):
+        if ACTION_KEY not in info:
+            raise _missing_action()
+        return np.asarray(info[ACTION_KEY], dtype=np.float64)
+    infos = np.asarray(info, dtype=object)
+    flat = infos.reshape(-1)
+    try:
+        stacked = np.stack([np.asarray(i[ACTION_KEY], dtype=np.float64) for i in flat])
+    except (KeyError, TypeError) as err:
+        raise _missing_action() from err
+    return stacked.reshape(*infos.shape, *stacked.shape[1:])
+
+
+def _missing_action() -> ValueError:
+    return ValueError(
+        f"the dense reward needs the action: pass info with an {ACTION_KEY!r} entry (the env's "
+        "step() info has one). Stable-Baselines3's HerReplayBuffer drops infos unless "
+        "replay_buffer_kwargs=dict(copy_info_dict=True); or use reward_type='sparse'"
+    )
+
+
+def reach_reward(distance: np.ndarray, action: np.ndarray | None, task: TaskSpec) -> np.ndarray:
+    """The task's reward for distances ``(...)`` m and actions ``(..., n)`` (None if sparse).
+
+    Dense (the paper's eq. 2): ``-distance_weight d - action_weight |a|^2 + success_reward
+    1{d <= success_radius}``; sparse: the last term alone.
+    """
+    bonus = task.success_reward * (distance <= task.success_radius)
+    if task.reward_type == "sparse":
+        return bonus.astype(np.float64)
+    return bonus - task.distance_weight * distance - task.action_weight * np.square(action).sum(
+        axis=-1)
+
+
+def compute_reward(achieved_goal: Any, desired_goal: Any, info: Any, task: TaskSpec
+                   ) -> np.ndarray:
+    """Reward of transitions that reached ``achieved_goal`` while aiming at ``desired_goal``.
+
+    Parameters
+    ----------
+    achieved_goal, desired_goal : (..., 3) float array_like, m, world frame
+    info : dict or sequence of dicts
+        See :func:`info_actions`; ignored by the sparse reward.
+    task : TaskSpec
+
+    Returns
+    -------
+    reward : (...) float
+    """
+    distance = goal_distance(achieved_goal, desired_goal)
+    action = None if task.reward_type == "sparse" else info_actions(info)
+    return reach_reward(distance, action, task)
+
+
+def compute_success(achieved_goal: Any, desired_goal: Any, task: TaskSpec) -> np.ndarray:
+    """Whether tool0 is within ``success_radius`` of the goal, ``(...) bool``."""
+    return goal_distance(achieved_goal, desired_goal) <= task.success_radius

@@ -1,0 +1,363 @@
+"""The task specification of the UR5 Reacher: every number of the task in one frozen record.
+
+A :class:`TaskSpec` is what a training run records: it is immutable, hashable, checked at
+construction, and round-trips through JSON (:meth:`TaskSpec.to_json` / :meth:`TaskSpec.from_json`).
+The defaults are DESIGN.md's table (the paper's task); every choice the paper leaves open is a
+field here, with its reason in the field's docstring.
+
+>>> from envs.spec import TaskSpec
+>>> task = TaskSpec(region="farbox", n_joints=3)
+>>> task.start_q == TaskSpec(region="zheight").start_q   # the constrained start, resolved
+True
+>>> TaskSpec.from_json(task.to_json()) == task
+True
+>>> task.substeps, task.dt
+(20, 0.02)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+import regions
+import ur5kin
+
+N_JOINTS_RANGE = (2, 6)
+"""Fewest and most controlled joints (the paper: 2 <= n <= 6)."""
+
+CONTROL_MODES = ("position", "velocity", "torque")
+"""Action meanings: desired absolute joint angles (rad), joint velocities (rad/s), joint torques
+(N m). The paper used position control (the only mode in which DDPG learned)."""
+
+REWARD_TYPES = ("dense", "sparse")
+"""``dense``: the paper's eq. 2; ``sparse``: its success term alone."""
+
+GOAL_SAMPLERS = ("joint", "cartesian")
+"""``joint``: the paper's sampler (uniform in joint space, kept in the region;
+:class:`regions.JointSpaceSampler`); ``cartesian``: uniform in the reachable part of the region
+(:class:`regions.CartesianSampler`, needs n_joints >= 3)."""
+
+UNCONSTRAINED_REGION = "unconstrained"
+"""The region whose default start pose is :data:`regions.UNCONSTRAINED_START` (all zeros); every
+other region starts from :data:`regions.CONSTRAINED_START` (DESIGN.md, open point 1)."""
+
+DEFAULT_KP = (3900.0, 3600.0, 780.0, 232.0, 228.0, 15.4)
+"""Default proportional gains (N m/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
+
+DEFAULT_KD = (261.0, 240.0, 52.0, 15.5, 15.2, 1.03)
+"""Default derivative gains (N m s/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """Everything that defines one UR5 Reacher task (DESIGN.md), checked at construction.
+
+    Lengths in m (world frame: ground plane z = 0, robot base at (0, 0, ``base_height``)),
+    angles in rad, torques in N m, rates in Hz.
+
+    Raises
+    ------
+    ValueError
+        When a field is out of its range; the message names the field, the value and the
+        expected range.
+    """
+
+    region: str = UNCONSTRAINED_REGION
+    """Goal constraint region: a registered name (``unconstrained``, ``zheight``, ``closebox``,
+    ``farbox``, ``farbox_tall``) or any string :func:`regions.parse` accepts
+    (``box:XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX``, ``zmax:Z``, ``mesh:PATH``, inline JSON ...). A
+    :class:`regions.Region` object or its ``to_dict()`` form is accepted too and stored as inline
+    JSON (or as its registered name when it equals a registered region), so the field is always a
+    string that rebuilds the region exactly."""
+
+    n_joints: int = 3
+    """Controlled joints n (2-6): joints 1..n move; joints n+1..6 are held at ``start_q``."""
+
+    start_q: tuple[float, ...] | None = None
+    """Start configuration (6 angles, rad) of every episode. ``None`` resolves at construction:
+    all zeros for ``unconstrained`` (the paper), else [0, -pi/4, pi/2, 0, 0, 0] (the paper's
+    [0, pi/2, pi/4, 0, 0, 0] read as DESIGN.md's open point 1). Must lie within the URDF joint
+    limits and clear of the plane."""
+
+    base_height: float = regions.DEFAULT_BASE_HEIGHT
+    """Height (m) of the robot base above the ground plane (0.1, where ROS's ur_gazebo spawns
+    the UR5)."""
+
+    goal_sampler: str = "joint"
+    """How goals are drawn: one of :data:`GOAL_SAMPLERS`."""
+
+    control_mode: str = "position"
+    """Meaning of the action: one of :data:`CONTROL_MODES`."""
+
+    reward_type: str = "dense"
+    """``dense`` (eq. 2 of the paper): ``-distance_weight * d - action_weight * |a|^2 +
+    success_reward * 1{d <= success_radius}``; ``sparse``: the last term alone."""
+
+    distance_weight: float = 1.0
+    """Weight (1/m) of the tool0-goal distance d in the dense reward (paper: 1)."""
+
+    action_weight: float = 1.0
+    """Weight of the squared action norm |a|^2 in the dense reward (paper: 1; the action in its
+    own unit, rad in position mode)."""
+
+    success_reward: float = 100.0
+    """Reward added when the goal is reached (paper: 100)."""
+
+    success_radius: float = 0.1
+    """Success when tool0 is within this distance (m) of the goal (paper: eps = 0.1 m)."""
+
+    terminate_on_success: bool = True
+    """End the episode (``terminated``) at the first success (paper: yes)."""
+
+    max_episode_steps: int = 100
+    """Control steps after which the episode is truncated (paper: T = 100, 2 s at 50 Hz)."""
+
+    control_hz: int = 50
+    """Control rate (Hz): one env step lasts 1 / control_hz s (paper: 50 Hz)."""
+
+    sim_hz: int = 1000
+    """Integration rate (Hz) of the dynamics; a multiple of ``control_hz`` (DESIGN.md: 1 kHz or
+    finer), so each step is ``sim_hz / control_hz`` semi-implicit Euler substeps."""
+
+    kp: tuple[float, ...] = DEFAULT_KP
+    """Proportional gains (N m/rad) of the joint PD controller, joints 1-6.
+
+    The defaults place a critically damped pair of poles at 30 rad/s for each joint taken alone
+    at its largest diagonal inertia over the joint space, ``I_max = (4.35, 4.01, 0.867, 0.258,
+    0.253, 0.0171) kg m^2``: ``kp = I_max w^2``, ``kd = 2 zeta I_max w`` with ``w = 30 rad/s``,
+    ``zeta = 1`` (:func:`envs.dynamics.pd_gains`, rounded). Lighter poses see a faster, more
+    damped loop. With them a commanded pose is reached and held to < 1e-4 rad within the 2 s of
+    an episode (the arm moves at its 3.15 rad/s limit most of the way), and the coupled
+    closed loop linearised at 2000 sampled configurations is stable under 1 kHz semi-implicit
+    Euler with margin (largest spectral radius of the substep map 0.986; tested)."""
+
+    kd: tuple[float, ...] = DEFAULT_KD
+    """Derivative gains (N m s/rad) of the joint PD controller, joints 1-6 (see :attr:`kp`). In
+    velocity mode they are the gains on the velocity error of the controlled joints."""
+
+    gravity_compensation: bool = True
+    """Add the gravity torque g(q) (Pinocchio's ``computeGeneralizedGravity``) to the command in
+    every control mode, so that a PD-held pose does not sag and a zero torque command floats."""
+
+    plane_margin: float = 0.0
+    """Clearance (m) every moving link keeps above the ground plane; less counts as contact."""
+
+    def __post_init__(self) -> None:
+        _set = functools.partial(object.__setattr__, self)
+        _set("base_height", _number("base_height", self.base_height, minimum=0.0, unit="m"))
+        _set("region", _region_string(self.region, self.base_height))
+        _set("n_joints", _integer("n_joints", self.n_joints, *N_JOINTS_RANGE))
+        for name, choices in (("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),
+                              ("reward_type", REWARD_TYPES)):
+            value = getattr(self, name)
+            if value not in choices:
+                raise ValueError(f"{name} must be one of {list(choices)}; got {value!r}")
+        for name in ("distance_weight", "action_weight", "success_reward", "plane_margin"):
+            _set(name, _number(name, getattr(self, name), minimum=0.0))
+        _set("success_radius", _number("success_radius", self.success_radius, minimum=0.0,
+                                       strict=True, unit="m"))
+        for name in ("terminate_on_success", "gravity_compensation"):
+            if not isinstance(getattr(self, name), bool | np.bool_):
+                raise ValueError(f"{name} must be True or False; got {getattr(self, name)!r}")
+            _set(name, bool(getattr(self, name)))
+        _set("max_episode_steps", _integer("max_episode_steps", self.max_episode_steps, 1, None))
+        _set("control_hz", _integer("control_hz", self.control_hz, 1, None))
+        _set("sim_hz", _integer("sim_hz", self.sim_hz, 1, None))
+        if self.sim_hz % self.control_hz:
+            raise ValueError(
+                f"sim_hz must be a multiple of control_hz (whole substeps per control step); got "
+                f"sim_hz={self.sim_hz} Hz, control_hz={self.control_hz} Hz"
+            )
+        _set("kp", _joint_vector("kp", self.kp, "N m/rad", positive=True))
+        _set("kd", _joint_vector("kd", self.kd, "N m s/rad", positive=True))
+        start = default_start(self.region) if self.start_q is None else self.start_q
+        _set("start_q", _joint_vector("start_q", start, "rad"))
+        _check_start(self)
+        _check_gains(self)
+
+    # ------------------------------------------------------------------ derived quantities
+    @property
+    def dt(self) -> float:
+        """Duration (s) of one control step, ``1 / control_hz``."""
+        return 1.0 / self.control_hz
+
+    @property
+    def sim_dt(self) -> float:
+        """Duration (s) of one integration substep, ``1 / sim_hz``."""
+        return 1.0 / self.sim_hz
+
+    @property
+    def substeps(self) -> int:
+        """Integration substeps per control step, ``sim_hz / control_hz``."""
+        return self.sim_hz // self.control_hz
+
+    @functools.cached_property
+    def goal_region(self) -> regions.Region:
+        """The region :attr:`region` names, built for :attr:`base_height`."""
+        return regions.parse(self.region, self.base_height)
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as plain JSON types (tuples become lists); :meth:`from_dict` inverts it."""
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
+                for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TaskSpec:
+        """Rebuild a task from :meth:`to_dict` output (missing fields take their defaults).
+
+        Raises
+        ------
+        ValueError
+            For a key that is not a field (the message lists the fields), or a bad value.
+        """
+        if not isinstance(data, Mapping):
+            raise ValueError(f"a task description must be a mapping of fields; got {data!r:.200}")
+        _check_field_names(data)
+        return cls(**data)
+
+    def to_json(self, **kwargs: Any) -> str:
+        """JSON text of :meth:`to_dict` (keyword arguments go to :func:`json.dumps`)."""
+        return json.dumps(self.to_dict(), **kwargs)
+
+    @classmethod
+    def from_json(cls, text: str) -> TaskSpec:
+        """Rebuild a task from :meth:`to_json` output."""
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise ValueError(f"task JSON is not valid JSON ({err}): {text!r:.200}") from err
+        return cls.from_dict(data)
+
+    def replace(self, **overrides: Any) -> TaskSpec:
+        """A copy with some fields changed (checked like a new task).
+
+        Raises
+        ------
+        ValueError
+            For an unknown field name (the message lists the fields) or a bad value.
+        """
+        _check_field_names(overrides)
+        if ("region" in overrides and "start_q" not in overrides
+                and self.start_q == default_start(self.region)):
+            overrides["start_q"] = None  # a default start follows the region; a chosen one stays
+        return dataclasses.replace(self, **overrides)
+
+
+def default_start(region: str) -> tuple[float, ...]:
+    """The start pose (6 angles, rad) a task in ``region`` gets when ``start_q`` is None."""
+    start = (regions.UNCONSTRAINED_START if region == UNCONSTRAINED_REGION
+             else regions.CONSTRAINED_START)
+    return tuple(float(x) for x in start)
+
+
+# ---------------------------------------------------------------------- checks
+def _check_field_names(data: Mapping[str, Any]) -> None:
+    names = {f.name for f in dataclasses.fields(TaskSpec)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"unknown task field(s) {unknown}; the fields are {sorted(names)}")
+
+
+def _number(name: str, value: Any, minimum: float | None = None, strict: bool = False,
+            unit: str = "") -> float:
+    """``value`` as a finite float >= ``minimum`` (> when ``strict``), or ``ValueError``."""
+    bad = isinstance(value, bool | np.bool_)
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        bad = True
+    unit_text = f" ({unit})" if unit else ""
+    if bad or not math.isfinite(x):
+        raise ValueError(f"{name} must be a finite number{unit_text}; got {value!r}")
+    if minimum is not None and (x < minimum or (strict and x == minimum)):
+        relation = ">" if strict else ">="
+        raise ValueError(f"{name} must be {relation} {minimum}{unit_text}; got {value!r}")
+    return x
+
+
+def _integer(name: str, value: Any, lo: int, hi: int | None) -> int:
+    """``value`` as an int in ``lo..hi`` (no upper bound when ``hi`` is None), or ``ValueError``."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise ValueError(f"{name} must be an integer; got {value!r}")
+    if value < lo or (hi is not None and value > hi):
+        span = f"{lo}..{hi}" if hi is not None else f">= {lo}"
+        raise ValueError(f"{name} must be an integer {span}; got {value!r}")
+    return int(value)
+
+
+def _joint_vector(name: str, value: Any, unit: str, positive: bool = False
+                  ) -> tuple[float, ...]:
+    """``value`` as a tuple of 6 finite floats (> 0 when ``positive``), or ``ValueError``."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be 6 numbers ({unit}, joints 1-6); got {value!r}") from err
+    if arr.shape != (6,):
+        raise ValueError(f"{name} must be 6 numbers ({unit}, joints 1-6); got shape {arr.shape}: "
+                         f"{value!r}")
+    if not np.all(np.isfinite(arr)) or (positive and not np.all(arr > 0.0)):
+        what = "finite and > 0" if positive else "finite"
+        raise ValueError(f"{name} must be {what} ({unit}, joints 1-6); got {arr.tolist()}")
+    return tuple(float(x) for x in arr)
+
+
+def _region_string(region: Any, base_height: float) -> str:
+    """The canonical string form of a region given as a string, a Region or its dict form."""
+    if isinstance(region, Mapping):
+        region = regions.region_from_dict(dict(region))
+    if isinstance(region, regions.Region):
+        if region.name in regions.names():
+            try:
+                if regions.get(region.name, base_height) == region:
+                    return region.name
+            except ValueError:
+                pass
+        return json.dumps(region.to_dict(), separators=(",", ":"))
+    if not isinstance(region, str):
+        raise ValueError(f"region must be a region name or string ({regions.spec_help()}), a "
+                         f"regions.Region or its to_dict() form; got {type(region).__name__}")
+    region = region.strip()
+    regions.parse(region, base_height)  # raises ValueError naming the accepted forms
+    return region
+
+
+def _check_start(task: TaskSpec) -> None:
+    """Raise ``ValueError`` if ``start_q`` is outside the URDF limits or not clear of the plane."""
+    model = ur5kin.load_model()
+    q = np.asarray(task.start_q)
+    lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
+    outside = np.flatnonzero((q < lo) | (q > hi))
+    if outside.size:
+        j = int(outside[0])
+        raise ValueError(f"start_q[{j}] = {q[j]} rad is outside joint {j + 1}'s URDF limits "
+                         f"[{lo[j]}, {hi[j]}] rad; start_q = {list(task.start_q)}")
+    heights = regions.link_heights(q, task.base_height)[1:]
+    if heights.min() < task.plane_margin:
+        link = ur5kin.LINK_NAMES[1 + int(np.argmin(heights))]
+        raise ValueError(
+            f"start_q = {list(task.start_q)} rad puts {link} at z = {heights.min():.4f} m, below "
+            f"the plane margin {task.plane_margin} m (base at {task.base_height} m): the start "
+            "pose must be clear of the ground plane"
+        )
+
+
+def _check_gains(task: TaskSpec) -> None:
+    """Raise ``ValueError`` when the PD gains cannot be stable under the task's integrator."""
+    from envs.dynamics import pd_stability_violations  # dynamics imports this module
+
+    problems = pd_stability_violations(task.kp, task.kd, task.sim_dt)
+    if problems:
+        raise ValueError(
+            f"the PD gains kp={list(task.kp)} N m/rad, kd={list(task.kd)} N m s/rad are unstable "
+            f"under semi-implicit Euler at sim_hz={task.sim_hz} Hz: " + "; ".join(problems)
+            + ". Lower the gains or raise sim_hz"
+        )
