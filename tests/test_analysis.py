@@ -150,3 +150,47 @@ def test_parse_setting_rejects_bad_text() -> None:
     for bad in ("farbox", "farbox:7", ":3", "farbox:x"):
         with pytest.raises(Exception, match="REGION:JOINTS"):
             sweep.parse_setting(bad)
+
+
+def test_success_map_bins_against_a_hand_count() -> None:
+    from analysis.success_map import bin_successes
+
+    goals = np.array([[0.05, 0.05, 0.75], [0.06, 0.02, 0.71], [0.15, -0.05, 0.79],
+                      [0.12, -0.08, 0.72]])
+    reached = np.array([True, False, True, True])
+    m = bin_successes("r", goals, reached, cell=0.1)
+    np.testing.assert_allclose(m.x_edges, [0.0, 0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(m.y_edges, [-0.1, 0.0, 0.1], atol=1e-12)
+    np.testing.assert_array_equal(m.goals, [[0, 2], [2, 0]])
+    np.testing.assert_array_equal(m.successes, [[0, 1], [2, 0]])
+    assert m.rate[0, 1] == 0.5 and np.isnan(m.rate[0, 0])
+
+
+def test_slice_goals_come_from_the_tasks_sampler_within_the_slice() -> None:
+    from analysis.success_map import slice_goals
+    from envs.spec import TaskSpec
+
+    task = TaskSpec(region="unconstrained", n_joints=3)
+    goals = slice_goals(task, 200, (0.7, 0.8), seed=3)
+    assert goals.shape == (200, 3)
+    assert np.all((goals[:, 2] >= 0.7) & (goals[:, 2] <= 0.8))
+    np.testing.assert_array_equal(goals, slice_goals(task, 200, (0.7, 0.8), seed=3))
+
+
+def test_success_map_cli_on_a_tiny_run(tmp_path: Path) -> None:
+    _module("ddpg_her.train", "--region", "unconstrained", "--joints", "3", "--episodes", "2",
+            "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "8", "8",
+            "--out", str(tmp_path / "run"), "--no-progress", "--threads", "1")
+    out = tmp_path / "map.png"
+    _module("analysis.success_map", str(tmp_path / "run"), str(tmp_path / "run"), "--goals", "60",
+            "--batch", "30", "--out", str(out), "--no-progress")
+    assert out.stat().st_size > 1000
+    with open(out.with_suffix(".csv")) as f:
+        rows = list(csv.DictReader(f))
+    labels = {r["run"] for r in rows}
+    assert len(labels) == 1  # the same run twice gives the same label and the same map
+    assert sum(int(r["goals"]) for r in rows) == 120
+    first = [r["successes"] for r in rows[: len(rows) // 2]]
+    assert first == [r["successes"] for r in rows[len(rows) // 2 :]]  # same goals, same policy
+    bad = _module("analysis.success_map", str(tmp_path / "nothing"), check=False)
+    assert bad.returncode == 2 and "not a run folder" in bad.stderr

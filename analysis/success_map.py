@@ -1,0 +1,206 @@
+"""Success maps: where in a slice of the workspace a trained policy reaches its goals.
+
+    python -m analysis.success_map RUN [RUN...] --goals 10000 --z 0.7 0.8 --out map.png
+
+Goals are drawn as the run's task draws them (its region and goal sampler, joints 1..n uniform
+for the paper's sampler), conditioned on the height slice ``z0 <= z <= z1``; the run's
+deterministic policy then runs one episode per goal, many copies at once in the batched env.
+Successes are binned on a square grid of the slice's (x, y), with one colour scale (0-100 %) for
+every map so that maps of several runs compare directly. Every run sees the same goals. The
+numbers of every cell go to a CSV beside the figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+CELL = 0.1
+"""Default edge (m) of the grid cells: the paper's "coarse tiling"."""
+
+BATCH = 1000
+"""Episodes run at once in the batched env (copies)."""
+
+CSV_COLUMNS = ("run", "x_min_m", "x_max_m", "y_min_m", "y_max_m", "goals", "successes",
+               "success_rate")
+
+
+@dataclass(frozen=True)
+class SuccessMap:
+    """Success counts of one run on a grid of the slice."""
+
+    run: str
+    x_edges: np.ndarray
+    """(nx + 1,) m, world frame."""
+    y_edges: np.ndarray
+    """(ny + 1,) m, world frame."""
+    goals: np.ndarray
+    """(nx, ny) int: goals per cell."""
+    successes: np.ndarray
+    """(nx, ny) int: goals reached per cell."""
+
+    @property
+    def rate(self) -> np.ndarray:
+        """(nx, ny) float in [0, 1]; NaN where a cell has no goal."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.goals > 0, self.successes / self.goals, np.nan)
+
+
+def slice_goals(task, count: int, z: tuple[float, float], seed: int) -> np.ndarray:
+    """``count`` goals (m, world frame) of ``task``'s sampler, conditioned on the z slice."""
+    import regions
+    from envs.core import task_sampler
+
+    base = task_sampler(task)
+    sliced = regions.Intersection((base.region, regions.ZLimit(z[0], z[1], name="slice")),
+                                  name=f"{base.region.name}&z[{z[0]},{z[1]}]")
+    sampler = type(base)(sliced, base.n_joints, base.q_start, base.base_height, base.limits)
+    return sampler.sample(count, np.random.default_rng(seed)).goals
+
+
+def evaluate(policy, task, goals: np.ndarray, batch: int, label: str = "",
+             progress: bool = True) -> np.ndarray:
+    """Run one deterministic episode per goal; ``(len(goals),) bool``: the goal was reached."""
+    from gymnasium.vector import AutoresetMode
+    from tqdm import tqdm
+
+    import envs
+
+    env = envs.BatchedReach(min(batch, len(goals)), spec=task,
+                            autoreset_mode=AutoresetMode.DISABLED)
+    reached = np.zeros(len(goals), dtype=bool)
+    with tqdm(total=len(goals), desc=f"episodes {label}", disable=not progress, file=sys.stderr,
+              unit="goal") as bar:
+        for start in range(0, len(goals), env.num_envs):
+            chunk = goals[start : start + env.num_envs]
+            m = len(chunk)
+            padded = np.concatenate([chunk, np.repeat(chunk[-1:], env.num_envs - m, axis=0)])
+            obs, info = env.reset(seed=start, options={"goal": padded})
+            hit = np.asarray(info["is_success"], dtype=bool).copy()
+            for _ in range(task.max_episode_steps):
+                if hit[:m].all():
+                    break
+                obs, _, _, _, info = env.step(policy(obs))
+                hit |= np.asarray(info["is_success"], dtype=bool)
+            reached[start : start + m] = hit[:m]
+            bar.update(m)
+    env.close()
+    return reached
+
+
+def bin_successes(run: str, goals: np.ndarray, reached: np.ndarray, cell: float) -> SuccessMap:
+    """Histogram goals and successes on square cells of edge ``cell`` (m) aligned to 0."""
+    lo = np.floor(goals[:, :2].min(axis=0) / cell) * cell
+    hi = np.ceil(goals[:, :2].max(axis=0) / cell) * cell
+    x_edges = np.arange(lo[0], hi[0] + cell / 2, cell)
+    y_edges = np.arange(lo[1], hi[1] + cell / 2, cell)
+    total, _, _ = np.histogram2d(goals[:, 0], goals[:, 1], bins=(x_edges, y_edges))
+    hits, _, _ = np.histogram2d(goals[reached, 0], goals[reached, 1], bins=(x_edges, y_edges))
+    return SuccessMap(run, x_edges, y_edges, total.astype(int), hits.astype(int))
+
+
+def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(maps), squeeze=False, figsize=(4.6 * len(maps) + 0.8, 4.4))
+    image = None
+    for ax, m in zip(axes[0], maps, strict=True):
+        image = ax.pcolormesh(m.x_edges, m.y_edges, 100.0 * m.rate.T, cmap="viridis", vmin=0.0,
+                              vmax=100.0, shading="flat")
+        overall = 100.0 * m.successes.sum() / max(m.goals.sum(), 1)
+        ax.set_title(f"{m.run}\n{overall:.0f} % of {m.goals.sum():,} goals", fontsize=9)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_aspect("equal")
+        ax.plot(0.0, 0.0, "ks", ms=5)
+    fig.colorbar(image, ax=axes[0].tolist(), label="goals reached (%)", shrink=0.85)
+    fig.suptitle(f"Success by goal position, {z[0]} <= z <= {z[1]} m (world frame)", fontsize=10)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+
+def write_csv(maps: Sequence[SuccessMap], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(CSV_COLUMNS)
+        for m in maps:
+            rate = m.rate
+            for i in range(len(m.x_edges) - 1):
+                for j in range(len(m.y_edges) - 1):
+                    writer.writerow([m.run, round(m.x_edges[i], 6), round(m.x_edges[i + 1], 6),
+                                     round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
+                                     int(m.goals[i, j]), int(m.successes[i, j]),
+                                     "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.success_map", description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("runs", nargs="+", metavar="RUN",
+                        help="run folders (with spec.json and a checkpoint); several runs get "
+                             "side-by-side maps on the same goals")
+    parser.add_argument("--goals", type=int, default=10_000, help="goals per run (count)")
+    parser.add_argument("--z", type=float, nargs=2, default=(0.7, 0.8), metavar=("Z0", "Z1"),
+                        help="height slice of the goals (m, world frame)")
+    parser.add_argument("--cell", type=float, default=CELL, help="grid cell edge (m)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the goals")
+    parser.add_argument("--episode", type=int, default=None,
+                        help="checkpoint episode of the policy (default: the latest)")
+    parser.add_argument("--batch", type=int, default=BATCH,
+                        help="episodes run at once in the batched env (copies)")
+    parser.add_argument("--out", type=Path, default=Path("success_map.png"),
+                        help="figure file; the CSV goes beside it")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    if args.goals < 1 or args.batch < 1 or args.cell <= 0:
+        parser.error(f"--goals, --batch and --cell must be positive; got {args.goals}, "
+                     f"{args.batch}, {args.cell}")
+    z = (min(args.z), max(args.z))
+    if z[0] == z[1]:
+        parser.error(f"--z needs two different heights; got {args.z}")
+
+    import ddpg_her
+    from envs.spec import TaskSpec
+
+    policies = []
+    for run in args.runs:
+        try:
+            policies.append(ddpg_her.load(run, episode=args.episode))
+        except (FileNotFoundError, ValueError) as err:
+            parser.error(str(err))
+    tasks = [TaskSpec.from_dict(p.spec["task"]) for p in policies]
+    if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
+        parser.error("the runs have different tasks (region, joints, start, sampler); maps of "
+                     "one figure must share their goals")
+    try:
+        goals = slice_goals(tasks[0], args.goals, z, args.seed)
+    except ValueError as err:  # includes regions.UnreachableRegionError
+        parser.error(f"no goals in the slice {z} m: {err}")
+    maps = []
+    for run, policy, task in zip(args.runs, policies, tasks, strict=True):
+        label = f"{Path(run).name} (episode {policy.episode})"
+        reached = evaluate(policy, task, goals, args.batch, label, not args.no_progress)
+        maps.append(bin_successes(label, goals, reached, args.cell))
+    plot(maps, z, args.out)
+    csv_path = args.out.with_suffix(".csv")
+    write_csv(maps, csv_path)
+    for m in maps:
+        print(f"{m.run}: {m.successes.sum()} of {m.goals.sum()} goals reached "
+              f"({100.0 * m.successes.sum() / m.goals.sum():.1f} %)")
+    print(f"-> {args.out} and {csv_path}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
