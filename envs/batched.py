@@ -20,6 +20,18 @@ INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit")
 """Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""
 
 
+def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
+    """An AutoresetMode from itself, its value (``"NextStep"``) or its name (``"next_step"``)."""
+    if isinstance(mode, AutoresetMode):
+        return mode
+    for member in AutoresetMode:
+        if mode in (member.value, member.name.lower()):
+            return member
+    raise ValueError(f"autoreset_mode must be one of "
+                     f"{[m.name.lower() for m in AutoresetMode]} (or a gymnasium.vector."
+                     f"AutoresetMode); got {mode!r}")
+
+
 class BatchedReach(gymnasium.vector.VectorEnv):
     """N copies of ``UR5Reach-v0`` advanced together by one batched dynamics call.
 
@@ -56,11 +68,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
                  render_mode: str | None = None, **overrides: Any) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
-        try:
-            mode = AutoresetMode(autoreset_mode)
-        except ValueError as err:
-            raise ValueError(f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}; "
-                             f"got {autoreset_mode!r}") from err
+        mode = _autoreset_mode(autoreset_mode)
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
                              f"{render_mode!r}")

@@ -16,7 +16,7 @@ import numpy as np
 
 import regions
 import ur5kin
-from envs.dynamics import ArmDynamics, command_bounds
+from envs.dynamics import ArmDynamics, clip, command_bounds
 from envs.reward import goal_distance, reach_reward
 from envs.spec import TaskSpec
 
@@ -114,7 +114,7 @@ class ReachCore:
 
     def step(self, action: np.ndarray) -> None:
         """Apply ``action (B, n)`` (clipped to the action box) to every copy for one step."""
-        np.clip(action, self.action_low, self.action_high, out=self.action)
+        clip(action, self.action_low, self.action_high, self.action)
         self.dynamics.step(self.action)
         self.elapsed += 1
         self._observe()

@@ -168,6 +168,12 @@ class UR5ReachEnv(gymnasium.Env):
         """Duration of one step (s): 1 / control_hz = 0.02 by default."""
         return self.task.dt
 
+    @property
+    def joint_angles(self) -> np.ndarray:
+        """All six joint angles now, ``(6,) float, rad`` (a copy): the observation holds only
+        joints 1..n, and the held joints n+1..6 give way a little under load."""
+        return self._core.dynamics.q[0].copy()
+
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

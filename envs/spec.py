@@ -49,7 +49,7 @@ UNCONSTRAINED_REGION = "unconstrained"
 """The region whose default start pose is :data:`regions.UNCONSTRAINED_START` (all zeros); every
 other region starts from :data:`regions.CONSTRAINED_START` (DESIGN.md, open point 1)."""
 
-DEFAULT_KP = (3900.0, 3600.0, 780.0, 232.0, 228.0, 15.4)
+DEFAULT_KP = (3920.0, 3600.0, 781.0, 232.0, 228.0, 15.4)
 """Default proportional gains (N m/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
 
 DEFAULT_KD = (261.0, 240.0, 52.0, 15.5, 15.2, 1.03)

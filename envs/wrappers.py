@@ -9,7 +9,7 @@ GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
 """The keys of a goal env's Dict observation."""
 
 
-class FlatObservation(gymnasium.ObservationWrapper):
+class FlatObservation(gymnasium.ObservationWrapper, gymnasium.utils.RecordConstructorArgs):
     """The paper's state ``s = [theta, theta_dot, theta_ddot, goal - fk(theta), goal]``.
 
     ``(3n + 6,) float64``, from a goal env's Dict observation:
@@ -35,7 +35,8 @@ class FlatObservation(gymnasium.ObservationWrapper):
     """
 
     def __init__(self, env: gymnasium.Env) -> None:
-        super().__init__(env)
+        gymnasium.utils.RecordConstructorArgs.__init__(self)
+        gymnasium.ObservationWrapper.__init__(self, env)
         space = env.observation_space
         if not isinstance(space, gymnasium.spaces.Dict) or set(GOAL_KEYS) - set(space.spaces):
             raise ValueError(f"FlatObservation needs a goal env whose observation space is a Dict "
