@@ -11,11 +11,9 @@ Importing the package registers :data:`ENV_IDS`:
 ((9,), (3,))
 """
 
-import dataclasses
-
 import gymnasium
 
-from envs.batched import BatchedReach
+from envs.batched import DEFAULT_EPISODE_STEPS, BatchedReach
 from envs.reach import UR5ReachEnv
 from envs.reward import compute_reward
 from envs.spec import TaskSpec
@@ -24,15 +22,13 @@ from envs.wrappers import FlatObservation
 ENV_IDS: tuple[str, ...] = ("UR5Reach-v0",)
 """Ids registered on import: the tests and benchmarks run over this list."""
 
-_DEFAULT_STEPS = {f.name: f.default for f in dataclasses.fields(TaskSpec)}["max_episode_steps"]
-
 for _env_id in ENV_IDS:
     if _env_id not in gymnasium.registry:
         gymnasium.register(
             _env_id,
             entry_point="envs.reach:UR5ReachEnv",
             vector_entry_point="envs.batched:BatchedReach",
-            max_episode_steps=_DEFAULT_STEPS,
+            max_episode_steps=DEFAULT_EPISODE_STEPS,
         )
 
 __all__ = ["ENV_IDS", "BatchedReach", "FlatObservation", "TaskSpec", "UR5ReachEnv",

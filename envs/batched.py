@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -15,6 +16,10 @@ from envs.core import ReachCore
 from envs.reach import RENDER_MODES, make_task
 from envs.reward import compute_reward, compute_success
 from envs.spec import TaskSpec
+
+DEFAULT_EPISODE_STEPS = {f.name: f.default for f in dataclasses.fields(TaskSpec)}[
+    "max_episode_steps"]
+"""The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
 
 INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit")
 """Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""
@@ -72,6 +77,10 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
                              f"{render_mode!r}")
+        if spec is not None and overrides.get("max_episode_steps") == DEFAULT_EPISODE_STEPS:
+            # make_vec passes the registration's max_episode_steps whenever its caller gave
+            # none; a task given whole keeps its own episode length
+            overrides.pop("max_episode_steps")
         self.task = make_task(spec, overrides)
         self.num_envs = int(num_envs)
         self.render_mode = render_mode

@@ -65,6 +65,12 @@ class UR5ReachEnv(gymnasium.Env):
     at the URDF limits. The plane and the URDF joint limits stop the arm dead (inelastic); see
     :mod:`envs.dynamics`.
 
+    Held joints give way under load: this URDF gives each wrist link the inertia of a cylinder
+    of radius 0.6 m (izz = 0.219 kg m^2 for 1.219 kg), and the wrists' 28 N m cannot hold them
+    rigidly while the shoulder and elbow accelerate at full torque. With random actions a held
+    wrist swings by up to about 1 rad during fast moves and settles back at rest.
+    ``env.unwrapped.joint_angles`` gives all six angles.
+
     ## Observation Space
 
     A ``Dict`` of ``float64`` arrays. ``observation``, ``(3n,)``:
@@ -252,10 +258,12 @@ class UR5ReachEnv(gymnasium.Env):
             from envs.render import ReachRenderer
 
             self._renderer = ReachRenderer(self.task, human=self.render_mode == "human")
-        core = self._core
+        core, task = self._core, self.task
+        title = (f"{self._renderer.region_name()}, {task.n_joints} joints: "
+                 f"t = {core.elapsed[0] * task.dt:.2f} s, d = {core.distance[0]:.3f} m")
         return self._renderer.draw(core.dynamics.q[0], core.goal[0],
                                    success=bool(core.success[0]),
-                                   contact=bool(core.dynamics.contact[0]))
+                                   contact=bool(core.dynamics.contact[0]), title=title)
 
     def close(self) -> None:
         if self._renderer is not None:

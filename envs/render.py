@@ -1,5 +1,9 @@
 """Drawings of the Reacher: the arm, the goal and the goal region, in a side and a top view.
 
+The arm is the polyline through the link origins (base_link ... tool0, world frame); the goal is
+a star inside its success circle (dotted, solid on success); the region is its axis-aligned
+bounding box (dashed), cut to the view; the ground plane is the line z = 0.
+
 Matplotlib, off screen (Agg) for ``rgb_array`` frames; a pyplot window for ``human``. The
 figure is built once per renderer and only its line data change between frames.
 """
@@ -75,13 +79,16 @@ class ReachRenderer:
         w = config.half_width
         shown = np.array([[-w, -w, config.z_range[0]], [w, w, config.z_range[1]]])
         bounds = np.clip(bounds, shown[0], shown[1])
-        self._arm, self._tool, self._goal, self._circle = [], [], [], []
+        self._arm: list = []
+        self._tool: list = []
+        self._goal: list = []
+        self._circle: list = []
         theta = np.linspace(0.0, 2.0 * np.pi, 64)
         self._unit_circle = np.stack([np.cos(theta), np.sin(theta)], axis=1) * task.success_radius
         for ax, (i, j), xlabel, ylabel, title in self._views:
             lo, hi = bounds[0], bounds[1]
             ax.plot([lo[i], hi[i], hi[i], lo[i], lo[i]], [lo[j], lo[j], hi[j], hi[j], lo[j]],
-                    ls="--", color=config.region_color, lw=1, label=f"region {self._name()}")
+                    ls="--", color=config.region_color, lw=1)
             if title == "side":
                 ax.axhline(0.0, color="k", lw=1)
                 ax.set_ylim(*config.z_range)
@@ -96,15 +103,20 @@ class ReachRenderer:
             self._tool.append(ax.plot([], [], "s", color=config.arm_color, ms=5)[0])
             self._goal.append(ax.plot([], [], "*", color=config.goal_color, ms=10)[0])
             self._circle.append(ax.plot([], [], "-", color=config.goal_color, lw=1)[0])
+        self._title = fig.suptitle("")
         fig.tight_layout()
 
-    def _name(self) -> str:
+    def region_name(self) -> str:
+        """A short name of the task's region (its string, or the region's name if long)."""
         region = self.task.region
         return region if len(region) <= 24 else self.task.goal_region.name
 
     def draw(self, q: np.ndarray, goal: np.ndarray, success: bool = False,
-             contact: bool = False) -> np.ndarray | None:
+             contact: bool = False, title: str = "") -> np.ndarray | None:
         """Draw configuration ``q (6,)`` rad and ``goal (3,)`` m (world frame).
+
+        ``success`` draws the goal's success circle solid, ``contact`` the arm in red;
+        ``title`` goes above both views.
 
         Returns
         -------
@@ -122,6 +134,7 @@ class ReachRenderer:
             ring = self._unit_circle + goal[[i, j]]
             self._circle[k].set_data(ring[:, 0], ring[:, 1])
             self._circle[k].set_linestyle("-" if success else ":")
+        self._title.set_text(title)
         if self.human:
             self._plt.pause(1.0 / self.task.control_hz)
             return None
