@@ -50,8 +50,9 @@ class BenchConfig:
     control_mode: str = "position"
     """Control mode of UR5Reach-v0: position, velocity or torque."""
     peer: str = "FetchReach-v4"
-    """Gymnasium-Robotics env measured alongside ('none' to skip; needs the [bench] extra:
-    gymnasium-robotics and mujoco < 4)."""
+    """Gymnasium-Robotics env measured alongside ('none' to skip; needs gymnasium-robotics and
+    mujoco < 3.12: with gymnasium-robotics 1.4.2, FetchReach-v4 fails to build under mujoco
+    3.12 to 3.17 and 4.0)."""
     seed: int = 0
     """Seed of the actions and of every reset."""
     json: bool = False
@@ -110,13 +111,16 @@ def make_peer(env_id: str) -> gymnasium.Env | str:
     try:
         import gymnasium_robotics
     except ImportError:
-        return ("gymnasium-robotics is not installed (pip install 'ur5-reacher[bench]': "
-                "gymnasium-robotics, mujoco < 4)")
+        return ("gymnasium-robotics is not installed (pip install gymnasium-robotics "
+                "'mujoco>=3.1,<3.12')")
     gymnasium.register_envs(gymnasium_robotics)
     try:
         return gymnasium.make(env_id)
-    except Exception as err:  # a peer that fails to build (mujoco 4) must not stop the bench
-        return f"{env_id} failed to build: {type(err).__name__}: {err}"
+    except Exception as err:  # a peer that fails to build (new mujoco) must not stop the bench
+        import mujoco
+
+        return (f"{env_id} failed to build under mujoco {mujoco.__version__} "
+                f"({type(err).__name__}: {err}); FetchReach-v4 needs mujoco < 3.12")
 
 
 def run(config: BenchConfig) -> dict[str, Any]:

@@ -162,6 +162,12 @@ class TaskSpec:
                 raise ValueError(f"{name} must be one of {list(choices)}; got {value!r}")
         for name in ("distance_weight", "action_weight", "success_reward", "plane_margin"):
             _set(name, _number(name, getattr(self, name), minimum=0.0))
+        if self.goal_sampler == "cartesian" and self.n_joints < regions.CartesianSampler.MIN_JOINTS:
+            raise ValueError(
+                f"goal_sampler='cartesian' needs n_joints >= {regions.CartesianSampler.MIN_JOINTS}"
+                f" (with fewer, tool0 reaches only a surface); got n_joints={self.n_joints}. "
+                "Use goal_sampler='joint'"
+            )
         _set("success_radius", _number("success_radius", self.success_radius, minimum=0.0,
                                        strict=True, unit="m"))
         for name in ("terminate_on_success", "gravity_compensation"):

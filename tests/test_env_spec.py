@@ -88,6 +88,7 @@ BAD_FIELDS = [
     ({"control_mode": "pos"}, "control_mode"),
     ({"reward_type": "shaped"}, "reward_type"),
     ({"goal_sampler": "uniform"}, "goal_sampler"),
+    ({"goal_sampler": "cartesian", "n_joints": 2}, "needs n_joints >= 3"),
     ({"success_radius": 0.0}, "success_radius"),
     ({"success_radius": -0.1}, "success_radius"),
     ({"success_radius": float("nan")}, "success_radius"),
