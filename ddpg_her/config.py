@@ -93,10 +93,13 @@ class AgentConfig:
     target, and Gaussian noise is what DDPG + HER (Andrychowicz et al. 2017) uses."""
     ou_theta: float = 0.15
     """Mean reversion of OU noise per step (Lillicrap et al.: 0.15); used with --exploration ou."""
-    warmup_episodes: int = 0
-    """Episodes of uniformly random actions before the actor acts, and before the first update.
-    0 by default: absolute joint-angle targets redrawn every step make the arm shake in place,
-    which teaches little; HER already gives the actor's own episodes reachable goals."""
+    warmup_episodes: int = 100
+    """Episodes of uniformly random actions (redrawn every step) before the actor acts and
+    before the first update. The paper does not say. Without them, at nu = 0.01 the buffer holds
+    almost one action per state, the critic's action gradient is extrapolation, and the tanh
+    actor is driven into saturation (every joint commanded to +-pi) where its gradient vanishes
+    for good; with them the critic first learns how the return depends on the action. 100 is
+    one test interval, so the first test session scores the untrained actor."""
     updates_per_episode: int = 100
     """Gradient updates of each agent after each training episode (the paper does not say).
     100 = one per step of a full T = 100 episode; counting per episode rather than per step

@@ -11,7 +11,6 @@ goals, minibatches), so K = 1 and K > 1 train agent k alike, and a resumed run c
 
 from __future__ import annotations
 
-import contextlib
 import datetime
 import json
 import math
@@ -64,8 +63,8 @@ class Trainer:
         self.device = torch.device(device)
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
-        self.envs = GoalVecEnv(env_id, self.k, **self.env_kwargs)
-        self._eval_envs: GoalVecEnv | None = None
+        self.envs = GoalVecEnv(env_id, self.k, 1, **self.env_kwargs)
+        self.eval_envs = GoalVecEnv(env_id, self.k, config.eval_episodes, **self.env_kwargs)
         envs = self.envs
         self.scale = envs.scale
         self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)
@@ -241,8 +240,6 @@ class Trainer:
         without its ``wall_s``.
         """
         m = self.config.eval_episodes
-        if self._eval_envs is None:
-            self._eval_envs = GoalVecEnv(self.env_id, self.k * m, **self.env_kwargs)
         session = self.episode // self.config.eval_every
 
         def policy(obs, active):
@@ -250,7 +247,7 @@ class Trainer:
             return self.scale.to_env(u.double().cpu().numpy())
 
         seeds = [stream_seed(s, _EVAL_ENV, session, i) for s in self.seeds for i in range(m)]
-        episodes, success = rollout(self._eval_envs, policy, seeds)
+        episodes, success = rollout(self.eval_envs, policy, seeds)
         rows = []
         for k in range(self.k):
             eps = episodes[k * m:(k + 1) * m]
@@ -269,24 +266,18 @@ class Trainer:
         """Train to ``config.episodes``; returns every agent's eval rows."""
         cfg = self.config
         bar = _progress(self.progress, cfg.episodes, self.episode, self.k)
-        writers = [_tb_writer(f.path, self.episode) if self.tensorboard else None
-                   for f in self.folders]
-        losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
-        train_successes = np.zeros(self.k)
-        interval_start, interval_updates, interval_episodes = time.perf_counter(), 0, 0
+        log = _Interval(self.k, self.device,
+                        [_tb_writer(f.path, self.episode) if self.tensorboard else None
+                         for f in self.folders])
         tick = time.perf_counter()
         try:
             while self.episode < cfg.episodes:
-                train_successes += self.train_episode()
+                log.successes += self.train_episode()
                 if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
-                    losses += self.learn(cfg.updates_per_episode)
-                    interval_updates += cfg.updates_per_episode
+                    log.losses += self.learn(cfg.updates_per_episode)
+                    log.updates += cfg.updates_per_episode
                 self.episode += 1
-                interval_episodes += 1
-                now = time.perf_counter()
-                self.wall_s += now - tick
-                tick = now
-                done = self.episode == cfg.episodes
+                log.episodes += 1
                 if self.episode % cfg.eval_every == 0:
                     new_rows = self.evaluate()
                     now = time.perf_counter()
@@ -294,37 +285,26 @@ class Trainer:
                     tick = now
                     for rows, row in zip(self.rows, new_rows, strict=True):
                         rows.append({**row, "wall_s": round(self.wall_s, 2)})
-                    seconds = now - interval_start
-                    stats = {
-                        "train/critic_loss": losses[0] / max(interval_episodes, 1),
-                        "train/actor_loss": losses[1] / max(interval_episodes, 1),
-                        "train/success_rate": train_successes / max(interval_episodes, 1),
-                        "perf/agent_updates_per_s": np.full(
-                            self.k, self.k * interval_updates / seconds),
-                    }
-                    _log(writers, self.rows, stats, self.episode)
-                    losses.zero_()
-                    train_successes[:] = 0
-                    interval_start, interval_updates, interval_episodes = now, 0, 0
+                    log.write(self.rows, self.episode)
                     self._save()
                     if bar is not None:
                         bar.set_postfix_str(_postfix(bar, self.rows), refresh=False)
-                elif done:
+                elif self.episode == cfg.episodes:
                     self._save()
+                now = time.perf_counter()
+                self.wall_s += now - tick
+                tick = now
                 if bar is not None:
                     bar.update(1)
         finally:
             if bar is not None:
                 bar.close()
-            for w in writers:
-                if w is not None:
-                    w.close()
+            log.close()
         return self.rows
 
     def close(self) -> None:
         self.envs.close()
-        if self._eval_envs is not None:
-            self._eval_envs.close()
+        self.eval_envs.close()
 
 
 def json_equal(a: Any, b: Any) -> bool:
@@ -368,17 +348,43 @@ def _tb_writer(path: Path, episode: int):
     return SummaryWriter(str(path / "tb"), purge_step=episode + 1)
 
 
-def _log(writers, rows, stats: dict[str, Any], episode: int) -> None:
-    for k, w in enumerate(writers):
-        if w is None:
-            continue
-        row = rows[k][-1]
-        w.add_scalar("eval/success_rate", row["successes"] / row["tests"], episode)
-        w.add_scalar("eval/mean_return", row["mean_return"], episode)
-        w.add_scalar("eval/mean_final_distance_m", row["mean_final_distance_m"], episode)
-        for name, v in stats.items():
-            value = float(v[k])
-            if math.isfinite(value):
-                w.add_scalar(name, value, episode)
-        with contextlib.suppress(Exception):
+class _Interval:
+    """Training statistics between two test sessions, written to TensorBoard at each."""
+
+    def __init__(self, k: int, device: torch.device, writers: list):
+        self.k, self.writers = k, writers
+        self.losses = torch.zeros(2, k, dtype=torch.float64, device=device)
+        self.successes = np.zeros(k)
+        self.updates = self.episodes = 0
+        self.start = time.perf_counter()
+
+    def write(self, rows: list[list[dict[str, Any]]], episode: int) -> None:
+        seconds = time.perf_counter() - self.start
+        episodes = max(self.episodes, 1)
+        losses = (self.losses / episodes).cpu().numpy()
+        stats = {
+            "train/critic_loss": losses[0],
+            "train/actor_loss": losses[1],
+            "train/success_rate": self.successes / episodes,
+            "perf/agent_updates_per_wall_s": np.full(self.k, self.k * self.updates / seconds),
+        }
+        for k, w in enumerate(self.writers):
+            if w is None:
+                continue
+            row = rows[k][-1]
+            w.add_scalar("eval/success_rate", row["successes"] / row["tests"], episode)
+            w.add_scalar("eval/mean_return", row["mean_return"], episode)
+            w.add_scalar("eval/mean_final_distance_m", row["mean_final_distance_m"], episode)
+            for name, v in stats.items():
+                if math.isfinite(float(v[k])):
+                    w.add_scalar(name, float(v[k]), episode)
             w.flush()
+        self.losses.zero_()
+        self.successes[:] = 0
+        self.updates = self.episodes = 0
+        self.start = time.perf_counter()
+
+    def close(self) -> None:
+        for w in self.writers:
+            if w is not None:
+                w.close()

@@ -1,93 +1,188 @@
-"""N goal envs stepped in lockstep, and the rollout of one episode in each.
+"""Goal envs stepped in lockstep, one group of copies per agent, and the rollout of an episode.
 
 The agent sees the env only through the Gymnasium goal-env API: a Dict observation with
 ``observation``, ``achieved_goal`` and ``desired_goal``, a Box action, ``info["is_success"]``, and
-the vectorised ``compute_reward`` / ``compute_terminated`` of ``env.unwrapped``.
+the vectorised ``compute_reward`` / ``compute_terminated`` of the env. A group of several copies
+uses the env's own batched implementation (its ``vector_entry_point``, e.g. ``envs.BatchedReach``)
+when it has one; a single copy is ``gymnasium.make``. Groups never share a batch, so what agent
+k's copies compute does not depend on how many agents train beside it.
 """
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium
 import numpy as np
+from gymnasium.vector import AutoresetMode
 
 from ddpg_her.buffer import Episode
 from ddpg_her.spaces import ActionScale
 
 KEYS = ("observation", "achieved_goal", "desired_goal")
 
+Step = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+class _Singles:
+    """M copies made one by one with ``gymnasium.make``, stepped in a loop."""
+
+    def __init__(self, env_id: str, m: int, kwargs: dict[str, Any]):
+        self.envs = [gymnasium.make(env_id, **kwargs) for _ in range(m)]
+        env = self.envs[0]
+        self.observation_space, self.action_space = env.observation_space, env.action_space
+        self.goal_env = env.unwrapped
+        limit = env.spec.max_episode_steps if env.spec is not None else None
+        task_limit = _task_dict(self.goal_env).get("max_episode_steps")
+        limits = [x for x in (limit, task_limit) if x is not None]
+        self.max_steps = min(limits) if limits else None
+
+    def reset(self, seeds: Sequence[int]) -> list[dict[str, np.ndarray]]:
+        return [env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds, strict=True)]
+
+    def step(self, action: np.ndarray, active: np.ndarray) -> list[tuple | None]:
+        out: list[tuple | None] = [None] * len(self.envs)
+        for i in np.flatnonzero(active):
+            o, r, term, trunc, info = self.envs[i].step(action[i])
+            out[i] = (o, r, term, trunc, bool(info.get("is_success", term)))
+        return out
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+class _Vector:
+    """M copies in the env's own vector implementation, never reset automatically."""
+
+    def __init__(self, env_id: str, m: int, kwargs: dict[str, Any]):
+        self.env = gymnasium.make_vec(env_id, num_envs=m, vectorization_mode="vector_entry_point",
+                                      autoreset_mode=AutoresetMode.DISABLED, **kwargs)
+        self.observation_space = self.env.single_observation_space
+        self.action_space = self.env.single_action_space
+        self.goal_env = self.env.unwrapped
+        limit = _task_dict(self.goal_env).get("max_episode_steps")
+        self.max_steps = limit if limit is not None else gymnasium.spec(env_id).max_episode_steps
+
+    def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
+        return self.env.reset(seed=[int(s) for s in seeds])[0]
+
+    def step(self, action: np.ndarray, active: np.ndarray) -> tuple:
+        # Copies whose episode ended are stepped too (the batch moves as one) and ignored.
+        o, r, term, trunc, info = self.env.step(action)
+        success = np.asarray(info.get("is_success", term), dtype=bool)
+        return o, r, term, trunc, success
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def _task_dict(goal_env: Any) -> dict[str, Any]:
+    task = getattr(goal_env, "task", None)
+    return task.to_dict() if task is not None and hasattr(task, "to_dict") else {}
+
 
 class GoalVecEnv:
-    """N copies of one Gymnasium goal env, made by ``gymnasium.make(env_id, **kwargs)``.
+    """``groups`` groups of ``copies`` copies of ``gymnasium.make(env_id, **kwargs)``.
 
-    Each copy is reseeded at every reset from the seed given for it, so an episode depends only
-    on its own seed: nothing about the env needs saving in a checkpoint.
+    Copy m of group k sits at flat index ``k * copies + m``. Each copy is reseeded at every
+    reset from the seed given for it, so an episode depends only on its own seed: nothing about
+    the env needs saving in a checkpoint.
     """
 
-    def __init__(self, env_id: str, num_envs: int, **kwargs: Any):
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.envs = [gymnasium.make(env_id, **kwargs) for _ in range(num_envs)]
-        env = self.envs[0]
-        space = env.observation_space
+    def __init__(self, env_id: str, groups: int, copies: int = 1, **kwargs: Any):
+        if groups < 1 or copies < 1:
+            raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
+        module, _, name = env_id.rpartition(":")
+        if module:  # Gymnasium's "module:EnvId": the module registers the id
+            importlib.import_module(module)
+            env_id = name
+        vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
+        make = _Vector if vector else _Singles
+        self.groups = [make(env_id, copies, kwargs) for _ in range(groups)]
+        g = self.groups[0]
+        space = g.observation_space
         if not isinstance(space, gymnasium.spaces.Dict) or set(KEYS) - set(space.spaces):
             raise ValueError(f"{env_id} is not a goal env: its observations must be a Dict with "
                              f"keys {KEYS}, got {space}")
-        if not isinstance(env.action_space, gymnasium.spaces.Box):
-            raise ValueError(f"{env_id}: need a Box action space, got {env.action_space}")
-        if env.spec is None or env.spec.max_episode_steps is None:
+        if not isinstance(g.action_space, gymnasium.spaces.Box):
+            raise ValueError(f"{env_id}: need a Box action space, got {g.action_space}")
+        if g.max_steps is None:
             raise ValueError(f"{env_id} has no time limit (max_episode_steps)")
-        self.num_envs = num_envs
-        self.max_steps: int = env.spec.max_episode_steps
+        self.copies, self.num_envs = copies, groups * copies
+        self.max_steps: int = int(g.max_steps)
         self.obs_dim = space["observation"].shape[0]
         self.goal_dim = space["desired_goal"].shape[0]
-        self.scale = ActionScale(env.action_space.low, env.action_space.high)
-        self.unwrapped = env.unwrapped
+        self.scale = ActionScale(g.action_space.low, g.action_space.high)
+        self.goal_env = g.goal_env
 
     @property
     def task(self) -> dict[str, Any]:
-        """The env's task specification (``env.unwrapped.task.to_dict()``), or {}."""
-        task = getattr(self.unwrapped, "task", None)
-        return task.to_dict() if task is not None else {}
+        """The env's task specification (``task.to_dict()`` of the env), or {}."""
+        return _task_dict(self.goal_env)
 
     def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
         """Reset every copy n with ``seeds[n]``; the observation arrays are (N, ...)."""
-        obs = [env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds, strict=True)]
-        return {key: np.stack([o[key] for o in obs]) for key in KEYS}
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        c = self.copies
+        parts = [g.reset(seeds[i * c:(i + 1) * c]) for i, g in enumerate(self.groups)]
+        return {key: np.concatenate([
+            p[key] if isinstance(p, dict) else np.stack([o[key] for o in p]) for p in parts
+        ]).astype(np.float64) for key in KEYS}
 
-    def step(self, action: np.ndarray, active: np.ndarray, obs: dict[str, np.ndarray]):
+    def step(self, action: np.ndarray, active: np.ndarray, obs: dict[str, np.ndarray]) -> Step:
         """Step the copies where ``active : (N,) bool``; the others keep their observation.
 
         action : (N, act_dim), env units. Returns obs (arrays (N, ...)), reward (N,),
-        terminated (N,), truncated (N,), success (N,), the last three bool.
+        terminated (N,), truncated (N,), success (N,), the last three bool; entries of inactive
+        copies are 0 / False.
         """
         obs = {key: v.copy() for key, v in obs.items()}
         reward = np.zeros(self.num_envs)
         flags = np.zeros((3, self.num_envs), dtype=bool)
-        for n in np.flatnonzero(active):
-            o, r, term, trunc, info = self.envs[n].step(action[n])
-            for key in KEYS:
-                obs[key][n] = o[key]
-            reward[n] = r
-            flags[:, n] = term, trunc, bool(info.get("is_success", term))
+        c = self.copies
+        for i, g in enumerate(self.groups):
+            sl = slice(i * c, (i + 1) * c)
+            out = g.step(action[sl], active[sl])
+            if isinstance(out, tuple):  # a vector group: arrays for all its copies
+                o, r, term, trunc, success = out
+                on = active[sl]
+                for key in KEYS:
+                    obs[key][sl][on] = o[key][on]
+                reward[sl][on] = np.asarray(r)[on]
+                flags[0, sl][on], flags[1, sl][on] = term[on], trunc[on]
+                flags[2, sl][on] = success[on]
+                continue
+            for m, res in enumerate(out):
+                if res is None:
+                    continue
+                o, r, term, trunc, success = res
+                n = i * c + m
+                for key in KEYS:
+                    obs[key][n] = o[key]
+                reward[n] = r
+                flags[:, n] = term, trunc, success
         return obs, reward, flags[0], flags[1], flags[2]
 
     def reward_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
                   action: np.ndarray) -> np.ndarray:
         """The env's reward for L transitions:
         (L, goal_dim), (L, goal_dim), (L, act_dim) -> (L,)."""
-        return self.unwrapped.compute_reward(achieved_goal, desired_goal, {"action": action})
+        return np.asarray(self.goal_env.compute_reward(achieved_goal, desired_goal,
+                                                       {"action": action}), dtype=np.float64)
 
     def success_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
                    action: np.ndarray) -> np.ndarray:
-        """The env's success test for L transitions, (L,) bool."""
-        return self.unwrapped.compute_terminated(achieved_goal, desired_goal, {"action": action})
+        """The env's success test (its ``compute_terminated``) for L transitions, (L,) bool."""
+        return np.asarray(self.goal_env.compute_terminated(achieved_goal, desired_goal,
+                                                           {"action": action}), dtype=bool)
 
     def close(self) -> None:
-        for env in self.envs:
-            env.close()
+        for g in self.groups:
+            g.close()
 
 
 Policy = Callable[[dict[str, np.ndarray], np.ndarray], np.ndarray]

@@ -21,7 +21,8 @@ from ddpg_her.trainer import Trainer
 TASK = {"region": "box", "n_joints": 2}
 # Tiny but complete: 4 test sessions, a buffer that wraps around several times.
 TINY = AgentConfig(episodes=12, eval_every=3, eval_episodes=4, hidden_sizes=(16, 16),
-                   updates_per_episode=4, buffer_size=70, batch_size=8, exploration_rate=0.3)
+                   updates_per_episode=4, buffer_size=70, batch_size=8, exploration_rate=0.3,
+                   warmup_episodes=2)
 TESTS_DIR = Path(__file__).parent
 
 
@@ -166,7 +167,7 @@ def test_run_folder_contents_and_load(tmp_path):
 def test_learns_the_toy_task_in_seconds(tmp_path):
     config = AgentConfig(episodes=80, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
                          updates_per_episode=40, actor_lr=1e-3, tau=0.05,
-                         exploration="epsilon", exploration_rate=0.3)
+                         exploration="epsilon", exploration_rate=0.3, warmup_episodes=0)
     rows = train([tmp_path / "learn"], seeds=[0], config=config)[0]
     hits = [r["successes"] for r in rows]
     assert hits[0] <= 3, hits  # an untrained policy hits next to nothing ...
@@ -195,7 +196,8 @@ def test_cli_help_lists_every_flag_with_units():
 def test_cli_tiny_run_and_its_errors(tmp_path):
     tiny = ["--env-id", f"toy_goal_env:{ENV_ID}", "--region", "box", "--joints", "2",
             "--episodes", "2", "--eval-every", "1", "--eval-episodes", "2",
-            "--hidden-sizes", "8", "8", "--updates-per-episode", "2", "--threads", "1",
+            "--hidden-sizes", "8", "8", "--updates-per-episode", "2", "--warmup-episodes", "1",
+            "--threads", "1",
             "--no-progress"]
     out = cli(*tiny, "--seeds", "0", "1", "--out", str(tmp_path / "runs"))
     assert out.returncode == 0, out.stderr
