@@ -177,7 +177,7 @@ class UR5ReachEnv(gymnasium.Env):
     @property
     def joint_angles(self) -> np.ndarray:
         """All six joint angles now, ``(6,) float, rad`` (a copy): the observation holds only
-        joints 1..n, and the held joints n+1..6 give way a little under load."""
+        joints 1..n, and the held joints n+1..6 give way under load (see Action Space)."""
         return self._core.dynamics.q[0].copy()
 
     # ------------------------------------------------------------------ Gymnasium API
