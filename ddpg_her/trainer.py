@@ -276,6 +276,7 @@ class Trainer:
                 if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
                     log.losses += self.learn(cfg.updates_per_episode)
                     log.updates += cfg.updates_per_episode
+                    log.learning += 1
                 self.episode += 1
                 log.episodes += 1
                 if self.episode % cfg.eval_every == 0:
@@ -287,14 +288,13 @@ class Trainer:
                         rows.append({**row, "wall_s": round(self.wall_s, 2)})
                     log.write(self.rows, self.episode)
                     self._save()
-                    if bar is not None:
-                        bar.set_postfix_str(_postfix(bar, self.rows), refresh=False)
                 elif self.episode == cfg.episodes:
                     self._save()
                 now = time.perf_counter()
                 self.wall_s += now - tick
                 tick = now
                 if bar is not None:
+                    bar.set_postfix_str(_postfix(bar, self.rows), refresh=False)
                     bar.update(1)
         finally:
             if bar is not None:
@@ -329,11 +329,11 @@ def _progress(enabled: bool, total: int, initial: int, k: int):
 
 def _postfix(bar, rows: list[list[dict[str, Any]]]) -> str:
     """Latest success counts and the projected finish (clock time)."""
-    hits = "/".join(str(r[-1]["successes"]) for r in rows)
-    text = f"hits {hits} of {rows[0][-1]['tests']}"
+    text = "hits " + ("/".join(str(r[-1]["successes"]) for r in rows)
+                      + f" of {rows[0][-1]['tests']}" if rows[0] else "-")
     rate = bar.format_dict.get("rate")
     if rate:
-        left = (bar.total - bar.n) / rate
+        left = (bar.total - bar.n - 1) / rate
         finish = datetime.datetime.now() + datetime.timedelta(seconds=left)
         text += f", done ~{finish:%a %H:%M}"
     return text
@@ -355,13 +355,13 @@ class _Interval:
         self.k, self.writers = k, writers
         self.losses = torch.zeros(2, k, dtype=torch.float64, device=device)
         self.successes = np.zeros(k)
-        self.updates = self.episodes = 0
+        self.updates = self.episodes = self.learning = 0
         self.start = time.perf_counter()
 
     def write(self, rows: list[list[dict[str, Any]]], episode: int) -> None:
         seconds = time.perf_counter() - self.start
         episodes = max(self.episodes, 1)
-        losses = (self.losses / episodes).cpu().numpy()
+        losses = (self.losses / max(self.learning, 1)).cpu().numpy()
         stats = {
             "train/critic_loss": losses[0],
             "train/actor_loss": losses[1],
@@ -381,7 +381,7 @@ class _Interval:
             w.flush()
         self.losses.zero_()
         self.successes[:] = 0
-        self.updates = self.episodes = 0
+        self.updates = self.episodes = self.learning = 0
         self.start = time.perf_counter()
 
     def close(self) -> None:

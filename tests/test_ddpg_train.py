@@ -69,6 +69,25 @@ def test_batched_agents_train_as_they_would_alone(tmp_path):
     assert eval_table(tmp_path / "k2-s1") != eval_table(tmp_path / "k2-s2")
 
 
+def test_ur5_reach_trains_through_the_batched_path(tmp_path):
+    """The real env: single-copy training groups, BatchedReach test groups, K = 2 vs K = 1."""
+    import envs  # noqa: F401  (registers UR5Reach-v0)
+
+    config = AgentConfig(episodes=2, eval_every=1, eval_episodes=3, hidden_sizes=(8, 8),
+                         updates_per_episode=2, warmup_episodes=1, batch_size=8)
+    task = {"region": "farbox", "n_joints": 3}
+    dirs = [str(tmp_path / d) for d in ("a0", "a1", "b1")]
+    for seeds, folders in (([0, 1], dirs[:2]), ([1], dirs[2:])):
+        trainer = Trainer("UR5Reach-v0", task, config, seeds, folders, progress=False,
+                          tensorboard=False)
+        trainer.run()
+        trainer.close()
+    assert eval_table(dirs[1]) == eval_table(dirs[2])
+    spec = json.loads((tmp_path / "a0" / "spec.json").read_text())
+    assert spec["task"]["region"] == "farbox" and spec["dims"]["act_dim"] == 3
+    assert spec["dims"]["obs_dim"] == 9 and spec["dims"]["max_episode_steps"] == 100
+
+
 class Crash(Exception):
     pass
 
@@ -162,6 +181,32 @@ def test_run_folder_contents_and_load(tmp_path):
     assert both.shape == (2, 2)
     np.testing.assert_allclose(both[0], a, atol=1e-6)
     assert not np.allclose(both[0], both[1])
+
+
+def test_tensorboard_gets_eval_and_training_scalars(tmp_path, monkeypatch):
+    """With a stand-in writer (tensorboard itself is an optional extra)."""
+    logged: dict[str, list] = {}
+
+    class Writer:
+        def add_scalar(self, tag, value, step):
+            logged.setdefault(tag, []).append((step, value))
+
+        def flush(self):
+            pass
+
+        def close(self):
+            logged["closed"] = True
+
+    monkeypatch.setattr("ddpg_her.trainer._tb_writer", lambda path, episode: Writer())
+    trainer = Trainer(ENV_ID, TASK, TINY, [0], [str(tmp_path / "tb")], progress=False)
+    rows = trainer.run()[0]
+    trainer.close()
+    assert [step for step, _ in logged["eval/success_rate"]] == [3, 6, 9, 12]
+    assert [v for _, v in logged["eval/success_rate"]] == [r["successes"] / 4 for r in rows]
+    for tag in ("train/critic_loss", "train/actor_loss", "train/success_rate",
+                "perf/agent_updates_per_wall_s", "eval/mean_final_distance_m"):
+        assert len(logged[tag]) == 4, tag
+    assert logged["closed"]
 
 
 def test_learns_the_toy_task_in_seconds(tmp_path):
