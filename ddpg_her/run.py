@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import importlib
 import io
 import json
 import os
@@ -189,6 +190,18 @@ class Policy:
         self.actor, self.normalizer, self.scale = actor, normalizer, scale
         self.spec, self.episode = spec, episode
         self.device = actor.l1.weight.device
+
+    def make_env(self, **kwargs: Any) -> Any:
+        """A fresh copy of the env the policy was trained on (``gymnasium.make`` with the run's
+        env id and arguments; ``kwargs`` go to ``gymnasium.make`` too, e.g. ``render_mode``)."""
+        import gymnasium
+
+        module = self.spec["env_id"].rpartition(":")[0]
+        if self.spec["env_id"] == "UR5Reach-v0":
+            module = "envs"
+        if module:
+            importlib.import_module(module)
+        return gymnasium.make(self.spec["env_id"], **self.spec["env_kwargs"], **kwargs)
 
     @torch.no_grad()
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -54,8 +54,8 @@ class Trainer:
                  progress: bool = True, tensorboard: bool = True,
                  command: Sequence[str] | None = None):
         seeds = [int(s) for s in seeds]
-        if not seeds or len(set(seeds)) != len(seeds):
-            raise ValueError(f"need one or more distinct seeds, got {seeds}")
+        if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+            raise ValueError(f"need one or more distinct seeds >= 0, got {seeds}")
         if len(run_dirs) != len(seeds):
             raise ValueError(f"need one run folder per seed: {len(seeds)} seeds, "
                              f"{len(run_dirs)} folders")

@@ -157,6 +157,12 @@ def test_resume_refuses_another_task_or_agent_and_plain_runs_refuse_existing(tmp
         Trainer(ENV_ID, TASK, TINY, [0], [str(tmp_path / "r")])
 
 
+def trainer_eval_seed(seed: int, session: int, i: int) -> int:
+    from ddpg_her.trainer import _EVAL_ENV, stream_seed
+
+    return stream_seed(seed, _EVAL_ENV, session, i)
+
+
 def test_run_folder_contents_and_load(tmp_path):
     train([tmp_path / "run"], seeds=[7])
     spec = json.loads((tmp_path / "run" / "spec.json").read_text())
@@ -172,7 +178,9 @@ def test_run_folder_contents_and_load(tmp_path):
     assert sorted(RunFolder(tmp_path / "run").checkpoints()) == [9, 12]  # the last two
 
     policy = ddpg_her.load(tmp_path / "run")
-    env = toy_goal_env.ToyReach(n_joints=2)
+    assert policy.episode == 12
+    env = policy.make_env()
+    assert env.unwrapped.task == toy_goal_env.ToyTaskSpec(n_joints=2)
     obs, _ = env.reset(seed=0)
     a = policy(obs)
     assert a.shape == (2,) and np.all(np.abs(a) <= 2.0)
@@ -181,6 +189,16 @@ def test_run_folder_contents_and_load(tmp_path):
     assert both.shape == (2, 2)
     np.testing.assert_allclose(both[0], a, atol=1e-6)
     assert not np.allclose(both[0], both[1])
+    # the policy is the trainer's deterministic actor: it scores what eval.csv says
+    hits = 0
+    for i in range(4):
+        obs, _ = env.reset(seed=trainer_eval_seed(7, 4, i))
+        for _ in range(20):
+            obs, _, terminated, truncated, info = env.step(policy(obs))
+            if terminated or truncated:
+                break
+        hits += info["is_success"]
+    assert hits == int(rows[-1]["successes"])
 
 
 def test_tensorboard_gets_eval_and_training_scalars(tmp_path, monkeypatch):
