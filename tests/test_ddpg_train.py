@@ -16,6 +16,7 @@ from toy_goal_env import ENV_ID
 import ddpg_her
 from ddpg_her.config import AgentConfig
 from ddpg_her.run import EVAL_COLUMNS, RunFolder
+from ddpg_her.summary import summarize
 from ddpg_her.trainer import Trainer
 
 TASK = {"region": "box", "n_joints": 2}
@@ -199,6 +200,10 @@ def test_run_folder_contents_and_load(tmp_path):
                 break
         hits += info["is_success"]
     assert hits == int(rows[-1]["successes"])
+
+    table = summarize([str(tmp_path / "run")], project_to=24)
+    assert "| episode | seed 7 |" in table
+    assert f"| 12 | {rows[-1]['successes']}/4 |" in table
 
 
 def test_tensorboard_gets_eval_and_training_scalars(tmp_path, monkeypatch):

@@ -1,0 +1,65 @@
+"""``python -m ddpg_her.summary RUN_DIR ...``: a Markdown table of the runs' test sessions.
+
+One column of successes per run, then each run's last session, its wall-clock time and the
+time projected for a longer run from its steady pace (the last half of its sessions).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from ddpg_her.run import RunFolder
+
+
+def summarize(run_dirs: Sequence[str], project_to: int) -> str:
+    runs = []
+    for d in run_dirs:
+        folder = RunFolder(d)
+        if not folder.exists():
+            raise FileNotFoundError(f"{d} is not a run folder (no spec.json)")
+        runs.append((d, folder.read_spec(), folder.read_eval()))
+    lines = ["| episode | " + " | ".join(f"seed {spec['seed']}" for _, spec, _ in runs) + " |",
+             "|---:|" + "---:|" * len(runs)]
+    episodes = sorted({int(r["episode"]) for _, _, rows in runs for r in rows})
+    for e in episodes:
+        cells = []
+        for _, _, rows in runs:
+            row = next((r for r in rows if int(r["episode"]) == e), None)
+            cells.append(f"{row['successes']}/{row['tests']}" if row else "")
+        lines.append(f"| {e} | " + " | ".join(cells) + " |")
+    lines += ["", "| run | last session | successes | mean final distance (m) | env steps "
+              f"| wall (h) | projected wall for {project_to} episodes (h) |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for d, _, rows in runs:
+        if not rows:
+            lines.append(f"| {d} | - | - | - | - | - | - |")
+            continue
+        last = rows[-1]
+        half = rows[len(rows) // 2:]
+        first, end = half[0], half[-1]
+        span = int(end["episode"]) - int(first["episode"])
+        pace = (float(end["wall_s"]) - float(first["wall_s"])) / span if span else float("nan")
+        projected = float(last["wall_s"]) + pace * (project_to - int(last["episode"]))
+        lines.append(f"| {d} | {last['episode']} | {last['successes']}/{last['tests']} | "
+                     f"{float(last['mean_final_distance_m']):.3f} | {last['env_steps']} | "
+                     f"{float(last['wall_s']) / 3600:.2f} | {projected / 3600:.1f} |")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ddpg_her.summary", description=__doc__)
+    parser.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders")
+    parser.add_argument("--project-to", type=int, default=20_000, metavar="EPISODES",
+                        help="episodes of the projected run (default: 20000, the paper's)")
+    args = parser.parse_args(argv)
+    try:
+        print(summarize(args.run_dirs, args.project_to))
+    except FileNotFoundError as e:
+        parser.error(str(e))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
