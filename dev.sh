@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The one set-up entry point: builds .venv from this project's own files, then runs a job.
-#   bash dev.sh demo    the main job (see README)
+#   bash dev.sh demo    the main job: a short training run and its learning curve (see README)
 #   bash dev.sh test    the test suite (what .ci/run calls)
 #   bash dev.sh shell   prints the activate line of the environment
 # Environment: PYTHON (interpreter for the venv, default python3), VENV (default .venv),
@@ -30,7 +30,11 @@ fi
 job=${1:-}
 shift || true
 case "$job" in
-  demo) exec "$venv/bin/python" -m ur5kin.demo "$@" ;;
+  demo)
+    # The main job: a short far-box training run (resumable), then its learning curve.
+    "$venv/bin/python" -m ddpg_her.train --region farbox --joints 3 --seed 0 --episodes 300 \
+      --out runs/demo --resume "$@"
+    exec "$venv/bin/python" -m analysis.curves runs/demo --out runs/demo/curves.png ;;
   test) exec "$venv/bin/python" -m pytest "$@" ;;
   shell) echo "source $venv/bin/activate" ;;
   *) echo "usage: bash dev.sh demo|test|shell [args...]" >&2; exit 2 ;;
