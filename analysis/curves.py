@@ -18,13 +18,12 @@ from pathlib import Path
 
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
-    CONFIDENCE,
     PERCENT,
     Run,
+    add_runs_arguments,
     aligned_successes,
-    find_runs,
-    group_by_setting,
     mean_ci,
+    settings_from_args,
 )
 
 REGION_ORDER = ("unconstrained", "zheight", "closebox", "farbox", "farbox_tall")
@@ -111,27 +110,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.curves", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("roots", nargs="+", metavar="RUNS_ROOT",
-                        help="folders searched (recursively) for run folders with spec.json")
+    add_runs_arguments(parser)
     parser.add_argument("--out", type=Path, default=Path("curves.png"),
                         help="figure file (.png, .pdf, .svg); the CSV goes beside it")
-    parser.add_argument("--confidence", type=float, default=CONFIDENCE,
-                        help="two-sided confidence level of the band (fraction)")
     args = parser.parse_args(argv)
-    if not 0.0 < args.confidence < 1.0:
-        parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
-    try:
-        runs = find_runs(args.roots)
-    except FileNotFoundError as err:
-        parser.error(str(err))
-    groups = {k: v for k, v in group_by_setting(runs).items() if any(len(r.episode) for r in v)}
-    if not groups:
-        parser.error(f"no run with evaluations below {', '.join(args.roots)}")
+    groups = settings_from_args(parser, args)
     rows = curve_rows(groups, args.confidence)
     plot(groups, args.out, args.confidence)
     csv_path = args.out.with_suffix(".csv")
     write_csv(rows, csv_path)
-    print(f"{len(runs)} runs in {len(groups)} settings -> {args.out} and {csv_path}",
+    runs = sum(len(v) for v in groups.values())
+    print(f"{runs} runs in {len(groups)} settings -> {args.out} and {csv_path}",
           file=sys.stderr)
     return 0
 

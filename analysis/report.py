@@ -23,10 +23,10 @@ from analysis.runs import (
     CONFIDENCE,
     PERCENT,
     Run,
+    add_runs_arguments,
     aligned_successes,
-    find_runs,
-    group_by_setting,
     mean_ci,
+    settings_from_args,
 )
 
 
@@ -134,22 +134,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.report", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("roots", nargs="+", metavar="RUNS_ROOT",
-                        help="folders searched (recursively) for run folders with spec.json")
+    add_runs_arguments(parser)
     parser.add_argument("--out", type=Path, default=None,
                         help="also write the Markdown to this file")
-    parser.add_argument("--confidence", type=float, default=CONFIDENCE,
-                        help="two-sided confidence level (fraction)")
     args = parser.parse_args(argv)
-    if not 0.0 < args.confidence < 1.0:
-        parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
-    try:
-        runs = find_runs(args.roots)
-    except FileNotFoundError as err:
-        parser.error(str(err))
-    groups = {k: v for k, v in group_by_setting(runs).items() if any(len(r.episode) for r in v)}
-    if not groups:
-        parser.error(f"no run with evaluations below {', '.join(args.roots)}")
+    groups = settings_from_args(parser, args)
     summaries = {k: summarise(v, args.confidence) for k, v in groups.items()}
     text = render(summaries, args.confidence)
     if args.out is not None:

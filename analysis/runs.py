@@ -7,6 +7,7 @@ given to ``--region`` and the number of controlled joints.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import math
@@ -181,3 +182,30 @@ def aligned_successes(runs: Sequence[Run]) -> tuple[np.ndarray, np.ndarray]:
     table = np.array([[100.0 * r.success_rate[np.searchsorted(r.episode, e)] for e in episode]
                       for r in runs], dtype=float).reshape(len(runs), len(episode))
     return episode, table
+
+
+def add_runs_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags every study over run folders shares: the roots and the confidence level."""
+    parser.add_argument("roots", nargs="+", metavar="RUNS_ROOT",
+                        help="folders searched (recursively) for run folders with spec.json")
+    parser.add_argument("--confidence", type=float, default=CONFIDENCE,
+                        help="two-sided confidence level of the interval over seeds (fraction)")
+
+
+def settings_from_args(parser: argparse.ArgumentParser,
+                       args: argparse.Namespace) -> dict[tuple[str, int], list[Run]]:
+    """The runs below ``args.roots`` that have evaluations, grouped by setting.
+
+    Exits through ``parser.error`` (status 2, with the reason) on a bad confidence level, a
+    missing root, or no run with evaluations.
+    """
+    if not 0.0 < args.confidence < 1.0:
+        parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
+    try:
+        runs = find_runs(args.roots)
+    except FileNotFoundError as err:
+        parser.error(str(err))
+    groups = {k: v for k, v in group_by_setting(runs).items() if any(len(r.episode) for r in v)}
+    if not groups:
+        parser.error(f"no run with evaluations below {', '.join(map(str, args.roots))}")
+    return groups
