@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+import numpy as np
 import pinocchio as pin
 
 from ur5kin import closed_form
@@ -45,6 +46,31 @@ def _check_tensor(q: Any) -> Any:
     return q
 
 
+def _dispatch(q: Any, batched: Any, tail: tuple[int, ...], single: Any = None) -> Any:
+    """Route ``q``: a tensor or a numpy batch to the closed form ``batched`` (in cache-sized
+    blocks), one numpy configuration to Pinocchio's ``single(model, data, frame, q)`` if given."""
+    if closed_form._torch_if_tensor(q) is not None:
+        return closed_form.chunked(batched, _check_tensor(q), tail)
+    q = joint_array(q)
+    if q.ndim == 1 and single is not None:
+        return single(*_pinocchio(), q)
+    return closed_form.chunked(batched, q, tail)
+
+
+def _single_position(model: pin.Model, data: pin.Data, frame: int, q: np.ndarray) -> np.ndarray:
+    pin.forwardKinematics(model, data, q)
+    return pin.updateFramePlacement(model, data, frame).translation.copy()
+
+
+def _single_pose(model: pin.Model, data: pin.Data, frame: int, q: np.ndarray) -> np.ndarray:
+    pin.forwardKinematics(model, data, q)
+    return pin.updateFramePlacement(model, data, frame).homogeneous.copy()
+
+
+def _single_jacobian(model: pin.Model, data: pin.Data, frame: int, q: np.ndarray) -> np.ndarray:
+    return pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED).copy()
+
+
 def fk(q: Any) -> Any:
     """Position of tool0.
 
@@ -64,14 +90,7 @@ def fk(q: Any) -> Any:
     ValueError
         When the last dimension is not 6 or an entry is NaN or infinite.
     """
-    if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.chunked(closed_form.position, _check_tensor(q), (3,))
-    q = joint_array(q)
-    if q.ndim == 1:
-        model, data, frame = _pinocchio()
-        pin.forwardKinematics(model, data, q)
-        return pin.updateFramePlacement(model, data, frame).translation.copy()
-    return closed_form.chunked(closed_form.position, q, (3,))
+    return _dispatch(q, closed_form.position, (3,), _single_position)
 
 
 def fk_pose(q: Any) -> Any:
@@ -86,14 +105,7 @@ def fk_pose(q: Any) -> Any:
     T : (..., 4, 4) float
         Homogeneous transform of tool0 in ``base_link`` (translation in m).
     """
-    if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.chunked(closed_form.tool_pose, _check_tensor(q), (4, 4))
-    q = joint_array(q)
-    if q.ndim == 1:
-        model, data, frame = _pinocchio()
-        pin.forwardKinematics(model, data, q)
-        return pin.updateFramePlacement(model, data, frame).homogeneous.copy()
-    return closed_form.chunked(closed_form.tool_pose, q, (4, 4))
+    return _dispatch(q, closed_form.tool_pose, (4, 4), _single_pose)
 
 
 def link_poses(q: Any) -> Any:
@@ -109,10 +121,7 @@ def link_poses(q: Any) -> Any:
         Transforms in ``base_link`` of base_link, shoulder_link, upper_arm_link, forearm_link,
         wrist_1_link, wrist_2_link, wrist_3_link and tool0 (translation in m).
     """
-    if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.chunked(closed_form.link_poses, _check_tensor(q), (8, 4, 4))
-    q = joint_array(q)
-    return closed_form.chunked(closed_form.link_poses, q, (8, 4, 4))
+    return _dispatch(q, closed_form.link_poses, (8, 4, 4))
 
 
 def jacobian(q: Any) -> Any:
@@ -129,13 +138,7 @@ def jacobian(q: Any) -> Any:
         3-5 the angular velocity (rad/s), both in ``base_link`` axes (Pinocchio's
         ``LOCAL_WORLD_ALIGNED``); columns are joints 1-6 (per rad/s).
     """
-    if closed_form._torch_if_tensor(q) is not None:
-        return closed_form.chunked(_batched_jacobian, _check_tensor(q), (6, 6))
-    q = joint_array(q)
-    if q.ndim == 1:
-        model, data, frame = _pinocchio()
-        return pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED).copy()
-    return closed_form.chunked(_batched_jacobian, q, (6, 6))
+    return _dispatch(q, _batched_jacobian, (6, 6), _single_jacobian)
 
 
 def _batched_jacobian(q: Any) -> Any:
