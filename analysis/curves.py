@@ -64,7 +64,7 @@ def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> N
 
     regions, joints = _layout(list(groups))
     fig, axes = plt.subplots(len(regions), len(joints), squeeze=False, sharex=True, sharey=True,
-                             figsize=(3.2 * len(joints) + 0.6, 2.6 * len(regions) + 0.6))
+                             figsize=(max(3.2 * len(joints) + 0.6, 6.5), 2.6 * len(regions) + 0.8))
     for i, region in enumerate(regions):
         for j, n in enumerate(joints):
             ax = axes[i][j]
