@@ -258,7 +258,3 @@ def ik_position(target: Any, wrist: Any) -> tuple[np.ndarray, np.ndarray]:
     out[~valid] = np.nan
     return out, valid
 
-
-def solve_check(q: np.ndarray, g: UR5Geometry | None = None) -> np.ndarray:
-    """Round trip used by tests and demos: ``ik(fk_pose(q))`` for one configuration ``(6,)``."""
-    return ik(tool_pose(joint_array(q), g))
