@@ -1,6 +1,8 @@
 """``python -m ddpg_her.bench``: how fast the DDPG update runs, against SB3 and the machine's peak.
 
-Measured in one process, one after the other, with the same torch thread count:
+Measured in one process with the same torch thread count, ours and SB3 in alternating rounds
+(medians of the rounds; the speed-up is the median of each round's pair, so drifts of a shared
+machine's load cancel):
 
 - ``agent_updates_per_s``: our update (minibatch sampling included) of K stacked agents, summed
   over the agents, on replay buffers filled with real env transitions (random-action episodes
@@ -10,6 +12,7 @@ Measured in one process, one after the other, with the same torch thread count:
   ``train()`` step, HER sampling included;
 - ``update_gflops``: floating-point operations of our update (counted by
   ``torch.utils.flop_counter``, backward included) per second;
+- ``speedup_vs_sb3``: agent_updates_per_s over sb3_updates_per_s, round by round;
 - ``matmul_peak_gflops``: the best float32 matrix-product rate of this machine.
 """
 
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import sys
 import tempfile
 import time
@@ -41,64 +45,105 @@ def matmul_peak_gflops(sizes: Sequence[int] = (512, 1024, 2048), repeats: int = 
     return best
 
 
-def ours(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig, updates: int,
-         fill_episodes: int, device: str) -> dict[str, float]:
-    """Agent-updates per second of K stacked agents, and the update's GFLOP/s."""
-    import torch
-    from torch.utils.flop_counter import FlopCounterMode
+class _Ours:
+    """K stacked agents on buffers filled with real transitions; ``run(n)`` times n updates."""
 
-    from ddpg_her.trainer import Trainer
+    def __init__(self, k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig,
+                 fill_episodes: int, device: str):
+        import torch
+        from torch.utils.flop_counter import FlopCounterMode
 
-    config = AgentConfig(**{**config.to_dict(), "episodes": fill_episodes,
-                            "warmup_episodes": fill_episodes, "eval_episodes": 1})
-    with tempfile.TemporaryDirectory() as tmp:
-        trainer = Trainer(env_id, env_kwargs, config, list(range(k)),
-                          [f"{tmp}/s{s}" for s in range(k)], device=device, progress=False,
-                          tensorboard=False)
-        try:
-            for _ in range(fill_episodes):
-                trainer.train_episode()
-                trainer.episode += 1
-            trainer.learn(10)
-            with FlopCounterMode(display=False) as counter:
-                trainer.learn(1)
-            flops = counter.get_total_flops()
-            if device == "cuda":
-                torch.cuda.synchronize()
-            t = time.perf_counter()
-            trainer.learn(updates)
-            if device == "cuda":
-                torch.cuda.synchronize()
-            seconds = time.perf_counter() - t
-        finally:
-            trainer.close()
-    return {"agent_updates_per_s": k * updates / seconds,
-            "update_gflops": flops * updates / seconds / 1e9,
-            "update_mflop_per_agent": flops / k / 1e6}
+        from ddpg_her.trainer import Trainer
+
+        config = AgentConfig(**{**config.to_dict(), "episodes": fill_episodes,
+                                "warmup_episodes": fill_episodes, "eval_episodes": 1})
+        self.k, self.device, self._sync = k, device, torch.cuda.synchronize
+        self._tmp = tempfile.TemporaryDirectory()
+        self.trainer = Trainer(env_id, env_kwargs, config, list(range(k)),
+                               [f"{self._tmp.name}/s{s}" for s in range(k)], device=device,
+                               progress=False, tensorboard=False)
+        for _ in range(fill_episodes):
+            self.trainer.train_episode()
+            self.trainer.episode += 1
+        self.trainer.learn(10)
+        with FlopCounterMode(display=False) as counter:
+            self.trainer.learn(1)
+        self.flops = counter.get_total_flops()
+
+    def run(self, updates: int) -> float:
+        if self.device == "cuda":
+            self._sync()
+        t = time.perf_counter()
+        self.trainer.learn(updates)
+        if self.device == "cuda":
+            self._sync()
+        return time.perf_counter() - t
+
+    def close(self) -> None:
+        self.trainer.close()
+        self._tmp.cleanup()
 
 
-def sb3(env_id: str, env_kwargs: dict[str, Any], config: AgentConfig, updates: int,
-        fill_episodes: int, device: str) -> float:
-    """Updates per second of Stable-Baselines3's DDPG + HER on the same env and networks."""
-    import gymnasium
-    from stable_baselines3 import DDPG, HerReplayBuffer
+class _SB3:
+    """Stable-Baselines3's DDPG + HER on the same env and networks; ``run(n)`` times n updates."""
 
-    env = gymnasium.make(env_id, **env_kwargs)
-    steps = fill_episodes * env.spec.max_episode_steps
-    model = DDPG(
-        "MultiInputPolicy", env, buffer_size=config.buffer_size, batch_size=config.batch_size,
-        learning_starts=steps, gamma=config.gamma, tau=config.tau, learning_rate=config.actor_lr,
-        replay_buffer_class=HerReplayBuffer,
-        replay_buffer_kwargs={"n_sampled_goal": 1, "goal_selection_strategy": "final",
-                              "copy_info_dict": True},
-        policy_kwargs={"net_arch": list(config.hidden_sizes)}, device=device, seed=0, verbose=0)
-    model.learn(total_timesteps=steps)
-    model.train(gradient_steps=10, batch_size=config.batch_size)
-    t = time.perf_counter()
-    model.train(gradient_steps=updates, batch_size=config.batch_size)
-    seconds = time.perf_counter() - t
-    env.close()
-    return updates / seconds
+    def __init__(self, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig,
+                 fill_episodes: int, device: str):
+        import gymnasium
+        from stable_baselines3 import DDPG, HerReplayBuffer
+
+        self.env = gymnasium.make(env_id, **env_kwargs)
+        steps = fill_episodes * self.env.spec.max_episode_steps
+        self.batch_size = config.batch_size
+        self.model = DDPG(
+            "MultiInputPolicy", self.env, buffer_size=config.buffer_size,
+            batch_size=config.batch_size, learning_starts=steps, gamma=config.gamma,
+            tau=config.tau, learning_rate=config.actor_lr, replay_buffer_class=HerReplayBuffer,
+            replay_buffer_kwargs={"n_sampled_goal": 1, "goal_selection_strategy": "final",
+                                  "copy_info_dict": True},
+            policy_kwargs={"net_arch": list(config.hidden_sizes)}, device=device, seed=0,
+            verbose=0)
+        self.model.learn(total_timesteps=steps)
+        self.model.train(gradient_steps=10, batch_size=config.batch_size)
+
+    def run(self, updates: int) -> float:
+        t = time.perf_counter()
+        self.model.train(gradient_steps=updates, batch_size=self.batch_size)
+        return time.perf_counter() - t
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def measure(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig, updates: int,
+            rounds: int, fill_episodes: int, device: str, with_sb3: bool) -> dict[str, Any]:
+    """Ours and SB3 in alternating rounds of ``updates`` updates each; medians of the rounds.
+
+    Alternating puts both under the same load from whatever else the machine runs, so their
+    ratio holds even where the absolute rates drift.
+    """
+    ours = _Ours(k, env_id, env_kwargs, config, fill_episodes, device)
+    peer = _SB3(env_id, env_kwargs, config, fill_episodes, device) if with_sb3 else None
+    ours_s, sb3_s = [], []
+    try:
+        for _ in range(rounds):
+            ours_s.append(ours.run(updates))
+            if peer is not None:
+                sb3_s.append(peer.run(updates))
+    finally:
+        ours.close()
+        if peer is not None:
+            peer.close()
+    seconds = statistics.median(ours_s)
+    result = {"rounds": rounds, "updates_per_round": updates,
+              "agent_updates_per_s": k * updates / seconds,
+              "update_gflops": ours.flops * updates / seconds / 1e9,
+              "update_mflop_per_agent": ours.flops / k / 1e6,
+              "sb3_updates_per_s": updates / statistics.median(sb3_s) if sb3_s else None}
+    if sb3_s:  # the ratio of each round's pair, so slow phases of the machine cancel
+        result["speedup_vs_sb3"] = statistics.median(
+            k * s / o for o, s in zip(ours_s, sb3_s, strict=True))
+    return result
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -111,8 +156,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="agents trained together (default: %(default)s)")
     parser.add_argument("--region", default="farbox", help="goal region (default: farbox)")
     parser.add_argument("--joints", type=int, default=3, help="controlled joints (default: 3)")
-    parser.add_argument("--updates", type=int, default=300,
-                        help="timed updates per measurement (default: %(default)s)")
+    parser.add_argument("--updates", type=int, default=100,
+                        help="timed updates per round, for ours and for SB3 "
+                             "(default: %(default)s)")
+    parser.add_argument("--rounds", type=int, default=5,
+                        help="alternating rounds of ours and SB3; rates are the medians "
+                             "(default: %(default)s)")
     parser.add_argument("--fill-episodes", type=int, default=10,
                         help="random-action episodes that fill the buffers first (default: 10)")
     parser.add_argument("--threads", type=int, default=None,
@@ -122,8 +171,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--no-sb3", action="store_true", help="skip the SB3 measurement")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
-    if args.seeds < 1 or args.updates < 1 or args.fill_episodes < 1:
-        parser.error("--seeds, --updates and --fill-episodes must be >= 1")
+    if min(args.seeds, args.updates, args.rounds, args.fill_episodes) < 1:
+        parser.error("--seeds, --updates, --rounds and --fill-episodes must be >= 1, got "
+                     f"{args.seeds}, {args.updates}, {args.rounds}, {args.fill_episodes}")
     if not 2 <= args.joints <= 6:
         parser.error(f"--joints must be in 2..6, got {args.joints}")
 
@@ -140,15 +190,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                               "batch_size": config.batch_size,
                               "hidden_sizes": list(config.hidden_sizes)}
     try:
-        result.update(ours(args.seeds, env_id, env_kwargs, config, args.updates,
-                           args.fill_episodes, args.device))
+        result.update(measure(args.seeds, env_id, env_kwargs, config, args.updates,
+                              args.rounds, args.fill_episodes, args.device, not args.no_sb3))
     except ValueError as e:
         parser.error(str(e))
-    result["sb3_updates_per_s"] = None if args.no_sb3 else sb3(
-        env_id, env_kwargs, config, args.updates, args.fill_episodes, args.device)
     result["matmul_peak_gflops"] = matmul_peak_gflops()
-    if result["sb3_updates_per_s"]:
-        result["speedup_vs_sb3"] = result["agent_updates_per_s"] / result["sb3_updates_per_s"]
     result["peak_fraction"] = result["update_gflops"] / result["matmul_peak_gflops"]
     if args.json:
         print(json.dumps(result))

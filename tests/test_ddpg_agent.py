@@ -59,7 +59,8 @@ class RefAgent:
         copy_slice(stacked.critic, self.critic, k)
         self.actor_t, self.critic_t = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
-        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr,
+                                           weight_decay=config.critic_l2)
         self.mean = torch.from_numpy(data.mean(0))
         self.std = torch.from_numpy(np.maximum(data.std(0), config.norm_eps))
 
@@ -92,8 +93,10 @@ def make_agent(k: int, config: AgentConfig, seed0: int = 0) -> DDPG:
     return DDPG(config, IN, ACT, init_generators=gens, dtype=torch.float64)
 
 
-def test_k_stacked_agents_equal_k_separate_agents_after_200_updates():
-    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01)
+@pytest.mark.parametrize("critic_l2", [0.0, 1e-2])
+def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2):
+    """Our hand-written gradients against autograd through nn.Linear, agent by agent."""
+    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01, critic_l2=critic_l2)
     k, n = 3, 64
     agent = make_agent(k, config)
     rng = np.random.default_rng(0)
@@ -120,6 +123,27 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates():
         assert_slice_equal(agent.critic_target, ref.critic_t, i, 1e-10)
     # and they did move: the agents are not trivially equal to their initial weights
     assert not torch.allclose(agent.actor.l1.weight, make_agent(k, config).actor.l1.weight)
+
+
+def test_update_does_only_the_matrix_products_ddpg_needs():
+    """FLOPs of one update, counted by torch, against the count written out layer by layer.
+
+    Autograd would also form the critic's weight gradients in the actor step and the gradient
+    of the state half of the critic's second-layer input; the hand-written update skips both.
+    """
+    from torch.utils.flop_counter import FlopCounterMode
+
+    i, a, (h1, h2), n, k = 13, 3, (400, 300), 64, 2
+    agent = DDPG(AgentConfig(), i, a, init_generators=[torch.Generator() for _ in range(k)])
+    batch = [torch.randn(k, n, d) for d in (i, a, 1, i)]
+    with FlopCounterMode(display=False) as counter:
+        agent.update(*batch, torch.zeros(k, n, 1))
+    actor = i * h1 + h1 * h2 + h2 * a                   # multiply-adds per row
+    critic = i * h1 + (h1 + a) * h2 + h2
+    target = actor + critic
+    critic_step = critic + h2 + (h1 + a) * h2 + h2 * h1 + i * h1
+    actor_step = actor + critic + h2 * a + h2 * a + a * h2 + h1 * h2 + h2 * h1 + i * h1
+    assert counter.get_total_flops() == 2 * n * k * (target + critic_step + actor_step)
 
 
 def test_soft_target_update_is_the_formula():

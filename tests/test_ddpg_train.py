@@ -256,15 +256,17 @@ def test_bench_prints_every_figure_as_json():
     """A smoke run of python -m ddpg_her.bench (slow: SB3 and the matmul peak, about 15 s)."""
     out = subprocess.run(
         [sys.executable, "-m", "ddpg_her.bench", "--seeds", "2", "--updates", "3",
-         "--fill-episodes", "1", "--threads", "1", "--json"],
+         "--rounds", "2", "--fill-episodes", "1", "--threads", "1", "--json"],
         capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     for key in ("agent_updates_per_s", "sb3_updates_per_s", "update_gflops",
                 "matmul_peak_gflops"):
         assert result[key] > 0, key
-    # 160 MFLOP: the update's matrix products for batch 64, networks 400-300, 3 joints
-    assert 150 < result["update_mflop_per_agent"] < 170
+    # about 145 MFLOP: the update's matrix products for batch 64, networks 400-300, 3 joints
+    # (counted exactly in tests/test_ddpg_agent.py)
+    assert 140 < result["update_mflop_per_agent"] < 150
+    assert result["speedup_vs_sb3"] > 0
 
 
 def test_cli_help_lists_every_flag_with_units():
