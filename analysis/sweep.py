@@ -94,13 +94,24 @@ def units_for(settings: Sequence[tuple[str, int]], seeds: int, root: Path,
             for region, joints in settings]
 
 
-def run_unit(command: Sequence[str], log_path: str, cwd: str) -> int:
+def child_env(threads: int) -> dict[str, str]:
+    """This process's environment with every BLAS and OpenMP pool of a child capped at
+    ``threads``: concurrent trainers that each start one pool per core oversubscribe the
+    machine (numpy's OpenBLAS in the env's clearance check ran 20x slower so on 2 cores)."""
+    env = dict(os.environ)
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[name] = str(threads)
+    return env
+
+
+def run_unit(command: Sequence[str], log_path: str, cwd: str, threads: int = 1) -> int:
     """Run one training process with its output appended to ``log_path``; its exit code."""
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "a") as log:
         log.write(f"\n$ {' '.join(command)}\n")
         log.flush()
-        return subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, cwd=cwd).returncode
+        return subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
+                              env=child_env(threads)).returncode
 
 
 def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence[str]) -> int:
@@ -120,7 +131,9 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
                 cmd = unit.command(threads, extra)
                 log.write(f"\n$ {' '.join(cmd)}\n")
                 log.flush()
-                running[subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)] = (unit, log)
+                proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
+                                        env=child_env(threads))
+                running[proc] = (unit, log)
             for proc in [p for p in running if p.poll() is not None]:
                 unit, log = running.pop(proc)
                 log.close()
@@ -152,7 +165,7 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
     try:
         task = ray.remote(num_cpus=threads)(run_unit)
         cwd = os.getcwd()
-        pending = {task.remote(u.command(threads, extra), str(u.log_path), cwd): u
+        pending = {task.remote(u.command(threads, extra), str(u.log_path), cwd, threads): u
                    for u in units}
         failed = 0
         with tqdm(total=len(units), desc="sweep (ray)", unit="setting", file=sys.stderr) as bar:
