@@ -156,10 +156,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="agents trained together (default: %(default)s)")
     parser.add_argument("--region", default="farbox", help="goal region (default: farbox)")
     parser.add_argument("--joints", type=int, default=3, help="controlled joints (default: 3)")
-    parser.add_argument("--updates", type=int, default=100,
+    parser.add_argument("--updates", type=int, default=20,
                         help="timed updates per round, for ours and for SB3 "
                              "(default: %(default)s)")
-    parser.add_argument("--rounds", type=int, default=5,
+    parser.add_argument("--rounds", type=int, default=30,
                         help="alternating rounds of ours and SB3; rates are the medians "
                              "(default: %(default)s)")
     parser.add_argument("--fill-episodes", type=int, default=10,
