@@ -61,6 +61,8 @@ class Trainer:
                              f"{len(run_dirs)} folders")
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.device = torch.device(device)
+        if self.device.type == "cpu":  # process-wide, as torch has it (see AgentConfig)
+            torch.set_flush_denormal(config.flush_denormals)
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
         self.envs = GoalVecEnv(env_id, self.k, 1, **self.env_kwargs)

@@ -303,3 +303,17 @@ def test_cli_tiny_run_and_its_errors(tmp_path):
     fails(*tiny[:3], "nowhere", "--out", str(tmp_path / "x"), message="unknown region 'nowhere'")
     fails(*tiny, "--gamma", "1.5", message="gamma=1.5")
     fails(*tiny, "--exploration", "boltzmann", message="invalid choice")
+
+
+@pytest.mark.parametrize("flush", [True, False])
+def test_trainer_flushes_subnormals_as_configured(tmp_path, flush):
+    """Subnormal floats made Adam 10x slower in real runs; the trainer flushes them by default."""
+    tiny = torch.tensor([1e-39], dtype=torch.float32)  # subnormal in float32 (min normal 1.2e-38)
+    try:
+        trainer = Trainer(ENV_ID, TASK, AgentConfig(**{**TINY.to_dict(),
+                                                       "flush_denormals": flush}),
+                          [0], [str(tmp_path / "r")], progress=False, tensorboard=False)
+        trainer.close()
+        assert bool((tiny * 1.0 == 0).item()) is flush
+    finally:
+        torch.set_flush_denormal(False)
