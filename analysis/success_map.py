@@ -111,7 +111,8 @@ def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(maps), squeeze=False, figsize=(4.6 * len(maps) + 0.8, 4.4))
+    fig, axes = plt.subplots(1, len(maps), squeeze=False, sharey=True,
+                             figsize=(4.6 * len(maps) + 0.8, 4.4))
     image = None
     for ax, m in zip(axes[0], maps, strict=True):
         image = ax.pcolormesh(m.x_edges, m.y_edges, 100.0 * m.rate.T, cmap="viridis", vmin=0.0,
@@ -119,9 +120,9 @@ def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
         overall = 100.0 * m.successes.sum() / max(m.goals.sum(), 1)
         ax.set_title(f"{m.run}\n{overall:.0f} % of {m.goals.sum():,} goals", fontsize=9)
         ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
         ax.set_aspect("equal")
         ax.plot(0.0, 0.0, "ks", ms=5)
+    axes[0, 0].set_ylabel("y (m)")  # one label: the maps share their y axis
     fig.colorbar(image, ax=axes[0].tolist(), label="goals reached (%)", shrink=0.85)
     fig.suptitle(f"Success by goal position, {z[0]} <= z <= {z[1]} m (world frame)", fontsize=10)
     out.parent.mkdir(parents=True, exist_ok=True)
