@@ -111,13 +111,18 @@ class Trainer:
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         }
 
-    @staticmethod
-    def _differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
-        """Keys that make two specs different tasks or agents (``episodes`` may grow)."""
+    RESUMABLE_CHANGES = ("episodes", "flush_denormals")
+    """Agent fields a resumed run may change: the budget, and how the CPU rounds subnormals
+    (an execution setting like the thread count; runs from before the field existed resume)."""
+
+    @classmethod
+    def _differences(cls, old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+        """Keys that make two specs different tasks or agents."""
         diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims")
                  if not json_equal(old.get(key), new.get(key))]
-        old_agent = {k: v for k, v in old.get("agent", {}).items() if k != "episodes"}
-        new_agent = {k: v for k, v in new["agent"].items() if k != "episodes"}
+        old_agent = {k: v for k, v in old.get("agent", {}).items()
+                     if k not in cls.RESUMABLE_CHANGES}
+        new_agent = {k: v for k, v in new["agent"].items() if k not in cls.RESUMABLE_CHANGES}
         diffs += [f"agent.{k}" for k in sorted(set(old_agent) | set(new_agent))
                   if not json_equal(old_agent.get(k), new_agent.get(k))]
         return diffs
@@ -136,7 +141,8 @@ class Trainer:
                         f"{f.path} holds a run of another task or agent; differing: "
                         + ", ".join(f"{d} (was {lookup(old, d)!r}, now {lookup(spec, d)!r})"
                                     for d in diffs))
-                old["agent"]["episodes"] = self.config.episodes
+                for key in self.RESUMABLE_CHANGES:
+                    old["agent"][key] = spec["agent"][key]
                 f.write_spec(old)
             else:
                 f.write_spec(spec)
