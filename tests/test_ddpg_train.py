@@ -158,6 +158,17 @@ def test_resume_refuses_another_task_or_agent_and_plain_runs_refuse_existing(tmp
         Trainer(ENV_ID, TASK, TINY, [0], [str(tmp_path / "r")])
 
 
+def test_a_run_from_before_flush_denormals_resumes_and_records_it(tmp_path):
+    train([tmp_path / "r"])
+    spec_path = tmp_path / "r" / "spec.json"
+    spec = json.loads(spec_path.read_text())
+    del spec["agent"]["flush_denormals"]  # as written before the field existed
+    spec_path.write_text(json.dumps(spec))
+    longer = AgentConfig(**{**TINY.to_dict(), "episodes": 15})
+    train([tmp_path / "r"], config=longer, resume=True)
+    assert json.loads(spec_path.read_text())["agent"]["flush_denormals"] is True
+
+
 def trainer_eval_seed(seed: int, session: int, i: int) -> int:
     from ddpg_her.trainer import _EVAL_ENV, stream_seed
 
