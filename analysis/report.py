@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.curves import REGION_ORDER
-from analysis.paper import HIGH_SUCCESS, PAPER_RESULTS
+from analysis.paper import HIGH_SUCCESS, PAPER_GRID, PAPER_RESULTS
 from analysis.runs import (
     CONFIDENCE,
     PERCENT,
@@ -85,12 +85,17 @@ def ordering_checks(
                 margin: float) -> None:
         hi = [final[k] for k in high if k in final]
         lo = [final[k] for k in low if k in final]
+        missing = [f"{r} {n}" for r, n in high + low if (r, n) in PAPER_GRID
+                   and (r, n) not in final]
         if not hi or not lo:
-            checks.append((claim, None, "settings missing"))
+            checks.append((claim, None, "settings missing: " + ", ".join(missing)))
             return
         holds = min(hi) >= max(lo) + margin
-        checks.append((claim, holds, f"lowest of the first {min(hi):.1f}, highest of the "
-                                     f"second {max(lo):.1f} (margin {margin:g})"))
+        detail = (f"lowest of the first {min(hi):.1f}, highest of the second {max(lo):.1f} "
+                  f"(margin {margin:g})")
+        if missing:
+            detail += "; on the settings run only, missing: " + ", ".join(missing)
+        checks.append((claim, holds, detail))
 
     joints = range(3, 7)
     compare("farbox far above unconstrained (3-6 joints)",
