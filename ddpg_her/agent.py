@@ -147,8 +147,9 @@ class DDPG:
         theta' <- (1 - tau) theta' + tau theta. The gradients are written out by hand (each
         layer a batched matrix product): that skips what autograd would compute and throw
         away (the critic's weight gradients in the actor step, the gradient of the state half
-        of the critic's second-layer input), reuses preallocated gradient buffers and halves
-        the kernel launches. `tests/test_ddpg_agent.py` checks it against a plain autograd
+        of the critic's second-layer input: 144 instead of 160 MFLOP per agent-update at
+        400-300, batch 64), fuses each ReLU's backward into one pass and reuses preallocated
+        gradient buffers. `tests/test_ddpg_agent.py` checks it against a plain autograd
         DDPG to 1e-10 in float64.
         """
         gamma, tau = self.config.gamma, self.config.tau
