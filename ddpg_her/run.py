@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import importlib
 import io
 import json
 import os
@@ -196,12 +195,10 @@ class Policy:
         env id and arguments; ``kwargs`` go to ``gymnasium.make`` too, e.g. ``render_mode``)."""
         import gymnasium
 
-        module = self.spec["env_id"].rpartition(":")[0]
-        if self.spec["env_id"] == "UR5Reach-v0":
-            module = "envs"
-        if module:
-            importlib.import_module(module)
-        return gymnasium.make(self.spec["env_id"], **self.spec["env_kwargs"], **kwargs)
+        from ddpg_her.vecenv import register_env
+
+        return gymnasium.make(register_env(self.spec["env_id"]), **self.spec["env_kwargs"],
+                              **kwargs)
 
     @torch.no_grad()
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -137,8 +137,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     import gymnasium
     import torch
 
-    if args.env_id == "UR5Reach-v0":
-        import envs  # noqa: F401  (registers UR5Reach-v0)
     if args.device == "cuda" and not torch.cuda.is_available():
         parser.error("--device cuda: no CUDA device is available to torch")
     if args.threads is not None:

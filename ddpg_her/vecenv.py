@@ -25,6 +25,22 @@ KEYS = ("observation", "achieved_goal", "desired_goal")
 
 Step = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
+_REGISTERED_BY = {"UR5Reach-v0": "envs"}
+"""This project's env ids and the module whose import registers each."""
+
+
+def register_env(env_id: str) -> str:
+    """Import the module that registers ``env_id``; return the id ``gymnasium.make`` takes.
+
+    ``env_id`` is a registered id, one of this project's (``UR5Reach-v0``), or Gymnasium's
+    ``module:EnvId``, whose module registers ``EnvId``.
+    """
+    module, _, name = env_id.rpartition(":")
+    module = module or _REGISTERED_BY.get(name, "")
+    if module:
+        importlib.import_module(module)
+    return name
+
 
 class _Singles:
     """M copies made one by one with ``gymnasium.make``, stepped in a loop."""
@@ -95,10 +111,7 @@ class GoalVecEnv:
     def __init__(self, env_id: str, groups: int, copies: int = 1, **kwargs: Any):
         if groups < 1 or copies < 1:
             raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
-        module, _, name = env_id.rpartition(":")
-        if module:  # Gymnasium's "module:EnvId": the module registers the id
-            importlib.import_module(module)
-            env_id = name
+        env_id = register_env(env_id)
         vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
         make = _Vector if vector else _Singles
         self.groups = [make(env_id, copies, kwargs) for _ in range(groups)]
