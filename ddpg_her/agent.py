@@ -165,8 +165,9 @@ class DDPG:
 
         # critic step
         c1, c1u, c2, q = _critic_forward(critic, x, u)
-        dq = (q - y).mul_(2.0 / n)                                    # (K, N, 1)
-        critic_loss = (q - y).pow_(2).mean(dim=(1, 2))
+        err = q - y                                                   # (K, N, 1)
+        critic_loss = err.square().mean(dim=(1, 2))
+        dq = err.mul_(2.0 / n)                                        # d(loss)/dq
         g = self._grads
         torch.bmm(c2.mT, dq, out=g[critic.l3.weight])
         torch.sum(dq, dim=1, keepdim=True, out=g[critic.l3.bias])
