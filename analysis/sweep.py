@@ -20,6 +20,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
@@ -104,14 +105,25 @@ def child_env(threads: int) -> dict[str, str]:
     return env
 
 
+def start_unit(command: Sequence[str], log_path: str | Path, threads: int,
+               cwd: str | None = None) -> tuple[subprocess.Popen, IO[str]]:
+    """Start one training process, its output appended to ``log_path`` after a line with the
+    command; returns the process and the open log (the caller closes it when the process ends).
+    """
+    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+    log = open(log_path, "a")  # noqa: SIM115 (outlives this function, with the process)
+    log.write(f"\n$ {' '.join(command)}\n")
+    log.flush()
+    proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
+                            env=child_env(threads))
+    return proc, log
+
+
 def run_unit(command: Sequence[str], log_path: str, cwd: str, threads: int = 1) -> int:
     """Run one training process with its output appended to ``log_path``; its exit code."""
-    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
-    with open(log_path, "a") as log:
-        log.write(f"\n$ {' '.join(command)}\n")
-        log.flush()
-        return subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
-                              env=child_env(threads)).returncode
+    proc, log = start_unit(command, log_path, threads, cwd)
+    with log:
+        return proc.wait()
 
 
 def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence[str]) -> int:
@@ -119,20 +131,14 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
     from tqdm import tqdm
 
     queue = list(units)
-    running: dict[subprocess.Popen, tuple[Unit, object]] = {}
+    running: dict[subprocess.Popen, tuple[Unit, IO[str]]] = {}
     failed = 0
     bar = tqdm(total=len(units), desc="sweep", unit="setting", file=sys.stderr)
     try:
         while queue or running:
             while queue and len(running) < workers:
                 unit = queue.pop(0)
-                unit.log_path.parent.mkdir(parents=True, exist_ok=True)
-                log = open(unit.log_path, "a")  # noqa: SIM115 (closed when the process ends)
-                cmd = unit.command(threads, extra)
-                log.write(f"\n$ {' '.join(cmd)}\n")
-                log.flush()
-                proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
-                                        env=child_env(threads))
+                proc, log = start_unit(unit.command(threads, extra), unit.log_path, threads)
                 running[proc] = (unit, log)
             for proc in [p for p in running if p.poll() is not None]:
                 unit, log = running.pop(proc)
