@@ -73,12 +73,14 @@ def test_report_summarises_and_checks_the_papers_orderings(tmp_path: Path) -> No
     summaries = {k: report.summarise(v) for k, v in runs.group_by_setting(found).items()}
     far = summaries[("farbox", 3)]
     assert far.final[0] == pytest.approx(97.5) and far.first_high == (200, 200)
-    checks = {claim: holds for claim, holds, _ in report.ordering_checks(summaries)}
-    assert checks["farbox far above unconstrained (3-6 joints)"] is True
-    assert checks["unconstrained (3-6 joints) above zheight and closebox"] is True
-    assert checks["2 joints high (unconstrained)"] is True
+    checks = {claim: verdict for claim, verdict, _ in report.ordering_checks(summaries)}
+    assert checks["farbox far above unconstrained (3-6 joints)"] is report.Verdict.YES
+    assert checks["unconstrained (3-6 joints) above zheight and closebox"] is report.Verdict.YES
+    assert checks["2 joints high (unconstrained)"] is report.Verdict.YES
     out = _module("analysis.report", str(tmp_path), "--out", str(tmp_path / "r.md")).stdout
     assert "| farbox | 3 | 2 | 300 | 97.5" in out and "nearly 100 %" in out
+    assert "Budget: 300 training episodes per run (1.5% of the paper's 20,000), 2 seeds" in out
+    assert "4 of the paper's 11 settings." in out
     assert (tmp_path / "r.md").read_text() == out
 
 
@@ -87,8 +89,32 @@ def test_report_says_no_when_an_ordering_fails(tmp_path: Path) -> None:
     _fake_run(tmp_path / "b", "unconstrained", 3, 0, [40])
     summaries = {k: report.summarise(v)
                  for k, v in runs.group_by_setting(runs.find_runs([tmp_path])).items()}
-    verdicts = {claim: holds for claim, holds, _ in report.ordering_checks(summaries)}
-    assert verdicts["farbox far above unconstrained (3-6 joints)"] is False
+    verdicts = {claim: verdict for claim, verdict, _ in report.ordering_checks(summaries)}
+    assert verdicts["farbox far above unconstrained (3-6 joints)"] is report.Verdict.NO
+    assert verdicts["2 joints high (unconstrained)"] is report.Verdict.NOT_RUN
+
+
+@pytest.mark.parametrize(("high", "low", "verdict"), [
+    ([30, 32, 34], [10, 11, 12], "YES"),     # intervals apart, means 21 apart
+    ([10, 11, 12], [30, 32, 34], "NO"),      # apart, the other way round
+    ([20, 22, 24], [10, 11, 12], "NO"),      # apart, but not the 20 the claim needs
+    ([0, 30, 60], [10, 11, 12], "NOISE"),    # the intervals overlap
+])
+def test_report_verdicts_follow_the_confidence_intervals(tmp_path: Path, high, low,
+                                                         verdict) -> None:
+    for seed, (h, lo) in enumerate(zip(high, low, strict=True)):
+        _fake_run(tmp_path / f"far{seed}", "farbox", 6, seed, [h])
+        _fake_run(tmp_path / f"unc{seed}", "unconstrained", 5, seed, [lo])
+    summaries = {k: report.summarise(v)
+                 for k, v in runs.group_by_setting(runs.find_runs([tmp_path])).items()}
+    # the independent reference: scipy's Student-t interval of the same successes
+    (h_low, h_high), (l_low, l_high) = (
+        stats.t.interval(0.65, 2, loc=np.mean(v), scale=stats.sem(v)) for v in (high, low))
+    assert summaries[("farbox", 6)].final[1:] == pytest.approx((h_low, h_high))
+    assert summaries[("unconstrained", 5)].final[1:] == pytest.approx((l_low, l_high))
+    claim, got, detail = report.ordering_checks(summaries)[0]
+    assert claim.startswith("farbox far above") and got is report.Verdict[verdict]
+    assert "missing: farbox 3, unconstrained 3" in detail
 
 
 def test_curves_writes_figure_and_the_plotted_numbers(tmp_path: Path) -> None:
