@@ -74,22 +74,38 @@ def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> N
                 continue
             episode, successes = aligned_successes(runs)
             for seed_curve in successes:
-                ax.plot(episode, seed_curve, color="0.6", lw=0.6, alpha=0.5)
+                ax.plot(episode, seed_curve, color="0.6", lw=0.6, alpha=0.5, label="each seed")
             mean, low, high = mean_ci(successes, level, PERCENT)
-            ax.fill_between(episode, low, high, color="C0", alpha=0.3, lw=0)
+            ax.fill_between(episode, low, high, color="C0", alpha=0.3, lw=0,
+                            label=f"{level:.0%} CI")
             ax.plot(episode, mean, color="C0", lw=1.6, label=f"mean of {len(runs)} seeds")
             paper = PAPER_RESULTS.get((region, n))
             if paper is not None and paper.approx_success is not None:
-                ax.axhline(paper.approx_success, color="C3", ls="--", lw=1, label="paper (text)")
+                ax.axhline(paper.approx_success, color="C3", ls="--", lw=1,
+                           label="the paper's asymptote")
             ax.set_title(f"{region}, joints 1-{n}", fontsize=9)
             ax.set_ylim(-2, 102)
             ax.grid(alpha=0.3)
-            if i == len(regions) - 1 or not groups.get((regions[min(i + 1, len(regions) - 1)], n)):
+    # shared axes label only the outer panels; with panels missing from the grid, label each
+    # panel that has no panel below it (x) or to its left (y) instead
+    shown = [[ax.get_visible() for ax in row] for row in axes]
+    for i, row in enumerate(axes):
+        for j, ax in enumerate(row):
+            if not shown[i][j]:
+                continue
+            if not any(shown[b][j] for b in range(i + 1, len(axes))):
+                ax.tick_params(labelbottom=True)
                 ax.set_xlabel("training episodes")
-            if j == 0:
+            if not any(shown[i][:j]):
+                ax.tick_params(labelleft=True)
                 ax.set_ylabel("goals hit / 100")
+    legend: dict[str, object] = {}  # every label once, whichever panel first has it
+    for ax in (a for row in axes for a in row if a.get_visible()):
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(label, handle)
     first = next(a for row in axes for a in row if a.get_visible())
-    first.legend(loc="upper left", fontsize=7, framealpha=0.8)
+    first.legend(list(legend.values()), list(legend), loc="upper left", fontsize=7,
+                 framealpha=0.8)
     fig.suptitle(f"Test successes, mean and {level:.0%} confidence interval over seeds",
                  fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
