@@ -179,11 +179,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import torch
 
-    import envs  # noqa: F401  (registers UR5Reach-v0)
+    from ddpg_her.vecenv import register_env
 
     if args.threads is not None:
         torch.set_num_threads(args.threads)
-    env_id, env_kwargs = "UR5Reach-v0", {"region": args.region, "n_joints": args.joints}
+    env_id = register_env("UR5Reach-v0")  # SB3's gymnasium.make needs it registered too
+    env_kwargs = {"region": args.region, "n_joints": args.joints}
     config = AgentConfig()
     result: dict[str, Any] = {"seeds": args.seeds, "threads": torch.get_num_threads(),
                               "device": args.device, "env_id": env_id, **env_kwargs,
