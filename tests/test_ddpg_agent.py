@@ -1,7 +1,5 @@
 """ddpg_her's stacked K-agent DDPG against K separate, plainly written DDPG agents."""
 
-import copy
-
 import numpy as np
 import pytest
 import torch
@@ -9,27 +7,9 @@ from torch import nn
 
 from ddpg_her.agent import DDPG
 from ddpg_her.config import AgentConfig
+from ddpg_her.reference import ReferenceDDPG
 
 IN, ACT, HIDDEN = 7, 2, (32, 24)
-
-
-class RefCritic(nn.Module):
-    """Lillicrap's critic written with nn.Linear: the action joins at the second layer."""
-
-    def __init__(self):
-        super().__init__()
-        self.l1 = nn.Linear(IN, HIDDEN[0])
-        self.l2 = nn.Linear(HIDDEN[0] + ACT, HIDDEN[1])
-        self.l3 = nn.Linear(HIDDEN[1], 1)
-
-    def forward(self, x, u):
-        h = torch.relu(self.l1(x))
-        return self.l3(torch.relu(self.l2(torch.cat([h, u], -1))))
-
-
-def ref_actor() -> nn.Module:
-    return nn.Sequential(nn.Linear(IN, HIDDEN[0]), nn.ReLU(), nn.Linear(*HIDDEN), nn.ReLU(),
-                         nn.Linear(HIDDEN[1], ACT), nn.Tanh())
 
 
 def copy_slice(stacked: nn.Module, ref: nn.Module, k: int) -> None:
@@ -49,43 +29,15 @@ def assert_slice_equal(stacked: nn.Module, ref: nn.Module, k: int, tol: float) -
         torch.testing.assert_close(mine.bias[k, 0], theirs.bias, atol=tol, rtol=0)
 
 
-class RefAgent:
-    """One DDPG agent exactly as Lillicrap et al. write it, with its own normaliser stats."""
-
-    def __init__(self, config: AgentConfig, stacked: DDPG, k: int, data: np.ndarray):
-        self.config = config
-        self.actor, self.critic = ref_actor().double(), RefCritic().double()
-        copy_slice(stacked.actor, self.actor, k)
-        copy_slice(stacked.critic, self.critic, k)
-        self.actor_t, self.critic_t = copy.deepcopy(self.actor), copy.deepcopy(self.critic)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
-        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr,
-                                           weight_decay=config.critic_l2)
-        self.mean = torch.from_numpy(data.mean(0))
-        self.std = torch.from_numpy(np.maximum(data.std(0), config.norm_eps))
-
-    def norm(self, x):
-        c = self.config.obs_clip
-        return torch.clamp((x - self.mean) / self.std, -c, c)
-
-    def update(self, x, u, r, x2, term):
-        cfg = self.config
-        x, x2 = self.norm(x), self.norm(x2)
-        with torch.no_grad():
-            y = r + cfg.gamma * (1 - term) * self.critic_t(x2, self.actor_t(x2))
-        critic_loss = ((self.critic(x, u) - y) ** 2).mean()
-        self.critic_opt.zero_grad()
-        critic_loss.backward()
-        self.critic_opt.step()
-        actor_loss = -self.critic(x, self.actor(x)).mean()
-        self.actor_opt.zero_grad()
-        actor_loss.backward()
-        self.actor_opt.step()
-        with torch.no_grad():
-            for net, target in ((self.actor, self.actor_t), (self.critic, self.critic_t)):
-                for p, pt in zip(net.parameters(), target.parameters(), strict=True):
-                    pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
-        return critic_loss.item(), actor_loss.item()
+def reference_agent(config: AgentConfig, stacked: DDPG, k: int, data: np.ndarray):
+    """Agent k of ``stacked`` as one plain autograd DDPG agent, with its normaliser's stats."""
+    ref = ReferenceDDPG(config, IN, ACT, mean=torch.from_numpy(data.mean(0)),
+                        std=torch.from_numpy(np.maximum(data.std(0), config.norm_eps)),
+                        dtype=torch.float64)
+    copy_slice(stacked.actor, ref.actor, k)
+    copy_slice(stacked.critic, ref.critic, k)
+    ref.reset_targets()
+    return ref
 
 
 def make_agent(k: int, config: AgentConfig, seed0: int = 0) -> DDPG:
@@ -105,7 +57,7 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2):
     for i in range(k):
         agent.normalizer.update(i, data[i][:200])
         agent.normalizer.update(i, data[i][200:])
-    refs = [RefAgent(config, agent, i, data[i]) for i in range(k)]
+    refs = [reference_agent(config, agent, i, data[i]) for i in range(k)]
 
     for _ in range(200):
         batch = [torch.from_numpy(rng.normal(size=(k, n, d)) * 3) for d in (IN, ACT, 1, IN)]
@@ -113,14 +65,14 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2):
         term = torch.from_numpy((rng.random((k, n, 1)) < 0.2).astype(float))
         critic_loss, actor_loss = agent.update(*batch, term)
         for i, ref in enumerate(refs):
-            c, a = ref.update(*(b[i] for b in batch), term[i])
+            c, a = (v.item() for v in ref.update(*(b[i] for b in batch), term[i]))
             assert critic_loss[i].item() == pytest.approx(c, rel=1e-10, abs=1e-10)
             assert actor_loss[i].item() == pytest.approx(a, rel=1e-10, abs=1e-10)
     for i, ref in enumerate(refs):
         assert_slice_equal(agent.actor, ref.actor, i, 1e-10)
         assert_slice_equal(agent.critic, ref.critic, i, 1e-10)
-        assert_slice_equal(agent.actor_target, ref.actor_t, i, 1e-10)
-        assert_slice_equal(agent.critic_target, ref.critic_t, i, 1e-10)
+        assert_slice_equal(agent.actor_target, ref.actor_target, i, 1e-10)
+        assert_slice_equal(agent.critic_target, ref.critic_target, i, 1e-10)
     # and they did move: the agents are not trivially equal to their initial weights
     assert not torch.allclose(agent.actor.l1.weight, make_agent(k, config).actor.l1.weight)
 
