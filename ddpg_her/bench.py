@@ -10,16 +10,24 @@ machine's load cancel):
 - ``sb3_updates_per_s``: Stable-Baselines3's DDPG + HerReplayBuffer ("final", the dense reward
   recomputed through ``copy_info_dict``) on the same env, networks 400-300, batch 64: its
   ``train()`` step, HER sampling included;
+- ``plain_updates_per_s``: one agent written the usual way (`ddpg_her.reference`: ``nn.Linear``,
+  autograd, torch's fused Adam), same networks and batch, on minibatches drawn from our buffers:
+  what a plain PyTorch DDPG update costs here, without SB3's own overhead;
 - ``update_gflops``: floating-point operations of our update (counted by
   ``torch.utils.flop_counter``, backward included) per second;
-- ``speedup_vs_sb3``: agent_updates_per_s over sb3_updates_per_s, round by round;
-- ``matmul_peak_gflops``: the best float32 matrix-product rate of this machine.
+- ``speedup_vs_sb3``, ``speedup_vs_plain``: agent_updates_per_s over the peer's, round by
+  round;
+- ``matmul_peak_gflops``: the best float32 matrix-product rate of this machine;
+- ``machine``: the CPU, its logical cores and the torch build, so a recorded result says where
+  it was measured.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import statistics
 import sys
 import tempfile
@@ -115,34 +123,91 @@ class _SB3:
         self.env.close()
 
 
-def measure(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig, updates: int,
-            rounds: int, fill_episodes: int, device: str, with_sb3: bool) -> dict[str, Any]:
-    """Ours and SB3 in alternating rounds of ``updates`` updates each; medians of the rounds.
+class _Plain:
+    """One `ReferenceDDPG` agent on minibatches from our first agent's buffer; ``run(n)`` times
+    n updates, each with its own uniform minibatch draw."""
 
-    Alternating puts both under the same load from whatever else the machine runs, so their
-    ratio holds even where the absolute rates drift.
+    def __init__(self, ours: _Ours, config: AgentConfig):
+        import torch
+
+        from ddpg_her.reference import ReferenceDDPG
+
+        trainer = ours.trainer
+        self.buffer, self.batch_size = trainer.buffer, config.batch_size
+        norm = trainer.agent.normalizer
+        self.agent = ReferenceDDPG(config, trainer.agent.in_dim, trainer.agent.act_dim,
+                                   mean=norm.mean[0, 0], std=norm.std[0, 0],
+                                   device=ours.device, fused=True)
+        self.generator = torch.Generator(device=self.buffer.rows.device).manual_seed(0)
+        self.run(10)
+
+    def run(self, updates: int) -> float:
+        import torch
+
+        rows, size = self.buffer.rows[0], self.buffer.size(0)
+        t = time.perf_counter()
+        for _ in range(updates):
+            idx = torch.randint(size, (self.batch_size,), generator=self.generator,
+                                device=rows.device)
+            self.agent.update(*self.buffer.layout.split(rows[idx]))
+        if rows.device.type == "cuda":
+            torch.cuda.synchronize()
+        return time.perf_counter() - t
+
+
+def machine() -> dict[str, Any]:
+    """The CPU model, its logical cores, and the torch build and threads."""
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f
+                       if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"cpu": cpu, "logical_cpus": os.cpu_count(), "torch": torch.__version__,
+            "torch_threads": torch.get_num_threads(),
+            "cuda_device": torch.cuda.get_device_name() if torch.cuda.is_available() else None}
+
+
+def measure(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig, updates: int,
+            rounds: int, fill_episodes: int, device: str, with_sb3: bool,
+            with_plain: bool = True) -> dict[str, Any]:
+    """Ours and each peer in alternating rounds of ``updates`` updates each; medians of the
+    rounds.
+
+    Alternating puts all under the same load from whatever else the machine runs, so their
+    ratios hold even where the absolute rates drift.
     """
     ours = _Ours(k, env_id, env_kwargs, config, fill_episodes, device)
-    peer = _SB3(env_id, env_kwargs, config, fill_episodes, device) if with_sb3 else None
-    ours_s, sb3_s = [], []
+    peers: dict[str, Any] = {}
     try:
+        if with_sb3:
+            peers["sb3"] = _SB3(env_id, env_kwargs, config, fill_episodes, device)
+        if with_plain:
+            peers["plain"] = _Plain(ours, config)
+        ours_s: list[float] = []
+        peer_s: dict[str, list[float]] = {name: [] for name in peers}
         for _ in range(rounds):
             ours_s.append(ours.run(updates))
-            if peer is not None:
-                sb3_s.append(peer.run(updates))
+            for name, peer in peers.items():
+                peer_s[name].append(peer.run(updates))
     finally:
         ours.close()
-        if peer is not None:
-            peer.close()
+        if "sb3" in peers:
+            peers["sb3"].close()
     seconds = statistics.median(ours_s)
     result = {"rounds": rounds, "updates_per_round": updates,
               "agent_updates_per_s": k * updates / seconds,
               "update_gflops": ours.flops * updates / seconds / 1e9,
-              "update_mflop_per_agent": ours.flops / k / 1e6,
-              "sb3_updates_per_s": updates / statistics.median(sb3_s) if sb3_s else None}
-    if sb3_s:  # the ratio of each round's pair, so slow phases of the machine cancel
-        result["speedup_vs_sb3"] = statistics.median(
-            k * s / o for o, s in zip(ours_s, sb3_s, strict=True))
+              "update_mflop_per_agent": ours.flops / k / 1e6}
+    for name in ("sb3", "plain"):
+        times = peer_s.get(name)
+        result[f"{name}_updates_per_s"] = updates / statistics.median(times) if times else None
+        if times:  # the ratio of each round's pair, so slow phases of the machine cancel
+            result[f"speedup_vs_{name}"] = statistics.median(
+                k * p / o for o, p in zip(ours_s, times, strict=True))
     return result
 
 
@@ -150,8 +215,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m ddpg_her.bench",
         description="Agent-updates per second of our batched DDPG update next to Stable-"
-                    "Baselines3's DDPG + HER on the same env, and the update's GFLOP/s against "
-                    "the machine's float32 matrix-product peak, all measured in this run.")
+                    "Baselines3's DDPG + HER and a plain PyTorch DDPG on the same env, and the "
+                    "update's GFLOP/s against the machine's float32 matrix-product peak, all "
+                    "measured in this run.")
     parser.add_argument("--seeds", type=int, default=5, metavar="K",
                         help="agents trained together (default: %(default)s)")
     parser.add_argument("--region", default="farbox", help="goal region (default: farbox)")
@@ -169,6 +235,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
                         help="device of our agents and of SB3's (default: cpu)")
     parser.add_argument("--no-sb3", action="store_true", help="skip the SB3 measurement")
+    parser.add_argument("--no-plain", action="store_true",
+                        help="skip the plain-PyTorch (nn.Linear + autograd) measurement")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     if min(args.seeds, args.updates, args.rounds, args.fill_episodes) < 1:
@@ -192,11 +260,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                               "hidden_sizes": list(config.hidden_sizes)}
     try:
         result.update(measure(args.seeds, env_id, env_kwargs, config, args.updates,
-                              args.rounds, args.fill_episodes, args.device, not args.no_sb3))
+                              args.rounds, args.fill_episodes, args.device, not args.no_sb3,
+                              not args.no_plain))
     except ValueError as e:
         parser.error(str(e))
     result["matmul_peak_gflops"] = matmul_peak_gflops()
     result["peak_fraction"] = result["update_gflops"] / result["matmul_peak_gflops"]
+    result["machine"] = machine()
     if args.json:
         print(json.dumps(result))
         return 0
