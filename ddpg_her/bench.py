@@ -154,6 +154,9 @@ class _Plain:
             torch.cuda.synchronize()
         return time.perf_counter() - t
 
+    def close(self) -> None:
+        """Nothing of its own to release: the buffer is ``_Ours``'s."""
+
 
 def machine() -> dict[str, Any]:
     """The CPU model, its logical cores, and the torch build and threads."""
@@ -195,8 +198,8 @@ def measure(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig
                 peer_s[name].append(peer.run(updates))
     finally:
         ours.close()
-        if "sb3" in peers:
-            peers["sb3"].close()
+        for peer in peers.values():
+            peer.close()
     seconds = statistics.median(ours_s)
     result = {"rounds": rounds, "updates_per_round": updates,
               "agent_updates_per_s": k * updates / seconds,
