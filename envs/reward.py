@@ -8,6 +8,7 @@ dicts (Stable-Baselines3); the dense reward reads the action from ``info["action
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -71,15 +72,32 @@ def _missing_action() -> ValueError:
     )
 
 
+@functools.cache
+def action_penalty_scale(task: TaskSpec) -> np.ndarray:
+    """Per-joint divisor ``(n,)`` applied to the action before eq. 2 squares it.
+
+    Ones for ``action_penalty_unit="command"`` (the command's own unit); the command bound
+    (:func:`envs.dynamics.command_bounds`: pi rad in position mode) for ``"actor"``.
+    """
+    if task.action_penalty_unit == "command":
+        return np.ones(task.n_joints)
+    from envs.dynamics import command_bounds  # Pinocchio only for this reading
+
+    return command_bounds(task)[1]
+
+
 def reach_reward(distance: np.ndarray, action: np.ndarray | None, task: TaskSpec) -> np.ndarray:
     """The task's reward for distances ``(...)`` m and actions ``(..., n)`` (None if sparse).
 
-    Dense (the paper's eq. 2): ``-distance_weight d - action_weight |a|^2 + success_reward
-    1{d <= success_radius}``; sparse: the last term alone.
+    Dense (the paper's eq. 2): ``-distance_weight d - action_weight |a / s|^2 + success_reward
+    1{d <= success_radius}``, with s from :func:`action_penalty_scale` (1 in the command's unit,
+    the command bound in the actor's); sparse: the last term alone.
     """
     bonus = task.success_reward * (distance <= task.success_radius)
     if task.reward_type == "sparse":
         return bonus.astype(np.float64)
+    if task.action_penalty_unit != "command":
+        action = np.divide(action, action_penalty_scale(task))
     return bonus - task.distance_weight * distance - task.action_weight * np.square(action).sum(
         axis=-1)
 

@@ -40,6 +40,12 @@ CONTROL_MODES = ("position", "velocity", "torque")
 REWARD_TYPES = ("dense", "sparse")
 """``dense``: the paper's eq. 2; ``sparse``: its success term alone."""
 
+ACTION_PENALTY_UNITS = ("command", "actor")
+"""How eq. 2's ``|a|^2`` reads the action a (the paper gives no unit; DESIGN.md open point 5).
+``command``: in the command's own unit, rad^2 in position mode (the literal reading, ours so far);
+``actor``: in the actor's unit, each joint divided by its command bound (``a / pi`` in position
+mode), so ``|a|^2 <= n``."""
+
 GOAL_SAMPLERS = ("joint", "cartesian")
 """``joint``: the paper's sampler (uniform in joint space, kept in the region;
 :class:`regions.JointSpaceSampler`); ``cartesian``: uniform in the reachable part of the region
@@ -105,8 +111,16 @@ class TaskSpec:
     """Weight (1/m) of the tool0-goal distance d in the dense reward (paper: 1)."""
 
     action_weight: float = 1.0
-    """Weight of the squared action norm |a|^2 in the dense reward (paper: 1; the action in its
-    own unit, rad in position mode)."""
+    """Weight of the squared action norm |a|^2 in the dense reward (paper: 1); the unit of a is
+    ``action_penalty_unit``."""
+
+    action_penalty_unit: str = "command"
+    """Unit in which eq. 2's action penalty ``|a|^2`` reads the action: one of
+    :data:`ACTION_PENALTY_UNITS`. The paper: "-|a|^2", a = the commanded absolute joint angles,
+    no unit or scale stated. ``command``: rad^2 in position mode (holding the constrained start
+    costs about 2.5 per step, comparable with the distance term); ``actor``: ``(a / pi)^2`` per
+    joint in position mode (a tenth of that), the reading of an implementation whose actor
+    outputs [-1, 1]. Measured to change the paper's speeds several-fold (results/sensitivity)."""
 
     success_reward: float = 100.0
     """Reward added when the goal is reached (paper: 100)."""
@@ -156,7 +170,8 @@ class TaskSpec:
         _set("region", _region_string(self.region, self.base_height))
         _set("n_joints", _integer("n_joints", self.n_joints, *N_JOINTS_RANGE))
         for name, choices in (("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),
-                              ("reward_type", REWARD_TYPES)):
+                              ("reward_type", REWARD_TYPES),
+                              ("action_penalty_unit", ACTION_PENALTY_UNITS)):
             value = getattr(self, name)
             if value not in choices:
                 raise ValueError(f"{name} must be one of {list(choices)}; got {value!r}")

@@ -13,6 +13,7 @@ from test_env_dynamics import brute_force_heights
 
 import envs
 import regions
+import ur5kin
 from envs import ENV_IDS, BatchedReach, FlatObservation, TaskSpec
 
 PAPER_REGIONS = regions.names()
@@ -103,6 +104,31 @@ def test_goal_env_reward_invariant(reward_type):
         np.testing.assert_allclose(rewards, -d - (actions**2).sum(-1) + 100.0 * (d <= 0.1))
     else:
         np.testing.assert_array_equal(rewards, 100.0 * success)
+
+
+@pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
+def test_action_penalty_in_actor_units_divides_by_the_command_bound(mode):
+    """Eq. 2 in the actor's unit: |a / a_max|^2, a_max the mode's bound (pi rad in position
+    mode, the URDF velocity or effort limits otherwise), against a second path: the command-unit
+    reward with each joint's penalty weighted by 1 / a_max^2 by hand."""
+    actor = make(region="zheight", n_joints=4, control_mode=mode,
+                 action_penalty_unit="actor").unwrapped
+    plain = make(region="zheight", n_joints=4, control_mode=mode).unwrapped
+    bound = {"position": np.full(4, np.pi), "velocity": ur5kin.velocity_limits()[:4],
+             "torque": ur5kin.effort_limits()[:4]}[mode]
+    rng = np.random.default_rng(3)
+    achieved, desired = rng.uniform(-1, 1, (50, 3)), rng.uniform(-1, 1, (50, 3))
+    actions = rng.uniform(-1, 1, (50, 4)) * bound
+    d = np.linalg.norm(achieved - desired, axis=-1)
+    expected = -d - ((actions / bound) ** 2).sum(-1) + 100.0 * (d <= 0.1)
+    got = actor.compute_reward(achieved, desired, {"action": actions})
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+    literal = plain.compute_reward(achieved, desired, {"action": actions})
+    assert np.all(got >= literal) and not np.allclose(got, literal)
+    env = make(region="zheight", n_joints=3, action_penalty_unit="actor")
+    for _, _, reward, _, _, info, nxt in rollout(env, 50, seed=2):  # the invariant holds too
+        assert reward == env.unwrapped.compute_reward(nxt["achieved_goal"], nxt["desired_goal"],
+                                                      info)
 
 
 def test_dense_reward_needs_the_action_and_says_how_to_pass_it():
