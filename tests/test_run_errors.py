@@ -258,3 +258,25 @@ def test_help_names_each_checked_fields_range(capsys):
     assert set(VALID) <= set(helps)
     for name, (words, _) in VALID.items():
         assert f"Valid: {words}." in " ".join(helps[name].split()), name
+
+
+# --- the README's claim on --seeds 0 1 vs --seed 0 --------------------------------------------
+@pytest.mark.parametrize("dtype, bound", [(torch.float64, 1e-13), (torch.float32, 1e-5)])
+def test_a_seed_trained_in_a_group_matches_it_trained_alone_to_rounding(tmp_path, dtype, bound):
+    """What the README states: at networks past the bitwise-small ones (64-64, batch 64), agent
+    1 of seeds (0, 1) is agent 1 trained alone up to rounding of the batched products."""
+    config = AgentConfig(episodes=4, eval_every=4, eval_episodes=2, hidden_sizes=(64, 64),
+                         updates_per_episode=10, buffer_size=2000, batch_size=64,
+                         warmup_episodes=1)
+    group, alone = [tmp_path / "g0", tmp_path / "g1"], [tmp_path / "a1"]
+    train(group, seeds=[0, 1], config=config, dtype=dtype)
+    train(alone, seeds=[1], config=config, dtype=dtype)
+    a, b = (RunFolder(d).load_checkpoint(4)["agent"] for d in (group[1], alone[0]))
+    moved = RunFolder(group[0]).load_checkpoint(4)["agent"]
+    for net in ("actor", "critic", "actor_target", "critic_target"):
+        for key in a[net]:
+            assert a[net][key].dtype == dtype
+            diff = (a[net][key].double() - b[net][key].double()).abs().max().item()
+            assert diff <= bound, (net, key, diff)
+            # and seed 0 is another agent: the comparison is not trivially true
+            assert not torch.allclose(a[net][key], moved[net][key], atol=1e-3)
