@@ -226,9 +226,9 @@ def test_a_field_given_twice_with_one_value_and_task_joints_name_the_folder(tmp_
     from ddpg_her.train import main
 
     out = str(tmp_path / "{region}-j{joints}")
-    assert main([*CLI_TINY, "--task", "n_joints=3", "--task", "region=box", "--out", out]) == 0
-    spec = json.loads((tmp_path / "box-j3" / "spec.json").read_text())
-    assert spec["task"]["n_joints"] == 3 and spec["task"]["region"] == "box"
+    assert main([*CLI_TINY, "--task", "n_joints=4", "--task", "region=box", "--out", out]) == 0
+    spec = json.loads((tmp_path / "box-j4" / "spec.json").read_text())
+    assert spec["task"]["n_joints"] == 4 and spec["task"]["region"] == "box"
 
 
 def test_an_env_id_whose_module_is_missing_is_a_usage_error(tmp_path, capsys):
