@@ -148,8 +148,6 @@ class Trainer:
 
     def _open(self, resume: bool) -> None:
         """Check the run folders against the command, pick the checkpoint, then write."""
-        for f in self.folders:
-            f.clean()  # temporary files of writes that a kill interrupted
         existing = [f for f in self.folders if f.exists()]
         if existing and not resume:
             what = "a run" if existing[0].spec_path.exists() else \
@@ -164,6 +162,9 @@ class Trainer:
             olds.append(old)
         episode, states, chunks = self._readable_checkpoint()
         for f, spec, old in zip(self.folders, self.specs, olds, strict=True):
+            # temporary files of writes that a kill interrupted; only now that this process
+            # has the folder's run (a refused start touches nothing)
+            f.clean()
             if old is not None:
                 for key in self.RESUMABLE_CHANGES:
                     old["agent"][key] = spec["agent"][key]

@@ -16,7 +16,7 @@ import torch
 from toy_goal_env import ENV_ID
 
 from ddpg_her.config import AgentConfig
-from ddpg_her.run import RunFolder
+from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
 
 TASK = {"region": "box", "n_joints": 2}
@@ -174,6 +174,9 @@ def test_orphaned_temporary_files_are_removed_at_the_next_start(tmp_path, finish
         path.write_bytes(b"x" * 1000)
     keep = run / "notes.tmp1"  # not a name atomic_write makes
     keep.write_text("mine")
+    with pytest.raises(ValueError, match="already holds a run"):
+        Trainer(ENV_ID, TASK, TINY, [0], [str(run)])
+    assert all(path.exists() for path in orphans)  # a refused start touches nothing
     train([run], config=with_episodes(15), resume=True)
     assert not any(path.exists() for path in orphans)
     assert keep.read_text() == "mine"
