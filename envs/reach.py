@@ -252,12 +252,16 @@ class UR5ReachEnv(gymnasium.Env):
     # ------------------------------------------------------------------ GoalEnv API
     def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
         """Reward for reaching ``achieved_goal (..., 3)`` m when aiming at ``desired_goal
-        (..., 3)`` m; ``info`` carries the action (see the Rewards section). Returns ``(...)``."""
+        (..., 3)`` m; ``info`` carries the action (see the Rewards section). Returns ``(...)``.
+
+        Goals or actions that are not finite real numbers, or whose shapes do not fit, raise
+        ``ValueError`` naming them (never a NaN reward); see :mod:`envs.reward`."""
         return compute_reward(achieved_goal, desired_goal, info, self.task)
 
     def compute_terminated(self, achieved_goal: Any, desired_goal: Any, info: Any
                            ) -> np.ndarray:
-        """Whether such transitions end the episode: success, if ``terminate_on_success``."""
+        """Whether such transitions end the episode: success, if ``terminate_on_success``.
+        Bad goals raise ``ValueError`` as in :meth:`compute_reward`."""
         return compute_success(achieved_goal, desired_goal, self.task) & \
             self.task.terminate_on_success
 
