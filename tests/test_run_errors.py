@@ -28,10 +28,13 @@ ROOT = Path(__file__).parent.parent
 
 @pytest.fixture(autouse=True)
 def one_thread():
+    """One torch thread; and the CPU's subnormal flush, which the trainer sets process-wide,
+    back to its default afterwards (hypothesis in later test modules refuses to run with it)."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+    torch.set_flush_denormal(False)
 
 
 def train(dirs, seeds=(0,), config=TINY, task=TASK, **kwargs):
