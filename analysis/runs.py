@@ -1,22 +1,26 @@
 """Finding training runs below a folder, grouping them by setting, and statistics over seeds.
 
 A run is any folder holding a ``spec.json`` written by ``python -m ddpg_her.train`` (format
-``ddpg_her-run-*``) next to its ``eval.csv``. Its *setting* is (region, joints): the region as
-given to ``--region`` and the number of controlled joints.
+``ddpg_her-run-*``) next to its ``eval.csv``; `Run` and `read_run` come from
+`ddpg_her.runfolder`. Its *setting* is (region, joints): the region as given to ``--region`` and
+the number of controlled joints.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+
+from ddpg_her.runfolder import RUN_FORMAT_PREFIX, Run, RunFolderError, is_run_spec, read_run
+
+__all__ = ["CONFIDENCE", "PERCENT", "RUN_FORMAT_PREFIX", "Run", "RunFolderError",
+           "add_runs_arguments", "aligned_successes", "find_runs", "group_by_setting",
+           "mean_ci", "read_run", "settings_from_args", "t_quantile"]
 
 PERCENT = (0.0, 100.0)
 """Feasible range of a success percentage; confidence intervals are clipped to it."""
@@ -24,88 +28,19 @@ PERCENT = (0.0, 100.0)
 CONFIDENCE = 0.65
 """Two-sided confidence level of the interval over seeds (the paper's figures use 65 %)."""
 
-RUN_FORMAT_PREFIX = "ddpg_her-run"
-"""``spec.json`` ``format`` values this module reads."""
-
-
-@dataclass(frozen=True)
-class Run:
-    """One finished or unfinished training run."""
-
-    path: Path
-    region: str
-    """Region as given to ``--region`` (a registered name or a spec string)."""
-    joints: int
-    seed: int
-    episodes_planned: int
-    """Training episodes the run was asked for."""
-    episode: np.ndarray
-    """(T,) int: training episodes at each evaluation."""
-    successes: np.ndarray
-    """(T,) int: test episodes that reached the goal."""
-    tests: np.ndarray
-    """(T,) int: test episodes per evaluation."""
-    final_distance_m: np.ndarray
-    """(T,) float, m: mean final end-effector distance to the goal."""
-    spec: dict[str, Any]
-
-    @property
-    def setting(self) -> tuple[str, int]:
-        return self.region, self.joints
-
-    @property
-    def finished(self) -> bool:
-        return len(self.episode) > 0 and int(self.episode[-1]) >= self.episodes_planned
-
-    @property
-    def success_rate(self) -> np.ndarray:
-        """(T,) float in [0, 1]: successes / tests."""
-        return self.successes / np.maximum(self.tests, 1)
-
-
-def read_run(path: str | Path) -> Run:
-    """Read the run in folder ``path`` (its ``spec.json`` and ``eval.csv``).
-
-    Raises
-    ------
-    ValueError
-        When ``spec.json`` is not a ddpg_her run specification.
-    """
-    folder = Path(path)
-    spec = json.loads((folder / "spec.json").read_text())
-    if not str(spec.get("format", "")).startswith(RUN_FORMAT_PREFIX):
-        raise ValueError(f"{folder / 'spec.json'} is not a ddpg_her run (format "
-                         f"{spec.get('format')!r}, expected {RUN_FORMAT_PREFIX}-*)")
-    kwargs = spec.get("env_kwargs", {})
-    region = kwargs.get("region", spec.get("task", {}).get("region"))
-    if isinstance(region, dict):
-        region = region.get("name", json.dumps(region, sort_keys=True))
-    joints = int(kwargs.get("n_joints", spec.get("task", {}).get("n_joints", 0)))
-    rows: list[dict[str, str]] = []
-    eval_path = folder / "eval.csv"
-    if eval_path.exists():
-        with open(eval_path, newline="") as f:
-            rows = list(csv.DictReader(f))
-
-    def column(name: str, kind: type) -> np.ndarray:
-        return np.array([kind(r[name]) for r in rows], dtype=kind)
-
-    return Run(
-        path=folder, region=str(region), joints=joints, seed=int(spec["seed"]),
-        episodes_planned=int(spec["agent"]["episodes"]),
-        episode=column("episode", int), successes=column("successes", int),
-        tests=column("tests", int), final_distance_m=column("mean_final_distance_m", float),
-        spec=spec,
-    )
-
-
 def find_runs(roots: Iterable[str | Path]) -> list[Run]:
     """Every run below the given folders, in (region, joints, seed) order.
+
+    A ``spec.json`` that is a JSON object without a ``ddpg_her-run-*`` format belongs to
+    something else and is passed over; every other ``spec.json`` must be a readable run.
 
     Raises
     ------
     FileNotFoundError
         When a root does not exist.
+    RunFolderError
+        (a ValueError) When a run folder cannot be read (a truncated or garbled ``spec.json``,
+        a malformed ``eval.csv``); the message names the folder or file.
     """
     runs = []
     for root in roots:
@@ -114,9 +49,12 @@ def find_runs(roots: Iterable[str | Path]) -> list[Run]:
             raise FileNotFoundError(f"runs root {root} does not exist")
         for spec in sorted(root.rglob("spec.json")):
             try:
-                runs.append(read_run(spec.parent))
-            except (ValueError, KeyError, json.JSONDecodeError):
+                content = json.loads(spec.read_text())
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+                content = None  # read_run says what is wrong with it
+            if isinstance(content, dict) and not is_run_spec(content):
                 continue  # a spec.json of something else
+            runs.append(read_run(spec.parent))
     unique = {run.path.resolve(): run for run in runs}
     return sorted(unique.values(), key=lambda r: (r.region, r.joints, r.seed, str(r.path)))
 
@@ -197,13 +135,13 @@ def settings_from_args(parser: argparse.ArgumentParser,
     """The runs below ``args.roots`` that have evaluations, grouped by setting.
 
     Exits through ``parser.error`` (status 2, with the reason) on a bad confidence level, a
-    missing root, or no run with evaluations.
+    missing root, a run folder that cannot be read, or no run with evaluations.
     """
     if not 0.0 < args.confidence < 1.0:
         parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
     try:
         runs = find_runs(args.roots)
-    except FileNotFoundError as err:
+    except (FileNotFoundError, RunFolderError) as err:
         parser.error(str(err))
     groups = {k: v for k, v in group_by_setting(runs).items() if any(len(r.episode) for r in v)}
     if not groups:

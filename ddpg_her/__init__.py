@@ -11,7 +11,11 @@ __all__ = ["EVAL_COLUMNS", "AgentConfig", "Exploration", "HERStrategy", "Policy"
 
 def __getattr__(name: str):
     # torch loads only when needed, so that `python -m ddpg_her.train --help` answers at once.
-    if name in ("EVAL_COLUMNS", "Policy", "load"):
+    if name == "EVAL_COLUMNS":
+        from ddpg_her.runfolder import EVAL_COLUMNS
+
+        return EVAL_COLUMNS
+    if name in ("Policy", "load"):
         from ddpg_her import run
 
         return getattr(run, name)

@@ -10,6 +10,8 @@ import dataclasses
 import enum
 import inspect
 import itertools
+import math
+import numbers
 import textwrap
 from dataclasses import dataclass
 from functools import cache
@@ -126,34 +128,11 @@ class AgentConfig:
         object.__setattr__(self, "her_strategy", HERStrategy(self.her_strategy))
         object.__setattr__(self, "exploration", Exploration(self.exploration))
         object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
-        checks = {
-            "gamma": 0.0 <= self.gamma <= 1.0,
-            "buffer_size": self.buffer_size >= self.batch_size,
-            "batch_size": self.batch_size >= 1,
-            "exploration_rate": self.exploration_rate >= 0.0,
-            "tau": 0.0 < self.tau <= 1.0,
-            "actor_lr": self.actor_lr > 0.0,
-            "critic_lr": self.critic_lr > 0.0,
-            "episodes": self.episodes >= 0,
-            "eval_every": self.eval_every >= 1,
-            "eval_episodes": self.eval_episodes >= 1,
-            "hidden_sizes": len(self.hidden_sizes) == 2 and min(self.hidden_sizes) >= 1,
-            "final_init": self.final_init > 0.0,
-            "her_k": self.her_k >= 1,
-            "ou_theta": 0.0 <= self.ou_theta <= 1.0,
-            "warmup_episodes": self.warmup_episodes >= 0,
-            "updates_per_episode": self.updates_per_episode >= 0,
-            "obs_clip": self.obs_clip > 0.0,
-            "norm_eps": self.norm_eps > 0.0,
-            "critic_l2": self.critic_l2 >= 0.0,
-        }
-        bad = [name for name, ok in checks.items() if not ok]
+        bad = [name for name, (_, ok) in VALID.items() if not _holds(ok, self)]
         if bad:
             raise ValueError(
                 "invalid agent configuration: "
-                + ", ".join(f"{n}={getattr(self, n)!r}" for n in bad)
-                + " (see AgentConfig's field docs for the valid ranges)"
-            )
+                + ", ".join(f"{n}={getattr(self, n)!r} (expected {VALID[n][0]})" for n in bad))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (enums as strings, tuples as lists)."""
@@ -171,6 +150,48 @@ class AgentConfig:
         if unknown:
             raise ValueError(f"unknown agent configuration keys {sorted(unknown)}")
         return cls(**d)
+
+
+def _holds(check: Any, config: AgentConfig) -> bool:
+    """Whether ``check(config)`` is true; a value of the wrong type (a string, None) is not."""
+    try:
+        return bool(check(config))
+    except TypeError:
+        return False
+
+
+def _integer(x: Any) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+VALID: dict[str, tuple[str, Any]] = {
+    "gamma": ("a number in [0, 1]", lambda c: 0.0 <= c.gamma <= 1.0),
+    "buffer_size": ("an integer >= batch_size",
+                    lambda c: _integer(c.buffer_size) and c.buffer_size >= c.batch_size),
+    "batch_size": ("an integer >= 1", lambda c: _integer(c.batch_size) and c.batch_size >= 1),
+    "exploration_rate": ("a finite number >= 0", lambda c: 0.0 <= c.exploration_rate < math.inf),
+    "tau": ("a number in (0, 1]", lambda c: 0.0 < c.tau <= 1.0),
+    "actor_lr": ("a finite number > 0", lambda c: 0.0 < c.actor_lr < math.inf),
+    "critic_lr": ("a finite number > 0", lambda c: 0.0 < c.critic_lr < math.inf),
+    "episodes": ("an integer >= 0", lambda c: _integer(c.episodes) and c.episodes >= 0),
+    "eval_every": ("an integer >= 1", lambda c: _integer(c.eval_every) and c.eval_every >= 1),
+    "eval_episodes": ("an integer >= 1",
+                      lambda c: _integer(c.eval_episodes) and c.eval_episodes >= 1),
+    "hidden_sizes": ("two integers >= 1",
+                     lambda c: len(c.hidden_sizes) == 2 and min(c.hidden_sizes) >= 1),
+    "final_init": ("a finite number > 0", lambda c: 0.0 < c.final_init < math.inf),
+    "her_k": ("an integer >= 1", lambda c: _integer(c.her_k) and c.her_k >= 1),
+    "ou_theta": ("a number in [0, 1]", lambda c: 0.0 <= c.ou_theta <= 1.0),
+    "warmup_episodes": ("an integer >= 0",
+                        lambda c: _integer(c.warmup_episodes) and c.warmup_episodes >= 0),
+    "updates_per_episode": ("an integer >= 0", lambda c: _integer(c.updates_per_episode)
+                            and c.updates_per_episode >= 0),
+    "obs_clip": ("a number > 0", lambda c: c.obs_clip > 0.0),
+    "norm_eps": ("a finite number > 0", lambda c: 0.0 < c.norm_eps < math.inf),
+    "critic_l2": ("a finite number >= 0", lambda c: 0.0 <= c.critic_l2 < math.inf),
+}
+"""The valid values of the checked `AgentConfig` fields: {field: (the range in words, test)}.
+The words appear in the error message and in ``--help``."""
 
 
 @cache

@@ -10,16 +10,25 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from ddpg_her.run import RunFolder
+from ddpg_her.runfolder import RunFolder, RunFolderError
 
 
 def summarize(run_dirs: Sequence[str], project_to: int) -> str:
+    """The Markdown tables of the runs in ``run_dirs``, projecting to ``project_to`` episodes.
+
+    Raises
+    ------
+    ddpg_her.runfolder.RunFolderError
+        (a ValueError) When a folder has no ``spec.json``, or its ``spec.json`` or ``eval.csv``
+        cannot be read; the message names the file.
+    """
     runs = []
     for d in run_dirs:
         folder = RunFolder(d)
-        if not folder.exists():
-            raise FileNotFoundError(f"{d} is not a run folder (no spec.json)")
-        runs.append((d, folder.read_spec(), folder.read_eval()))
+        spec = folder.read_spec()
+        if "seed" not in spec:
+            raise RunFolderError(f"{folder.spec_path} has no 'seed': not a ddpg_her run")
+        runs.append((d, spec, folder.read_eval()))
     lines = ["| episode | " + " | ".join(f"seed {spec['seed']}" for _, spec, _ in runs) + " |",
              "|---:|" + "---:|" * len(runs)]
     episodes = sorted({int(r["episode"]) for _, _, rows in runs for r in rows})
@@ -56,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         print(summarize(args.run_dirs, args.project_to))
-    except FileNotFoundError as e:
+    except (OSError, ValueError) as e:
         parser.error(str(e))
     return 0
 

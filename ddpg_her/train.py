@@ -19,10 +19,41 @@ import typing
 from collections.abc import Sequence
 from typing import Any
 
-from ddpg_her.config import AgentConfig, field_docs
+from ddpg_her.config import VALID, AgentConfig, field_docs
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
 JOINTS = range(2, 7)
+DEFAULT_JOINTS = 3
+"""Controlled joints when neither --joints nor --task n_joints is given."""
+
+
+def task_fields(region: str, joints: int | None, overrides: Sequence[tuple[str, Any]]
+                ) -> dict[str, Any]:
+    """The env's keyword arguments from --region, --joints and the --task KEY=VALUE pairs.
+
+    Raises
+    ------
+    ValueError
+        When a field is given twice with different values (``--joints 3 --task n_joints=4``,
+        ``--region farbox --task region=zheight``, ``--task a=1 --task a=2``): the run folder
+        is named after --region and --joints, so a silent override would mislabel it.
+    """
+    given: dict[str, tuple[str, Any]] = {"region": ("--region", region)}
+    if joints is not None:
+        given["n_joints"] = ("--joints", joints)
+    for key, value in overrides:
+        flag = f"--task {key}={json.dumps(value)}"
+        if key in given and not _same(given[key][1], value):
+            raise ValueError(f"{given[key][0]} and {flag} give the task field {key!r} two "
+                             f"values ({given[key][1]!r}, {value!r}); give it once")
+        given.setdefault(key, (flag, value))
+    fields = {key: value for key, (_, value) in given.items()}
+    fields.setdefault("n_joints", DEFAULT_JOINTS)
+    return fields
+
+
+def _same(a: Any, b: Any) -> bool:
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 
 def _task_option(text: str) -> tuple[str, Any]:
@@ -42,7 +73,8 @@ def _add_config_flags(group: argparse._ArgumentGroup) -> None:
     for f in dataclasses.fields(AgentConfig):
         flag = "--" + f.name.replace("_", "-")
         kind = hints[f.name]
-        help_text = docs[f.name].replace("%", "%%") + " (default: %(default)s)"
+        valid = f" Valid: {VALID[f.name][0]}." if f.name in VALID else ""
+        help_text = (docs[f.name] + valid).replace("%", "%%") + " (default: %(default)s)"
         if kind is bool:
             group.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default,
                                help=help_text)
@@ -69,12 +101,15 @@ def make_parser() -> argparse.ArgumentParser:
     task.add_argument("--region", required=True,
                       help="goal constraint region: a name (unconstrained, zheight, closebox, "
                            "farbox, farbox_tall) or a spec such as box:... (see regions.parse)")
-    task.add_argument("--joints", type=int, default=3,
-                      help="controlled joints n, 2..6; joints 1..n move (default: %(default)s)")
+    task.add_argument("--joints", type=int, default=None,
+                      help=f"controlled joints n, 2..6; joints 1..n move (default: "
+                           f"{DEFAULT_JOINTS}, or the --task n_joints=N given)")
     task.add_argument("--task", type=_task_option, action="append", default=[],
                       metavar="KEY=VALUE",
                       help="override a field of the task specification (VALUE read as JSON, "
-                           "else as a string); repeatable, e.g. --task reward=sparse")
+                           "else as a string); repeatable, e.g. --task reward_type=sparse. A "
+                           "field given twice (also as --region or --joints) must have one "
+                           "value")
     task.add_argument("--env-id", default="UR5Reach-v0",
                       help="Gymnasium id of the goal env; 'module:Id' imports module first "
                            "(default: %(default)s)")
@@ -121,8 +156,14 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
 def main(argv: Sequence[str] | None = None) -> int:
     parser = make_parser()
     args = parser.parse_args(argv)
-    if args.joints not in JOINTS:
-        parser.error(f"--joints must be in 2..6, got {args.joints}")
+    try:
+        env_kwargs = task_fields(args.region, args.joints, args.task)
+    except ValueError as e:
+        parser.error(str(e))
+    joints = env_kwargs["n_joints"]
+    if joints not in JOINTS:
+        flag = "--joints" if args.joints is not None else "--task n_joints"
+        parser.error(f"{flag} must be in 2..6, got {joints}")
     seeds = args.seeds if args.seeds is not None else [args.seed]
     if len(set(seeds)) != len(seeds):
         parser.error(f"--seeds must be distinct, got {seeds}")
@@ -144,10 +185,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
 
     from ddpg_her.trainer import Trainer
+    from ddpg_her.vecenv import register_env
 
-    env_kwargs = {"region": args.region, "n_joints": args.joints, **dict(args.task)}
     try:
-        dirs = run_dirs(args.out, args.region, args.joints, seeds)
+        register_env(args.env_id)
+    except ImportError as e:
+        parser.error(f"--env-id {args.env_id}: cannot import the module that registers it "
+                     f"({type(e).__name__}: {e})")
+    try:
+        dirs = run_dirs(args.out, args.region, joints, seeds)
         trainer = Trainer(args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume,
                           device=args.device, progress=not args.no_progress,
                           tensorboard=not args.no_tensorboard,

@@ -16,6 +16,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ from ddpg_her.agent import DDPG
 from ddpg_her.buffer import Layout, ReplayBuffer, her_goal_steps, pack, relabel
 from ddpg_her.config import AgentConfig
 from ddpg_her.exploration import Explorer
-from ddpg_her.run import FORMAT, RunFolder, git_revision, versions
+from ddpg_her.runfolder import FORMAT, RunFolder, RunFolderError, git_revision, versions
 from ddpg_her.spaces import goal_input
 from ddpg_her.vecenv import GoalVecEnv, rollout
 
@@ -127,31 +128,67 @@ class Trainer:
                   if not json_equal(old_agent.get(k), new_agent.get(k))]
         return diffs
 
+    CONFIG_KEYS = ("format", "env_id", "env_kwargs", "task", "seed", "agent", "dims")
+    """Keys of the spec that each checkpoint carries as its ``config``: what it was trained
+    with, compared with the command's on resume."""
+
+    def _mismatch(self, where: Any, old: dict[str, Any], new: dict[str, Any]) -> None:
+        """Raise ValueError if ``new`` may not continue the run ``old`` (a spec or config)."""
+        diffs = self._differences(old, new)
+        if diffs:
+            raise ValueError(
+                f"{where} holds a run of another task or agent; differing: "
+                + ", ".join(f"{d} (was {lookup(old, d)!r}, now {lookup(new, d)!r})"
+                            for d in diffs))
+        was = lookup(old, "agent.episodes")
+        if was is not None and new["agent"]["episodes"] < was:
+            raise ValueError(
+                f"{where} was planned for {was} episodes; a resumed run's --episodes may only "
+                f"grow (got {new['agent']['episodes']}); copy the folder to train a shorter run")
+
     def _open(self, resume: bool) -> None:
+        """Check the run folders against the command, pick the checkpoint, then write."""
         existing = [f for f in self.folders if f.exists()]
         if existing and not resume:
-            raise ValueError(f"{existing[0].path} already holds a run; pass --resume to "
+            what = "a run" if existing[0].spec_path.exists() else \
+                "checkpoints of a run (its spec.json is missing)"
+            raise ValueError(f"{existing[0].path} already holds {what}; pass --resume to "
                              "continue it, or choose another --out")
+        olds: list[dict[str, Any] | None] = []
         for f, spec in zip(self.folders, self.specs, strict=True):
-            if f.exists():
-                old = f.read_spec()
-                diffs = self._differences(old, spec)
-                if diffs:
-                    raise ValueError(
-                        f"{f.path} holds a run of another task or agent; differing: "
-                        + ", ".join(f"{d} (was {lookup(old, d)!r}, now {lookup(spec, d)!r})"
-                                    for d in diffs))
+            old = f.read_spec() if f.spec_path.exists() else None
+            if old is not None:
+                self._mismatch(f.path, old, spec)
+            olds.append(old)
+        episode, states, chunks = self._readable_checkpoint()
+        for f, spec, old in zip(self.folders, self.specs, olds, strict=True):
+            # temporary files of writes that a kill interrupted; only now that this process
+            # has the folder's run (a refused start touches nothing)
+            f.clean()
+            if old is not None:
                 for key in self.RESUMABLE_CHANGES:
                     old["agent"][key] = spec["agent"][key]
                 f.write_spec(old)
             else:
                 f.write_spec(spec)
                 f.write_eval([])
-        have = [set(f.checkpoints()) for f in self.folders]
-        if not any(have):
+        if episode is None:
             for f in self.folders:
                 f.prune(upto=0, keep_from=0)
             return
+        self._restore(episode, states, chunks)
+
+    def _readable_checkpoint(self) -> tuple[int | None, list[dict[str, Any]],
+                                            list[list[tuple[int, Any]]]]:
+        """The latest common checkpoint that every folder can read, with its buffer chunks.
+
+        A checkpoint or chunk that cannot be read (truncated, empty) makes the run fall back to
+        the older kept checkpoint, with a warning naming the file; a checkpoint trained with
+        another configuration is an error.
+        """
+        have = [set(f.checkpoints()) for f in self.folders]
+        if not any(have):
+            return None, [], []
         common = set.intersection(*have)
         if not common:
             raise ValueError(
@@ -159,15 +196,37 @@ class Trainer:
                 + ", ".join(f"{f.path}: {sorted(h)}" for f, h in zip(self.folders, have,
                                                                      strict=True))
                 + "); resume them separately")
-        self._restore(max(common))
+        candidates = sorted(common, reverse=True)
+        for i, episode in enumerate(candidates):
+            try:
+                states = [f.load_checkpoint(episode) for f in self.folders]
+                for f, spec, state in zip(self.folders, self.specs, states, strict=True):
+                    if "config" in state:  # checkpoints from before the field have none
+                        self._mismatch(f.checkpoints()[episode], state["config"], spec)
+                chunks = [f.chunks(upto=episode) for f in self.folders]
+                for f, state, rows in zip(self.folders, states, chunks, strict=True):
+                    total = rows[-1][0] + len(rows[-1][1]) if rows else 0
+                    if total != state["buffer_total"]:
+                        raise RunFolderError(
+                            f"{f.path / 'buffer'}: the chunks up to episode {episode} end at "
+                            f"transition {total}, its checkpoint expects "
+                            f"{state['buffer_total']}")
+            except RunFolderError as err:
+                if i + 1 == len(candidates):
+                    raise
+                warnings.warn(f"{err}; resuming from the older checkpoint of episode "
+                              f"{candidates[i + 1]} instead", stacklevel=3)
+                continue
+            return episode, states, chunks
+        raise AssertionError("unreachable")
 
-    def _restore(self, episode: int) -> None:
-        states = [f.load_checkpoint(episode) for f in self.folders]
+    def _restore(self, episode: int, states: list[dict[str, Any]],
+                 chunks: list[list[tuple[int, Any]]]) -> None:
         self.agent.load_agent_states([s["agent"] for s in states])
         for k, (f, s) in enumerate(zip(self.folders, states, strict=True)):
             self.rngs[k].bit_generator.state = s["rng"]["explore"]
             self.sample_generators[k].set_state(s["rng"]["sample"])
-            for start, rows in f.chunks(upto=episode):
+            for start, rows in chunks[k]:
                 self.buffer.put(k, start, rows)
             if self.buffer.total[k] != s["buffer_total"]:
                 raise RuntimeError(f"{f.path}: the buffer chunks hold {self.buffer.total[k]} "
@@ -189,6 +248,7 @@ class Trainer:
             f.save_chunk(self.episode, start, rows)
             f.save_checkpoint(self.episode, {
                 "episode": self.episode,
+                "config": {key: self.specs[k][key] for key in self.CONFIG_KEYS},
                 "env_steps": int(self.env_steps[k]),
                 "wall_s": self.wall_s,
                 "rows": self.rows[k],

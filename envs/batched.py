@@ -13,7 +13,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from envs.core import ReachCore
-from envs.reach import RENDER_MODES, make_task
+from envs.reach import RENDER_MODES, make_task, real_actions
 from envs.reward import compute_reward, compute_success
 from envs.spec import TaskSpec
 
@@ -21,7 +21,7 @@ DEFAULT_EPISODE_STEPS = {f.name: f.default for f in dataclasses.fields(TaskSpec)
     "max_episode_steps"]
 """The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
 
-INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit")
+INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit", "clearance")
 """Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""
 
 
@@ -148,13 +148,20 @@ class BatchedReach(gymnasium.vector.VectorEnv):
 
         Returns observations (dict of (N, ...) arrays), rewards (N,), terminations (N,),
         truncations (N,) and infos (dict of (N, ...) arrays with ``_key`` masks).
+
+        Raises
+        ------
+        ValueError
+            When ``actions`` is not a finite real ``(N, n)`` array.
+        gymnasium.error.ResetNeeded
+            When a copy has never been reset.
         """
         core, n = self._core, self.task.n_joints
-        a = np.asarray(actions, dtype=np.float64)
-        if a.shape != (self.num_envs, n) or not np.isfinite(a).all():
+        a = real_actions(actions)
+        if a is None or a.shape != (self.num_envs, n) or not np.isfinite(a).all():
             raise ValueError(f"actions must be a finite ({self.num_envs}, {n}) array (the "
-                             f"{self.task.control_mode} commands of joints 1..{n}); got shape "
-                             f"{a.shape}")
+                             f"{self.task.control_mode} commands of joints 1..{n}); got "
+                             + (f"shape {a.shape}" if a is not None else repr(actions)))
         mode = self.metadata["autoreset_mode"]
         core.step(a)
         if mode == AutoresetMode.NEXT_STEP and self._ended.any():

@@ -63,6 +63,8 @@ class ReachCore:
     success, terminated, truncated : (B,) bool
     elapsed : (B,) int
         Steps since each copy's reset.
+    started : (B,) bool
+        Whether each copy has been reset at least once (:meth:`step` refuses otherwise).
 
     Arrays are overwritten in place by every call; copy what you keep.
     """
@@ -83,6 +85,7 @@ class ReachCore:
         self.terminated = np.zeros(B, dtype=bool)
         self.truncated = np.zeros(B, dtype=bool)
         self.elapsed = np.zeros(B, dtype=np.int64)
+        self.started = np.zeros(B, dtype=bool)
         self._obs_views = (self.observation[:, :n], self.observation[:, n : 2 * n],
                            self.observation[:, 2 * n :])
         self._start = np.asarray(task.start_q)
@@ -106,6 +109,7 @@ class ReachCore:
         self.goal[index] = goals
         self.dynamics.reset(self._start, index)
         self.elapsed[index] = 0
+        self.started[index] = True
         self.action[index] = 0.0
         self.terminated[index] = False
         self.truncated[index] = False
@@ -113,7 +117,20 @@ class ReachCore:
         self._observe()
 
     def step(self, action: np.ndarray) -> None:
-        """Apply ``action (B, n)`` (clipped to the action box) to every copy for one step."""
+        """Apply ``action (B, n)`` (clipped to the action box) to every copy for one step.
+
+        Raises
+        ------
+        gymnasium.error.ResetNeeded
+            When a copy has never been reset: it has no goal yet, and stepping it would reward
+            reaching (0, 0, 0).
+        """
+        if not self.started.all():
+            never = np.flatnonzero(~self.started).tolist()
+            raise gymnasium.error.ResetNeeded(
+                f"step() before reset(): cop{'y' if len(never) == 1 else 'ies'} {never} of "
+                f"{len(self.started)} {'has' if len(never) == 1 else 'have'} no episode (no goal) "
+                "yet; call reset() first")
         clip(action, self.action_low, self.action_high, self.action)
         self.dynamics.step(self.action)
         self.elapsed += 1
@@ -154,9 +171,17 @@ class ReachCore:
         })
         return observation, box(self.action_low, self.action_high, dtype=np.float64)
 
+    def clearance(self) -> np.ndarray:
+        """Lowest point of the moving links (shoulder to wrist 3 with the tool flange) now,
+        ``(B,) float``, m, world z (the ground plane is z = 0; negative would be below it).
+
+        Exact (one link-height evaluation per copy), not the dynamics' conservative bound.
+        """
+        return self.dynamics._link_heights(self.dynamics.q).min(axis=-1)
+
     def info_arrays(self) -> dict[str, Any]:
         """Per-copy step information as arrays (the batched env's info)."""
         dyn = self.dynamics
         return {"action": self.action.copy(), "distance": self.distance.copy(),
                 "is_success": self.success.copy(), "contact": dyn.contact.copy(),
-                "joint_limit": dyn.limit_stop.copy()}
+                "joint_limit": dyn.limit_stop.copy(), "clearance": self.clearance()}

@@ -16,6 +16,20 @@ RENDER_MODES = ("human", "rgb_array")
 """Render modes of the env: a matplotlib window, or frames as ``(H, W, 3) uint8`` arrays."""
 
 
+def real_actions(action: Any) -> np.ndarray | None:
+    """``action`` as a float64 array, or None when it is not real numbers (strings, complex,
+    None, objects): the step methods turn None into their ValueError."""
+    arr = np.asarray(action)
+    if arr.dtype.kind in "biuf":
+        return arr.astype(np.float64, copy=False)
+    if arr.dtype.kind == "O":
+        try:
+            return np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            return None
+    return None
+
+
 def make_task(spec: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str, Any]
               ) -> TaskSpec:
     """The task from a :class:`TaskSpec` (or its dict form) and field overrides.
@@ -50,7 +64,9 @@ class UR5ReachEnv(gymnasium.Env):
     ## Action Space
 
     ``Box(low, high, (n,), float64)``, the command of joints 1..n (``n_joints`` = n, 2-6).
-    Actions outside the box are clipped; a non-finite action raises ``ValueError``.
+    Actions outside the box are clipped; an action that is not n finite real numbers raises
+    ``ValueError``; ``step`` before the first ``reset`` raises
+    ``gymnasium.error.ResetNeeded`` (there is no goal yet).
 
     | Num | Action, by ``control_mode``                 | Min                 | Max        | Unit  |
     |-----|---------------------------------------------|---------------------|------------|-------|
@@ -139,6 +155,9 @@ class UR5ReachEnv(gymnasium.Env):
     | ``is_success``  | d <= ``success_radius``                                 | -          |
     | ``contact``     | the arm hit the ground plane during the step and stopped | -         |
     | ``joint_limit`` | a joint hit its URDF limit during the step and stopped  | -          |
+    | ``clearance``   | lowest point of the moving links at the end of the step | m, world z |
+
+    ``reset`` returns ``distance``, ``is_success`` and ``clearance``.
 
     ## Arguments
 
@@ -196,14 +215,15 @@ class UR5ReachEnv(gymnasium.Env):
             goals = goal[None]
         self._core.reset([0], [self.np_random], goals)
         core = self._core
-        info = {"distance": float(core.distance[0]), "is_success": bool(core.success[0])}
+        info = {"distance": float(core.distance[0]), "is_success": bool(core.success[0]),
+                "clearance": float(core.clearance()[0])}
         if self.render_mode == "human":
             self.render()
         return self._observation(), info
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (self._n,) or not np.isfinite(a).all():
+        a = real_actions(action)
+        if a is None or a.shape != (self._n,) or not np.isfinite(a).all():
             raise ValueError(f"action must be {self._n} finite numbers (the "
                              f"{self.task.control_mode} command of joints 1..{self._n}); got "
                              f"{action!r}")
@@ -216,6 +236,7 @@ class UR5ReachEnv(gymnasium.Env):
             "is_success": bool(core.success[0]),
             "contact": bool(dyn.contact[0]),
             "joint_limit": bool(dyn.limit_stop[0]),
+            "clearance": float(core.clearance()[0]),
         }
         if self.render_mode == "human":
             self.render()
@@ -231,12 +252,16 @@ class UR5ReachEnv(gymnasium.Env):
     # ------------------------------------------------------------------ GoalEnv API
     def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
         """Reward for reaching ``achieved_goal (..., 3)`` m when aiming at ``desired_goal
-        (..., 3)`` m; ``info`` carries the action (see the Rewards section). Returns ``(...)``."""
+        (..., 3)`` m; ``info`` carries the action (see the Rewards section). Returns ``(...)``.
+
+        Goals or actions that are not finite real numbers, or whose shapes do not fit, raise
+        ``ValueError`` naming them (never a NaN reward); see :mod:`envs.reward`."""
         return compute_reward(achieved_goal, desired_goal, info, self.task)
 
     def compute_terminated(self, achieved_goal: Any, desired_goal: Any, info: Any
                            ) -> np.ndarray:
-        """Whether such transitions end the episode: success, if ``terminate_on_success``."""
+        """Whether such transitions end the episode: success, if ``terminate_on_success``.
+        Bad goals raise ``ValueError`` as in :meth:`compute_reward`."""
         return compute_success(achieved_goal, desired_goal, self.task) & \
             self.task.terminate_on_success
 

@@ -4,6 +4,12 @@
 ``env.unwrapped.compute_reward`` calls. HER libraries recompute rewards for relabelled goals
 with it, passing ``info`` as one dict of batched arrays or as a list/array of per-transition
 dicts (Stable-Baselines3); the dense reward reads the action from ``info["action"]``.
+
+Bad input: :func:`compute_reward` and :func:`compute_success` raise ``ValueError`` for goals or
+actions that are not real numbers, not finite, or whose shapes do not fit (goals ``(..., 3)``
+broadcasting against each other, actions ``(..., n)`` against the goals' batch shape); they
+never return NaN. :func:`goal_distance` and :func:`reach_reward` are the unchecked kernels the
+env's step calls on values it made itself; NaN in gives NaN out there.
 """
 
 from __future__ import annotations
@@ -21,8 +27,53 @@ ACTION_KEY = "action"
 """The ``info`` key that carries the action (as applied, after clipping) to the dense reward."""
 
 
+GOAL_DIM = 3
+"""Length of a goal: tool0's x, y, z (m, world frame)."""
+
+
+def _real(x: Any, name: str, what: str) -> np.ndarray:
+    """``x`` as a finite float64 array, or ValueError naming ``name`` and what was expected."""
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "biuf":
+        try:
+            if arr.dtype.kind == "c":
+                raise TypeError("complex")
+            arr = np.asarray(x, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{name} must be real numbers ({what}); got {x!r}") from err
+    arr = arr.astype(np.float64, copy=False)
+    if not np.isfinite(arr).all():
+        where = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        raise ValueError(f"{name} must be finite ({what}); {name}{list(where)} = {arr[where]}")
+    return arr
+
+
+def checked_goals(achieved_goal: Any, desired_goal: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Both goals as finite float64 ``(..., 3)`` arrays whose batch shapes broadcast.
+
+    Raises
+    ------
+    ValueError
+        Naming the goal that is not real, not finite or not ``(..., 3)``, or both shapes when
+        they do not broadcast.
+    """
+    what = "goal positions x, y, z in m, world frame, shape (..., 3)"
+    a = _real(achieved_goal, "achieved_goal", what)
+    d = _real(desired_goal, "desired_goal", what)
+    for name, arr in (("achieved_goal", a), ("desired_goal", d)):
+        if arr.ndim == 0 or arr.shape[-1] != GOAL_DIM:
+            raise ValueError(f"{name} must have shape (..., {GOAL_DIM}) ({what}); got shape "
+                             f"{arr.shape}")
+    try:
+        np.broadcast_shapes(a.shape, d.shape)
+    except ValueError:
+        raise ValueError(f"achieved_goal {a.shape} and desired_goal {d.shape} must have batch "
+                         "shapes that broadcast") from None
+    return a, d
+
+
 def goal_distance(achieved_goal: Any, desired_goal: Any) -> np.ndarray:
-    """Euclidean distance between goals.
+    """Euclidean distance between goals (unchecked: see :func:`checked_goals`).
 
     Parameters
     ----------
@@ -116,12 +167,35 @@ def compute_reward(achieved_goal: Any, desired_goal: Any, info: Any, task: TaskS
     Returns
     -------
     reward : (...) float
+        Finite.
+
+    Raises
+    ------
+    ValueError
+        When a goal or action is not real, not finite, or of a shape that does not fit (see
+        the module docstring), or the dense reward finds no action in ``info``.
     """
-    distance = goal_distance(achieved_goal, desired_goal)
-    action = None if task.reward_type == "sparse" else info_actions(info)
+    distance = goal_distance(*checked_goals(achieved_goal, desired_goal))
+    if task.reward_type == "sparse":
+        return reach_reward(distance, None, task)
+    action = _real(info_actions(info), "info['action']", "the action as applied, (..., n)")
+    if action.ndim == 0 or action.shape[-1] != task.n_joints:
+        raise ValueError(f"info['action'] must have shape (..., {task.n_joints}) (the action "
+                         f"of joints 1..{task.n_joints}); got shape {action.shape}")
+    try:
+        np.broadcast_shapes(distance.shape, action.shape[:-1])
+    except ValueError:
+        raise ValueError(f"info['action'] {action.shape} does not fit the goals' batch shape "
+                         f"{distance.shape}: one action per transition") from None
     return reach_reward(distance, action, task)
 
 
 def compute_success(achieved_goal: Any, desired_goal: Any, task: TaskSpec) -> np.ndarray:
-    """Whether tool0 is within ``success_radius`` of the goal, ``(...) bool``."""
-    return goal_distance(achieved_goal, desired_goal) <= task.success_radius
+    """Whether tool0 is within ``success_radius`` of the goal, ``(...) bool``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`compute_reward`, for goals.
+    """
+    return goal_distance(*checked_goals(achieved_goal, desired_goal)) <= task.success_radius

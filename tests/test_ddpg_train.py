@@ -15,7 +15,7 @@ from toy_goal_env import ENV_ID
 
 import ddpg_her
 from ddpg_her.config import AgentConfig
-from ddpg_her.run import EVAL_COLUMNS, RunFolder
+from ddpg_her.runfolder import EVAL_COLUMNS, RunFolder
 from ddpg_her.summary import summarize
 from ddpg_her.trainer import Trainer
 

@@ -177,7 +177,8 @@ def test_observation_layout_and_frames():
     _, theta_dot, theta_ddot = np.split(nxt["observation"], 3)
     np.testing.assert_allclose(theta_ddot, theta_dot / env.unwrapped.dt)  # from rest
     assert env.unwrapped.dt == 0.02
-    assert set(step_info) == {"action", "distance", "is_success", "contact", "joint_limit"}
+    assert set(step_info) == {"action", "distance", "is_success", "contact", "joint_limit",
+                              "clearance"}
 
 
 def test_flat_observation_is_the_papers_state():

@@ -15,8 +15,28 @@ def _describe(x: Any) -> str:
     return text if len(text) < 200 else text[:200] + "..."
 
 
-def joint_array(q: Any, name: str = "q", n: int = 6) -> np.ndarray:
-    """Return ``q`` as a float64 array of shape ``(..., n)``, or raise ``ValueError``.
+def real_array(x: Any, name: str, what: str) -> np.ndarray:
+    """Return ``x`` as a float64 array, or raise ``ValueError`` naming ``name`` and ``what``.
+
+    Complex input is refused rather than cast (numpy's cast drops the imaginary part with only
+    a warning); so are strings, None and other objects that are not real numbers. Booleans and
+    integers are taken as numbers.
+    """
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "biuf":
+        if arr.dtype.kind == "c":
+            raise ValueError(f"{name} must be real ({what}); got complex values {_describe(x)}")
+        try:
+            arr = np.asarray(x, dtype=float)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{name} must be an array of real numbers ({what}); got {x!r}"
+                             ) from err
+    return arr.astype(float, copy=False)
+
+
+def joint_array(q: Any, name: str = "q", n: int = 6, what: str = "joint angles in rad"
+                ) -> np.ndarray:
+    """Return ``q`` as a finite, real float64 array of shape ``(..., n)``, or raise ``ValueError``.
 
     Parameters
     ----------
@@ -25,16 +45,13 @@ def joint_array(q: Any, name: str = "q", n: int = 6) -> np.ndarray:
         Name used in the error message.
     n : int
         Expected trailing dimension.
+    what : str
+        What the values are, with their unit, for the error message.
     """
-    try:
-        arr = np.asarray(q, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be an array of joint angles (rad); got {q!r}") from err
+    arr = real_array(q, name, what)
     if arr.ndim == 0 or arr.shape[-1] != n:
-        raise ValueError(
-            f"{name} must have shape (..., {n}) (joint angles in rad, joints 1-{n}); "
-            f"got shape {arr.shape}"
-        )
+        describe = f"{what}, joints 1-{n}" if what == "joint angles in rad" else what
+        raise ValueError(f"{name} must have shape (..., {n}) ({describe}); got shape {arr.shape}")
     check_finite(arr, name)
     return arr
 
@@ -55,10 +72,7 @@ def pose_array(pose: Any, name: str = "pose") -> np.ndarray:
     A rigid transform has an orthonormal rotation block with determinant +1 (to
     :data:`ROTATION_TOL`) and a last row of ``[0, 0, 0, 1]``.
     """
-    try:
-        arr = np.asarray(pose, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be a 4 x 4 homogeneous transform; got {pose!r}") from err
+    arr = real_array(pose, name, "a 4 x 4 homogeneous transform, translation in m")
     if arr.ndim < 2 or arr.shape[-2:] != (4, 4):
         raise ValueError(f"{name} must have shape (..., 4, 4); got shape {arr.shape}")
     check_finite(arr, name)

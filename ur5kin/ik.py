@@ -222,10 +222,20 @@ def ik_position(target: Any, wrist: Any) -> tuple[np.ndarray, np.ndarray]:
         NaN.
     valid : (..., 4) bool
         Which of the 4 candidates exist and reproduce ``target`` to :data:`VERIFY_TOL`.
+
+    Raises
+    ------
+    ValueError
+        When ``target`` or ``wrist`` is not ``(..., 3)``, not real, or not finite, or their
+        batch shapes do not broadcast.
     """
-    p = joint_array(target, "target", 3)
-    w = joint_array(wrist, "wrist", 3)
-    p, w = np.broadcast_arrays(p, w)
+    p = joint_array(target, "target", 3, "tool0 positions x, y, z in m, base_link frame")
+    w = joint_array(wrist, "wrist", 3, "angles of joints 4-6 in rad")
+    try:
+        p, w = np.broadcast_arrays(p, w)
+    except ValueError:
+        raise ValueError(f"target {p.shape} and wrist {w.shape} must have batch shapes that "
+                         "broadcast") from None
     g = geometry()
     phi4 = w[..., 0] + g.wrist_offset
     s5 = np.sin(w[..., 1])

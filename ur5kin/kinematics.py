@@ -37,7 +37,7 @@ def _check_tensor(q: Any) -> Any:
             f"q must have shape (..., 6) (joint angles in rad, joints 1-6); got shape "
             f"{tuple(q.shape)}"
         )
-    if not q.is_floating_point():
+    if not q.is_floating_point():  # complex tensors are not floating point: refused too
         raise ValueError(f"q must be a float32 or float64 tensor; got dtype {q.dtype}")
     import torch
 
@@ -88,7 +88,9 @@ def fk(q: Any) -> Any:
     Raises
     ------
     ValueError
-        When the last dimension is not 6 or an entry is NaN or infinite.
+        When the last dimension is not 6, an entry is NaN or infinite, or ``q`` is not real
+        (complex, strings): every public function of ur5kin refuses such input rather than
+        propagating NaN or dropping an imaginary part.
     """
     return _dispatch(q, closed_form.position, (3,), _single_position)
 

@@ -1,0 +1,369 @@
+"""The run folder: its format, its files, and the `Run` record analysis reads. Free of torch.
+
+A run folder holds
+
+- ``spec.json``: env id and arguments, the task specification, the agent configuration, the seed,
+  package versions, git revision and the command line (format `FORMAT`);
+- ``eval.csv``: one row per test session, columns `EVAL_COLUMNS`;
+- ``checkpoints/episode-NNNNNN.pt``: the last two checkpoints (networks, optimisers, normaliser,
+  random generator states, eval rows so far, and the configuration they were trained with);
+- ``buffer/episode-NNNNNN.npz``: the transitions each checkpoint interval added to the replay
+  buffer, so a checkpoint need not rewrite the whole buffer; chunks that the buffer has since
+  overwritten are deleted;
+- ``tb/``: TensorBoard logs, when tensorboard is installed.
+
+Every file is written to a temporary name (`TEMPORARY`) and moved into place with
+``os.replace``, so a run killed at any moment leaves each file either complete or as it was, plus
+perhaps a temporary file that the next start of the run deletes (:meth:`RunFolder.clean`). A
+checkpoint is written before the ``eval.csv`` that shows its rows, and ``eval.csv`` is rewritten
+from the checkpoint on resume, so no row is ever lost, repeated or skipped.
+
+Reading a folder (:func:`read_run`, :meth:`RunFolder.read_spec`, :meth:`RunFolder.read_eval`)
+imports neither torch nor Pinocchio; only checkpoints need torch, imported when one is read or
+written. Every file that cannot be read raises :class:`RunFolderError` naming it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "ddpg_her-run-1"
+"""``spec.json``'s ``format`` value written by this version."""
+
+RUN_FORMAT_PREFIX = "ddpg_her-run"
+"""``spec.json`` ``format`` values this module reads (``ddpg_her-run-*``)."""
+
+EVAL_COLUMNS = ("episode", "successes", "tests", "mean_return", "mean_final_distance_m",
+                "env_steps", "wall_s")
+"""Columns of eval.csv: training episodes so far, test episodes that reached the goal, test
+episodes, mean undiscounted return, mean final end-effector distance to the goal (m), training
+env steps so far (test steps not counted), wall-clock seconds of training so far (the only
+column that differs between two runs of one seed)."""
+
+TEMPORARY = re.compile(r"^\..+\.tmp\d+$")
+"""Names of the temporary files of :func:`atomic_write` (``.NAME.tmpPID``)."""
+
+SUBFOLDERS = ("checkpoints", "buffer")
+"""Subfolders of a run folder that hold files written by :func:`atomic_write`."""
+
+_CKPT = re.compile(r"episode-(\d{6,})\.pt$")
+_CHUNK = re.compile(r"episode-(\d{6,})\.npz$")
+
+
+class RunFolderError(ValueError):
+    """A run folder, or one of its files, that cannot be read or does not fit the request."""
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and of the packages a run depends on."""
+    from importlib import metadata
+
+    out = {"python": sys.version.split()[0]}
+    for name in ("torch", "numpy", "gymnasium", "pin", "ur5-reacher"):
+        with contextlib.suppress(metadata.PackageNotFoundError):
+            out[name] = metadata.version(name)
+    return out
+
+
+def git_revision() -> dict[str, Any]:
+    """The git revision of the source tree of this package, and whether it has edits."""
+    root = Path(__file__).resolve().parent.parent
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
+
+    try:
+        return {"revision": git("rev-parse", "HEAD"),
+                "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))}
+    except (OSError, subprocess.SubprocessError):
+        return {"revision": None, "dirty": None}
+
+
+class RunFolder:
+    """Reads and writes one agent's run folder (see the module docstring).
+
+    Every read raises :class:`RunFolderError` naming the file when it is missing, truncated or
+    not what this module wrote.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+
+    @property
+    def spec_path(self) -> Path:
+        return self.path / "spec.json"
+
+    def exists(self) -> bool:
+        """Whether the folder holds a run: a ``spec.json`` or a checkpoint."""
+        return self.spec_path.exists() or bool(self.checkpoints())
+
+    def clean(self) -> list[Path]:
+        """Delete the temporary files that interrupted writes left behind; returns their paths.
+
+        Only for the one process that writes the run (the trainer, at its start).
+        """
+        removed = []
+        for folder in (self.path, *(self.path / s for s in SUBFOLDERS)):
+            if not folder.is_dir():
+                continue
+            for p in folder.iterdir():
+                if TEMPORARY.match(p.name) and p.is_file():
+                    p.unlink(missing_ok=True)
+                    removed.append(p)
+        return removed
+
+    def read_spec(self) -> dict[str, Any]:
+        """``spec.json`` as a dict.
+
+        Raises
+        ------
+        RunFolderError
+            When the file is missing, is not JSON (e.g. truncated) or is not a JSON object.
+        """
+        path = self.spec_path
+        try:
+            spec = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise RunFolderError(f"{self.path} is not a run folder (no spec.json)") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise RunFolderError(f"{path} cannot be read as JSON ({err}); it may be truncated "
+                                 "by an interrupted copy") from err
+        if not isinstance(spec, dict):
+            raise RunFolderError(f"{path} holds a JSON {type(spec).__name__}, not a run "
+                                 "specification (a JSON object)")
+        return spec
+
+    def write_spec(self, spec: dict[str, Any]) -> None:
+        self.path.mkdir(parents=True, exist_ok=True)
+        atomic_write(self.spec_path, (json.dumps(spec, indent=2) + "\n").encode())
+
+    def write_eval(self, rows: Sequence[dict[str, Any]]) -> None:
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=EVAL_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        atomic_write(self.path / "eval.csv", buf.getvalue().encode())
+
+    def read_eval(self) -> list[dict[str, str]]:
+        """The rows of ``eval.csv`` (strings; [] when there is no ``eval.csv`` yet).
+
+        Raises
+        ------
+        RunFolderError
+            When its header is not `EVAL_COLUMNS` or a row has another number of cells.
+        """
+        path = self.path / "eval.csv"
+        if not path.exists():
+            return []
+        try:
+            with open(path, newline="") as f:
+                reader = csv.reader(f)
+                header = next(reader, None)
+                body = list(reader)
+        except (OSError, UnicodeDecodeError, csv.Error) as err:
+            raise RunFolderError(f"{path} cannot be read ({err})") from err
+        if header is None:
+            return []
+        if tuple(header) != EVAL_COLUMNS:
+            raise RunFolderError(f"{path} has columns {header}, expected {list(EVAL_COLUMNS)}")
+        for i, cells in enumerate(body, start=2):
+            if len(cells) != len(EVAL_COLUMNS):
+                raise RunFolderError(f"{path} line {i} has {len(cells)} cells, expected "
+                                     f"{len(EVAL_COLUMNS)}")
+        return [dict(zip(EVAL_COLUMNS, cells, strict=True)) for cells in body]
+
+    # --- checkpoints and buffer chunks ---------------------------------------------------------
+    def _listing(self, sub: str, pattern: re.Pattern) -> dict[int, Path]:
+        folder = self.path / sub
+        if not folder.is_dir():
+            return {}
+        found = {}
+        for p in folder.iterdir():
+            m = pattern.match(p.name)
+            if m:
+                found[int(m.group(1))] = p
+        return dict(sorted(found.items()))
+
+    def checkpoints(self) -> dict[int, Path]:
+        """{episode: path} of the checkpoints present, in episode order."""
+        return self._listing("checkpoints", _CKPT)
+
+    def save_checkpoint(self, episode: int, state: dict[str, Any], keep: int = 2) -> None:
+        import torch
+
+        folder = self.path / "checkpoints"
+        folder.mkdir(parents=True, exist_ok=True)
+        buf = io.BytesIO()
+        torch.save(state, buf)
+        atomic_write(folder / f"episode-{episode:06d}.pt", buf.getvalue())
+        for old in list(self.checkpoints())[:-keep]:
+            self.checkpoints()[old].unlink(missing_ok=True)
+
+    def load_checkpoint(self, episode: int) -> dict[str, Any]:
+        """The checkpoint of ``episode`` (tensors on the CPU).
+
+        Raises
+        ------
+        RunFolderError
+            When there is none at ``episode``, or its file is empty, truncated or not a
+            checkpoint; the message names the file.
+        """
+        import torch
+
+        ckpts = self.checkpoints()
+        if episode not in ckpts:
+            raise RunFolderError(f"no checkpoint at episode {episode} in {self.path}; have "
+                                 f"{list(ckpts)}")
+        path = ckpts[episode]
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as err:  # torch raises RuntimeError, EOFError, pickle errors, ...
+            raise RunFolderError(f"{path} cannot be read as a checkpoint ({type(err).__name__}: "
+                                 f"{err}); it may be truncated by an interrupted write or copy"
+                                 ) from err
+        if not isinstance(state, dict) or "agent" not in state:
+            raise RunFolderError(f"{path} is not a ddpg_her checkpoint (no 'agent' entry)")
+        return state
+
+    def save_chunk(self, episode: int, start: int, rows: np.ndarray) -> None:
+        folder = self.path / "buffer"
+        folder.mkdir(parents=True, exist_ok=True)
+        buf = io.BytesIO()
+        np.savez(buf, start=np.int64(start), rows=rows)
+        atomic_write(folder / f"episode-{episode:06d}.npz", buf.getvalue())
+
+    @staticmethod
+    def _read_chunk(path: Path) -> tuple[int, np.ndarray]:
+        try:
+            with np.load(path) as z:
+                return int(z["start"]), z["rows"]
+        except Exception as err:  # zipfile.BadZipFile, EOFError, KeyError, ValueError, ...
+            raise RunFolderError(f"{path} cannot be read as a buffer chunk ({type(err).__name__}"
+                                 f": {err}); it may be truncated by an interrupted write or "
+                                 "copy") from err
+
+    def chunks(self, upto: int) -> list[tuple[int, np.ndarray]]:
+        """(first transition number, rows) of the chunks saved up to episode ``upto``.
+
+        Raises
+        ------
+        RunFolderError
+            When a chunk cannot be read, naming its file.
+        """
+        return [self._read_chunk(p) for episode, p in self._listing("buffer", _CHUNK).items()
+                if episode <= upto]
+
+    def prune(self, upto: int, keep_from: int) -> None:
+        """Delete chunks saved after episode ``upto`` (an abandoned future after a resume), and
+        chunks whose transitions all come before number ``keep_from`` (overwritten)."""
+        for episode, p in self._listing("buffer", _CHUNK).items():
+            if episode > upto:
+                p.unlink(missing_ok=True)
+                continue
+            start, rows = self._read_chunk(p)
+            if start + len(rows) <= keep_from:
+                p.unlink(missing_ok=True)
+
+
+@dataclass(frozen=True)
+class Run:
+    """One finished or unfinished training run, as its ``spec.json`` and ``eval.csv`` say."""
+
+    path: Path
+    region: str
+    """Region as given to ``--region`` (a registered name or a spec string)."""
+    joints: int
+    seed: int
+    episodes_planned: int
+    """Training episodes the run was asked for."""
+    episode: np.ndarray
+    """(T,) int: training episodes at each evaluation."""
+    successes: np.ndarray
+    """(T,) int: test episodes that reached the goal."""
+    tests: np.ndarray
+    """(T,) int: test episodes per evaluation."""
+    final_distance_m: np.ndarray
+    """(T,) float, m: mean final end-effector distance to the goal."""
+    spec: dict[str, Any]
+
+    @property
+    def setting(self) -> tuple[str, int]:
+        return self.region, self.joints
+
+    @property
+    def finished(self) -> bool:
+        return len(self.episode) > 0 and int(self.episode[-1]) >= self.episodes_planned
+
+    @property
+    def success_rate(self) -> np.ndarray:
+        """(T,) float in [0, 1]: successes / tests."""
+        return self.successes / np.maximum(self.tests, 1)
+
+
+def is_run_spec(spec: dict[str, Any]) -> bool:
+    """Whether a ``spec.json``'s content claims to be a ddpg_her run (its ``format``)."""
+    return str(spec.get("format", "")).startswith(RUN_FORMAT_PREFIX)
+
+
+def read_run(path: str | os.PathLike) -> Run:
+    """Read the run in folder ``path`` (its ``spec.json`` and ``eval.csv``).
+
+    Raises
+    ------
+    RunFolderError
+        When ``spec.json`` is missing, unreadable or not a ddpg_her run specification, or
+        ``eval.csv`` is malformed; the message names the folder or file.
+    """
+    folder = RunFolder(path)
+    spec = folder.read_spec()
+    if not is_run_spec(spec):
+        raise RunFolderError(f"{folder.spec_path} is not a ddpg_her run (format "
+                             f"{spec.get('format')!r}, expected {RUN_FORMAT_PREFIX}-*)")
+    rows = folder.read_eval()
+    try:
+        kwargs = spec.get("env_kwargs", {})
+        region = kwargs.get("region", spec.get("task", {}).get("region"))
+        if isinstance(region, dict):
+            region = region.get("name", json.dumps(region, sort_keys=True))
+        joints = int(kwargs.get("n_joints", spec.get("task", {}).get("n_joints", 0)))
+        seed, planned = int(spec["seed"]), int(spec["agent"]["episodes"])
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise RunFolderError(f"{folder.spec_path} lacks a run's fields ({type(err).__name__}: "
+                             f"{err})") from err
+
+    def column(name: str, kind: type) -> np.ndarray:
+        try:
+            return np.array([kind(r[name]) for r in rows], dtype=kind)
+        except ValueError as err:
+            raise RunFolderError(f"{folder.path / 'eval.csv'} column {name!r}: {err}") from err
+
+    return Run(
+        path=folder.path, region=str(region), joints=joints, seed=seed, episodes_planned=planned,
+        episode=column("episode", int), successes=column("successes", int),
+        tests=column("tests", int), final_distance_m=column("mean_final_distance_m", float),
+        spec=spec,
+    )

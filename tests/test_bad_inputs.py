@@ -1,0 +1,137 @@
+"""Issue 16 on the envs, the reward and ur5kin: misuse and bad input get a clear error (never a
+silently wrong value), and ``info`` reports the arm's clearance above the plane."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+import envs
+import regions
+import ur5kin
+from envs import UR5ReachEnv
+
+TASK = {"region": "farbox", "n_joints": 3}
+
+
+# --- step before reset ------------------------------------------------------------------------
+def test_stepping_before_reset_is_an_error_not_a_reward_for_reaching_the_origin():
+    env = UR5ReachEnv(**TASK)  # no OrderEnforcing wrapper: the env itself must refuse
+    with pytest.raises(gymnasium.error.ResetNeeded, match="before reset"):
+        env.step(np.zeros(3))
+    env.reset(seed=0)
+    env.step(np.zeros(3))  # and after a reset it steps
+
+
+def test_stepping_a_vector_env_before_reset_is_an_error_for_every_copy_never_reset():
+    vec = envs.BatchedReach(2, **TASK)
+    with pytest.raises(gymnasium.error.ResetNeeded, match=r"copies \[0, 1\] of 2"):
+        vec.step(np.zeros((2, 3)))
+    vec.reset(seed=0, options={"reset_mask": np.array([True, False])})
+    with pytest.raises(gymnasium.error.ResetNeeded, match=r"copy \[1\] of 2"):
+        vec.step(np.zeros((2, 3)))
+    vec.reset(seed=0)
+    vec.step(np.zeros((2, 3)))
+
+
+# --- actions that are not numbers -------------------------------------------------------------
+@pytest.mark.parametrize("action", ["abc", None, [1j, 0, 0], {"a": 1}])
+def test_a_non_numeric_action_is_a_value_error_naming_it(action):
+    env = UR5ReachEnv(**TASK)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be 3 finite numbers.*got"):
+        env.step(action)
+    vec = envs.BatchedReach(2, **TASK)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match=r"actions must be a finite \(2, 3\) array"):
+        vec.step([action, action])
+
+
+# --- compute_reward / compute_success ---------------------------------------------------------
+def reward_env() -> UR5ReachEnv:
+    return UR5ReachEnv(**TASK)
+
+
+@pytest.mark.parametrize("achieved, desired, action, message", [
+    ([np.nan, 0, 0], np.zeros(3), np.zeros(3), r"achieved_goal must be finite.*achieved_goal\[0\]"),
+    (np.zeros(3), [0, np.inf, 0], np.zeros(3), r"desired_goal must be finite"),
+    (np.zeros(3), np.zeros(2), np.zeros(3), r"desired_goal must have shape \(\.\.\., 3\)"),
+    (np.zeros((4, 3)), np.zeros((5, 3)), np.zeros((4, 3)),
+     r"achieved_goal \(4, 3\) and desired_goal \(5, 3\) must have batch shapes that broadcast"),
+    (np.zeros((4, 3)), np.zeros((4, 3)), np.zeros((5, 3)),
+     r"info\['action'\] \(5, 3\) does not fit the goals' batch shape \(4,\)"),
+    (np.zeros(3), np.zeros(3), np.zeros(2), r"info\['action'\] must have shape \(\.\.\., 3\)"),
+    (np.zeros(3), np.zeros(3), [np.nan, 0, 0], r"info\['action'\] must be finite"),
+    (np.zeros(3) + 1j, np.zeros(3), np.zeros(3), r"achieved_goal must be real numbers"),
+    ("abc", np.zeros(3), np.zeros(3), r"achieved_goal must be real numbers"),
+])
+def test_compute_reward_refuses_bad_goals_and_actions(achieved, desired, action, message):
+    env = reward_env()
+    with pytest.raises(ValueError, match=message):
+        env.compute_reward(achieved, desired, {"action": action})
+    if "action" not in message:
+        with pytest.raises(ValueError, match=message):
+            env.compute_terminated(achieved, desired, {})
+
+
+def test_compute_reward_still_broadcasts_goals():
+    env = reward_env()
+    goals = np.random.default_rng(0).normal(size=(4, 3))
+    reward = env.compute_reward(goals, goals[0], {"action": np.zeros((4, 3))})
+    distance = np.linalg.norm(goals - goals[0], axis=-1)
+    np.testing.assert_allclose(reward, -distance + 100.0 * (distance <= 0.1))
+
+
+# --- ur5kin -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("function", [ur5kin.fk, ur5kin.fk_pose, ur5kin.jacobian])
+@pytest.mark.parametrize("q", [np.array([1 + 1j, 0, 0, 0, 0, 0]), np.zeros((2, 6)) + 0j,
+                               "abcdef"])
+def test_ur5kin_refuses_complex_and_non_numeric_angles(function, q):
+    with pytest.raises(ValueError, match=r"q must be (real|an array of real numbers) \(joint "
+                                         r"angles in rad\)"):
+        function(q)
+
+
+def test_ik_position_speaks_of_a_position_in_m_for_its_target():
+    with pytest.raises(ValueError, match=r"target must have shape \(\.\.\., 3\) \(tool0 "
+                                         r"positions x, y, z in m") as err:
+        ur5kin.ik_position([0.3, 0.2], [0.0, 0.0, 0.0])
+    assert "joint angles" not in str(err.value)
+    with pytest.raises(ValueError, match=r"wrist must have shape \(\.\.\., 3\) \(angles of "
+                                         r"joints 4-6 in rad\)"):
+        ur5kin.ik_position([0.3, 0.2, 0.4], [0.0, 0.0])
+    with pytest.raises(ValueError, match=r"target \(2, 3\) and wrist \(3, 3\) must have batch"):
+        ur5kin.ik_position(np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+# --- info["clearance"] ------------------------------------------------------------------------
+def lowest_link(q: np.ndarray, base_height: float) -> np.ndarray:
+    """The second path: link heights computed directly, minimum over the moving links."""
+    return regions.link_heights(q, base_height)[..., 1:].min(axis=-1)
+
+
+def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step():
+    env = UR5ReachEnv(**TASK)
+    rng = np.random.default_rng(1)
+    _, info = env.reset(seed=1)
+    base = env.task.base_height
+    assert info["clearance"] == pytest.approx(lowest_link(env.joint_angles, base), abs=1e-12)
+    seen = []
+    for _ in range(60):
+        _, _, terminated, truncated, info = env.step(rng.uniform(-np.pi, np.pi, 3))
+        expected = float(lowest_link(env.joint_angles, base))
+        assert info["clearance"] == pytest.approx(expected, abs=1e-12)
+        assert info["clearance"] >= -1e-9  # the plane holds
+        seen.append(info["clearance"])
+        if terminated or truncated:
+            env.reset()
+    assert np.ptp(seen) > 0.05  # the arm moved, the value followed
+
+    vec = envs.BatchedReach(3, **TASK)
+    vec.reset(seed=2)
+    for _ in range(20):
+        _, _, _, _, info = vec.step(rng.uniform(-np.pi, np.pi, (3, 3)))
+        q = vec._core.dynamics.q
+        np.testing.assert_allclose(info["clearance"], lowest_link(q, base), atol=1e-12)
+        assert info["_clearance"].all()
