@@ -1,7 +1,8 @@
 """Which goals is reaching worth it for? The optimality diagnostic of issue 13 (item 2).
 
     python -m analysis.optimality --regions unconstrained zheight closebox farbox --joints 3 \
-        --goals 500 --readings ours actor_penalty --out results/optimality
+        --goals 500 --readings ours actor_penalty --out DIR
+    python -m analysis.optimality --settings farbox:6 unconstrained:2 --grid 16 --out DIR
 
 For a task (region, joints, reward reading) and a discount gamma, draw goals with the env's own
 goal sampler and, per goal, roll out constant-command policies in the env's own dynamics for a
@@ -82,12 +83,15 @@ CHUNK = 2048
 CSV_COLUMNS = ("region", "joints", "reading", "goals", "gamma", "share_worth", "ci_low",
                "ci_high", "share_reachable", "share_worth_if_reachable", "mean_gap",
                "mean_best_reach_return", "mean_stay_return", "mean_zero_return",
-               "mean_branches", "seed", "seconds", "action_penalty_unit", "action_weight",
+               "mean_branches", "grid_per_joint", "share_worth_grid", "agreement_grid",
+               "seed", "seconds", "action_penalty_unit", "action_weight",
                "reward_type", "contact_model", "start_q")
 """Columns of the CSV: one row per region x joints x reading. Shares in [0, 1] with the
 :data:`CONFIDENCE` Wilson interval on ``share_worth``; returns are discounted returns (reward
 units); ``mean_gap`` is the mean over goals with both of (best reaching return - best
-non-reaching stay/zero return)."""
+non-reaching stay/zero return). The ``*_grid`` columns hold the :func:`brute_force` check (the
+share it finds worth reaching, and the share of goals on which both decisions agree), empty when
+it was not run."""
 
 
 # ---------------------------------------------------------------------- candidates
@@ -189,7 +193,8 @@ def rollout(task: Any, commands: np.ndarray, goals: np.ndarray | None = None
 
 
 def discounted_returns(task: Any, achieved: np.ndarray, goals: np.ndarray,
-                       actions: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+                       actions: np.ndarray, gamma: float
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Discounted return and success of episodes, with the env's reward and termination.
 
     Parameters
@@ -211,6 +216,8 @@ def discounted_returns(task: Any, achieved: np.ndarray, goals: np.ndarray,
         with ``terminate_on_success``) or T.
     reached : (...) bool
         Whether the episode had a success before it ended.
+    steps : (...) int
+        The episode's length ``end`` (steps, 1..T).
     """
     from envs.reward import goal_distance, reach_reward
 
@@ -223,7 +230,9 @@ def discounted_returns(task: Any, achieved: np.ndarray, goals: np.ndarray,
         ended_before = np.cumsum(success, axis=-1) - success > 0
         reward = np.where(ended_before, 0.0, reward)
     returns = reward @ gamma ** np.arange(T)
-    return returns, success.any(axis=-1)
+    reached = success.any(axis=-1)
+    steps = np.where(reached & task.terminate_on_success, np.argmax(success, axis=-1) + 1, T)
+    return returns, reached, steps
 
 
 # ---------------------------------------------------------------------- the study
@@ -343,6 +352,8 @@ class OptimalityResult:
     branch_returns : (N, K) float
         Discounted return of each IK branch (NaN where the goal has fewer branches).
     branch_reached : (N, K) bool
+    branch_steps : (N, K) int
+        Episode length (steps) of each branch: its first success, or T; 0 where no branch.
     stay_return, zero_return : (N,) float
         Discounted returns of commanding the start pose and the zero pose.
     stay_reached, zero_reached : (N,) bool
@@ -354,6 +365,7 @@ class OptimalityResult:
     goals: np.ndarray
     branch_returns: np.ndarray
     branch_reached: np.ndarray
+    branch_steps: np.ndarray
     stay_return: np.ndarray
     zero_return: np.ndarray
     stay_reached: np.ndarray
@@ -459,7 +471,7 @@ def evaluate(simulation: Simulation, task: Any | None = None,
     sim = simulation
     N, K = sim.branches.shape[:2]
     goal_of = np.broadcast_to(sim.goals[:, None, :], (N, K, 3))
-    br, breach = discounted_returns(task, sim.branch_achieved, goal_of, sim.branch_actions,
+    br, breach, bsteps = discounted_returns(task, sim.branch_achieved, goal_of, sim.branch_actions,
                                     float(gamma))
     have = ~np.isnan(sim.branches[..., 0])
     br = np.where(have, br, np.nan)
@@ -467,9 +479,10 @@ def evaluate(simulation: Simulation, task: Any | None = None,
     hold_goal = np.broadcast_to(sim.goals[:, None, :], (N, 2, 3))
     hold_ach = np.broadcast_to(sim.hold_achieved[None], (N, *sim.hold_achieved.shape))
     hold_act = np.broadcast_to(sim.hold_commands[None], (N, *sim.hold_commands.shape))
-    hr, hreach = discounted_returns(task, hold_ach, hold_goal, hold_act, float(gamma))
-    return OptimalityResult(task, float(gamma), sim.seed, sim.goals, br, breach, hr[:, 0],
-                            hr[:, 1], hreach[:, 0], hreach[:, 1], sim.seconds)
+    hr, hreach, _ = discounted_returns(task, hold_ach, hold_goal, hold_act, float(gamma))
+    return OptimalityResult(task, float(gamma), sim.seed, sim.goals, br, breach,
+                            np.where(have, bsteps, 0), hr[:, 0], hr[:, 1], hreach[:, 0],
+                            hreach[:, 1], sim.seconds)
 
 
 def worth_reaching(task: Any, goals: int = 500, gamma: float = DEFAULT_GAMMA,
@@ -496,6 +509,84 @@ def worth_reaching(task: Any, goals: int = 500, gamma: float = DEFAULT_GAMMA,
     return evaluate(simulate(task, goals, seed), task, gamma)
 
 
+BRUTE_MAX_COMMANDS = 20_000
+"""Most grid commands :func:`brute_force` rolls out (``per_joint ** n``)."""
+
+
+@dataclass(frozen=True, eq=False)
+class BruteForce:
+    """The diagnostic's decision against every constant command of a joint-space grid.
+
+    Attributes
+    ----------
+    commands : (M, n) float, rad
+        The grid: ``per_joint`` angles in [-pi, pi] per controlled joint.
+    best_reach_return : (N,) float
+        Best return among the grid commands and the diagnostic's candidates that reach the goal
+        (-inf if none does).
+    best_hold_return : (N,) float
+        Best return among the grid commands, stay and zero that do not reach it.
+    worth : (N,) bool
+        ``best_reach_return > best_hold_return``: the best constant command of all reaches.
+    """
+
+    commands: np.ndarray
+    best_reach_return: np.ndarray
+    best_hold_return: np.ndarray
+    worth: np.ndarray
+
+
+def _motion_key(task: Any) -> Any:
+    """``task`` with every field that cannot change a constant command's motion at defaults
+    (the reward fields and the region; the start pose stays)."""
+    return _dynamics_key(task).replace(region="unconstrained", start_q=task.start_q)
+
+
+@functools.lru_cache(maxsize=4)
+def _grid_rollout(task: Any, per_joint: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid of :func:`brute_force` and its rollout (cached: readings and regions share it)."""
+    n = task.n_joints
+    axis = np.linspace(-np.pi, np.pi, per_joint)
+    commands = np.stack(np.meshgrid(*[axis] * n, indexing="ij"), axis=-1).reshape(-1, n)
+    return (commands, *rollout(task, commands))
+
+
+def brute_force(simulation: Simulation, task: Any | None = None,
+                gamma: float = DEFAULT_GAMMA, per_joint: int = 16) -> BruteForce:
+    """Check the diagnostic against a brute-force search over constant commands.
+
+    Every command of a ``per_joint ** n`` grid over [-pi, pi]^n is rolled out once (the motion
+    does not depend on the goal) and scored against every goal of ``simulation``; with the
+    diagnostic's own candidates added, the best reaching and the best non-reaching constant
+    command of each goal decide. The grid's non-reaching commands include poses that hover near
+    the goal more cheaply than stay or zero, so this decision is the stricter one.
+
+    Raises
+    ------
+    ValueError
+        When the grid would exceed :data:`BRUTE_MAX_COMMANDS` commands.
+    """
+    task = simulation.task if task is None else task
+    result = evaluate(simulation, task, gamma)
+    n = task.n_joints
+    if not isinstance(per_joint, int | np.integer) or per_joint < 2 \
+            or per_joint ** n > BRUTE_MAX_COMMANDS:
+        raise ValueError(f"per_joint must be an integer >= 2 with per_joint ** n_joints <= "
+                         f"{BRUTE_MAX_COMMANDS}; got per_joint={per_joint!r}, n_joints={n}")
+    commands, achieved, actions = _grid_rollout(_motion_key(task), int(per_joint))
+    N = len(simulation.goals)
+    reach_best, hold_best = result.best_reach_return.copy(), result.best_hold_return.copy()
+    for i in range(N):
+        ret, reached, _ = discounted_returns(task, achieved, simulation.goals[i], actions,
+                                             float(gamma))
+        if reached.any():
+            reach_best[i] = max(reach_best[i], ret[reached].max())
+        if (~reached).any():
+            hold_best[i] = max(hold_best[i], ret[~reached].max())
+    worth = np.isfinite(reach_best) & (reach_best > hold_best)
+    return BruteForce(commands, reach_best, hold_best, worth)
+
+
 # ---------------------------------------------------------------------- readings, CLI
 def reading_fields(name: str) -> dict[str, Any]:
     """The TaskSpec fields of a named reading; ``ValueError`` for an unknown name."""
@@ -512,13 +603,16 @@ def missing_fields(fields: Mapping[str, Any]) -> list[str]:
     return sorted(set(fields) - known)
 
 
-def study(regions: Sequence[str], joints: Sequence[int], readings: Sequence[str],
+def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
           overrides: Mapping[str, Any], goals: int, gamma: float, seed: int,
-          progress: bool = True) -> tuple[list[dict[str, Any]], list[str]]:
-    """Rows (:data:`CSV_COLUMNS`) for every region x joints x reading, and skipped readings.
+          grid: int = 0, progress: bool = True) -> tuple[list[dict[str, Any]], list[str]]:
+    """Rows (:data:`CSV_COLUMNS`) for every (region, joints) setting x reading, and the
+    readings skipped.
 
     Readings whose fields TaskSpec lacks are skipped (named in the second list). Settings that
-    share their dynamics share one :class:`Simulation`.
+    share their dynamics share one :class:`Simulation`. ``grid`` > 0 adds the
+    :func:`brute_force` check with that many angles per joint, where the grid has at most
+    :data:`BRUTE_MAX_COMMANDS` commands.
     """
     from tqdm import tqdm
 
@@ -533,17 +627,27 @@ def study(regions: Sequence[str], joints: Sequence[int], readings: Sequence[str]
         else:
             usable.append(name)
     rows = []
-    settings = [(r, j, name) for r in regions for j in joints for name in usable]
+    units = [(r, j, name) for r, j in settings for name in usable]
     cache: dict[Any, Simulation] = {}
-    with tqdm(total=len(settings), desc="optimality", unit="setting", file=sys.stderr,
+    with tqdm(total=len(units), desc="optimality", unit="setting", file=sys.stderr,
               disable=not progress) as bar:
-        for region, n, name in settings:
+        for region, n, name in units:
             task = TaskSpec(region=region, n_joints=n, **{**overrides, **reading_fields(name)})
             key = _dynamics_key(task)
             if key not in cache:
                 bar.set_postfix_str(f"{region} j{n} {name}: rollouts")
+                cache.clear()  # one simulation at a time: each holds (N, K, T, 3) paths
                 cache[key] = simulate(task, goals, seed)
-            rows.append(evaluate(cache[key], task, gamma).row(name))
+            result = evaluate(cache[key], task, gamma)
+            row = result.row(name)
+            row.update(grid_per_joint="", share_worth_grid="", agreement_grid="")
+            if grid and grid ** n <= BRUTE_MAX_COMMANDS:
+                bar.set_postfix_str(f"{region} j{n} {name}: grid")
+                check = brute_force(cache[key], task, gamma, grid)
+                row.update(grid_per_joint=grid,
+                           share_worth_grid=round(float(check.worth.mean()), 4),
+                           agreement_grid=round(float((check.worth == result.worth).mean()), 4))
+            rows.append(row)
             bar.update(1)
     return rows, skipped
 
@@ -600,6 +704,12 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
                     fmt="none", ecolor="k", lw=0.8, capsize=2)
         ax.scatter(pos, 100 * reach, marker="_", s=120, color="k", zorder=3,
                    label="reachable by a constant command" if k == 0 else None)
+        grid = np.array([float(by_setting[s]["share_worth_grid"])
+                         if s in by_setting and by_setting[s].get("share_worth_grid") not in
+                         ("", None) else np.nan for s in settings])
+        if np.isfinite(grid).any():
+            ax.scatter(pos, 100 * grid, marker="x", s=25, color="0.3", zorder=3,
+                       label="grid of constant commands (check)" if k == 0 else None)
     ax.set_xticks(x, [f"{r}\n{j} joints" for r, j in settings], fontsize=8)
     ax.set_ylim(0, 100)
     ax.set_ylabel("goals (%)")
@@ -653,6 +763,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="goal regions (names or region strings as TaskSpec.region takes)")
     parser.add_argument("--joints", nargs="+", type=int, default=[3],
                         help="controlled joint counts n (2-6), each crossed with every region")
+    parser.add_argument("--settings", nargs="+", default=None, metavar="REGION:N",
+                        help="explicit (region, joints) settings, e.g. farbox:6 "
+                             "unconstrained:2; replaces the --regions x --joints product")
     parser.add_argument("--readings", nargs="+", default=["ours", "actor_penalty"],
                         choices=list(READINGS),
                         help="named readings (TaskSpec fields over the defaults): "
@@ -670,15 +783,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0,
                         help="goal i of a setting is the env's goal after reset(seed=SEED+i) "
                              "(integer >= 0)")
+    parser.add_argument("--grid", type=int, default=0, metavar="PER_JOINT",
+                        help="also check each setting against a brute-force search over a grid "
+                             "of PER_JOINT constant angles in [-pi, pi] rad per controlled joint "
+                             f"(0: off; skipped where PER_JOINT^n > {BRUTE_MAX_COMMANDS}); "
+                             "16 costs about 2 minutes per 3-joint setting here")
     parser.add_argument("--out", type=Path, default=Path("optimality"),
                         help="output folder for optimality.csv and optimality.png")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if args.seed < 0:
         parser.error(f"--seed must be >= 0; got {args.seed}")
+    if args.grid != 0 and args.grid < 2:
+        parser.error(f"--grid must be 0 (off) or >= 2 angles per joint; got {args.grid}")
+    if args.settings is None:
+        settings = [(r, n) for r in args.regions for n in args.joints]
+    else:
+        settings = []
+        for text in args.settings:
+            region, sep, n = text.rpartition(":")
+            if not sep or not n.isdigit():
+                parser.error(f"--settings takes REGION:N (N the joint count 2-6); got {text!r}")
+            settings.append((region, int(n)))
     try:
-        rows, skipped = study(args.regions, args.joints, args.readings, dict(args.task),
-                              args.goals, args.gamma, args.seed, progress=not args.no_progress)
+        rows, skipped = study(settings, args.readings, dict(args.task),
+                              args.goals, args.gamma, args.seed, grid=args.grid,
+                              progress=not args.no_progress)
     except ValueError as err:
         parser.error(str(err))
     for line in skipped:
@@ -689,11 +819,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_csv(rows, args.out / "optimality.csv")
     plot(rows, out=args.out / "optimality.png")
     print(f"{'region':<14}{'n':>2} {'reading':<14}{'worth %':>8} {'95 % CI':>13} "
-          f"{'reachable %':>12} {'mean gap':>9}")
+          f"{'reachable %':>12} {'mean gap':>9} {'grid worth %':>13}")
     for r in rows:
         print(f"{r['region']:<14}{r['joints']:>2} {r['reading']:<14}"
               f"{100 * r['share_worth']:>8.1f} {100 * r['ci_low']:>6.1f}-{100 * r['ci_high']:<6.1f}"
-              f"{100 * r['share_reachable']:>12.1f} {r['mean_gap']:>9.1f}")
+              f"{100 * r['share_reachable']:>12.1f} {r['mean_gap']:>9.1f} "
+              + (f"{100 * r['share_worth_grid']:>13.1f}" if r["share_worth_grid"] != ""
+                 else f"{'-':>13}"))
     print("constant commands bound a learner's return from below on both sides: the shares "
           "compare settings; they are not what a learner achieves")
     print(f"wrote {args.out / 'optimality.csv'} and {args.out / 'optimality.png'}")
