@@ -118,8 +118,9 @@ def ik_branches(task: Any, goals: np.ndarray, q_sampled: np.ndarray) -> np.ndarr
         Distinct configurations of joints 1..n that put tool0 at the goal with joints n+1..6 at
         the start angles; rows past a goal's branch count hold NaN. Sources: the sampled
         configuration; :func:`ur5kin.ik_position` with joints 4-6 at the start (up to 2 pans x 2
-        elbows; for n = 2 only those whose elbow equals the start's); for n = 6 also every
-        :func:`ur5kin.ik` solution of the sampled tool pose (up to 8).
+        elbows; for n = 2 only those whose elbow equals the start's) and, for n >= 4, at the
+        sampled configuration's angles; for n = 6 also every :func:`ur5kin.ik` solution of the
+        sampled tool pose (up to 8).
     """
     import ur5kin
 
@@ -130,10 +131,13 @@ def ik_branches(task: Any, goals: np.ndarray, q_sampled: np.ndarray) -> np.ndarr
                          f"{goals.shape} and {q_sampled.shape}")
     n, start = task.n_joints, np.asarray(task.start_q)
     base = goals - np.array([0.0, 0.0, task.base_height])
-    pos_q, pos_ok = ur5kin.ik_position(base, np.broadcast_to(start[3:], (len(goals), 3)))
+    # joints 4-6 at the start's angles; for n >= 4 also at the sampled configuration's
+    wrists = [np.broadcast_to(start[3:], (len(goals), 3))] + ([q_sampled[:, 3:]] if n > 3 else [])
+    position_ik = [ur5kin.ik_position(base, w) for w in wrists]
     rows: list[list[np.ndarray]] = []
     for i in range(len(goals)):
-        found = [q_sampled[i]] + [pos_q[i, k] for k in np.flatnonzero(pos_ok[i])]
+        found = [q_sampled[i]] + [pos_q[i, k] for pos_q, pos_ok in position_ik
+                                  for k in np.flatnonzero(pos_ok[i])]
         if n == 6:
             found += list(ur5kin.ik(ur5kin.fk_pose(q_sampled[i])))
         unique: list[np.ndarray] = []
