@@ -123,6 +123,9 @@ def test_without_action_penalty_a_quick_reach_is_always_worth_it(zheight: opt.Si
         quick = steps <= k_max
         assert quick.sum() >= GOALS // 2
         assert result.worth[quick].all()
+        floor = bound[np.minimum(steps, task.max_episode_steps).astype(int) - 1]
+        assert np.all(result.best_reach_return[quick] >= floor[quick])
+        assert np.all(result.best_hold_return < 0.0)
 
 
 def test_a_huge_action_weight_makes_holding_win(zheight: opt.Simulation) -> None:
@@ -168,6 +171,8 @@ def test_brute_force_search_bounds_and_mostly_agrees(planar: opt.Simulation) -> 
     assert check.commands.shape == (81, 2)
     assert np.all(check.best_reach_return >= result.best_reach_return)
     assert np.all(check.best_hold_return >= result.best_hold_return)
+    # some grid command holds off the goal more cheaply than stay or zero: the grid was scored
+    assert np.any(check.best_hold_return > result.best_hold_return)
     assert np.mean(check.worth == result.worth) >= 0.75
 
 
