@@ -715,15 +715,72 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
             ax.scatter(pos, 100 * grid, marker="x", s=25, color="0.3", zorder=3,
                        label="grid of constant commands (check)" if k == 0 else None)
     ax.set_xticks(x, [f"{r}\n{j} joints" for r, j in settings], fontsize=8)
-    ax.set_ylim(0, 100)
+    ax.set_ylim(0, 105)
     ax.set_ylabel("goals (%)")
     ax.set_title("Goals worth reaching under a constant command (95 % Wilson CI)", fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
         ax.figure.savefig(out, dpi=120, bbox_inches="tight")
         plt.close(ax.figure)
     return ax
+
+
+def _run_label(run: Any) -> str:
+    """``region jN`` plus the run's reward reading where it is not the default one."""
+    task = run.spec.get("task", {})
+    extra = []
+    if task.get("action_penalty_unit", "command") != "command":
+        extra.append(f"penalty {task['action_penalty_unit']}")
+    if float(task.get("action_weight", 1.0)) != 1.0:
+        extra.append(f"w={float(task['action_weight']):g}")
+    if task.get("contact_model", "stop") != "stop":
+        extra.append(str(task["contact_model"]))
+    return f"{run.region} j{run.joints}" + (f" ({', '.join(extra)})" if extra else "")
+
+
+def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
+                       out: Path) -> None:
+    """Learning curves of the runs below ``roots`` (left) beside the shares (right).
+
+    Every run folder (``spec.json`` + ``eval.csv``, :mod:`analysis.runs`) of a setting in
+    ``rows`` is drawn: the mean over its seeds of the test successes per 100 goals, one line per
+    (setting, reading of the run), coloured by setting as the bars' x labels order them.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from analysis.runs import aligned_successes, find_runs
+
+    settings = list(dict.fromkeys((r["region"], int(r["joints"])) for r in rows))
+    groups: dict[str, list[Any]] = {}
+    for run in find_runs(roots):
+        if run.setting in settings and len(run.episode):
+            # one line per experiment: seeds of one folder share their evaluation episodes
+            groups.setdefault(f"{_run_label(run)} [{run.path.parent.name}]", []).append(run)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(13.0, 4.2),
+                                      gridspec_kw={"width_ratios": [1.0, 1.2]})
+    for label, runs in sorted(groups.items()):
+        episode, percent = aligned_successes(runs)
+        color = f"C{settings.index(runs[0].setting) % 10}"
+        style = "-" if "(" not in label.split("[")[0] else "--"
+        left.plot(episode, percent.mean(axis=0), style, color=color, lw=1.4,
+                  label=f"{label}, {len(runs)} seeds")
+    left.set_xlabel("training episodes")
+    left.set_ylabel("test successes per 100 goals (mean over seeds)")
+    left.set_ylim(0, 100)
+    left.set_title("Learning curves (committed runs)", fontsize=9)
+    if groups:
+        left.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
+    plot(rows, ax=right)
+    for k, tick in enumerate(right.get_xticklabels()):
+        tick.set_color(f"C{k % 10}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120, bbox_inches="tight")
+    plt.close(fig)
 
 
 def _task_option(text: str) -> tuple[str, Any]:
@@ -794,12 +851,29 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "16 costs about 2 minutes per 3-joint setting here")
     parser.add_argument("--out", type=Path, default=Path("optimality"),
                         help="output folder for optimality.csv and optimality.png")
+    parser.add_argument("--curves", nargs="+", type=Path, default=None, metavar="RUNS_ROOT",
+                        help="also draw DIR/optimality_curves.png: the learning curves of the "
+                             "run folders below these roots beside the shares")
+    parser.add_argument("--from-csv", nargs="+", type=Path, default=None, metavar="CSV",
+                        help="compute nothing: join these optimality.csv files (e.g. of runs "
+                             "made in parallel) into DIR and draw the figures from them")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if args.seed < 0:
         parser.error(f"--seed must be >= 0; got {args.seed}")
     if args.grid != 0 and args.grid < 2:
         parser.error(f"--grid must be 0 (off) or >= 2 angles per joint; got {args.grid}")
+    if args.from_csv:
+        rows = []
+        for path in args.from_csv:
+            with open(path, newline="") as f:
+                rows += list(csv.DictReader(f))
+        write_csv(rows, args.out / "optimality.csv")
+        plot(rows, out=args.out / "optimality.png")
+        if args.curves:
+            plot_beside_curves(rows, args.curves, args.out / "optimality_curves.png")
+        print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
+        return 0
     if args.settings is None:
         settings = [(r, n) for r in args.regions for n in args.joints]
     else:
@@ -822,6 +896,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     write_csv(rows, args.out / "optimality.csv")
     plot(rows, out=args.out / "optimality.png")
+    if args.curves:
+        plot_beside_curves(rows, args.curves, args.out / "optimality_curves.png")
     print(f"{'region':<14}{'n':>2} {'reading':<14}{'worth %':>8} {'95 % CI':>13} "
           f"{'reachable %':>12} {'mean gap':>9} {'grid worth %':>13}")
     for r in rows:
