@@ -46,7 +46,7 @@ def test_ik_branches_put_tool0_at_the_goal(region: str, n: int) -> None:
     assert have[:, 0].all()
     full = np.broadcast_to(np.asarray(task.start_q), (*branches.shape[:2], 6)).copy()
     full[..., :n] = branches
-    tool = ur5kin.fk(np.nan_to_num(full)) + [0.0, 0.0, task.base_height]  # world frame
+    tool = ur5kin.fk(np.nan_to_num(full)) + np.array([0.0, 0.0, task.base_height])  # world
     np.testing.assert_allclose(tool[have], np.broadcast_to(goals[:, None], tool.shape)[have],
                                atol=1e-8)
     assert np.all(np.abs(branches[have]) <= np.pi)  # wrapped into the action range
@@ -90,8 +90,9 @@ def test_returns_match_a_plain_env_loop(zheight: opt.Simulation, unit: str) -> N
     n = task.n_joints
     checked_reach = checked_miss = 0
     for i in range(4):
-        cases = [(zheight.branches[i, k], result.branch_returns[i, k], result.branch_reached[i, k])
-                 for k in range(zheight.branches.shape[1]) if not np.isnan(zheight.branches[i, k, 0])]
+        cases = [(zheight.branches[i, k], result.branch_returns[i, k],
+                  result.branch_reached[i, k]) for k in range(zheight.branches.shape[1])
+                 if not np.isnan(zheight.branches[i, k, 0])]
         cases += [(np.asarray(task.start_q[:n]), result.stay_return[i], result.stay_reached[i]),
                   (np.zeros(n), result.zero_return[i], result.zero_reached[i])]
         for command, expected, reached in cases[:3] + cases[-2:]:
