@@ -330,14 +330,14 @@ class PlaneContact:
         model, data, hulls, columns = self.model, self.data, self.hulls, self._columns
         k_s, c_s, mu, dot = self.stiffness, self.damping, self.friction, np.dot
         pin.forwardKinematics(model, data, q)
+        placements = data.oMi
         out.fill(0.0)
         active = jacobians = False
         for k in links:
-            placement = data.oMi[k]
-            rotation = placement.rotation
-            heights = dot(rotation[2], columns[k - 1])
+            pose = placements[k].homogeneous  # (4, 4), link frame -> base_link
+            heights = dot(pose[2, :3], columns[k - 1])
             i = heights.argmin()
-            depth = self.level - heights[i] - placement.translation[2]
+            depth = self.level - heights[i] - pose[2, 3]
             if depth <= 0.0:
                 continue
             if not jacobians:
@@ -345,7 +345,7 @@ class PlaneContact:
                 jacobians = True
             J6 = pin.getJointJacobian(model, data, k, pin.LOCAL_WORLD_ALIGNED)
             # the point's velocity v + omega x lever, lever from the link's origin (world axes)
-            J = J6[:3] - pin.skew(rotation @ hulls[k - 1][i]) @ J6[3:]
+            J = J6[:3] - pin.skew(dot(pose[:3, :3], hulls[k - 1][i])) @ J6[3:]
             ux, uy, uz = (J @ w).tolist()
             normal = k_s * depth - c_s * uz
             if normal <= 0.0:
