@@ -303,3 +303,12 @@ def test_the_stop_model_ignores_the_compliant_fields():
 def test_bad_contact_fields_are_refused(field, value):
     with pytest.raises(ValueError, match=field):
         TaskSpec(**{field: value})
+
+
+@pytest.mark.parametrize("n_joints", [3, 6])
+def test_velocities_stay_within_the_urdf_limits_in_contact(n_joints):
+    task = TaskSpec(region="zheight", n_joints=n_joints, **COMPLIANT)
+    commands = np.random.default_rng(9).uniform(-np.pi, np.pi, (150, 4, n_joints))
+    log = run(ArmDynamics(task, 4), commands)
+    assert log["contact"].mean() > 0.1
+    assert np.all(np.abs(log["v"]) <= ur5kin.velocity_limits())
