@@ -26,7 +26,6 @@ from dataclasses import asdict, dataclass, fields
 import gymnasium
 import numpy as np
 
-import envs
 import regions
 from envs.core import task_sampler
 from envs.dynamics import ArmDynamics

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from test_env_dynamics import brute_force_heights
 
 import regions
 import ur5kin
@@ -21,7 +22,6 @@ from envs.dynamics import (
     link_hulls,
 )
 from envs.spec import TaskSpec
-from test_env_dynamics import brute_force_heights
 from ur5kin.closed_form import JOINT_AXES
 
 COMPLIANT = {"contact_model": "compliant"}
@@ -244,7 +244,7 @@ def tool_track(contact_model: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
 
 def test_the_compliant_arm_slides_along_the_plane_where_the_stop_sticks():
     tool, log = tool_track("compliant")
-    stuck, stuck_log = tool_track("stop")
+    _, stuck_log = tool_track("stop")
     assert log["contact"].sum() > 10 and stuck_log["contact"].sum() > 10
     assert log["q"][-1, 0, 0] > 1.45  # rad: it got to the commanded pan angle ...
     assert stuck_log["q"][-1, 0, 0] < 0.5  # ... which the stop model is far from
