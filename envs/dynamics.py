@@ -281,7 +281,7 @@ class PlaneContact:
         self.model, self.data = model, model.createData()
         self.hulls = link_hulls()
         self._columns = [np.ascontiguousarray(hull.T) for hull in self.hulls]  # (3, n_k)
-        self._force = np.zeros(3)
+        self._wrench = np.zeros(6)
         self._free = pin.Model(model)  # no gravity: its ABA at rest is M(q)^-1 tau
         self._free.gravity = pin.Motion.Zero()
         self._free_data = self._free.createData()
@@ -329,6 +329,7 @@ class PlaneContact:
         """
         model, data, hulls, columns = self.model, self.data, self.hulls, self._columns
         k_s, c_s, mu, dot = self.stiffness, self.damping, self.friction, np.dot
+        wrench = self._wrench
         pin.forwardKinematics(model, data, q)
         placements = data.oMi
         out.fill(0.0)
@@ -343,19 +344,22 @@ class PlaneContact:
             if not jacobians:
                 pin.computeJointJacobians(model, data, q)
                 jacobians = True
+            # the link's twist (v, omega) at its origin and the lever to the point, world axes
             J6 = pin.getJointJacobian(model, data, k, pin.LOCAL_WORLD_ALIGNED)
-            # the point's velocity v + omega x lever, lever from the link's origin (world axes)
-            J = J6[:3] - pin.skew(dot(pose[:3, :3], hulls[k - 1][i])) @ J6[3:]
-            ux, uy, uz = (J @ w).tolist()
+            vx, vy, vz, ox, oy, oz = dot(J6, w).tolist()
+            lx, ly, lz = dot(pose[:3, :3], hulls[k - 1][i]).tolist()
+            ux, uy, uz = vx + oy * lz - oz * ly, vy + oz * lx - ox * lz, vz + ox * ly - oy * lx
             normal = k_s * depth - c_s * uz
             if normal <= 0.0:
                 continue
             speed = math.hypot(ux, uy)
             drag = min(mu * normal, c_s * speed)
             scale = drag / speed if speed > 0.0 else 0.0
-            force = self._force
-            force[0], force[1], force[2] = -scale * ux, -scale * uy, normal
-            out += force @ J
+            fx, fy = -scale * ux, -scale * uy
+            # tau = J6^T (f, lever x f): the force as a wrench at the link's origin
+            wrench[:] = (fx, fy, normal, ly * normal - lz * fy, lz * fx - lx * normal,
+                         lx * fy - ly * fx)
+            out += dot(wrench, J6)
             active = True
         return active
 
