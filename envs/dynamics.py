@@ -46,8 +46,17 @@ elastic part is minus the gradient of the potential ``sum_k k d_k(q)^2 / 2`` (``
 continuous in q, the deepest vertex may change), so it stores and returns energy; the damping
 and the friction only dissipate. The friction is Coulomb's, regularised: below its bound it is
 a viscous drag of slope c (a point under a tangential load F creeps at F / c m/s instead of
-sticking), which keeps it stable under the explicit integrator. ``tau_c`` is added to the
-motors' clipped torque before ABA and is not clipped (it is the ground's reaction). Stability:
+sticking), which keeps it stable under the explicit integrator. ``tau_c`` is the ground's
+reaction, not bound by the motors' effort or velocity limits; a substep in contact is::
+
+    v'    = clip(v + h ABA(q, v, tau),  -v_max, v_max) + h M(q)^-1 tau_c     # tau: the motors'
+    v'    = v' / max(1, max_i |v'_i| / v_max_i)                               # the governor
+    q'    = q + h v'
+
+The URDF velocity limits are the motors'; clipping the ground's reaction joint by joint lets a
+joint held at its limit drive a link 10 cm and more through the plane, so the reaction is added
+after the clip, and the governor scales the whole velocity back into the limits: that keeps its
+direction (a point leaving the plane still leaves it) and only removes kinetic energy. Stability:
 one contact on an effective mass m is the loop of :func:`pd_stability_violations` with
 ``a = k h^2 / m`` and ``b = c h / m``; :func:`contact_stability_violations` checks it at the
 smallest effective mass a touching point has (:data:`CONTACT_MIN_EFFECTIVE_MASS`).
@@ -57,8 +66,7 @@ the last substep within that depth, velocities zero); ``depth_stop`` reports it,
 ``contact`` reports any step in which a contact force acted (or that stop).
 
 The clearance check (and, in the compliant model, the contact force) is skipped when it provably
-cannot fail: the lowest point of link k moves
-by at most ``sum_i R[i, k] |dq_i|`` between two configurations (:func:`height_lipschitz`; joint
+cannot fail: the lowest point of link k moves by at most ``sum_i R[i, k] |dq_i|`` between two configurations (:func:`height_lipschitz`; joint
 1's axis is vertical, so it never changes a height), so a copy whose known clearance exceeds a
 step's worth of that bound is clear without looking. The skip changes the cost, never the
 answer (tested against the exact check on every step).
