@@ -66,9 +66,10 @@ the last substep within that depth, velocities zero); ``depth_stop`` reports it,
 ``contact`` reports any step in which a contact force acted (or that stop).
 
 The clearance check (and, in the compliant model, the contact force) is skipped when it provably
-cannot fail: the lowest point of link k moves by at most ``sum_i R[i, k] |dq_i|`` between two configurations (:func:`height_lipschitz`; joint
-1's axis is vertical, so it never changes a height), so a copy whose known clearance exceeds a
-step's worth of that bound is clear without looking. The skip changes the cost, never the
+cannot fail: the lowest point of link k moves by at most ``sum_i R[i, k] |dq_i|`` between two
+configurations (:func:`height_lipschitz`; joint 1's axis is vertical, so it never changes a
+height), so a copy whose known clearance exceeds a step's worth of that bound is clear without
+looking. The skip changes the cost, never the
 answer (tested against the exact check on every step).
 
 Time-scaled units: the integrator state is ``(q, w)`` with ``w = h v`` (rad per substep) and
