@@ -184,15 +184,15 @@ class TaskSpec:
     (about 170 N) presses it 0.9 mm into the plane, a stalled 150 N m joint pushing through a
     0.4 m lever (375 N) 1.9 mm; a near-rigid table, as Gazebo's is. Stable under the 1 kHz
     semi-implicit Euler: ``k h^2 / m = 0.08`` at the smallest effective mass that can touch
-    (2.5 kg, a wrist link's point, sampled over the joint space), far below the limit 4 (see
+    (2.4 kg, a wrist link's point, sampled over the joint space), far below the limit 4 (see
     :func:`envs.dynamics.contact_stability_violations`)."""
 
     contact_damping: float = 2.0e3
     """Normal damping c (N s/m) of the compliant contact, also the slope of the regularised
     friction below its Coulomb bound. 2000 N s/m is critical damping ``2 sqrt(k m)`` for an
     effective mass of 5 kg (the median of a wrist point's): impacts do not bounce (damping
-    ratio 1.4 at 2.5 kg, 0.7 at 10 kg), like Gazebo's inelastic default; ``c h / m = 0.8`` at
-    2.5 kg, below the integrator's limit 2."""
+    ratio 1.4 at 2.4 kg, 0.7 at 10 kg), like Gazebo's inelastic default; ``c h / m = 0.83``
+    at 2.4 kg, below the integrator's limit 2."""
 
     contact_friction: float = 1.0
     """Coulomb friction coefficient mu (dimensionless) of the compliant contact: the tangential
