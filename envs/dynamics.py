@@ -26,12 +26,50 @@ joint position limits. If some substep violates either, the copy goes back to th
 substep state with all its joint velocities set to zero: the whole arm stops dead for the rest
 of the control step, the way an arm hitting a rigid table or an end stop with no bounce would
 (it does not slide along the plane; a command that pulls away frees it the next step).
-``contact`` / ``limit_stop`` report it for the step.
+``contact`` / ``limit_stop`` report it for the step. This is the plane's ``stop`` contact model
+(``task.contact_model``, the default).
 
-The clearance check is skipped when it provably cannot fail: the lowest point of link k moves
-by at most ``sum_i R[i, k] |dq_i|`` between two configurations (:func:`height_lipschitz`; joint
-1's axis is vertical, so it never changes a height), so a copy whose known clearance exceeds a
-step's worth of that bound is clear without looking. The skip changes the cost, never the
+The ``compliant`` contact model (:class:`PlaneContact`) replaces the plane stop by a penalty
+contact, as in Gazebo, where the paper ran: the arm is pushed out of the plane and slides on it.
+At every substep, for each moving link k whose lowest collision point (its URDF collision
+geometry's convex hull, the same geometry as the clearance check) lies ``d_k > 0`` m below
+``z = plane_margin`` (world frame), a force acts at that deepest point ``p_k``::
+
+    f_n   = max(0, k d_k - c dz_k/dt)                          # N, along +z (world)
+    f_t   = -min(mu f_n, c |u_t|) u_t / |u_t|                  # N, in the plane
+    tau_c = sum_k J_k^T [f_t, f_n]                             # N m, joints 1-6
+
+with ``u = J_k v`` the point's velocity (m/s, world axes), ``u_t`` its x, y part, ``dz_k/dt`` its
+z part, ``J_k (3, 6)`` the point's translational Jacobian (LOCAL_WORLD_ALIGNED) and k, c, mu the
+task's ``contact_stiffness`` (N/m), ``contact_damping`` (N s/m) and ``contact_friction``. The
+elastic part is minus the gradient of the potential ``sum_k k d_k(q)^2 / 2`` (``d_k`` is
+continuous in q, the deepest vertex may change), so it stores and returns energy; the damping
+and the friction only dissipate. The friction is Coulomb's, regularised: below its bound it is
+a viscous drag of slope c (a point under a tangential load F creeps at F / c m/s instead of
+sticking), which keeps it stable under the explicit integrator. ``tau_c`` is the ground's
+reaction, not bound by the motors' effort or velocity limits; a substep in contact is::
+
+    v'    = clip(v + h ABA(q, v, tau),  -v_max, v_max) + h M(q)^-1 tau_c     # tau: the motors'
+    v'    = v' / max(1, max_i |v'_i| / v_max_i)                               # the governor
+    q'    = q + h v'
+
+The URDF velocity limits are the motors'; clipping the ground's reaction joint by joint lets a
+joint held at its limit drive a link 10 cm and more through the plane, so the reaction is added
+after the clip, and the governor scales the whole velocity back into the limits: that keeps its
+direction (a point leaving the plane still leaves it) and only removes kinetic energy. Stability:
+one contact on an effective mass m is the loop of :func:`pd_stability_violations` with
+``a = k h^2 / m`` and ``b = c h / m``; :func:`contact_stability_violations` checks it at the
+smallest effective mass a touching point has (:data:`CONTACT_MIN_EFFECTIVE_MASS`).
+The plane stays impermeable in this model too: after the substeps, a copy that put a link more
+than ``contact_max_depth`` below ``z = plane_margin`` at some substep falls back to the stop (to
+the last substep within that depth, velocities zero); ``depth_stop`` reports it, and
+``contact`` reports any step in which a contact force acted (or that stop).
+
+The clearance check (and, in the compliant model, the contact force) is skipped when it provably
+cannot fail: the lowest point of link k moves by at most ``sum_i R[i, k] |dq_i|`` between two
+configurations (:func:`height_lipschitz`; joint 1's axis is vertical, so it never changes a
+height), so a copy whose known clearance exceeds a step's worth of that bound is clear without
+looking. The skip changes the cost, never the
 answer (tested against the exact check on every step).
 
 Time-scaled units: the integrator state is ``(q, w)`` with ``w = h v`` (rad per substep) and
@@ -50,6 +88,7 @@ velocity limit or stop acted during the step.
 from __future__ import annotations
 
 import functools
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -72,6 +111,13 @@ CLEARANCE_BATCH = 192
 product goes to multithreaded OpenBLAS from B ~ 256 on, which was measured 20x slower than one
 thread on a loaded two-core machine (15 ms instead of 0.6 ms at B = 840); blocks below the
 threshold cost about the same per configuration either way."""
+
+
+CONTACT_MIN_EFFECTIVE_MASS = 2.4
+"""Smallest effective mass (kg) of a link's deepest point along a world axis,
+``1 / (e^T J M^-1 J^T e)``: 3.0 kg along z and 2.5 kg along x or y (wrist_3_link) over 2000
+configurations uniform in [-pi, pi]^6, rounded down; tested on a fresh sample. The stiffest,
+fastest contact mode the compliant model can excite; :func:`contact_stability_violations`."""
 
 
 def _clip_fallback(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -157,6 +203,17 @@ def pd_stability_violations(kp: Any, kd: Any, h: float) -> list[str]:
 
 
 @functools.cache
+def link_hulls() -> tuple[np.ndarray, ...]:
+    """Convex-hull vertices ``(n_k, 3)`` (m, link frame) of the six moving links.
+
+    shoulder_link .. wrist_3_link (``ee_link``'s box joins wrist_3_link): the URDF collision
+    geometry of :func:`regions.collision_geometry`, which the clearance check uses too. The one
+    place this module reads the collision geometry.
+    """
+    return tuple(link.hull for link in regions.collision_geometry()[1:])
+
+
+@functools.cache
 def height_lipschitz() -> np.ndarray:
     """Bounds ``R (6, 6)`` (m/rad): ``|dz/dq_i| <= R[i, k]`` for every collision point of link k.
 
@@ -169,14 +226,151 @@ def height_lipschitz() -> np.ndarray:
     """
     model = ur5kin.load_model()
     offsets = [float(np.linalg.norm(model.jointPlacements[j].translation)) for j in range(7)]
-    reach = [float(np.linalg.norm(link.hull, axis=1).max())
-             for link in regions.collision_geometry()]
+    reach = [0.0] + [float(np.linalg.norm(hull, axis=1).max()) for hull in link_hulls()]
     R = np.zeros((6, 6))
     for i in range(2, 7):  # joint i (1-based) moves links i..6; link k is the child of joint k
         for k in range(i, 7):
             R[i - 1, k - 1] = sum(offsets[i + 1 : k + 1]) + reach[k]
     return R
 
+
+def contact_stability_violations(stiffness: float, damping: float, h: float) -> list[str]:
+    """Why a compliant contact ``(k, c)`` would be unstable under semi-implicit Euler with step h.
+
+    One contact on a point of effective mass m is the loop of :func:`pd_stability_violations`
+    with ``a = k h^2 / m`` and ``b = c h / m`` (the friction's viscous slope is c too); stable iff
+    ``b < 2`` and ``a + 2 b < 4``. Checked at :data:`CONTACT_MIN_EFFECTIVE_MASS`, where the loop
+    is fastest. Necessary, not sufficient: the coupled loop with the PD is tested on sampled
+    contact configurations in the test suite.
+
+    Parameters
+    ----------
+    stiffness : float, N/m
+    damping : float, N s/m
+    h : float, s
+
+    Returns
+    -------
+    problems : list of str
+        Empty when stable.
+    """
+    m = CONTACT_MIN_EFFECTIVE_MASS
+    a, b = stiffness * h * h / m, damping * h / m
+    if b < 2.0 and a + 2.0 * b < 4.0:
+        return []
+    return [f"at the smallest effective mass {m} kg, c h / m = {b:.3g} (need < 2) and "
+            f"k h^2 / m + 2 c h / m = {a + 2.0 * b:.3g} (need < 4) for k = {stiffness} N/m, "
+            f"c = {damping} N s/m, h = {h} s"]
+
+
+class PlaneContact:
+    """The compliant model's ground reaction: penalty forces at the links' deepest points.
+
+    Forces and torques are in :class:`ArmDynamics`'s time-scaled units (``h^2`` times N and
+    N m), velocities ``w = h v``; the equations are in the module docstring. One configuration
+    at a time, through Pinocchio's kinematics and joint Jacobians (tested against a closed-form
+    Jacobian and the contact potential's gradient).
+
+    Parameters
+    ----------
+    task : TaskSpec
+        ``contact_stiffness``, ``contact_damping``, ``contact_friction``, ``plane_margin``,
+        ``base_height`` and ``sim_hz``.
+    model : pinocchio.Model
+        The arm's model (kinematics only are used).
+    """
+
+    def __init__(self, task: TaskSpec, model: pin.Model) -> None:
+        h = task.sim_dt
+        self.level = task.plane_margin - task.base_height
+        """The plane z = plane_margin, as a height (m) above ``base_link``."""
+        self.stiffness = task.contact_stiffness * h * h  # scaled k
+        self.damping = task.contact_damping * h  # scaled c
+        self.friction = task.contact_friction
+        self.model, self.data = model, model.createData()
+        self.hulls = link_hulls()
+        self._columns = [np.ascontiguousarray(hull.T) for hull in self.hulls]  # (3, n_k)
+        self._wrench = np.zeros(6)
+        self._free = pin.Model(model)  # no gravity: its ABA at rest is M(q)^-1 tau
+        self._free.gravity = pin.Motion.Zero()
+        self._free_data = self._free.createData()
+        self._rest = np.zeros(model.nv)
+        self._w_max = ur5kin.velocity_limits() * h
+
+    def response(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The change ``M(q)^-1 tau`` of the scaled velocity ``w`` (rad per substep) that a scaled
+        contact torque ``tau (6,)`` makes in one substep: Pinocchio's ABA on the model without
+        gravity, at rest. Added after the velocity clip: the URDF velocity limits are the
+        motors', and the ground's reaction is not bound by them (clipping it lets a joint
+        at its limit drive a link through the plane)."""
+        return pin.aba(self._free, self._free_data, q, self._rest, tau)
+
+    def governor(self, w: np.ndarray) -> None:
+        """Scale ``w (6,)`` in place, all joints alike, into the URDF velocity limits.
+
+        After a contact's response the velocity may exceed them; scaling the whole vector keeps
+        its direction (a point leaving the plane still leaves it, one entering enters no faster)
+        and only lowers the kinetic energy, where a per-joint clip can do either.
+        """
+        excess = np.max(np.abs(w) / self._w_max)
+        if excess > 1.0:
+            w /= excess
+            clip(w, -self._w_max, self._w_max, w)  # rounding: the division can leave 1 ulp over
+
+    def torque(self, q: np.ndarray, w: np.ndarray, links: np.ndarray, out: np.ndarray
+                   ) -> bool:
+        """Scaled contact torque ``out (6,)`` of one configuration, through Pinocchio.
+
+        Parameters
+        ----------
+        q : (6,) float, rad
+        w : (6,) float, rad per substep (``h v``)
+        links : list of int
+            Moving links to test, 1 (shoulder_link) .. 6 (wrist_3_link); the others are known
+            to be clear.
+        out : (6,) float
+            Overwritten with ``h^2 tau_c``.
+
+        Returns
+        -------
+        active : bool
+            Whether a contact force acted.
+        """
+        model, data, hulls, columns = self.model, self.data, self.hulls, self._columns
+        k_s, c_s, mu, dot = self.stiffness, self.damping, self.friction, np.dot
+        wrench = self._wrench
+        pin.forwardKinematics(model, data, q)
+        placements = data.oMi
+        out.fill(0.0)
+        active = jacobians = False
+        for k in links:
+            pose = placements[k].homogeneous  # (4, 4), link frame -> base_link
+            heights = dot(pose[2, :3], columns[k - 1])
+            i = heights.argmin()
+            depth = self.level - heights[i] - pose[2, 3]
+            if depth <= 0.0:
+                continue
+            if not jacobians:
+                pin.computeJointJacobians(model, data, q)
+                jacobians = True
+            # the link's twist (v, omega) at its origin and the lever to the point, world axes
+            J6 = pin.getJointJacobian(model, data, k, pin.LOCAL_WORLD_ALIGNED)
+            vx, vy, vz, ox, oy, oz = dot(J6, w).tolist()
+            lx, ly, lz = dot(pose[:3, :3], hulls[k - 1][i]).tolist()
+            ux, uy, uz = vx + oy * lz - oz * ly, vy + oz * lx - ox * lz, vz + ox * ly - oy * lx
+            normal = k_s * depth - c_s * uz
+            if normal <= 0.0:
+                continue
+            speed = math.hypot(ux, uy)
+            drag = min(mu * normal, c_s * speed)
+            scale = drag / speed if speed > 0.0 else 0.0
+            fx, fy = -scale * ux, -scale * uy
+            # tau = J6^T (f, lever x f): the force as a wrench at the link's origin
+            wrench[:] = (fx, fy, normal, ly * normal - lz * fy, lz * fx - lx * normal,
+                         lx * fy - ly * fx)
+            out += dot(wrench, J6)
+            active = True
+        return active
 
 def _last_valid(invalid: np.ndarray) -> np.ndarray:
     """Per column of ``invalid (K+1, m) bool``, the index before its first True (K if none)."""
@@ -223,9 +417,14 @@ class ArmDynamics:
     acceleration : (B, 6) float, rad/s^2
         Mean realised acceleration over the last step (zero after a reset).
     contact : (B,) bool
-        Whether the last step stopped on the plane.
+        Whether the plane acted in the last step: it stopped the arm (``stop`` model), or a
+        contact force acted or the depth bound stopped it (``compliant``).
     limit_stop : (B,) bool
         Whether the last step stopped at a URDF joint position limit.
+    depth_stop : (B,) bool
+        Whether the last step fell back to the stop because a link would have ended deeper
+        than ``contact_max_depth`` below the plane (``compliant`` only; always False under
+        ``stop``, whose stops are all in ``contact``).
 
     The arrays are owned by this object and overwritten by every step; copy what you keep.
     One copy (B = 1) calls Pinocchio's ``aba`` and ``computeGeneralizedGravity`` directly;
@@ -236,6 +435,13 @@ class ArmDynamics:
     def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
+        if task.contact_model == "compliant":
+            problems = contact_stability_violations(task.contact_stiffness,
+                                                    task.contact_damping, task.sim_dt)
+            if problems:
+                raise ValueError("the compliant contact is unstable under semi-implicit Euler at "
+                                 f"sim_hz={task.sim_hz} Hz: " + "; ".join(problems)
+                                 + ". Lower contact_stiffness / contact_damping or raise sim_hz")
         self.task = task
         B, K, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
         self.num_copies = B
@@ -269,6 +475,14 @@ class ArmDynamics:
         # likewise a joint farther than K w_max from its limits cannot pass them in one step
         self._limit_screen = self._q_half - K * self._w_max
         self._limit_flags = np.zeros(6, dtype=bool)
+        # the compliant contact (None: the stop model); a substep is deeper than allowed, and
+        # stops, below _stop_level
+        self._contact = (PlaneContact(task, self.model) if task.contact_model == "compliant"
+                         else None)
+        self._stop_level = task.plane_margin - (0.0 if self._contact is None
+                                                else task.contact_max_depth)
+        self._touched = np.zeros(B, dtype=bool)  # a contact force acted in this step
+        self._contact_tau = np.zeros(6)
         self._w_to_v = 1.0 / h
         self._w_to_accel = 1.0 / (h * task.dt)
 
@@ -298,6 +512,7 @@ class ArmDynamics:
         self.acceleration = np.zeros((B, 6))
         self.contact = np.zeros(B, dtype=bool)
         self.limit_stop = np.zeros(B, dtype=bool)
+        self.depth_stop = np.zeros(B, dtype=bool)
         self._clearance = np.tile(self._link_heights(self._start), (B, 1))  # (B, 6) lower bounds
 
         X = self._X[:, 0] if B == 1 else self._X  # 1-D rows for Pinocchio's single calls
@@ -363,6 +578,7 @@ class ArmDynamics:
         self.acceleration[sel] = 0.0
         self.contact[sel] = False
         self.limit_stop[sel] = False
+        self.depth_stop[sel] = False
         self._clearance[sel] = heights
 
     def step(self, command: np.ndarray) -> None:
@@ -389,14 +605,98 @@ class ArmDynamics:
         if not task.gravity_compensation:
             def gravity(q: np.ndarray) -> np.ndarray:
                 return self._zeros_row
+        near = None if self._contact is None else self._near_plane()
+        if near is None or not len(near):
+            for x, q, w, q1, w1 in self._rows:
+                dot(x, gains, tau)
+                add(tau, gravity(q), tau)
+                clip_(tau, neg_effort, effort, tau)
+                add(w, accel(q, w, tau), w1)
+                clip_(w1, neg_w_max, w_max, w1)
+                add(q, w1, q1)
+        elif self.num_copies == 1:
+            self._compliant_one(gravity)
+        else:
+            self._compliant_many(gravity, near)
+        self._finish_step()
+
+    # ------------------------------------------------------------------ compliant contact
+    def _near_plane(self) -> np.ndarray:
+        """Copies ``(m,) int`` that a contact force may reach within this step (the screen of
+        ``__init__``); clears the step's contact flags."""
+        self._touched[:] = False
+        return np.flatnonzero((self._clearance < self._plane_screen).any(axis=-1))
+
+    def _reach_screen(self, r: int) -> Any:
+        """``links(q) -> list``: the moving links (1-6) of copy r that may touch the plane at a
+        substep configuration q of this step: the step's start clearance less ``|q - q_0| @ R``
+        (:func:`height_lipschitz`) is below it. Changes the cost, never the answer."""
+        q0, clear0 = self._Q[0, r].copy(), self._clearance[r].copy()
+        margin, lipschitz = self.task.plane_margin, self._lipschitz
+        if (clear0 >= self._plane_screen).all():
+            return lambda q: []
+        buf, bound = np.empty(6), np.empty(6)
+        subtract, absolute, dot, less = np.subtract, np.absolute, np.dot, np.less
+        flags = np.empty(6, dtype=bool)
+
+        def links(q: np.ndarray) -> list[int]:
+            absolute(subtract(q, q0, buf), buf)
+            subtract(clear0, dot(buf, lipschitz, bound), bound)
+            if not less(bound, margin, flags).any():
+                return []
+            return [k + 1 for k in flags.nonzero()[0].tolist()]
+
+        return links
+
+    def _compliant_one(self, gravity: Any) -> None:
+        """The substeps of one copy with the contact torque (:meth:`PlaneContact.torque`)
+        of the links that the screen of ``__init__`` cannot rule out for this step."""
+        dot, add, clip_, accel = np.dot, np.add, clip, self._accel
+        gains, tau, tau_c = self._gains, self._tau_row, self._contact_tau
+        effort, neg_effort = self._effort, -self._effort
+        w_max, neg_w_max = self._w_max, -self._w_max
+        torque, response, governor = (self._contact.torque, self._contact.response,
+                                      self._contact.governor)
+        reach = self._reach_screen(0)
+        touched = False
         for x, q, w, q1, w1 in self._rows:
             dot(x, gains, tau)
             add(tau, gravity(q), tau)
             clip_(tau, neg_effort, effort, tau)
             add(w, accel(q, w, tau), w1)
             clip_(w1, neg_w_max, w_max, w1)
+            links = reach(q)
+            if links and torque(q, w, links, tau_c):
+                add(w1, response(q, tau_c), w1)
+                governor(w1)
+                touched = True
             add(q, w1, q1)
-        self._finish_step()
+        self._touched[0] = touched
+
+    def _compliant_many(self, gravity: Any, near: np.ndarray) -> None:
+        """The substeps of B copies; the copies ``near`` the plane get the contact of
+        :meth:`_compliant_one`, copy by copy (Pinocchio's single-configuration calls)."""
+        dot, add, clip_, accel = np.dot, np.add, clip, self._accel
+        gains, tau, tau_c = self._gains, self._tau_row, self._contact_tau
+        effort, neg_effort = self._effort, -self._effort
+        w_max, neg_w_max = self._w_max, -self._w_max
+        torque, response, governor = (self._contact.torque, self._contact.response,
+                                      self._contact.governor)
+        touched = self._touched
+        screens = [(r, self._reach_screen(r)) for r in near.tolist()]
+        for x, q, w, q1, w1 in self._rows:
+            dot(x, gains, tau)
+            add(tau, gravity(q), tau)
+            clip_(tau, neg_effort, effort, tau)
+            add(w, accel(q, w, tau), w1)
+            clip_(w1, neg_w_max, w_max, w1)
+            for r, reach in screens:
+                links = reach(q[r])
+                if links and torque(q[r], w[r], links, tau_c):
+                    add(w1[r], response(q[r], tau_c), w1[r])
+                    governor(w1[r])
+                    touched[r] = True
+            add(q, w1, q1)
 
     # ------------------------------------------------------------------ stops
     def _finish_step(self) -> None:
@@ -412,13 +712,16 @@ class ArmDynamics:
             self._finish_one()
         else:
             self._finish_many()
+        if self._contact is not None:  # the plane's stops are the depth bound's
+            np.copyto(self.depth_stop, self.contact)
+            np.logical_or(self.contact, self._touched, out=self.contact)
         W, K = self._W, self.task.substeps
         np.subtract(W[K], W[0], out=self.acceleration)
         self.acceleration *= self._w_to_accel
         np.multiply(W[K], self._w_to_v, out=self.v)
 
     def _finish_one(self) -> None:
-        Q, W, K, margin = self._Q[:, 0], self._W[:, 0], self.task.substeps, self.task.plane_margin
+        Q, W, K, level = self._Q[:, 0], self._W[:, 0], self.task.substeps, self._stop_level
         stop_limit = stop_plane = K  # the last valid substep
         if np.greater(np.abs(Q[0] - self._q_mid), self._limit_screen, self._limit_flags).any():
             beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (K+1,)
@@ -427,7 +730,7 @@ class ArmDynamics:
         heights = None
         if (self._clearance[0] < self._plane_screen).any():
             heights = self._link_heights(Q)  # (K+1, 6): one call for all substeps
-            below = heights.min(axis=-1) < margin
+            below = heights.min(axis=-1) < level
             below[0] = False  # the step's start state is clear by construction
             if below.any():
                 stop_plane = int(np.argmax(below)) - 1
@@ -456,7 +759,7 @@ class ArmDynamics:
             per_call = max(1, CLEARANCE_BATCH // (K + 1))  # copies per link_heights call
             heights = np.concatenate([self._link_heights(Q[:, idx[i : i + per_call]])
                                       for i in range(0, len(idx), per_call)], axis=1)
-            below = heights.min(axis=-1) < self.task.plane_margin
+            below = heights.min(axis=-1) < self._stop_level
             below[0] = False  # the step's start state is clear by construction
             if below.any():
                 stop_plane = np.full(B, K)

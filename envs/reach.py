@@ -78,8 +78,13 @@ class UR5ReachEnv(gymnasium.Env):
     30 rad/s), saturated at the URDF effort limits (150, 150, 150, 28, 28, 28 N m); joints
     n+1..6 are held at their start angles by the same PD. Pinocchio's ABA integrates the whole
     arm at ``sim_hz`` = 1000 Hz (20 substeps a step, semi-implicit Euler), velocities saturated
-    at the URDF limits. The plane and the URDF joint limits stop the arm dead (inelastic); see
-    :mod:`envs.dynamics`.
+    at the URDF limits. The URDF joint limits stop the arm dead (inelastic). The ground plane
+    acts by ``contact_model``: ``stop`` (default) stops the whole arm dead for the rest of the
+    step at any contact; ``compliant`` pushes each link out with a penalty force at its deepest
+    point, ``f_n = max(0, k d - c dz/dt)`` N with ``k`` = 2e5 N/m, ``c`` = 2000 N s/m, and
+    Coulomb friction ``mu`` = 1 against the point's sliding (the arm slides along the plane, as
+    in Gazebo; about 1 mm deep under the arm's weight). No link ends a step more than
+    ``contact_max_depth`` = 0.02 m below the plane in either model; see :mod:`envs.dynamics`.
 
     Held joints give way under load: this URDF gives each wrist link the inertia of a cylinder
     of radius 0.6 m (izz = 0.219 kg m^2 for 1.219 kg), and the wrists' 28 N m cannot hold them
@@ -153,7 +158,8 @@ class UR5ReachEnv(gymnasium.Env):
     | ``action``      | the action as applied (clipped), ``(n,)``               | action's   |
     | ``distance``    | d, tool0 to goal                                        | m          |
     | ``is_success``  | d <= ``success_radius``                                 | -          |
-    | ``contact``     | the arm hit the ground plane during the step and stopped | -         |
+    | ``contact``     | the ground plane acted during the step: it stopped the   | -          |
+    |                 | arm (``stop``), or pushed it (``compliant``)             |            |
     | ``joint_limit`` | a joint hit its URDF limit during the step and stopped  | -          |
     | ``clearance``   | lowest point of the moving links at the end of the step | m, world z |
 

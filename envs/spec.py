@@ -46,6 +46,12 @@ ACTION_PENALTY_UNITS = ("command", "actor")
 ``actor``: in the actor's unit, each joint divided by its command bound (``a / pi`` in position
 mode), so ``|a|^2 <= n``."""
 
+CONTACT_MODELS = ("stop", "compliant")
+"""How the ground plane acts on the arm (DESIGN.md open point 6; :mod:`envs.dynamics`). ``stop``:
+any plane contact stops the whole arm dead for the rest of the control step (ours so far);
+``compliant``: a penalty contact (spring-damper with Coulomb friction) pushes each link out of the
+plane, so the arm can slide along it, as in Gazebo, where the paper ran."""
+
 GOAL_SAMPLERS = ("joint", "cartesian")
 """``joint``: the paper's sampler (uniform in joint space, kept in the region;
 :class:`regions.JointSpaceSampler`); ``cartesian``: uniform in the reachable part of the region
@@ -164,6 +170,43 @@ class TaskSpec:
     plane_margin: float = 0.0
     """Clearance (m) every moving link keeps above the ground plane; less counts as contact."""
 
+    contact_model: str = "stop"
+    """How the ground plane acts on the arm: one of :data:`CONTACT_MODELS`. The paper ran in
+    Gazebo ("simulated in Gazebo", section IV) and states no contact model; Gazebo's contact is
+    compliant, the arm is pushed out and slides. ``stop`` (the default, as before): any contact
+    stops the whole arm dead for the rest of the control step. ``compliant``: a penalty force
+    ``f_n = max(0, k d - c dz/dt)`` at each link's deepest point ``d`` m below
+    ``z = plane_margin`` with Coulomb friction (the ``contact_*`` fields; :mod:`envs.dynamics`).
+    Either way no link ends a step more than ``contact_max_depth`` below the plane."""
+
+    contact_stiffness: float = 2.0e5
+    """Normal stiffness k (N/m) of the compliant contact, per link. 2e5 N/m: the arm's weight
+    (about 170 N) presses it 0.9 mm into the plane, a stalled 150 N m joint pushing through a
+    0.4 m lever (375 N) 1.9 mm; a near-rigid table, as Gazebo's is. Stable under the 1 kHz
+    semi-implicit Euler: ``k h^2 / m = 0.08`` at the smallest effective mass that can touch
+    (2.4 kg, a wrist link's point, sampled over the joint space), far below the limit 4 (see
+    :func:`envs.dynamics.contact_stability_violations`)."""
+
+    contact_damping: float = 2.0e3
+    """Normal damping c (N s/m) of the compliant contact, also the slope of the regularised
+    friction below its Coulomb bound. 2000 N s/m is critical damping ``2 sqrt(k m)`` for an
+    effective mass of 5 kg (the median of a wrist point's): impacts do not bounce (damping
+    ratio 1.4 at 2.4 kg, 0.7 at 10 kg), like Gazebo's inelastic default; ``c h / m = 0.83``
+    at 2.4 kg, below the integrator's limit 2."""
+
+    contact_friction: float = 1.0
+    """Coulomb friction coefficient mu (dimensionless) of the compliant contact: the tangential
+    force is ``min(mu f_n, c |v_t|)`` against the contact point's tangential velocity v_t (0:
+    frictionless). 1 is the pair Gazebo uses for a link on its ground plane (the smaller of the
+    two surfaces' ``mu``: the link's default 1, the ground plane's 100)."""
+
+    contact_max_depth: float = 0.02
+    """Depth (m) below ``z = plane_margin`` that no link may reach at the end of a control step,
+    in every contact model (the plane stays impermeable). The compliant contact keeps links far
+    shallower (about 2 mm under a stalled joint); a copy whose step would end deeper falls back
+    to the stop model for that step (``ArmDynamics.depth_stop``). The stop model never enters
+    the plane."""
+
     def __post_init__(self) -> None:
         _set = functools.partial(object.__setattr__, self)
         _set("base_height", _number("base_height", self.base_height, minimum=0.0, unit="m"))
@@ -171,12 +214,18 @@ class TaskSpec:
         _set("n_joints", _integer("n_joints", self.n_joints, *N_JOINTS_RANGE))
         for name, choices in (("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),
                               ("reward_type", REWARD_TYPES),
-                              ("action_penalty_unit", ACTION_PENALTY_UNITS)):
+                              ("action_penalty_unit", ACTION_PENALTY_UNITS),
+                              ("contact_model", CONTACT_MODELS)):
             value = getattr(self, name)
             if value not in choices:
                 raise ValueError(f"{name} must be one of {list(choices)}; got {value!r}")
         for name in ("distance_weight", "action_weight", "success_reward", "plane_margin"):
             _set(name, _number(name, getattr(self, name), minimum=0.0))
+        for name, unit, strict in (("contact_stiffness", "N/m", True),
+                                   ("contact_damping", "N s/m", False),
+                                   ("contact_friction", "dimensionless", False),
+                                   ("contact_max_depth", "m", True)):
+            _set(name, _number(name, getattr(self, name), minimum=0.0, strict=strict, unit=unit))
         if self.goal_sampler == "cartesian" and self.n_joints < regions.CartesianSampler.MIN_JOINTS:
             raise ValueError(
                 f"goal_sampler='cartesian' needs n_joints >= {regions.CartesianSampler.MIN_JOINTS}"

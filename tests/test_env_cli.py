@@ -44,3 +44,18 @@ def test_animation_example_writes_a_gif(tmp_path):
     assert out.returncode == 0, out.stderr
     assert target.stat().st_size > 1000
     assert target.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+
+
+def test_contact_study_runs_and_prints_json():
+    out = run("-m", "analysis.contact", "--help")
+    assert out.returncode == 0, out.stderr
+    for flag in ("--region", "--n-joints", "--goals", "--steps", "--rounds", "--friction",
+                 "--seed", "--json"):
+        assert flag in out.stdout
+    out = run("-m", "analysis.contact", "--goals", "8", "--steps", "30", "--rounds", "1",
+              "--json")
+    assert out.returncode == 0, out.stderr
+    rows = {row["contact_model"]: row for row in json.loads(out.stdout)["rows"]}
+    assert set(rows) == {"stop", "compliant"}
+    assert rows["stop"]["deepest"] == 0.0 and rows["stop"]["depth_stops"] == 0.0
+    assert 0.0 <= rows["compliant"]["reached"] <= 1.0 and rows["compliant"]["steps_per_s"] > 0
