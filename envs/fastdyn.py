@@ -766,3 +766,34 @@ class FastArmDynamics:
         out[:] = self._tool
         return out
 
+
+
+@_njit
+def _heights_batch(q, vh, bounds, lift, wrist, base_height, out):  # pragma: no cover
+    feat = np.empty(13, q.dtype)
+    for b in range(q.shape[0]):
+        _link_heights(q[b], vh, bounds, lift, wrist, base_height, feat, out[b])
+
+
+def link_heights(q: Any, base_height: float, dtype: Any = np.float64) -> np.ndarray:
+    """The kernel's plane check: lowest point of each moving link, batched.
+
+    Parameters
+    ----------
+    q : (B, 6) float, rad
+    base_height : float, m
+        Height of base_link above the plane.
+
+    Returns
+    -------
+    heights : (B, 6) float, m, world z
+        Lowest collision-geometry point of shoulder_link .. wrist_3_link
+        (:func:`regions.link_heights` without the fixed base link).
+    """
+    name = _dtype_name(dtype)
+    plane = ur5_plane(name)
+    q = _batch(q, "q", DTYPES[name])
+    out = np.empty_like(q)
+    _heights_batch(q, plane.vertex_heights, plane.bounds, plane.lift_offset, plane.wrist_offset,
+                   float(regions.clearance.check_base_height(base_height)), out)
+    return out
