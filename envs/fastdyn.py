@@ -259,6 +259,44 @@ def _gravity_torque(R, p, axis, inertia, grav, acc, force, out):  # pragma: no c
 
 
 @_njit
+def _rotate_blocks(R, ia, M, out):  # pragma: no cover - compiled
+    """``out``'s blocks A', B', C' = R A R^T, R B R^T, R C R^T of ``ia = [A, B; B^T, C]``."""
+    for ro, co in ((0, 0), (0, 3), (3, 3)):
+        for r in range(3):
+            for k in range(3):
+                M[r, k] = R[r, 0] * ia[ro, co + k] + R[r, 1] * ia[ro + 1, co + k] + \
+                    R[r, 2] * ia[ro + 2, co + k]
+        for r in range(3):
+            for k in range(3):
+                out[ro + r, co + k] = M[r, 0] * R[k, 0] + M[r, 1] * R[k, 1] + M[r, 2] * R[k, 2]
+
+
+@_njit
+def _shift_into(p, Y, S, parent):  # pragma: no cover - compiled
+    """``parent += [A', B' - A'P; (B' - A'P)^T, C' + P B' + (P B')^T - P A' P]``, P = [p]x,
+    for the rotated blocks in ``Y`` (``S (6, 6)`` scratch)."""
+    p0, p1, p2 = p[0], p[1], p[2]
+    for r in range(3):  # A'P
+        S[r, 3] = Y[r, 1] * p2 - Y[r, 2] * p1
+        S[r, 4] = Y[r, 2] * p0 - Y[r, 0] * p2
+        S[r, 5] = Y[r, 0] * p1 - Y[r, 1] * p0
+    for k in range(3):  # P B' and P (A'P)
+        S[3, k] = p1 * Y[2, 3 + k] - p2 * Y[1, 3 + k]
+        S[4, k] = p2 * Y[0, 3 + k] - p0 * Y[2, 3 + k]
+        S[5, k] = p0 * Y[1, 3 + k] - p1 * Y[0, 3 + k]
+        S[3, 3 + k] = p1 * S[2, 3 + k] - p2 * S[1, 3 + k]
+        S[4, 3 + k] = p2 * S[0, 3 + k] - p0 * S[2, 3 + k]
+        S[5, 3 + k] = p0 * S[1, 3 + k] - p1 * S[0, 3 + k]
+    for r in range(3):
+        for k in range(3):
+            parent[r, k] += Y[r, k]
+            top = Y[r, 3 + k] - S[r, 3 + k]
+            parent[r, 3 + k] += top
+            parent[3 + k, r] += top
+            parent[3 + r, 3 + k] += Y[3 + r, 3 + k] + S[3 + r, k] + S[3 + k, r] - S[3 + r, 3 + k]
+
+
+@_njit
 def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u, X, Y, acc,
          qdd):  # pragma: no cover - compiled
     """Featherstone's articulated-body algorithm (Pinocchio's ``aba``): ``qdd`` for the
@@ -319,32 +357,11 @@ def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u,
                 s += IA[i, r, k] * cb[i, k]
             Y[1, r] = s
         _force_act(R[i], p[i], Y[1], pA[i - 1])
-        # IA[parent] += X^T Ia X, X = [R^T, -R^T [p]x; 0, R^T] the parent-to-child motion map
-        Ri, pi = R[i], p[i]
-        for r in range(3):
-            a0, a1, a2 = Ri[0, r], Ri[1, r], Ri[2, r]  # row r of R^T
-            for k in range(3):
-                X[r, k] = Ri[k, r]
-                X[r + 3, k + 3] = Ri[k, r]
-                X[r + 3, k] = 0.0
-            # row r of -R^T [p]x: w -> -a . (p x w) = -(a x p) . w
-            X[r, 3] = -(a1 * pi[2] - a2 * pi[1])
-            X[r, 4] = -(a2 * pi[0] - a0 * pi[2])
-            X[r, 5] = -(a0 * pi[1] - a1 * pi[0])
-        ia = IA[i]
-        for r in range(6):
-            for k in range(6):
-                s = 0.0
-                for m in range(6):
-                    s += ia[r, m] * X[m, k]
-                Y[r, k] = s
-        parent = IA[i - 1]
-        for r in range(6):
-            for k in range(6):
-                s = 0.0
-                for m in range(6):
-                    s += X[m, r] * Y[m, k]
-                parent[r, k] += s
+        # IA[parent] += X^T Ia X, X = [R^T, -R^T [p]x; 0, R^T] the parent-to-child motion map,
+        # by 3x3 blocks: Ia = [A, B; B^T, C] rotated, A' = R A R^T (and B', C'), then shifted
+        # by P = [p]x: [A', B' - A'P; (.)^T, C' + P B' + (P B')^T - P A' P].
+        _rotate_blocks(R[i], IA[i], X, Y)
+        _shift_into(p[i], Y, X, IA[i - 1])
     # pass 3: accelerations, base to tip (the base accelerates up: gravity)
     for k in range(6):
         acc[0, k] = 0.0
