@@ -34,8 +34,11 @@ INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit")
 """Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""
 
 
-def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto") -> Any:
+def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto", threads: int = 1
+                  ) -> Any:
     """The arm dynamics of ``num_copies`` copies of ``task`` for a ``dynamics`` choice.
+
+    ``threads`` goes to :class:`envs.fastdyn.FastArmDynamics` (the Pinocchio path uses one).
 
     Raises
     ------
@@ -50,7 +53,7 @@ def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto") -> An
         raise ValueError("dynamics='fast' needs numba and the stop contact model; use "
                          "'pinocchio' (or 'auto')")
     if dynamics == "fast" or (dynamics == "auto" and fast_ok and num_copies > 1):
-        return fastdyn.FastArmDynamics(task, num_copies)
+        return fastdyn.FastArmDynamics(task, num_copies, threads=threads)
     return ArmDynamics(task, num_copies)
 
 
@@ -95,6 +98,9 @@ class BatchedReach(gymnasium.vector.VectorEnv):
     dynamics : {"auto", "fast", "pinocchio"}
         Which implementation advances the arms (:data:`DYNAMICS`); the same physics to
         floating-point rounding. ``auto`` (default) takes the compiled fast path for N > 1.
+    threads : int
+        CPU threads of the fast path (default 1: the two-core machines this runs on share
+        their cores with the learner; more pay on many-core hosts at large N).
 
     Observations are the single env's Dict with a leading (N,) axis; ``info`` holds
     :data:`INFO_KEYS` as (N, ...) arrays, each with a ``_key`` mask.
@@ -102,7 +108,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, dynamics: str = "auto",
+                 render_mode: str | None = None, dynamics: str = "auto", threads: int = 1,
                  **overrides: Any) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
@@ -120,7 +126,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
                          "render_fps": self.task.control_hz}
         self._core = ReachCore(self.task, self.num_envs,
-                               make_dynamics(self.task, self.num_envs, dynamics))
+                               make_dynamics(self.task, self.num_envs, dynamics, threads))
         self.single_observation_space, self.single_action_space = self._core.single_spaces()
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)

@@ -50,6 +50,8 @@ class BenchConfig:
     device: str = "cpu"
     """Where the batched dynamics run. Only ``cpu`` exists today (numba kernel); ``cuda`` is
     refused with the reason (results/batched_env/README.md has the plan)."""
+    threads: int = 1
+    """CPU threads of the batched env's fast dynamics."""
     reference: bool = True
     """Also measure the batched env on the reference Pinocchio dynamics."""
     sync: bool = True
@@ -146,7 +148,7 @@ def run(config: BenchConfig) -> dict[str, Any]:
     rows["UR5Reach-v0"] = single_runner(single, config.steps, config.seed)
     copy_steps = config.steps * max(config.num_envs, 1) // 8
     if config.num_envs > 0:
-        batched = envs.BatchedReach(config.num_envs, task)
+        batched = envs.BatchedReach(config.num_envs, task, threads=config.threads)
         dynamics = type(batched._core.dynamics).__name__
         notes[f"BatchedReach (N={config.num_envs})"] = f"dynamics: {dynamics}"
         rows[f"BatchedReach (N={config.num_envs})"] = vector_runner(batched, copy_steps,
@@ -234,6 +236,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--device", default=d.device, choices=("cpu", "cuda"),
                         help="where the batched dynamics run (cuda: not implemented yet, "
                         "refused with the reason)")
+    parser.add_argument("--threads", type=int, default=d.threads,
+                        help="CPU threads of the batched env's compiled dynamics")
     parser.add_argument("--reference", type=int, default=int(d.reference), choices=(0, 1),
                         help="1: also time the batched env on the reference Pinocchio dynamics")
     parser.add_argument("--sync", type=int, default=int(d.sync), choices=(0, 1),
@@ -261,7 +265,8 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--device cuda: the batched dynamics have no CUDA kernel yet (envs."
                          "fastdyn is a numba CPU kernel); see results/batched_env/README.md")
     config = BenchConfig(steps=args.steps, rounds=args.rounds, num_envs=args.num_envs,
-                         device=args.device, reference=bool(args.reference),
+                         device=args.device, threads=args.threads,
+                         reference=bool(args.reference),
                          sync=bool(args.sync), region=args.region, n_joints=args.n_joints,
                          control_mode=args.control_mode, peer=args.peer, seed=args.seed,
                          json=args.json)

@@ -53,6 +53,10 @@ AXES = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
 DTYPES = {"float64": np.float64, "float32": np.float32}
 """Floating-point types the kernels are compiled for."""
 
+PARALLEL_CHUNKS_PER_THREAD = 4
+"""Blocks of copies per thread when stepping on several threads: copies that stop early (on the
+plane) finish sooner, and smaller blocks even the threads' loads out."""
+
 
 def available() -> bool:
     """Whether the compiled path can run (numba is installed)."""
@@ -535,8 +539,9 @@ def _tool_position(R, p, tool_pos, base_height, out):  # pragma: no cover - comp
 def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
-                  tool):  # pragma: no cover - compiled
-    """One control step of every copy, in the time-scaled units of ArmDynamics.
+                  tool, first, stop):  # pragma: no cover - compiled
+    """One control step of copies ``first .. stop - 1``, in the time-scaled units of
+    ArmDynamics.
 
     Per copy b: ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
     ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'``; a substep that leaves the
@@ -560,7 +565,7 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
     q, w, q1, w1, q_ref = (np.empty(6, dt), np.empty(6, dt), np.empty(6, dt), np.empty(6, dt),
                            np.empty(6, dt))
     known, heights, feat = np.empty(6, dt), np.empty(6, dt), np.empty(13, dt)
-    for b in range(Q.shape[0]):
+    for b in range(first, stop):
         for k in range(6):
             q[k] = Q[b, k]
             w[k] = W[b, k]
@@ -621,6 +626,23 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
         _tool_position(R, p, tool_pos, base_height, tool[b])
 
 
+def _parallel_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
+                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
+                   tool, chunks):  # pragma: no cover - compiled
+    """:func:`_control_step` over ``chunks`` blocks of copies, on numba's thread pool."""
+    size = (Q.shape[0] + chunks - 1) // chunks
+    for c in numba.prange(chunks):
+        _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid,
+                      q_half, vh, bounds, lift, wrist, lipschitz, base_height, margin,
+                      clearance, rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact,
+                      limit_stop, tool, c * size, min(Q.shape[0], (c + 1) * size))
+
+
+if numba is not None:
+    _parallel_step = numba.njit(cache=True, parallel=True)(_parallel_step)
+
+
 @_njit
 def _tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma: no cover
     """``tool[b]``: tool0's world position (m) for ``Q[b]``, for each b in ``rows``."""
@@ -646,6 +668,9 @@ class FastArmDynamics:
     dtype : {"float64", "float32"}
         The kernel's arithmetic and the state's type. float32 trajectories drift from float64
         ones (the bounds are in the tests); the env uses float64.
+    threads : int
+        Threads of numba's pool that step the copies (1: the calling thread alone, no pool).
+        Each copy is computed the same way whatever the count: results do not depend on it.
 
     Attributes
     ----------
@@ -663,7 +688,8 @@ class FastArmDynamics:
     The arrays are owned by this object and overwritten by every step; copy what you keep.
     """
 
-    def __init__(self, task: TaskSpec, num_copies: int = 1, dtype: str = "float64") -> None:
+    def __init__(self, task: TaskSpec, num_copies: int = 1, dtype: str = "float64",
+                 threads: int = 1) -> None:
         if not available():
             raise RuntimeError("FastArmDynamics needs numba (pip install numba); "
                                "envs.dynamics.ArmDynamics is the path without it")
@@ -672,10 +698,15 @@ class FastArmDynamics:
         if not supports(task):
             raise ValueError(f"FastArmDynamics implements the stop contact model; got "
                              f"contact_model={getattr(task, 'contact_model', None)!r}")
+        pool = numba.config.NUMBA_NUM_THREADS
+        if not isinstance(threads, int | np.integer) or not 1 <= threads <= pool:
+            raise ValueError(f"threads must be an integer in [1, {pool}] (numba's pool on this "
+                             f"machine); got {threads!r}")
         name = _dtype_name(dtype)
         cast = DTYPES[name]
         self.task, self.num_copies, self.dtype = task, int(num_copies), name
-        B, K, h, n = self.num_copies, task.substeps, task.sim_dt, task.n_joints
+        self.threads = int(threads)
+        B, h, n = self.num_copies, task.sim_dt, task.n_joints
         model = ur5kin.load_model()
         chain = ChainModel.from_pinocchio(model)
         # time-scaled units (envs.dynamics): gravity and torques * h^2, velocities w = h v
@@ -768,13 +799,18 @@ class FastArmDynamics:
         """
         task, c, pl = self.task, self._chain, self._plane
         np.multiply(self._command_gain, command, out=self._bias[:, : task.n_joints])
-        _control_step(self.q, self._w, self._bias, self._kp, self._kd, self._effort,
-                      self._w_max, bool(task.gravity_compensation), task.substeps,
-                      self._q_mid, self._q_half, pl.vertex_heights, pl.bounds, pl.lift_offset,
-                      pl.wrist_offset, pl.lipschitz, float(task.base_height),
-                      float(task.plane_margin), self._clearance, c.rotation, c.translation,
-                      c.axis, c.inertia, c.armature, c.gravity, self._tool_pos, self._dw,
-                      self.contact, self.limit_stop, self._tool)
+        args = (self.q, self._w, self._bias, self._kp, self._kd, self._effort, self._w_max,
+                bool(task.gravity_compensation), task.substeps, self._q_mid, self._q_half,
+                pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
+                float(task.base_height), float(task.plane_margin), self._clearance, c.rotation,
+                c.translation, c.axis, c.inertia, c.armature, c.gravity, self._tool_pos,
+                self._dw, self.contact, self.limit_stop, self._tool)
+        if self.threads == 1:
+            _control_step(*args, 0, self.num_copies)
+        else:
+            numba.set_num_threads(self.threads)
+            _parallel_step(*args, min(self.num_copies, PARALLEL_CHUNKS_PER_THREAD
+                                      * self.threads))
         np.multiply(self._dw, self._w_to_accel, out=self.acceleration)
         np.multiply(self._w, self._w_to_v, out=self.v)
 

@@ -21,7 +21,7 @@ from envs.batched import make_dynamics
 from envs.dynamics import ArmDynamics, command_bounds
 from envs.spec import TaskSpec
 
-pytestmark = pytest.mark.skipif(not fastdyn.available(), reason="numba is not installed")
+numba = pytest.importorskip("numba")  # the fast path is optional
 
 F32_ACCEL_RTOL = 1e-4
 """Bound of float32 accelerations: ``|a32 - a| <= F32_ACCEL_RTOL (1 + |a|_max)`` rad/s^2 per
@@ -184,3 +184,18 @@ def test_batched_env_takes_the_fast_path_and_matches_the_reference():
     first = rollout(fast, 30, seed=5)
     np.testing.assert_array_equal(rollout(envs.BatchedReach(8, task), 30, seed=5), first)
     np.testing.assert_allclose(first, rollout(reference, 30, seed=5), atol=1e-6)
+
+
+def test_threads_do_not_change_the_result():
+    task = TaskSpec(region="unconstrained", n_joints=3)
+    low, high = command_bounds(task)
+    commands = np.random.default_rng(6).uniform(low, high, (10, 12, 3))
+    logs = []
+    for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+        dyn = fastdyn.FastArmDynamics(task, 12, threads=threads)
+        for command in commands:
+            dyn.step(command)
+        logs.append(np.concatenate([dyn.q, dyn.v, dyn.acceleration]))
+    np.testing.assert_array_equal(logs[1], logs[0])
+    with pytest.raises(ValueError, match="threads"):
+        fastdyn.FastArmDynamics(task, 2, threads=0)
