@@ -12,7 +12,9 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from envs import fastdyn
 from envs.core import ReachCore
+from envs.dynamics import ArmDynamics
 from envs.reach import RENDER_MODES, make_task, real_actions
 from envs.reward import compute_reward, compute_success
 from envs.spec import TaskSpec
@@ -21,8 +23,38 @@ DEFAULT_EPISODE_STEPS = {f.name: f.default for f in dataclasses.fields(TaskSpec)
     "max_episode_steps"]
 """The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
 
+DYNAMICS = ("auto", "fast", "pinocchio")
+"""Values of BatchedReach's ``dynamics`` option: ``fast`` is :class:`envs.fastdyn.
+FastArmDynamics` (one compiled call per step), ``pinocchio`` the reference
+:class:`envs.dynamics.ArmDynamics` (Pinocchio's ``abaInParallel`` in a Python substep loop),
+``auto`` the fast path for N > 1 where it is available and implements the task, else
+pinocchio."""
+
 INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit", "clearance")
 """Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""
+
+
+def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto", threads: int = 1
+                  ) -> Any:
+    """The arm dynamics of ``num_copies`` copies of ``task`` for a ``dynamics`` choice.
+
+    ``threads`` goes to :class:`envs.fastdyn.FastArmDynamics` (the Pinocchio path uses one).
+
+    Raises
+    ------
+    ValueError
+        When ``dynamics`` is not one of :data:`DYNAMICS`, or is ``"fast"`` where the fast path
+        is unavailable (numba missing) or does not implement the task (its contact model).
+    """
+    if dynamics not in DYNAMICS:
+        raise ValueError(f"dynamics must be one of {list(DYNAMICS)}; got {dynamics!r}")
+    fast_ok = fastdyn.available() and fastdyn.supports(task)
+    if dynamics == "fast" and not fast_ok:
+        raise ValueError("dynamics='fast' needs numba and the stop contact model; use "
+                         "'pinocchio' (or 'auto')")
+    if dynamics == "fast" or (dynamics == "auto" and fast_ok and num_copies > 1):
+        return fastdyn.FastArmDynamics(task, num_copies, threads=threads)
+    return ArmDynamics(task, num_copies)
 
 
 def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
@@ -42,8 +74,8 @@ class BatchedReach(gymnasium.vector.VectorEnv):
 
     Copy i behaves exactly like ``gymnasium.make("UR5Reach-v0", ...)`` reset with seed
     ``seed + i`` (same goals; same trajectories up to floating-point rounding, since the batch
-    goes through Pinocchio's ``abaInParallel``). ``gymnasium.make_vec("UR5Reach-v0",
-    num_envs=N)`` builds this class.
+    goes through the compiled kernel of :mod:`envs.fastdyn` or Pinocchio's ``abaInParallel``).
+    ``gymnasium.make_vec("UR5Reach-v0", num_envs=N)`` builds this class.
 
     Parameters
     ----------
@@ -63,6 +95,12 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         - ``disabled``: never reset automatically; call ``reset(options={"reset_mask": done})``.
     render_mode : {"rgb_array", "human"}, optional
         ``render()`` draws every copy (one frame each).
+    dynamics : {"auto", "fast", "pinocchio"}
+        Which implementation advances the arms (:data:`DYNAMICS`); the same physics to
+        floating-point rounding. ``auto`` (default) takes the compiled fast path for N > 1.
+    threads : int
+        CPU threads of the fast path (default 1: the two-core machines this runs on share
+        their cores with the learner; more pay on many-core hosts at large N).
 
     Observations are the single env's Dict with a leading (N,) axis; ``info`` holds
     :data:`INFO_KEYS` as (N, ...) arrays, each with a ``_key`` mask.
@@ -70,7 +108,8 @@ class BatchedReach(gymnasium.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, **overrides: Any) -> None:
+                 render_mode: str | None = None, dynamics: str = "auto", threads: int = 1,
+                 **overrides: Any) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
         mode = _autoreset_mode(autoreset_mode)
@@ -86,7 +125,8 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         self.render_mode = render_mode
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
                          "render_fps": self.task.control_hz}
-        self._core = ReachCore(self.task, self.num_envs)
+        self._core = ReachCore(self.task, self.num_envs,
+                               make_dynamics(self.task, self.num_envs, dynamics, threads))
         self.single_observation_space, self.single_action_space = self._core.single_spaces()
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)

@@ -1,14 +1,18 @@
 """Steps per second of ``UR5Reach-v0`` next to a peer env (FetchReach-v4) measured in the same run.
 
 Rows: the single env (``gymnasium.make``), the batched path (:class:`envs.BatchedReach`, N
-copies in one call), Gymnasium's ``SyncVectorEnv`` of N single envs (the Python loop the batched
-path replaces) and the peer. Every env gets the same protocol: uniform random actions drawn
-before the clock starts, an episode restarted whenever one ends, and several rounds interleaved
-across the envs so that the load of a shared machine hits all of them alike. The table gives
-each env's median over the rounds and its ratio to the peer's median.
+copies in one call, on the compiled kernel of :mod:`envs.fastdyn`), the same batched env on the
+reference Pinocchio dynamics, Gymnasium's ``SyncVectorEnv`` of N single envs (the Python loop
+the batched path replaces) and the peer. Every env gets the same protocol: uniform random
+actions drawn before the clock starts, an episode restarted whenever one ends, and several
+rounds interleaved across the envs so that the load of a shared machine hits all of them alike.
+The table gives each env's median over the rounds, the median over rounds of its ratio to the
+single env's steps/s in the same round, and its ratio to the peer's median. Vector rows count
+copy-steps (N per call).
 
     python -m envs.bench                 # the table
     python -m envs.bench --json          # machine-readable
+    python -m envs.bench --num-envs 4096 --peer none --sync 0   # a large batch
 """
 
 from __future__ import annotations
@@ -43,6 +47,15 @@ class BenchConfig:
     """Interleaved rounds; the table reports each env's median over them."""
     num_envs: int = 64
     """Copies N of the batched and sync-vector rows (0 skips both)."""
+    device: str = "cpu"
+    """Where the batched dynamics run. Only ``cpu`` exists today (numba kernel); ``cuda`` is
+    refused with the reason (results/batched_env/README.md has the plan)."""
+    threads: int = 1
+    """CPU threads of the batched env's fast dynamics."""
+    reference: bool = True
+    """Also measure the batched env on the reference Pinocchio dynamics."""
+    sync: bool = True
+    """Also measure Gymnasium's SyncVectorEnv of N single envs (slow at large N)."""
     region: str = "unconstrained"
     """Goal region of UR5Reach-v0 (any TaskSpec region string)."""
     n_joints: int = 3
@@ -97,6 +110,8 @@ def vector_runner(env: gymnasium.vector.VectorEnv, copy_steps: int, seed: int
     space = env.action_space
     actions = rng.uniform(space.low, space.high, (calls, *space.shape)).astype(space.dtype)
     env.reset(seed=seed)
+    env.step(actions[0])  # off the clock: a compiled path loads its kernels on the first call
+    env.reset(seed=seed)
     state = {"i": 0}
 
     def step() -> None:
@@ -133,13 +148,20 @@ def run(config: BenchConfig) -> dict[str, Any]:
     rows["UR5Reach-v0"] = single_runner(single, config.steps, config.seed)
     copy_steps = config.steps * max(config.num_envs, 1) // 8
     if config.num_envs > 0:
-        batched = envs.BatchedReach(config.num_envs, task)
+        batched = envs.BatchedReach(config.num_envs, task, threads=config.threads)
+        dynamics = type(batched._core.dynamics).__name__
+        notes[f"BatchedReach (N={config.num_envs})"] = f"dynamics: {dynamics}"
         rows[f"BatchedReach (N={config.num_envs})"] = vector_runner(batched, copy_steps,
                                                                     config.seed)
-        sync = gymnasium.make_vec("UR5Reach-v0", num_envs=config.num_envs,
-                                  vectorization_mode="sync", spec=task)
-        rows[f"SyncVectorEnv (N={config.num_envs})"] = vector_runner(sync, copy_steps,
-                                                                     config.seed)
+        if config.reference:
+            reference = envs.BatchedReach(config.num_envs, task, dynamics="pinocchio")
+            rows[f"BatchedReach (N={config.num_envs}, pinocchio)"] = vector_runner(
+                reference, copy_steps, config.seed)
+        if config.sync:
+            sync = gymnasium.make_vec("UR5Reach-v0", num_envs=config.num_envs,
+                                      vectorization_mode="sync", spec=task)
+            rows[f"SyncVectorEnv (N={config.num_envs})"] = vector_runner(sync, copy_steps,
+                                                                         config.seed)
     peer_name = None
     if config.peer.lower() != "none":
         peer = make_peer(config.peer)
@@ -153,11 +175,14 @@ def run(config: BenchConfig) -> dict[str, Any]:
         for name, measure in rows.items():
             samples[name].append(measure())
     medians = {name: statistics.median(values) for name, values in samples.items()}
+    single_rounds = samples["UR5Reach-v0"]
     results = []
     for name, values in samples.items():
         ratio = medians[name] / medians[peer_name] if peer_name else None
+        to_single = statistics.median(v / s for v, s in zip(values, single_rounds, strict=True))
         results.append({"env": name, "steps_per_s": medians[name], "min": min(values),
-                        "max": max(values), "ratio_to_peer": ratio})
+                        "max": max(values), "ratio_to_single": to_single,
+                        "ratio_to_peer": ratio})
     counted = rows["UR5Reach-v0"].state  # type: ignore[attr-defined]
     return {
         "config": dataclasses.asdict(config),
@@ -165,6 +190,7 @@ def run(config: BenchConfig) -> dict[str, Any]:
         "substeps_per_step": task.substeps,
         "contact_fraction": counted["contacts"] / max(counted["i"], 1),
         "peer": peer_name,
+        "device": config.device,
         "notes": notes,
         "machine": {"python": sys.version.split()[0], "platform": platform.platform(),
                     "processor": platform.processor() or platform.machine()},
@@ -181,14 +207,16 @@ def format_table(result: dict[str, Any]) -> str:
         f"{cfg['rounds']} rounds (median, min-max); the arm touched the plane in "
         f"{100 * result['contact_fraction']:.0f} % of the single env's steps",
         "",
-        f"{'env':<28} {'steps/s':>10} {'min':>10} {'max':>10} {'x ' + (peer or 'peer'):>18}",
+        f"{'env':<34} {'steps/s':>10} {'min':>10} {'max':>10} {'x single':>9} "
+        f"{'x ' + (peer or 'peer'):>16}",
     ]
     for row in result["results"]:
         ratio = f"{row['ratio_to_peer']:.2f}" if row["ratio_to_peer"] is not None else "-"
-        lines.append(f"{row['env']:<28} {row['steps_per_s']:>10.0f} {row['min']:>10.0f} "
-                     f"{row['max']:>10.0f} {ratio:>18}")
+        lines.append(f"{row['env']:<34} {row['steps_per_s']:>10.0f} {row['min']:>10.0f} "
+                     f"{row['max']:>10.0f} {row['ratio_to_single']:>9.2f} {ratio:>16}")
+    measured = {row["env"] for row in result["results"]}
     for name, note in result["notes"].items():
-        lines.append(f"{name}: not measured: {note}")
+        lines.append(f"{name}: {'' if name in measured else 'not measured: '}{note}")
     return "\n".join(lines)
 
 
@@ -205,6 +233,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="interleaved rounds; each env's median is reported")
     parser.add_argument("--num-envs", type=int, default=d.num_envs,
                         help="copies N of the batched and sync-vector rows (0 skips them)")
+    parser.add_argument("--device", default=d.device, choices=("cpu", "cuda"),
+                        help="where the batched dynamics run (cuda: not implemented yet, "
+                        "refused with the reason)")
+    parser.add_argument("--threads", type=int, default=d.threads,
+                        help="CPU threads of the batched env's compiled dynamics")
+    parser.add_argument("--reference", type=int, default=int(d.reference), choices=(0, 1),
+                        help="1: also time the batched env on the reference Pinocchio dynamics")
+    parser.add_argument("--sync", type=int, default=int(d.sync), choices=(0, 1),
+                        help="1: also time Gymnasium's SyncVectorEnv of N single envs")
     parser.add_argument("--region", default=d.region,
                         help="goal region of UR5Reach-v0 (a name or region string)")
     parser.add_argument("--n-joints", type=int, default=d.n_joints,
@@ -224,8 +261,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.steps < 1 or args.rounds < 1 or args.num_envs < 0:
         raise SystemExit("--steps and --rounds must be >= 1 and --num-envs >= 0")
+    if args.device == "cuda":
+        raise SystemExit("--device cuda: the batched dynamics have no CUDA kernel yet (envs."
+                         "fastdyn is a numba CPU kernel); see results/batched_env/README.md")
     config = BenchConfig(steps=args.steps, rounds=args.rounds, num_envs=args.num_envs,
-                         region=args.region, n_joints=args.n_joints,
+                         device=args.device, threads=args.threads,
+                         reference=bool(args.reference),
+                         sync=bool(args.sync), region=args.region, n_joints=args.n_joints,
                          control_mode=args.control_mode, peer=args.peer, seed=args.seed,
                          json=args.json)
     with warnings.catch_warnings():

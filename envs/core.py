@@ -47,6 +47,9 @@ class ReachCore:
     task : TaskSpec
     num_copies : int
         B.
+    dynamics : object, optional
+        The arm's dynamics for the B copies: an :class:`envs.dynamics.ArmDynamics` (built when
+        None) or anything with its attributes and methods (:class:`envs.fastdyn.FastArmDynamics`).
 
     Attributes
     ----------
@@ -69,11 +72,11 @@ class ReachCore:
     Arrays are overwritten in place by every call; copy what you keep.
     """
 
-    def __init__(self, task: TaskSpec, num_copies: int) -> None:
+    def __init__(self, task: TaskSpec, num_copies: int, dynamics: Any = None) -> None:
         self.task = task
         n, B = task.n_joints, num_copies
         self.sampler = task_sampler(task)
-        self.dynamics = ArmDynamics(task, num_copies)
+        self.dynamics = ArmDynamics(task, num_copies) if dynamics is None else dynamics
         self.action_low, self.action_high = command_bounds(task)
         self.goal = np.zeros((B, 3))
         self.achieved = np.zeros((B, 3))

@@ -19,7 +19,8 @@ def test_bench_help_explains_every_flag():
     out = run("-m", "envs.bench", "--help")
     assert out.returncode == 0, out.stderr
     for flag in ("--steps", "--rounds", "--num-envs", "--region", "--n-joints",
-                 "--control-mode", "--peer", "--seed", "--json"):
+                 "--control-mode", "--peer", "--seed", "--json", "--device", "--reference",
+                 "--sync"):
         assert flag in out.stdout
 
 
@@ -31,6 +32,7 @@ def test_bench_runs_and_prints_json():
     rows = {row["env"]: row for row in result["results"]}
     assert rows["UR5Reach-v0"]["steps_per_s"] > 0
     assert rows["BatchedReach (N=2)"]["steps_per_s"] > 0
+    assert rows["BatchedReach (N=2, pinocchio)"]["ratio_to_single"] > 0
     assert result["substeps_per_step"] == 20 and result["peer"] is None
     assert result["task"]["control_mode"] == "position"
 
@@ -59,3 +61,8 @@ def test_contact_study_runs_and_prints_json():
     assert set(rows) == {"stop", "compliant"}
     assert rows["stop"]["deepest"] == 0.0 and rows["stop"]["depth_stops"] == 0.0
     assert 0.0 <= rows["compliant"]["reached"] <= 1.0 and rows["compliant"]["steps_per_s"] > 0
+
+
+def test_bench_refuses_cuda_with_the_reason():
+    out = run("-m", "envs.bench", "--device", "cuda", "--peer", "none")
+    assert out.returncode != 0 and "no CUDA kernel" in out.stderr

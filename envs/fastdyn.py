@@ -1,0 +1,853 @@
+"""A compiled batched path for the arm's dynamics: a whole control step of B copies in one call.
+
+The physics is :class:`envs.dynamics.ArmDynamics`' (its module docstring has the equations,
+the stop model and the time-scaled units); only the tool differs. ArmDynamics calls Pinocchio
+twice per substep from a Python loop (``abaInParallel`` / ``rneaInParallel`` over the batch),
+then checks the stops with batched numpy; here one numba kernel runs, per copy, every substep of
+the step (PD + gravity compensation, effort clip, the articulated-body algorithm, velocity clip,
+semi-implicit Euler) and the stop checks, and stops a copy at its first invalid substep.
+
+Pinocchio stays the source and the reference: :class:`ChainModel` reads the joint placements,
+axes, spatial inertias, armature and gravity from the pinocchio model that
+:func:`ur5kin.load_model` returns, and the tests compare :func:`aba` with ``pin.aba`` and
+:class:`FastArmDynamics` with ArmDynamics. The plane check is the same math as
+:func:`regions.link_heights` (every link height is linear in 13 trigonometric features of ``q``;
+the coefficient matrix is read from :mod:`regions.clearance`), screened per substep by the
+Lipschitz bound of :func:`envs.dynamics.height_lipschitz`: an exact check runs only where the
+bound cannot prove the arm clear, which changes the cost, never the answer.
+
+Why numba: one kernel of scalar loops over a whole step, measured against Pinocchio's
+``abaInParallel`` path (3.5x faster per control step, 7x the single env's steps/s in the
+batched env at N = 64; ``results/batched_env/README.md``). The kernels are compiled on first
+use and cached on disk (``cache=True``): the first process pays the compile time stated there,
+later ones load the cache.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from dataclasses import replace as dataclasses_replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+import regions
+import ur5kin
+from envs.dynamics import height_lipschitz
+
+if TYPE_CHECKING:
+    from envs.spec import TaskSpec
+
+try:
+    import numba
+except ImportError:  # the fast path is optional: envs.batched falls back to ArmDynamics
+    numba = None
+
+NJ = 6
+"""Joints of the chain (the UR5's six revolute joints)."""
+
+AXES = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
+        "JointModelRZ": (0.0, 0.0, 1.0)}
+"""Joint axes (joint frame) of Pinocchio's axis-aligned revolute joints."""
+
+DTYPES = {"float64": np.float64, "float32": np.float32}
+"""Floating-point types the kernels are compiled for."""
+
+PARALLEL_CHUNKS_PER_THREAD = 4
+"""Blocks of copies per thread when stepping on several threads: copies that stop early (on the
+plane) finish sooner, and smaller blocks even the threads' loads out."""
+
+
+def available() -> bool:
+    """Whether the compiled path can run (numba is installed)."""
+    return numba is not None
+
+
+def supports(task: TaskSpec) -> bool:
+    """Whether :class:`FastArmDynamics` implements ``task``'s physics.
+
+    It implements the rigid stop model; another contact model (a ``contact_model`` field other
+    than ``"stop"``, when TaskSpec has one) goes through ArmDynamics.
+    """
+    return getattr(task, "contact_model", "stop") == "stop"
+
+
+# ---------------------------------------------------------------------------- the model
+@dataclass(frozen=True)
+class ChainModel:
+    """The UR5's serial chain as flat arrays, read from a Pinocchio model.
+
+    Attributes
+    ----------
+    rotation : (6, 3, 3) float
+        Joint placement rotations ``R`` of ``jointPlacements[i]`` (joint frame in its parent's).
+    translation : (6, 3) float, m, parent frame
+        Joint placement translations.
+    axis : (6, 3) float
+        Unit rotation axis of each joint, in its joint frame.
+    inertia : (6, 6, 6) float
+        Spatial inertia of each body in its joint frame (Pinocchio's ``Inertia.matrix()``,
+        ``[linear; angular]`` order), kg and kg m^2.
+    armature : (6,) float, kg m^2
+        Rotor inertia added to each joint's diagonal.
+    gravity : (3,) float, m/s^2, world frame
+        The model's gravity (linear part).
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    axis: np.ndarray
+    inertia: np.ndarray
+    armature: np.ndarray
+    gravity: np.ndarray
+
+    @classmethod
+    def from_pinocchio(cls, model: Any) -> ChainModel:
+        """Read the chain from ``model`` (a ``pinocchio.Model``).
+
+        Raises
+        ------
+        ValueError
+            When the model is not a serial chain of 6 revolute joints (joint i the parent of
+            joint i + 1), or has joint damping or friction (the kernels model neither).
+        """
+        if model.njoints != NJ + 1 or model.nq != NJ or model.nv != NJ:
+            raise ValueError(f"the fast dynamics need a 6-joint chain (njoints = 7, nq = nv = "
+                             f"6); got njoints = {model.njoints}, nq = {model.nq}, nv = "
+                             f"{model.nv}")
+        rotation, translation, axis, inertia = [], [], [], []
+        for j in range(1, NJ + 1):
+            joint = model.joints[j]
+            if model.parents[j] != j - 1:
+                raise ValueError(f"joint {j}'s parent is {model.parents[j]}, expected {j - 1}: "
+                                 "the fast dynamics handle a serial chain only")
+            kind = joint.shortname()
+            if kind in AXES:
+                axis.append(AXES[kind])
+            elif kind == "JointModelRevoluteUnaligned":
+                axis.append(np.asarray(joint.extract().axis, dtype=float))
+            else:
+                raise ValueError(f"joint {j} is a {kind}; the fast dynamics handle revolute "
+                                 f"joints ({sorted(AXES)} or JointModelRevoluteUnaligned)")
+            placement = model.jointPlacements[j]
+            rotation.append(np.asarray(placement.rotation))
+            translation.append(np.asarray(placement.translation))
+            inertia.append(np.asarray(model.inertias[j].matrix()))
+        for name in ("damping", "friction"):
+            values = np.asarray(getattr(model, name), dtype=float)
+            if np.any(values != 0.0):
+                raise ValueError(f"the model's joint {name} is {values.tolist()}; the fast "
+                                 "dynamics model neither damping nor friction (expected zeros)")
+        return cls(np.array(rotation), np.array(translation), np.array(axis), np.array(inertia),
+                   np.asarray(model.armature, dtype=float).copy(),
+                   np.asarray(model.gravity.linear, dtype=float).copy())
+
+    def astype(self, dtype: Any) -> ChainModel:
+        """The same arrays as ``dtype`` (contiguous, for the kernels)."""
+        return ChainModel(*(np.ascontiguousarray(getattr(self, f), dtype=dtype)
+                            for f in ("rotation", "translation", "axis", "inertia", "armature",
+                                      "gravity")))
+
+
+@functools.cache
+def ur5_chain(dtype: str = "float64") -> ChainModel:
+    """:class:`ChainModel` of :func:`ur5kin.load_model` as ``dtype`` (cached)."""
+    return ChainModel.from_pinocchio(ur5kin.load_model()).astype(DTYPES[dtype])
+
+
+@dataclass(frozen=True)
+class PlaneModel:
+    """The plane check's constants, from :mod:`regions.clearance` (same math, same numbers).
+
+    Attributes
+    ----------
+    vertex_heights : (V, 13) float, m
+        Height above base_link of every vertex that can be a link's lowest, per feature.
+    bounds : (8,) int
+        Rows ``bounds[k]:bounds[k + 1]`` belong to link k (0 = base_link, never checked).
+    lift_offset, wrist_offset : float, rad
+        Offsets of the pitches the features use (:func:`regions.clearance._features`).
+    lipschitz : (6, 6) float, m/rad
+        :func:`envs.dynamics.height_lipschitz`: ``|dz_k| <= sum_i R[i, k] |dq_i|``.
+    """
+
+    vertex_heights: np.ndarray
+    bounds: np.ndarray
+    lift_offset: float
+    wrist_offset: float
+    lipschitz: np.ndarray
+
+
+@functools.cache
+def ur5_plane(dtype: str = "float64") -> PlaneModel:
+    """:class:`PlaneModel` of the UR5 as ``dtype`` (cached)."""
+    from regions import clearance
+
+    kernels = clearance._kernels()
+    lift, wrist = clearance._angle_offsets()
+    cast = DTYPES[dtype]
+    return PlaneModel(np.ascontiguousarray(kernels.vertex_heights, dtype=cast),
+                      np.ascontiguousarray(kernels.bounds, dtype=np.int64), float(lift),
+                      float(wrist), np.ascontiguousarray(height_lipschitz(), dtype=cast))
+
+
+# ---------------------------------------------------------------------------- kernels
+def _njit(func: Any) -> Any:
+    """``numba.njit(cache=True)`` when numba is there; the plain function otherwise."""
+    return numba.njit(cache=True, nogil=True)(func) if numba is not None else func
+
+
+@_njit
+def _placements(q, rot0, axis, R):  # pragma: no cover - compiled
+    """``R[i] = rot0[i] Rot(axis[i], q[i])``: each body's rotation in its parent's frame."""
+    for i in range(6):
+        s, c = np.sin(q[i]), np.cos(q[i])
+        ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
+        t = 1.0 - c
+        # Rodrigues: c I + t a a^T + s [a]x
+        r00, r01, r02 = c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay
+        r10, r11, r12 = t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax
+        r20, r21, r22 = t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az
+        for r in range(3):
+            a0, a1, a2 = rot0[i, r, 0], rot0[i, r, 1], rot0[i, r, 2]
+            R[i, r, 0] = a0 * r00 + a1 * r10 + a2 * r20
+            R[i, r, 1] = a0 * r01 + a1 * r11 + a2 * r21
+            R[i, r, 2] = a0 * r02 + a1 * r12 + a2 * r22
+
+
+@_njit
+def _motion_inv(R, p, m, out):  # pragma: no cover - compiled
+    """``out = M^-1 m`` for a motion ``m = [v; w]`` in the parent frame, ``M = (R, p)``."""
+    w0, w1, w2 = m[3], m[4], m[5]
+    # linear velocity at the child origin: v + w x p, then rotated into the child frame
+    l0 = m[0] + w1 * p[2] - w2 * p[1]
+    l1 = m[1] + w2 * p[0] - w0 * p[2]
+    l2 = m[2] + w0 * p[1] - w1 * p[0]
+    for r in range(3):
+        out[r] = R[0, r] * l0 + R[1, r] * l1 + R[2, r] * l2
+        out[3 + r] = R[0, r] * w0 + R[1, r] * w1 + R[2, r] * w2
+
+
+@_njit
+def _force_act(R, p, f, out):  # pragma: no cover - compiled
+    """``out += M f`` for a force ``f = [f; n]`` in the child frame, ``M = (R, p)``."""
+    f0 = R[0, 0] * f[0] + R[0, 1] * f[1] + R[0, 2] * f[2]
+    f1 = R[1, 0] * f[0] + R[1, 1] * f[1] + R[1, 2] * f[2]
+    f2 = R[2, 0] * f[0] + R[2, 1] * f[1] + R[2, 2] * f[2]
+    out[0] += f0
+    out[1] += f1
+    out[2] += f2
+    out[3] += R[0, 0] * f[3] + R[0, 1] * f[4] + R[0, 2] * f[5] + p[1] * f2 - p[2] * f1
+    out[4] += R[1, 0] * f[3] + R[1, 1] * f[4] + R[1, 2] * f[5] + p[2] * f0 - p[0] * f2
+    out[5] += R[2, 0] * f[3] + R[2, 1] * f[4] + R[2, 2] * f[5] + p[0] * f1 - p[1] * f0
+
+
+@_njit
+def _gravity_torque(R, p, axis, inertia, grav, acc, force, out):  # pragma: no cover
+    """``out = g(q)``: RNEA at rest (v = 0, qdd = 0) for the placements ``R`` of ``q``."""
+    for k in range(6):
+        acc[0, k] = 0.0
+    for k in range(3):
+        acc[0, k] = -grav[k]  # the base accelerates up: gravity as a fictitious force
+    for i in range(6):
+        _motion_inv(R[i], p[i], acc[i], acc[i + 1])
+        for r in range(6):
+            s = 0.0
+            for k in range(6):
+                s += inertia[i, r, k] * acc[i + 1, k]
+            force[i, r] = s
+    for i in range(5, -1, -1):
+        out[i] = axis[i, 0] * force[i, 3] + axis[i, 1] * force[i, 4] + axis[i, 2] * force[i, 5]
+        if i > 0:
+            _force_act(R[i], p[i], force[i], force[i - 1])
+
+
+@_njit
+def _rotate_blocks(R, ia, M, out):  # pragma: no cover - compiled
+    """``out``'s blocks A', B', C' = R A R^T, R B R^T, R C R^T of ``ia = [A, B; B^T, C]``."""
+    for ro, co in ((0, 0), (0, 3), (3, 3)):
+        for r in range(3):
+            for k in range(3):
+                M[r, k] = R[r, 0] * ia[ro, co + k] + R[r, 1] * ia[ro + 1, co + k] + \
+                    R[r, 2] * ia[ro + 2, co + k]
+        for r in range(3):
+            for k in range(3):
+                out[ro + r, co + k] = M[r, 0] * R[k, 0] + M[r, 1] * R[k, 1] + M[r, 2] * R[k, 2]
+
+
+@_njit
+def _shift_into(p, Y, S, parent):  # pragma: no cover - compiled
+    """``parent += [A', B' - A'P; (B' - A'P)^T, C' + P B' + (P B')^T - P A' P]``, P = [p]x,
+    for the rotated blocks in ``Y`` (``S (6, 6)`` scratch)."""
+    p0, p1, p2 = p[0], p[1], p[2]
+    for r in range(3):  # A'P
+        S[r, 3] = Y[r, 1] * p2 - Y[r, 2] * p1
+        S[r, 4] = Y[r, 2] * p0 - Y[r, 0] * p2
+        S[r, 5] = Y[r, 0] * p1 - Y[r, 1] * p0
+    for k in range(3):  # P B' and P (A'P)
+        S[3, k] = p1 * Y[2, 3 + k] - p2 * Y[1, 3 + k]
+        S[4, k] = p2 * Y[0, 3 + k] - p0 * Y[2, 3 + k]
+        S[5, k] = p0 * Y[1, 3 + k] - p1 * Y[0, 3 + k]
+        S[3, 3 + k] = p1 * S[2, 3 + k] - p2 * S[1, 3 + k]
+        S[4, 3 + k] = p2 * S[0, 3 + k] - p0 * S[2, 3 + k]
+        S[5, 3 + k] = p0 * S[1, 3 + k] - p1 * S[0, 3 + k]
+    for r in range(3):
+        for k in range(3):
+            parent[r, k] += Y[r, k]
+            top = Y[r, 3 + k] - S[r, 3 + k]
+            parent[r, 3 + k] += top
+            parent[3 + k, r] += top
+            parent[3 + r, 3 + k] += Y[3 + r, 3 + k] + S[3 + r, k] + S[3 + k, r] - S[3 + r, 3 + k]
+
+
+@_njit
+def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u, X, Y, acc,
+         qdd):  # pragma: no cover - compiled
+    """Featherstone's articulated-body algorithm (Pinocchio's ``aba``): ``qdd`` for the
+    placements ``R`` (of ``q``), velocities ``qd`` and torques ``tau``.
+
+    Scratch: ``vel, acc (7, 6)`` (row i + 1 is body i, row 0 the fixed base), ``cb, pA, U (6,
+    6)``, ``IA (6, 6, 6)``, ``X, Y (6, 6)``, ``D, u (6,)``.
+    """
+    for k in range(6):
+        vel[0, k] = 0.0
+    # pass 1: velocities, bias accelerations c = v x (S qd), bias forces p = v x* (I v)
+    for i in range(6):
+        vi = vel[i + 1]
+        _motion_inv(R[i], p[i], vel[i], vi)
+        sx, sy, sz = axis[i, 0] * qd[i], axis[i, 1] * qd[i], axis[i, 2] * qd[i]
+        vi[3] += sx
+        vi[4] += sy
+        vi[5] += sz
+        # c = v x_m [0; s] = [v_lin x s; w x s]
+        cb[i, 0] = vi[1] * sz - vi[2] * sy
+        cb[i, 1] = vi[2] * sx - vi[0] * sz
+        cb[i, 2] = vi[0] * sy - vi[1] * sx
+        cb[i, 3] = vi[4] * sz - vi[5] * sy
+        cb[i, 4] = vi[5] * sx - vi[3] * sz
+        cb[i, 5] = vi[3] * sy - vi[4] * sx
+        for r in range(6):
+            s = 0.0
+            for k in range(6):
+                s += inertia[i, r, k] * vi[k]
+                IA[i, r, k] = inertia[i, r, k]
+            Y[0, r] = s  # h = I v
+        # p = v x_f h = [w x h_lin; w x h_ang + v_lin x h_lin]
+        h0, h1, h2, h3, h4, h5 = Y[0, 0], Y[0, 1], Y[0, 2], Y[0, 3], Y[0, 4], Y[0, 5]
+        w0, w1, w2 = vi[3], vi[4], vi[5]
+        pA[i, 0] = w1 * h2 - w2 * h1
+        pA[i, 1] = w2 * h0 - w0 * h2
+        pA[i, 2] = w0 * h1 - w1 * h0
+        pA[i, 3] = w1 * h5 - w2 * h4 + vi[1] * h2 - vi[2] * h1
+        pA[i, 4] = w2 * h3 - w0 * h5 + vi[2] * h0 - vi[0] * h2
+        pA[i, 5] = w0 * h4 - w1 * h3 + vi[0] * h1 - vi[1] * h0
+    # pass 2: articulated inertias and bias forces, tip to base
+    for i in range(5, -1, -1):
+        ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
+        for r in range(6):
+            U[i, r] = IA[i, r, 3] * ax + IA[i, r, 4] * ay + IA[i, r, 5] * az
+        D[i] = U[i, 3] * ax + U[i, 4] * ay + U[i, 5] * az + armature[i]
+        u[i] = tau[i] - (pA[i, 3] * ax + pA[i, 4] * ay + pA[i, 5] * az)
+        if i == 0:
+            break
+        inv_d = 1.0 / D[i]
+        # Ia = IA - U U^T / D; pa = pA + Ia c + U u / D, carried to the parent
+        for r in range(6):
+            for k in range(6):
+                IA[i, r, k] -= U[i, r] * U[i, k] * inv_d
+        for r in range(6):
+            s = pA[i, r] + U[i, r] * u[i] * inv_d
+            for k in range(6):
+                s += IA[i, r, k] * cb[i, k]
+            Y[1, r] = s
+        _force_act(R[i], p[i], Y[1], pA[i - 1])
+        # IA[parent] += X^T Ia X, X = [R^T, -R^T [p]x; 0, R^T] the parent-to-child motion map,
+        # by 3x3 blocks: Ia = [A, B; B^T, C] rotated, A' = R A R^T (and B', C'), then shifted
+        # by P = [p]x: [A', B' - A'P; (.)^T, C' + P B' + (P B')^T - P A' P].
+        _rotate_blocks(R[i], IA[i], X, Y)
+        _shift_into(p[i], Y, X, IA[i - 1])
+    # pass 3: accelerations, base to tip (the base accelerates up: gravity)
+    for k in range(6):
+        acc[0, k] = 0.0
+    for k in range(3):
+        acc[0, k] = -grav[k]
+    for i in range(6):
+        ai = acc[i + 1]
+        _motion_inv(R[i], p[i], acc[i], ai)
+        for k in range(6):
+            ai[k] += cb[i, k]
+        s = u[i]
+        for k in range(6):
+            s -= U[i, k] * ai[k]
+        qdd[i] = s / D[i]
+        ai[3] += axis[i, 0] * qdd[i]
+        ai[4] += axis[i, 1] * qdd[i]
+        ai[5] += axis[i, 2] * qdd[i]
+
+
+@_njit
+def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torque, out
+               ):  # pragma: no cover - compiled
+    """``out[b] = aba(q[b], qd[b], tau[b])`` (plus ``g(q[b])`` in tau when gravity_torque)."""
+    dt = q.dtype
+    R = np.empty((6, 3, 3), dt)
+    vel, acc = np.empty((7, 6), dt), np.empty((7, 6), dt)
+    cb, pA, U = np.empty((6, 6), dt), np.empty((6, 6), dt), np.empty((6, 6), dt)
+    IA = np.empty((6, 6, 6), dt)
+    X, Y = np.empty((6, 6), dt), np.empty((6, 6), dt)
+    D, u, t, g = np.empty(6, dt), np.empty(6, dt), np.empty(6, dt), np.empty(6, dt)
+    force = np.empty((6, 6), dt)
+    for b in range(q.shape[0]):
+        _placements(q[b], rot0, axis, R)
+        for k in range(6):
+            t[k] = tau[b, k]
+        if gravity_torque:
+            _gravity_torque(R, p, axis, inertia, grav, acc, force, g)
+            for k in range(6):
+                t[k] += g[k]
+        _aba(R, p, axis, inertia, armature, grav, qd[b], t, vel, cb, IA, pA, U, D, u, X, Y,
+             acc, out[b])
+
+
+@_njit
+def _gravity_batch(q, rot0, p, axis, inertia, grav, out):  # pragma: no cover - compiled
+    """``out[b] = g(q[b])``: the generalized gravity torque."""
+    dt = q.dtype
+    R = np.empty((6, 3, 3), dt)
+    acc, force = np.empty((7, 6), dt), np.empty((6, 6), dt)
+    for b in range(q.shape[0]):
+        _placements(q[b], rot0, axis, R)
+        _gravity_torque(R, p, axis, inertia, grav, acc, force, out[b])
+
+
+def _batch(x: Any, name: str, dtype: Any) -> np.ndarray:
+    """``x`` as a C-contiguous ``(B, 6)`` array of ``dtype``; ValueError otherwise."""
+    arr = np.ascontiguousarray(x, dtype=dtype)
+    if arr.ndim != 2 or arr.shape[1] != NJ or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be a finite (B, 6) array; got shape {arr.shape}")
+    return arr
+
+
+def _dtype_name(dtype: Any) -> str:
+    name = np.dtype(dtype).name
+    if name not in DTYPES:
+        raise ValueError(f"dtype must be one of {sorted(DTYPES)}; got {name!r}")
+    return name
+
+
+def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64) -> np.ndarray:
+    """Joint accelerations of B copies of the UR5 (Pinocchio's ``aba`` for each row), batched.
+
+    Parameters
+    ----------
+    q : (B, 6) float, rad
+    v : (B, 6) float, rad/s
+    tau : (B, 6) float, N m
+    dtype : float64 or float32
+        The arithmetic of the kernel (and of the result).
+
+    Returns
+    -------
+    a : (B, 6) float, rad/s^2
+        ``M(q)^-1 (tau - C(q, v) v - g(q))`` under the model's gravity.
+    """
+    name = _dtype_name(dtype)
+    chain, cast = ur5_chain(name), DTYPES[name]
+    q, v, tau = _batch(q, "q", cast), _batch(v, "v", cast), _batch(tau, "tau", cast)
+    if not q.shape == v.shape == tau.shape:
+        raise ValueError(f"q, v and tau must have one shape; got {q.shape}, {v.shape}, "
+                         f"{tau.shape}")
+    out = np.empty_like(q)
+    _aba_batch(q, v, tau, chain.rotation, chain.translation, chain.axis, chain.inertia,
+               chain.armature, chain.gravity, False, out)
+    return out
+
+
+def generalized_gravity(q: Any, dtype: Any = np.float64) -> np.ndarray:
+    """Gravity torques ``g(q) (B, 6)`` N m of B copies (Pinocchio's
+    ``computeGeneralizedGravity`` for each row ``q (B, 6)`` rad), batched."""
+    name = _dtype_name(dtype)
+    chain = ur5_chain(name)
+    q = _batch(q, "q", DTYPES[name])
+    out = np.empty_like(q)
+    _gravity_batch(q, chain.rotation, chain.translation, chain.axis, chain.inertia,
+                   chain.gravity, out)
+    return out
+
+
+@_njit
+def _link_heights(q, vh, bounds, lift, wrist, base_height, feat, out
+                  ):  # pragma: no cover - compiled
+    """``out[k - 1]``: exact lowest point (m, world z) of moving link k = 1..6 at ``q``.
+
+    The features and the product of :func:`regions.clearance._exact`, written out.
+    """
+    a = q[1] + lift
+    b = a + q[2]
+    c = b + q[3] + wrist
+    sc, cc = np.sin(c), np.cos(c)
+    s5, c5, s6, c6 = np.sin(q[4]), np.cos(q[4]), np.sin(q[5]), np.cos(q[5])
+    feat[0] = 1.0
+    feat[1], feat[2] = np.sin(a), np.cos(a)
+    feat[3], feat[4] = np.sin(b), np.cos(b)
+    feat[5], feat[6] = sc, cc
+    feat[7] = sc * c5
+    feat[8] = sc * s5
+    feat[9] = feat[7] * c6
+    feat[10] = cc * s6
+    feat[11] = cc * c6
+    feat[12] = feat[7] * s6
+    for k in range(1, 7):
+        low = np.inf
+        for row in range(bounds[k], bounds[k + 1]):
+            s = 0.0
+            for f in range(13):
+                s += vh[row, f] * feat[f]
+            low = min(low, s)
+        out[k - 1] = low + base_height
+
+
+@_njit
+def _tool_position(R, p, tool_pos, base_height, out):  # pragma: no cover - compiled
+    """``out``: tool0's world position (m) for the placements ``R``; base at base_height.
+
+    ``tool_pos (3,)`` m: the tool frame's origin in joint 6's frame."""
+    # oMi = oMi-1 liMi, accumulated as (Ro, po); the tool: po + Ro tool_pos
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    x, y, z = 0.0, 0.0, 0.0
+    for i in range(6):
+        Ri, pi = R[i], p[i]
+        x, y, z = (x + r00 * pi[0] + r01 * pi[1] + r02 * pi[2],
+                   y + r10 * pi[0] + r11 * pi[1] + r12 * pi[2],
+                   z + r20 * pi[0] + r21 * pi[1] + r22 * pi[2])
+        n00 = r00 * Ri[0, 0] + r01 * Ri[1, 0] + r02 * Ri[2, 0]
+        n01 = r00 * Ri[0, 1] + r01 * Ri[1, 1] + r02 * Ri[2, 1]
+        n02 = r00 * Ri[0, 2] + r01 * Ri[1, 2] + r02 * Ri[2, 2]
+        n10 = r10 * Ri[0, 0] + r11 * Ri[1, 0] + r12 * Ri[2, 0]
+        n11 = r10 * Ri[0, 1] + r11 * Ri[1, 1] + r12 * Ri[2, 1]
+        n12 = r10 * Ri[0, 2] + r11 * Ri[1, 2] + r12 * Ri[2, 2]
+        n20 = r20 * Ri[0, 0] + r21 * Ri[1, 0] + r22 * Ri[2, 0]
+        n21 = r20 * Ri[0, 1] + r21 * Ri[1, 1] + r22 * Ri[2, 1]
+        n22 = r20 * Ri[0, 2] + r21 * Ri[1, 2] + r22 * Ri[2, 2]
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = n00, n01, n02, n10, n11, n12, n20, n21, n22
+    out[0] = x + r00 * tool_pos[0] + r01 * tool_pos[1] + r02 * tool_pos[2]
+    out[1] = y + r10 * tool_pos[0] + r11 * tool_pos[1] + r12 * tool_pos[2]
+    out[2] = z + r20 * tool_pos[0] + r21 * tool_pos[1] + r22 * tool_pos[2] + base_height
+
+
+@_njit
+def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+                  vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
+                  rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
+                  tool, first, stop):  # pragma: no cover - compiled
+    """One control step of copies ``first .. stop - 1``, in the time-scaled units of
+    ArmDynamics.
+
+    Per copy b: ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
+    ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'``; a substep that leaves the
+    joint limits ``|q - q_mid| > q_half`` or brings a moving link below ``margin`` (m, world
+    z) is not taken: the copy stays at the last valid substep with ``w = 0`` and the rest of
+    the step is skipped (ArmDynamics computes and discards it: the same answer).
+    ``clearance[b]`` (m) is a lower bound of each moving link's height at ``Q[b]``, kept
+    valid; the exact heights are computed only when the Lipschitz bound of the substep cannot
+    prove the link clear. Writes ``Q, W`` (the new state), ``dW = W_new - W_old``, the stop
+    flags and the tool's world position.
+    """
+    dt = Q.dtype
+    R = np.empty((6, 3, 3), dt)
+    vel, acc = np.empty((7, 6), dt), np.empty((7, 6), dt)
+    cb, pA, U = np.empty((6, 6), dt), np.empty((6, 6), dt), np.empty((6, 6), dt)
+    IA = np.empty((6, 6, 6), dt)
+    X, Y = np.empty((6, 6), dt), np.empty((6, 6), dt)
+    D, u, tau, g, a = (np.empty(6, dt), np.empty(6, dt), np.empty(6, dt), np.empty(6, dt),
+                       np.empty(6, dt))
+    force = np.empty((6, 6), dt)
+    q, w, q1, w1, q_ref = (np.empty(6, dt), np.empty(6, dt), np.empty(6, dt), np.empty(6, dt),
+                           np.empty(6, dt))
+    known, heights, feat = np.empty(6, dt), np.empty(6, dt), np.empty(13, dt)
+    for b in range(first, stop):
+        for k in range(6):
+            q[k] = Q[b, k]
+            w[k] = W[b, k]
+            q_ref[k] = q[k]
+            known[k] = clearance[b, k]
+        hit_plane = False
+        hit_limit = False
+        for _ in range(substeps):
+            _placements(q, rot0, axis, R)
+            for k in range(6):
+                tau[k] = bias[b, k] - kp[k] * q[k] - kd[k] * w[k]
+            if gravity_comp:
+                _gravity_torque(R, p, axis, inertia, grav, acc, force, g)
+                for k in range(6):
+                    tau[k] += g[k]
+            for k in range(6):
+                tau[k] = min(max(tau[k], -effort[k]), effort[k])
+            _aba(R, p, axis, inertia, armature, grav, w, tau, vel, cb, IA, pA, U, D, u, X, Y,
+                 acc, a)
+            for k in range(6):
+                w1[k] = min(max(w[k] + a[k], -w_max[k]), w_max[k])
+                q1[k] = q[k] + w1[k]
+                if abs(q1[k] - q_mid[k]) > q_half[k]:
+                    hit_limit = True
+            # the plane: exact heights only where the bound from the last exact ones fails
+            unsure = False
+            for k in range(6):
+                bound = known[k]
+                for i in range(6):
+                    bound -= lipschitz[i, k] * abs(q1[i] - q_ref[i])
+                if bound < margin:
+                    unsure = True
+            if unsure:
+                _link_heights(q1, vh, bounds, lift, wrist, base_height, feat, heights)
+                for k in range(6):
+                    known[k] = heights[k]
+                    q_ref[k] = q1[k]
+                    if heights[k] < margin:
+                        hit_plane = True
+            if hit_plane or hit_limit:
+                for k in range(6):
+                    w[k] = 0.0  # stopped dead at the last valid substep
+                break
+            for k in range(6):
+                q[k] = q1[k]
+                w[k] = w1[k]
+        for k in range(6):
+            dW[b, k] = w[k] - W[b, k]
+            Q[b, k] = q[k]
+            W[b, k] = w[k]
+            bound = known[k]
+            for i in range(6):
+                bound -= lipschitz[i, k] * abs(q[i] - q_ref[i])
+            clearance[b, k] = bound
+        contact[b] = hit_plane
+        limit_stop[b] = hit_limit
+        _placements(q, rot0, axis, R)
+        _tool_position(R, p, tool_pos, base_height, tool[b])
+
+
+def _parallel_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
+                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
+                   tool, chunks):  # pragma: no cover - compiled
+    """:func:`_control_step` over ``chunks`` blocks of copies, on numba's thread pool."""
+    size = (Q.shape[0] + chunks - 1) // chunks
+    for c in numba.prange(chunks):
+        _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid,
+                      q_half, vh, bounds, lift, wrist, lipschitz, base_height, margin,
+                      clearance, rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact,
+                      limit_stop, tool, c * size, min(Q.shape[0], (c + 1) * size))
+
+
+if numba is not None:
+    _parallel_step = numba.njit(cache=True, parallel=True)(_parallel_step)
+
+
+@_njit
+def _tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma: no cover
+    """``tool[b]``: tool0's world position (m) for ``Q[b]``, for each b in ``rows``."""
+    R = np.empty((6, 3, 3), Q.dtype)
+    for b in rows:
+        _placements(Q[b], rot0, axis, R)
+        _tool_position(R, p, tool_pos, base_height, tool[b])
+
+
+# ---------------------------------------------------------------------------- the class
+class FastArmDynamics:
+    """B copies of the UR5 under the task's controller, one compiled call per control step.
+
+    A drop-in for :class:`envs.dynamics.ArmDynamics` (same parameters, attributes and
+    methods, same physics to rounding; tested against it), built for B > 1.
+
+    Parameters
+    ----------
+    task : TaskSpec
+        Start pose, controlled joints, control mode, gains, rates, base height, plane margin.
+    num_copies : int
+        B, the number of independent arms.
+    dtype : {"float64", "float32"}
+        The kernel's arithmetic and the state's type. float32 trajectories drift from float64
+        ones (the bounds are in the tests); the env uses float64.
+    threads : int
+        Threads of numba's pool that step the copies (1: the calling thread alone, no pool).
+        Each copy is computed the same way whatever the count: results do not depend on it.
+
+    Attributes
+    ----------
+    q : (B, 6) float, rad
+        Joint angles now.
+    v : (B, 6) float, rad/s
+        Joint velocities now.
+    acceleration : (B, 6) float, rad/s^2
+        Mean realised acceleration over the last step (zero after a reset).
+    contact : (B,) bool
+        Whether the last step stopped on the plane.
+    limit_stop : (B,) bool
+        Whether the last step stopped at a URDF joint position limit.
+
+    The arrays are owned by this object and overwritten by every step; copy what you keep.
+    """
+
+    def __init__(self, task: TaskSpec, num_copies: int = 1, dtype: str = "float64",
+                 threads: int = 1) -> None:
+        if not available():
+            raise RuntimeError("FastArmDynamics needs numba (pip install numba); "
+                               "envs.dynamics.ArmDynamics is the path without it")
+        if not isinstance(num_copies, int | np.integer) or num_copies < 1:
+            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
+        if not supports(task):
+            raise ValueError(f"FastArmDynamics implements the stop contact model; got "
+                             f"contact_model={getattr(task, 'contact_model', None)!r}")
+        pool = numba.config.NUMBA_NUM_THREADS
+        if not isinstance(threads, int | np.integer) or not 1 <= threads <= pool:
+            raise ValueError(f"threads must be an integer in [1, {pool}] (numba's pool on this "
+                             f"machine); got {threads!r}")
+        name = _dtype_name(dtype)
+        cast = DTYPES[name]
+        self.task, self.num_copies, self.dtype = task, int(num_copies), name
+        self.threads = int(threads)
+        B, h, n = self.num_copies, task.sim_dt, task.n_joints
+        model = ur5kin.load_model()
+        chain = ChainModel.from_pinocchio(model)
+        # time-scaled units (envs.dynamics): gravity and torques * h^2, velocities w = h v
+        self._chain = dataclasses_replace(chain, gravity=chain.gravity * h * h).astype(cast)
+        self._plane = ur5_plane(name)
+        tool = model.frames[model.getFrameId(ur5kin.TOOL_FRAME)]
+        if tool.parentJoint != NJ:
+            raise ValueError(f"{ur5kin.TOOL_FRAME} hangs on joint {tool.parentJoint}; the fast "
+                             f"path expects joint {NJ}")
+        self._tool_pos = np.ascontiguousarray(tool.placement.translation, dtype=cast)
+
+        kp, kd = np.asarray(task.kp) * h * h, np.asarray(task.kd) * h
+        kp_eff, kd_eff = kp.copy(), kd.copy()
+        if task.control_mode != "position":
+            kp_eff[:n] = 0.0
+        if task.control_mode == "torque":
+            kd_eff[:n] = 0.0
+        self._kp, self._kd = kp_eff.astype(cast), kd_eff.astype(cast)
+        # command -> constant torque part b: kp q_cmd, kd (h v_cmd) or h^2 tau_cmd
+        self._command_gain = {"position": kp[:n], "velocity": kd[:n] * h,
+                              "torque": np.full(n, h * h)}[task.control_mode].astype(cast)
+        self._effort = (ur5kin.effort_limits() * h * h).astype(cast)
+        self._w_max = (ur5kin.velocity_limits() * h).astype(cast)
+        lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
+        self._q_mid, self._q_half = (0.5 * (lo + hi)).astype(cast), (0.5 * (hi - lo)).astype(cast)
+        self._start = np.asarray(task.start_q, dtype=float)
+        self._bias = np.zeros((B, NJ), dtype=cast)
+        self._bias[:, n:] = kp[n:] * self._start[n:]  # held joints: PD to the start
+        self._w_to_v, self._w_to_accel = 1.0 / h, 1.0 / (h * task.dt)
+
+        self.q = np.tile(self._start, (B, 1)).astype(cast)
+        self._w = np.zeros((B, NJ), dtype=cast)
+        self._dw = np.zeros((B, NJ), dtype=cast)
+        self.v = np.zeros((B, NJ), dtype=cast)
+        self.acceleration = np.zeros((B, NJ), dtype=cast)
+        self.contact = np.zeros(B, dtype=bool)
+        self.limit_stop = np.zeros(B, dtype=bool)
+        self._clearance = np.tile(self._link_heights(self._start), (B, 1)).astype(cast)
+        self._tool = np.zeros((B, 3), dtype=cast)
+        self._update_tools(np.arange(B))
+
+    def _link_heights(self, q: np.ndarray) -> np.ndarray:
+        """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""
+        return regions.link_heights(q, self.task.base_height)[..., 1:]
+
+    def _update_tools(self, rows: np.ndarray) -> None:
+        c = self._chain
+        _tool_batch(self.q, rows.astype(np.int64), c.rotation, c.translation, c.axis,
+                    self._tool_pos, float(self.task.base_height), self._tool)
+
+    def reset(self, q: Any, index: Any = None) -> None:
+        """Put copies at rest at configurations ``q``.
+
+        Parameters
+        ----------
+        q : (6,) or (m, 6) float, rad
+            Configurations, clear of the plane and within the joint limits.
+        index : None, int, slice, (m,) int or (B,) bool
+            Which copies (all when None).
+
+        Raises
+        ------
+        ValueError
+            When a configuration is not clear of the plane by the task's margin.
+        """
+        sel = slice(None) if index is None else index
+        q = np.asarray(q, dtype=float)
+        heights = self._link_heights(q)
+        if np.any(heights < self.task.plane_margin):
+            raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
+                             f"{heights.min():.4f} m, below the plane margin "
+                             f"{self.task.plane_margin} m")
+        self.q[sel] = q
+        self.v[sel] = 0.0
+        self._w[sel] = 0.0
+        self.acceleration[sel] = 0.0
+        self.contact[sel] = False
+        self.limit_stop[sel] = False
+        self._clearance[sel] = heights
+        self._update_tools(np.arange(self.num_copies)[sel].reshape(-1))
+
+    def step(self, command: np.ndarray) -> None:
+        """Advance every copy by one control step of ``task.substeps`` substeps.
+
+        Parameters
+        ----------
+        command : (B, n) float
+            Per copy, the command of joints 1..n in the control mode's unit (rad, rad/s or
+            N m), already within :func:`envs.dynamics.command_bounds`.
+        """
+        task, c, pl = self.task, self._chain, self._plane
+        np.multiply(self._command_gain, command, out=self._bias[:, : task.n_joints])
+        args = (self.q, self._w, self._bias, self._kp, self._kd, self._effort, self._w_max,
+                bool(task.gravity_compensation), task.substeps, self._q_mid, self._q_half,
+                pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
+                float(task.base_height), float(task.plane_margin), self._clearance, c.rotation,
+                c.translation, c.axis, c.inertia, c.armature, c.gravity, self._tool_pos,
+                self._dw, self.contact, self.limit_stop, self._tool)
+        if self.threads == 1:
+            _control_step(*args, 0, self.num_copies)
+        else:
+            numba.set_num_threads(self.threads)
+            _parallel_step(*args, min(self.num_copies, PARALLEL_CHUNKS_PER_THREAD
+                                      * self.threads))
+        np.multiply(self._dw, self._w_to_accel, out=self.acceleration)
+        np.multiply(self._w, self._w_to_v, out=self.v)
+
+    def tool_positions(self, out: np.ndarray) -> np.ndarray:
+        """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``."""
+        out[:] = self._tool
+        return out
+
+
+
+@_njit
+def _heights_batch(q, vh, bounds, lift, wrist, base_height, out):  # pragma: no cover
+    feat = np.empty(13, q.dtype)
+    for b in range(q.shape[0]):
+        _link_heights(q[b], vh, bounds, lift, wrist, base_height, feat, out[b])
+
+
+def link_heights(q: Any, base_height: float, dtype: Any = np.float64) -> np.ndarray:
+    """The kernel's plane check: lowest point of each moving link, batched.
+
+    Parameters
+    ----------
+    q : (B, 6) float, rad
+    base_height : float, m
+        Height of base_link above the plane.
+
+    Returns
+    -------
+    heights : (B, 6) float, m, world z
+        Lowest collision-geometry point of shoulder_link .. wrist_3_link
+        (:func:`regions.link_heights` without the fixed base link).
+    """
+    name = _dtype_name(dtype)
+    plane = ur5_plane(name)
+    q = _batch(q, "q", DTYPES[name])
+    out = np.empty_like(q)
+    _heights_batch(q, plane.vertex_heights, plane.bounds, plane.lift_offset, plane.wrist_offset,
+                   float(regions.clearance.check_base_height(base_height)), out)
+    return out
