@@ -98,10 +98,15 @@ class Unit:
         """Training episodes of the whole unit: the budget times the seeds."""
         return self.episodes * len(self.seeds)
 
+    @property
+    def out(self) -> str:
+        """The ``--out`` template of the unit's process (``{seed}`` left in)."""
+        return str(self.root / RUN_DIR).replace("{region}", self.region).replace(
+            "{joints}", str(self.joints))
+
     def command(self, threads: int, extra: Sequence[str], device: str = "cpu") -> list[str]:
         """The ``ddpg_her.train`` command line: the unit's own ``train_args``, then ``extra``."""
-        out = str(self.root / RUN_DIR).replace("{region}", self.region).replace(
-            "{joints}", str(self.joints))
+        out = self.out
         return [sys.executable, "-m", "ddpg_her.train", "--region", self.region,
                 "--joints", str(self.joints), "--seeds", *map(str, self.seeds),
                 "--episodes", str(self.episodes), *self.train_args, "--out", out, "--resume",
@@ -110,6 +115,32 @@ class Unit:
     @property
     def log_path(self) -> Path:
         return self.root / "logs" / f"{self.setting}.log"
+
+
+def training_outs() -> set[Path]:
+    """The ``--out`` folders (resolved, ``{seed}`` left in) of every ``ddpg_her.train`` process
+    running on this machine, read from /proc; empty where there is no /proc.
+
+    A unit whose folder is among them is being trained by another process (an earlier sweep,
+    or a command started by hand with the same layout): starting it again would make two
+    processes write the same run folders.
+    """
+    outs: set[Path] = set()
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return outs
+    for entry in proc.iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
+            if "ddpg_her.train" not in argv or "--out" not in argv:
+                continue
+            out = Path(argv[argv.index("--out") + 1])
+            outs.add((out if out.is_absolute() else (entry / "cwd").resolve() / out).resolve())
+        except (OSError, IndexError):
+            continue
+    return outs
 
 
 def parse_setting(text: str) -> tuple[str, int]:
@@ -326,14 +357,24 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
 
 
+def busy(unit: Unit, outs: set[Path]) -> bool:
+    """Whether another process trains ``unit`` (its ``--out`` is in ``outs``, see
+    `training_outs`)."""
+    return Path(unit.out).resolve() in outs
+
+
 def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
                   device: str = "cpu") -> None:
-    """One line per run: status, tag, setting, seed, folder and the unit's command."""
+    """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
+    trains its unit), tag, setting, seed, folder and the unit's command."""
+    outs = training_outs()
     for unit in units:
         cmd = " ".join(unit.command(threads, extra, device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
-            print(f"{unit.status(seed):<6} {tag}{unit.region:<14} joints={unit.joints} "
+            status = "busy" if busy(unit, outs) and unit.status(seed) != "done" \
+                else unit.status(seed)
+            print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
                   f"seed={seed} {unit.run_dir(seed)}  <- python {cmd}")
     print(f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units (one process each)",
           file=sys.stderr)
@@ -345,6 +386,11 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)
+    outs = training_outs()
+    for unit in [u for u in todo if busy(u, outs)]:
+        print(f"{unit.name}: another process is training it ({unit.out}); skipped, run again "
+              "when it has ended", file=sys.stderr)
+        todo.remove(unit)
     if not todo:
         return 0
     if args.ray_address:
