@@ -207,6 +207,7 @@ FINALS = {
               ("unconstrained", 2): [50, 52, 54, 56, 58]},
     "noise": {("farbox", 6): [0, 100, 50, 20, 80], ("unconstrained", 3): [40, 42, 44, 46, 48],
               ("zheight", 3): [10, 80, 45, 30, 60], ("unconstrained", 2): [70, 100, 90, 80, 100]},
+    "close": {("farbox", 6): [50, 51, 52, 53, 54], ("unconstrained", 3): [40, 41, 42, 43, 44]},
     "lonely": {("zheight", 3): [20, 21, 22, 23, 24], ("closebox", 3): [18, 19, 20, 21, 22]},
     "short": {("farbox", 6): [95, 97, 99], ("unconstrained", 3): [40, 44, 48]},
 }
@@ -214,7 +215,8 @@ CLAIMS = ("farbox far above unconstrained (3-6 joints)",
           "unconstrained (3-6 joints) above zheight and closebox",
           "2 joints high (unconstrained)")
 EXPECTED = {"holds": ("YES", "YES", "YES"), "fails": ("NO", "NO", "NO"),
-            "noise": ("NOISE", "NOISE", "NOISE"), "lonely": ("NOT_RUN", "NOT_RUN", "NOT_RUN"),
+            "noise": ("NOISE", "NOISE", "NOISE"), "close": ("NO", "NOT_RUN", "NOT_RUN"),
+            "lonely": ("NOT_RUN", "NOT_RUN", "NOT_RUN"),
             "short": ("YES", "YES", "NOT_RUN")}
 
 
@@ -280,7 +282,8 @@ def test_verdicts_on_hand_made_runs_follow_hand_computed_intervals(tmp_path: Pat
     assert table[(CLAIMS[0], "short")]["verdict_t"] == "holds"
     text = (tmp_path / "out" / "report.md").read_text()
     assert "| farbox far above unconstrained (3-6 joints) | not run | not run | not run | " \
-           "not run | fails / fails / fails | holds / holds / holds | not run | " \
+           "not run | fails / fails / fails | fails / fails / fails | holds / holds / holds | " \
+           "not run | " \
            "within noise / within noise / within noise | holds (partial) / holds / holds |" in text
     assert (tmp_path / "out" / "curves.png").stat().st_size > 1000
     with open(tmp_path / "out" / "curves.csv") as f:
