@@ -37,6 +37,7 @@ import numpy as np
 from analysis.report import Verdict, claim_settings, judge_claims
 from analysis.runs import CONFIDENCE, PERCENT, Run, aligned_successes, find_runs, mean_ci
 from analysis.sweep import (
+    HelpFormatter,
     Unit,
     add_execution_arguments,
     check_execution_arguments,
@@ -775,7 +776,7 @@ def report_main(argv: Sequence[str]) -> int:
         description="Judge the paper's claims for every reading below ROOT (ROOT/<reading>/"
                     "<region>-j<joints>/s<seed>, e.g. runs/sensitivity or a --collect "
                     "DEST/runs) and write report.md, verdicts.csv, finals.csv, curves.png/csv.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     parser.add_argument("root", type=Path, metavar="ROOT", help="the study's runs root")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder of the report's files (default: ROOT)")
@@ -825,7 +826,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                "own). 'python -m analysis.sensitivity report --help' explains the report. "
                "Readings: " + "; ".join(f"{r.name}: {' '.join(r.args) or '(defaults)'}"
                                         for r in READINGS.values()),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     parser.add_argument("--readings", nargs="+", default=None, metavar="NAME",
                         help="readings to run (default: the built-in ones, "
                              f"{', '.join(READINGS)}, and every --reading/--readings-file one)")

@@ -1,11 +1,13 @@
 """The paper's sweep: every (region, joints) setting x seeds, on local processes or a Ray cluster.
 
     python -m analysis.sweep --grid paper [--episodes N] [--seeds K] [--out ROOT]
-                             [--workers W | --ray-address ADDR] [--dry-run]
+                             [--workers W | --ray-address ADDR] [--device cpu|cuda]
+                             [--dry-run]
 
 One training process per setting trains all its seeds at once (``ddpg_her.train --seeds``), into
 ``ROOT/<region>-j<joints>/s<seed>``. Finished runs are skipped and unfinished ones resumed from
-their last checkpoint, so an interrupted sweep continues where it stopped when run again. Each
+their last checkpoint, so an interrupted sweep continues where it stopped when run again; a
+setting another ``ddpg_her.train`` process is training (same ``--out``) is left to it. Each
 process's output goes to ``ROOT/logs/<region>-j<joints>.log``. Arguments after ``--`` pass to
 ``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
 """
@@ -313,6 +315,16 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
         ray.shutdown()
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` with each flag's default, except where there is none to show (None, False,
+    an empty list: the help text says what happens then)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False or action.default == []:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
     """Split a command line at the first ``--``: (own arguments, arguments for ddpg_her.train)."""
     argv = list(argv)
@@ -405,7 +417,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.sweep", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to python -m ddpg_her.train.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--grid", choices=sorted(GRIDS), default="paper",
                        help="named grid: 'paper' is unconstrained with 2-6 joints and zheight, "
