@@ -862,6 +862,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)
+        for reading in readings:  # units started by hand have no reading.json of their own
+            if (args.collect / "runs" / reading.name).is_dir():
+                try:
+                    write_reading(args.collect / "runs", reading)
+                except ValueError as err:
+                    parser.error(str(err))
         print(f"copied {copied} finished unit(s) to {args.collect / 'runs'}; "
               f"{len(skipped)} not finished" + (": " + ", ".join(skipped) if skipped else ""),
               file=sys.stderr)

@@ -178,7 +178,6 @@ def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path) -> 
             (run / junk).parent.mkdir(parents=True, exist_ok=True)
             (run / junk).write_bytes(b"x")
         _write_run(root / "ours" / "farbox-j6" / f"s{seed}", "farbox", 6, seed, 40.0, upto=500)
-    sens.write_reading(root, sens.READINGS["ours"])
     (root / "ours" / "logs").mkdir()
     (root / "ours" / "logs" / "zheight-j3.log").write_text("log")
     proc = _module("analysis.sensitivity", "--collect", str(dest), "--out", str(root),
@@ -186,6 +185,8 @@ def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path) -> 
                    "--setting", "farbox:6")
     assert "copied 1 finished unit(s)" in proc.stderr and "ours/farbox-j6" in proc.stderr
     copied = sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*") if p.is_file())
+    # no reading.json at the source (units started by hand): written from the reading
+    assert json.loads((dest / "runs/ours/reading.json").read_text())["args"] == []
     assert copied == ["runs/ours/reading.json",
                       *(f"runs/ours/zheight-j3/s{s}/{n}" for s in range(2)
                         for n in ("eval.csv", "spec.json"))]
