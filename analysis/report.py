@@ -91,6 +91,25 @@ class Verdict(str, enum.Enum):
     NOT_RUN = "not run"
 
 
+_CLAIM_JOINTS = range(3, 7)
+
+ORDERING_CLAIMS: dict[str, tuple[tuple[tuple[str, int], ...], tuple[tuple[str, int], ...],
+                                 float]] = {
+    "farbox far above unconstrained (3-6 joints)": (
+        tuple(("farbox", n) for n in _CLAIM_JOINTS),
+        tuple(("unconstrained", n) for n in _CLAIM_JOINTS), 20.0),
+    "unconstrained (3-6 joints) above zheight and closebox": (
+        tuple(("unconstrained", n) for n in _CLAIM_JOINTS),
+        tuple((r, n) for r in ("zheight", "closebox") for n in _CLAIM_JOINTS), 0.0),
+}
+"""The paper's orderings (section IV): claim -> (settings claimed higher, settings claimed
+lower, the gap in successes per 100 goals the claim needs: "far above" reads as 20)."""
+
+HIGH_CLAIM: tuple[str, tuple[str, int]] = ("2 joints high (unconstrained)", ("unconstrained", 2))
+"""The paper's "highly capable policy" with 2 joints: the setting's interval against
+`HIGH_SUCCESS`."""
+
+
 def _stat(name: tuple[str, int], stat: tuple[float, float, float]) -> str:
     return f"{name[0]} {name[1]} {_fmt(stat)}"
 
@@ -98,15 +117,28 @@ def _stat(name: tuple[str, int], stat: tuple[float, float, float]) -> str:
 def ordering_checks(
     summaries: dict[tuple[str, int], SettingSummary],
 ) -> list[tuple[str, Verdict, str]]:
-    """The paper's claims, each as (claim, verdict, detail), on the final successes.
+    """The paper's claims, each as (claim, verdict, detail), on the final successes'
+    Student-t intervals (see `judge_claims`)."""
+    return judge_claims({k: s.final for k, s in summaries.items()})
 
-    "A above B" compares the weakest setting of A with the strongest of B (by mean): YES when
-    their confidence intervals are apart in the claimed order and the means differ by at least
+
+def judge_claims(
+    final: dict[tuple[str, int], tuple[float, float, float]],
+) -> list[tuple[str, Verdict, str]]:
+    """The paper's claims, each as (claim, verdict, detail), on one interval per setting.
+
+    Parameters
+    ----------
+    final : {(region, joints): (estimate, low, high)}, successes per 100 test goals
+        Any point estimate with its interval: the mean with its Student-t interval (the
+        report), or a bootstrap interval of the mean or the IQM (analysis.sensitivity).
+
+    "A above B" compares the weakest setting of A with the strongest of B (by estimate): YES
+    when their intervals are apart in the claimed order and the estimates differ by at least
     the claim's margin; NO when the order is reversed with intervals apart, or when even the
     intervals' far ends are less than the margin apart; otherwise NOISE. "2 joints high": YES
     when the interval lies at or above `HIGH_SUCCESS`, NO when it lies below, else NOISE.
     """
-    final = {k: s.final for k, s in summaries.items()}
     checks = []
 
     def compare(claim: str, high: list[tuple[str, int]], low: list[tuple[str, int]],
@@ -134,22 +166,24 @@ def ordering_checks(
             detail += "; on the settings run only, missing: " + ", ".join(missing)
         checks.append((claim, verdict, detail))
 
-    joints = range(3, 7)
-    compare("farbox far above unconstrained (3-6 joints)",
-            [("farbox", n) for n in joints], [("unconstrained", n) for n in joints], 20.0)
-    compare("unconstrained (3-6 joints) above zheight and closebox",
-            [("unconstrained", n) for n in joints],
-            [(r, n) for r in ("zheight", "closebox") for n in joints], 0.0)
-    key = ("unconstrained", 2)
+    for claim, (high, low, margin) in ORDERING_CLAIMS.items():
+        compare(claim, list(high), list(low), margin)
+    claim, key = HIGH_CLAIM
     if key in final:
         _, low, high = final[key]
         verdict = (Verdict.YES if low >= HIGH_SUCCESS else
                    Verdict.NO if high < HIGH_SUCCESS else Verdict.NOISE)
-        checks.append(("2 joints high (unconstrained)", verdict,
-                       f"{_stat(key, final[key])} against {HIGH_SUCCESS:g}"))
+        checks.append((claim, verdict, f"{_stat(key, final[key])} against {HIGH_SUCCESS:g}"))
     else:
-        checks.append(("2 joints high (unconstrained)", Verdict.NOT_RUN, "setting missing"))
+        checks.append((claim, Verdict.NOT_RUN, "setting missing"))
     return checks
+
+
+def claim_settings() -> dict[str, tuple[tuple[str, int], ...]]:
+    """Each claim of `judge_claims` -> the (region, joints) settings it looks at."""
+    out = {claim: (*high, *low) for claim, (high, low, _) in ORDERING_CLAIMS.items()}
+    out[HIGH_CLAIM[0]] = (HIGH_CLAIM[1],)
+    return out
 
 
 def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> str:

@@ -1,11 +1,13 @@
 """The paper's sweep: every (region, joints) setting x seeds, on local processes or a Ray cluster.
 
     python -m analysis.sweep --grid paper [--episodes N] [--seeds K] [--out ROOT]
-                             [--workers W | --ray-address ADDR] [--dry-run]
+                             [--workers W | --ray-address ADDR] [--device cpu|cuda]
+                             [--dry-run]
 
 One training process per setting trains all its seeds at once (``ddpg_her.train --seeds``), into
 ``ROOT/<region>-j<joints>/s<seed>``. Finished runs are skipped and unfinished ones resumed from
-their last checkpoint, so an interrupted sweep continues where it stopped when run again. Each
+their last checkpoint, so an interrupted sweep continues where it stopped when run again; a
+setting another ``ddpg_her.train`` process is training (same ``--out``) is left to it. Each
 process's output goes to ``ROOT/logs/<region>-j<joints>.log``. Arguments after ``--`` pass to
 ``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
 """
@@ -37,17 +39,30 @@ RUN_DIR = "{region}-j{joints}/s{seed}"
 
 @dataclass(frozen=True)
 class Unit:
-    """One training process: a setting and the seeds it trains together."""
+    """One training process: a setting and the seeds it trains together.
+
+    ``train_args`` are extra ``ddpg_her.train`` arguments of this unit (e.g. a reading of the
+    sensitivity study, ``("--task", "action_penalty_unit=actor")``) and ``tag`` names them in
+    messages; ``root`` is the folder its runs go to (``root/<region>-j<joints>/s<seed>``).
+    """
 
     region: str
     joints: int
     seeds: tuple[int, ...]
     root: Path
     episodes: int
+    train_args: tuple[str, ...] = ()
+    tag: str = ""
+
+    @property
+    def setting(self) -> str:
+        """``<region>-j<joints>``: the setting's folder below the root."""
+        return f"{self.region}-j{self.joints}"
 
     @property
     def name(self) -> str:
-        return f"{self.region}-j{self.joints}"
+        """The setting, prefixed by the tag when there is one (``tag/<region>-j<joints>``)."""
+        return f"{self.tag}/{self.setting}" if self.tag else self.setting
 
     def run_dir(self, seed: int) -> Path:
         return self.root / RUN_DIR.format(region=self.region, joints=self.joints, seed=seed)
@@ -67,17 +82,67 @@ class Unit:
     def pending(self) -> bool:
         return any(self.status(s) != "done" for s in self.seeds)
 
-    def command(self, threads: int, extra: Sequence[str]) -> list[str]:
-        out = str(self.root / RUN_DIR).replace("{region}", self.region).replace(
+    def episodes_done(self) -> int:
+        """Training episodes evaluated so far, summed over the seeds and capped at the budget
+        (an eval.csv that can't be read yet counts 0)."""
+        total = 0
+        for seed in self.seeds:
+            try:
+                run = read_run(self.run_dir(seed))
+            except (ValueError, KeyError, OSError):
+                continue
+            if len(run.episode):
+                total += min(int(run.episode[-1]), self.episodes)
+        return total
+
+    @property
+    def episodes_total(self) -> int:
+        """Training episodes of the whole unit: the budget times the seeds."""
+        return self.episodes * len(self.seeds)
+
+    @property
+    def out(self) -> str:
+        """The ``--out`` template of the unit's process (``{seed}`` left in)."""
+        return str(self.root / RUN_DIR).replace("{region}", self.region).replace(
             "{joints}", str(self.joints))
+
+    def command(self, threads: int, extra: Sequence[str], device: str = "cpu") -> list[str]:
+        """The ``ddpg_her.train`` command line: the unit's own ``train_args``, then ``extra``."""
+        out = self.out
         return [sys.executable, "-m", "ddpg_her.train", "--region", self.region,
                 "--joints", str(self.joints), "--seeds", *map(str, self.seeds),
-                "--episodes", str(self.episodes), "--out", out, "--resume", "--no-progress",
-                "--threads", str(threads), *extra]
+                "--episodes", str(self.episodes), *self.train_args, "--out", out, "--resume",
+                "--no-progress", "--threads", str(threads), "--device", device, *extra]
 
     @property
     def log_path(self) -> Path:
-        return self.root / "logs" / f"{self.name}.log"
+        return self.root / "logs" / f"{self.setting}.log"
+
+
+def training_outs() -> set[Path]:
+    """The ``--out`` folders (resolved, ``{seed}`` left in) of every ``ddpg_her.train`` process
+    running on this machine, read from /proc; empty where there is no /proc.
+
+    A unit whose folder is among them is being trained by another process (an earlier sweep,
+    or a command started by hand with the same layout): starting it again would make two
+    processes write the same run folders.
+    """
+    outs: set[Path] = set()
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return outs
+    for entry in proc.iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
+            if "ddpg_her.train" not in argv or "--out" not in argv:
+                continue
+            out = Path(argv[argv.index("--out") + 1])
+            outs.add((out if out.is_absolute() else (entry / "cwd").resolve() / out).resolve())
+        except (OSError, IndexError):
+            continue
+    return outs
 
 
 def parse_setting(text: str) -> tuple[str, int]:
@@ -126,127 +191,248 @@ def run_unit(command: Sequence[str], log_path: str, cwd: str, threads: int = 1) 
         return proc.wait()
 
 
-def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence[str]) -> int:
-    """Run the units in at most ``workers`` concurrent processes; the number that failed."""
-    from tqdm import tqdm
+PROGRESS_POLL_S = 5.0
+"""Seconds between two reads of the running units' eval.csv files for the progress bar."""
 
+
+class EpisodeBar:
+    """A tqdm bar over the training episodes of a set of units, read from their eval.csv files.
+
+    Evaluations come every ``--eval-every`` episodes, so the bar moves in those steps; a unit
+    whose process has ended counts in full (a failed one too: it is reported separately).
+    """
+
+    def __init__(self, units: Sequence[Unit], desc: str):
+        from tqdm import tqdm
+
+        self.units = list(units)
+        self.ended: set[int] = set()
+        self._last_poll = 0.0
+        self.bar = tqdm(total=sum(u.episodes_total for u in self.units), desc=desc,
+                        unit="episode", file=sys.stderr, smoothing=0.05)
+        self.bar.update(sum(u.episodes_done() for u in self.units))
+        self.bar.unpause()
+
+    def end(self, unit: Unit) -> None:
+        self.ended.add(self.units.index(unit))
+        self.refresh(force=True)
+
+    def refresh(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._last_poll < PROGRESS_POLL_S:
+            return
+        self._last_poll = now
+        done = sum(u.episodes_total if i in self.ended else u.episodes_done()
+                   for i, u in enumerate(self.units))
+        if done > self.bar.n:
+            self.bar.update(done - self.bar.n)
+        self.bar.set_postfix_str(f"{len(self.ended)}/{len(self.units)} units", refresh=False)
+
+    def write(self, text: str) -> None:
+        self.bar.write(text, file=sys.stderr)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence[str],
+              device: str = "cpu") -> int:
+    """Run the units in at most ``workers`` concurrent processes; the number that failed."""
     queue = list(units)
     running: dict[subprocess.Popen, tuple[Unit, IO[str]]] = {}
     failed = 0
-    bar = tqdm(total=len(units), desc="sweep", unit="setting", file=sys.stderr)
+    bar = EpisodeBar(units, "training")
     try:
         while queue or running:
             while queue and len(running) < workers:
                 unit = queue.pop(0)
-                proc, log = start_unit(unit.command(threads, extra), unit.log_path, threads)
+                proc, log = start_unit(unit.command(threads, extra, device), unit.log_path,
+                                       threads)
                 running[proc] = (unit, log)
             for proc in [p for p in running if p.poll() is not None]:
                 unit, log = running.pop(proc)
                 log.close()
                 if proc.returncode != 0:
                     failed += 1
-                    tqdm.write(f"{unit.name} failed (exit {proc.returncode}); see "
-                               f"{unit.log_path}", file=sys.stderr)
-                bar.update(1)
+                    bar.write(f"{unit.name} failed (exit {proc.returncode}); see "
+                              f"{unit.log_path}")
+                bar.end(unit)
+            bar.refresh()
             time.sleep(0.2)
     except KeyboardInterrupt:
         for proc in running:
             proc.terminate()
         for proc in running:
             proc.wait()
-        tqdm.write("interrupted; run the same command again to resume", file=sys.stderr)
+        bar.write("interrupted; run the same command again to resume")
         raise
     finally:
         bar.close()
     return failed
 
 
-def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[str]) -> int:
-    """Run the units as Ray tasks (``address``: a cluster, or 'local' to start one here)."""
+def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[str],
+            device: str = "cpu") -> int:
+    """Run the units as Ray tasks (``address``: a cluster, or 'local' to start one here).
+
+    With ``device='cuda'`` each task asks Ray for a fraction of a GPU (the units share the
+    cluster's GPUs evenly, at most one each). The bar reads eval.csv files, so on a cluster
+    without a shared file system it moves only as units end.
+    """
     import ray
-    from tqdm import tqdm
 
     ray.init(address=None if address == "local" else address, include_dashboard=False,
              log_to_driver=False, ignore_reinit_error=True)
     try:
-        task = ray.remote(num_cpus=threads)(run_unit)
+        gpus = 0.0
+        if device == "cuda":
+            total = float(ray.cluster_resources().get("GPU", 0.0))
+            if total <= 0:
+                raise RuntimeError("--device cuda: the Ray cluster has no GPU")
+            gpus = min(1.0, total / max(1, len(units)))
+        task = ray.remote(num_cpus=threads, num_gpus=gpus)(run_unit)
         cwd = os.getcwd()
-        pending = {task.remote(u.command(threads, extra), str(u.log_path), cwd, threads): u
-                   for u in units}
+        pending = {task.remote(u.command(threads, extra, device), str(u.log_path), cwd,
+                               threads): u for u in units}
         failed = 0
-        with tqdm(total=len(units), desc="sweep (ray)", unit="setting", file=sys.stderr) as bar:
+        bar = EpisodeBar(units, "training (ray)")
+        try:
             while pending:
-                done, _ = ray.wait(list(pending), num_returns=1)
+                done, _ = ray.wait(list(pending), num_returns=1, timeout=PROGRESS_POLL_S)
+                bar.refresh()
+                if not done:
+                    continue
                 unit = pending.pop(done[0])
                 code = ray.get(done[0])
                 if code != 0:
                     failed += 1
-                    tqdm.write(f"{unit.name} failed (exit {code}); see {unit.log_path}",
-                               file=sys.stderr)
-                bar.update(1)
+                    bar.write(f"{unit.name} failed (exit {code}); see {unit.log_path}")
+                bar.end(unit)
+        finally:
+            bar.close()
         return failed
     finally:
         ray.shutdown()
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    extra: list[str] = []
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` with each flag's default, except where there is none to show (None, False,
+    an empty list: the help text says what happens then)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False or action.default == []:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Split a command line at the first ``--``: (own arguments, arguments for ddpg_her.train)."""
+    argv = list(argv)
     if "--" in argv:
         cut = argv.index("--")
-        argv, extra = argv[:cut], argv[cut + 1 :]
+        return argv[:cut], argv[cut + 1 :]
+    return argv, []
+
+
+def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
+                            unit_word: str = "setting") -> None:
+    """The flags of every study that trains units: budget, root, where and how they run."""
+    parser.add_argument("--episodes", type=int, default=PAPER_EPISODES,
+                        help="training episodes per run (count, >= 1); a run with fewer is "
+                             "resumed up to it")
+    parser.add_argument("--seeds", type=int, default=PAPER_SEEDS,
+                        help=f"seeds per {unit_word}, 0..K-1, trained together in one process "
+                             "(count, >= 1)")
+    parser.add_argument("--out", type=Path, default=default_out, help="root folder of the runs")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=1,
+                       help="concurrent local training processes (count, >= 1)")
+    where.add_argument("--ray-address", default=None,
+                       help="run on this Ray cluster ('auto', 'ray://host:port', or 'local' "
+                            "to start one on this machine)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads per training process (count, >= 1; default: the "
+                             "machine's cores divided by --workers)")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                        help="torch device of each training process (cuda: networks and replay "
+                             "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="print one line per run (status, folder, command) and exit")
+
+
+def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """Exit through ``parser.error`` on a count below 1; the threads per process to use."""
+    for flag in ("episodes", "seeds", "workers", "threads"):
+        value = getattr(args, flag)
+        if value is not None and value < 1:
+            parser.error(f"--{flag} must be >= 1; got {value}")
+    return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+
+
+def busy(unit: Unit, outs: set[Path]) -> bool:
+    """Whether another process trains ``unit`` (its ``--out`` is in ``outs``, see
+    `training_outs`)."""
+    return Path(unit.out).resolve() in outs
+
+
+def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
+                  device: str = "cpu") -> None:
+    """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
+    trains its unit), tag, setting, seed, folder and the unit's command."""
+    outs = training_outs()
+    for unit in units:
+        cmd = " ".join(unit.command(threads, extra, device)[1:])
+        tag = f"{unit.tag:<18} " if unit.tag else ""
+        for seed in unit.seeds:
+            status = "busy" if busy(unit, outs) and unit.status(seed) != "done" \
+                else unit.status(seed)
+            print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
+                  f"seed={seed} {unit.run_dir(seed)}  <- python {cmd}")
+    print(f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units (one process each)",
+          file=sys.stderr)
+
+
+def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
+            extra: Sequence[str], unit_word: str = "settings") -> int:
+    """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
+    todo = [u for u in units if u.pending()]
+    print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
+          f"{len(todo)} to run", file=sys.stderr)
+    outs = training_outs()
+    for unit in [u for u in todo if busy(u, outs)]:
+        print(f"{unit.name}: another process is training it ({unit.out}); skipped, run again "
+              "when it has ended", file=sys.stderr)
+        todo.remove(unit)
+    if not todo:
+        return 0
+    if args.ray_address:
+        failed = run_ray(todo, args.ray_address, threads, extra, args.device)
+    else:
+        failed = run_local(todo, args.workers, threads, extra, args.device)
+    return 1 if failed else 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv, extra = split_passthrough(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(
         prog="python -m analysis.sweep", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to python -m ddpg_her.train.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--grid", choices=sorted(GRIDS), default="paper",
                        help="named grid: 'paper' is unconstrained with 2-6 joints and zheight, "
                             "closebox, farbox with 3 and 6 joints (11 settings)")
     which.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
                        help="a setting instead of a named grid; repeatable")
-    parser.add_argument("--episodes", type=int, default=PAPER_EPISODES,
-                        help="training episodes per run (count)")
-    parser.add_argument("--seeds", type=int, default=PAPER_SEEDS,
-                        help="seeds per setting, 0..K-1 (count)")
-    parser.add_argument("--out", type=Path, default=Path("runs/sweep"), help="sweep root folder")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=1,
-                       help="concurrent local training processes (count)")
-    where.add_argument("--ray-address", default=None,
-                       help="run on this Ray cluster ('auto', 'ray://host:port', or 'local' "
-                            "to start one on this machine)")
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads per training process (count; default: the "
-                             "machine's cores divided by --workers)")
-    parser.add_argument("--dry-run", action="store_true",
-                        help="print one line per run (status, folder, command) and exit")
+    add_execution_arguments(parser, Path("runs/sweep"))
     args = parser.parse_args(argv)
-    for flag in ("episodes", "seeds", "workers"):
-        if getattr(args, flag) < 1:
-            parser.error(f"--{flag} must be >= 1; got {getattr(args, flag)}")
-    threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+    threads = check_execution_arguments(parser, args)
     settings = args.setting or GRIDS[args.grid]
     units = units_for(settings, args.seeds, args.out, args.episodes)
-
     if args.dry_run:
-        for unit in units:
-            cmd = " ".join(unit.command(threads, extra)[1:])
-            for seed in unit.seeds:
-                print(f"{unit.status(seed):<6} {unit.region:<14} joints={unit.joints} "
-                      f"seed={seed} {unit.run_dir(seed)}  <- python {cmd}")
-        print(f"{sum(len(u.seeds) for u in units)} runs in {len(units)} settings",
-              file=sys.stderr)
+        print_dry_run(units, threads, extra, args.device)
         return 0
-
-    todo = [u for u in units if u.pending()]
-    print(f"{len(units) - len(todo)} of {len(units)} settings already finished; "
-          f"{len(todo)} to run", file=sys.stderr)
-    if args.ray_address:
-        failed = run_ray(todo, args.ray_address, threads, extra)
-    else:
-        failed = run_local(todo, args.workers, threads, extra)
-    return 1 if failed else 0
+    return execute(units, args, threads, extra)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,884 @@
+"""The sensitivity study (issue 13): which of the paper's claims hold under each reading of the
+choices it leaves unstated.
+
+    python -m analysis.sensitivity [--readings NAME...] [--setting REGION:JOINTS]...
+                                   [--episodes N] [--out ROOT] [--workers W | --ray-address A]
+                                   [--device cpu|cuda] [--dry-run] [-- TRAIN_ARGS...]
+    python -m analysis.sensitivity --collect DEST          # finished units' spec.json, eval.csv
+    python -m analysis.sensitivity report ROOT [--out DIR] # curves, verdicts, report.md
+
+A *reading* is a named set of extra ``ddpg_her.train`` arguments (`READINGS`, or your own with
+``--reading NAME=ARGS`` or ``--readings-file``); a *setting* a (region, joints) pair. A unit is
+one reading x one setting x all seeds in one training process, into
+``ROOT/<reading>/<region>-j<joints>/s<seed>``: normal run folders, resumed when unfinished and
+skipped when every seed's eval.csv reaches the budget (units started by hand with that layout
+count as the study's own). The report judges each of the paper's claims
+(`analysis.report.judge_claims`) for each reading at the budget, on the 65 % Student-t interval
+of the paper and on rliable's bootstrap intervals of the mean and the IQM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import re
+import shlex
+import shutil
+import sys
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from analysis.report import Verdict, claim_settings, judge_claims
+from analysis.runs import CONFIDENCE, PERCENT, Run, aligned_successes, find_runs, mean_ci
+from analysis.sweep import (
+    HelpFormatter,
+    Unit,
+    add_execution_arguments,
+    check_execution_arguments,
+    execute,
+    parse_setting,
+    print_dry_run,
+    split_passthrough,
+)
+
+# --- readings -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One reading of the paper's unstated choices: extra ``ddpg_her.train`` arguments."""
+
+    name: str
+    """Folder name below the study root: letters, digits, ``_ . -``."""
+    args: tuple[str, ...]
+    """Arguments appended to every ``ddpg_her.train`` command of the reading."""
+    paper: str = ""
+    """What the paper says about the choice (its words where it has any)."""
+    ours: str = ""
+    """The choice this reading makes."""
+
+    def __post_init__(self) -> None:
+        if not READING_NAME.fullmatch(self.name):
+            raise ValueError(f"reading name {self.name!r} must match {READING_NAME.pattern} "
+                             "(it names a folder)")
+
+
+READING_NAME = re.compile(r"[A-Za-z0-9_.-]+")
+"""Allowed reading names."""
+
+READINGS: dict[str, Reading] = {r.name: r for r in (
+    Reading("ours", (),
+            paper="eq. 2: R = -|fk - goal| - |a|^2 + 100 * 1{reached}, a the desired absolute "
+                  "joint angles, no unit; Table I: exploration rate nu = 0.01, undefined; no "
+                  "warm-up stated; contact with the plane not described (ROS/Gazebo)",
+            ours="the defaults: |a|^2 in rad^2 with weight 1; Gaussian noise of std 0.01 in "
+                 "actor units (0.031 rad); 100 warm-up episodes of random actions; any plane "
+                 "contact stops the arm for the rest of the control step"),
+    Reading("actor_penalty", ("--task", "action_penalty_unit=actor"),
+            paper="eq. 2's -|a|^2 with a the absolute joint angles; no unit or scale given",
+            ours="|a|^2 in the actor's units, (a / pi)^2 per joint (a tenth of the rad^2 "
+                 "penalty); all else the defaults"),
+    Reading("compliant", ("--task", "contact_model=compliant"),
+            paper="an impermeable plane, simulated with ROS (Gazebo, whose contact is "
+                  "compliant: the arm is pushed out and slides)",
+            ours="a compliant penalty contact through the link Jacobians (the arm slides "
+                 "along the plane), impermeable to a stated depth; all else the defaults"),
+    Reading("gauss02_nowarmup",
+            ("--exploration", "gaussian", "--exploration-rate", "0.2", "--warmup-episodes", "0"),
+            paper="Table I: exploration rate nu = 0.01, its meaning not stated; no warm-up "
+                  "stated",
+            ours="Gaussian noise of std 0.2 in actor units (0.63 rad), no warm-up episodes; "
+                 "all else the defaults"),
+)}
+"""The study's built-in readings, in report order: ours today and one change each."""
+
+SETTINGS: tuple[tuple[str, int], ...] = (
+    ("unconstrained", 2), ("unconstrained", 3), ("zheight", 3), ("closebox", 3), ("farbox", 6))
+"""Default (region, joints) settings: one or more settings of each of the paper's claims."""
+
+STUDY_EPISODES = 1000
+"""Default training budget per run (episodes): the paper's far box learns within 1,000."""
+
+STUDY_SEEDS = 5
+"""Seeds per unit, trained together in one process (the paper: 5 runs per setting)."""
+
+READING_FILE = "reading.json"
+"""Below ``ROOT/<reading>/``: the reading's name, arguments and words, written when its units
+are first started, so a report of the root knows what each folder means."""
+
+COLLECTED_FILES = ("spec.json", "eval.csv")
+"""What ``--collect`` copies of each run folder (no checkpoints, buffers or logs)."""
+
+VERDICT_WORDS = {Verdict.YES: "holds", Verdict.NO: "fails", Verdict.NOISE: "within noise",
+                 Verdict.NOT_RUN: "not run"}
+"""How a verdict of `analysis.report.judge_claims` reads in this study's tables."""
+
+BOOTSTRAP_REPS = 10_000
+"""Default bootstrap resamples per interval (rliable's default is 50,000; with 5 seeds the
+percentile interval's ends move by under 0.5 successes per 100 between 10,000 and 50,000)."""
+
+WORTH_GOALS = 200
+"""Default goals per setting and reading of the worth-reaching diagnostic (0: skip it)."""
+
+
+def parse_reading(text: str) -> Reading:
+    """``NAME=ARGS`` (ARGS split like a shell line) -> a Reading."""
+    name, sep, args = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(
+            f"expected NAME=ARGS, e.g. 'tau01=--tau 0.01'; got {text!r}")
+    try:
+        return Reading(name, tuple(shlex.split(args)), ours=f"ddpg_her.train {args.strip()}")
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
+
+
+def load_readings(path: Path) -> list[Reading]:
+    """Readings from a JSON or TOML file: ``{NAME: {"args": [...] or "...", "paper": "...",
+    "ours": "..."}}`` (TOML: one ``[NAME]`` table each).
+
+    Raises
+    ------
+    ValueError
+        When the file is not such a mapping.
+    """
+    text = path.read_text()
+    if path.suffix == ".toml":
+        try:
+            import tomllib
+        except ModuleNotFoundError as err:  # Python 3.10
+            raise ValueError(f"{path}: TOML needs Python >= 3.11; use JSON") from err
+        data = tomllib.loads(text)
+    else:
+        data = json.loads(text)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping NAME -> {{args, paper, ours}}")
+    out = []
+    for name, entry in data.items():
+        if not isinstance(entry, dict) or "args" not in entry:
+            raise ValueError(f"{path}: reading {name!r} needs an 'args' list or string")
+        args = entry["args"]
+        args = tuple(shlex.split(args)) if isinstance(args, str) else tuple(map(str, args))
+        out.append(Reading(name, args, str(entry.get("paper", "")), str(entry.get("ours", ""))))
+    return out
+
+
+def write_reading(root: Path, reading: Reading) -> None:
+    """Record ``reading`` in ``root/<name>/reading.json``.
+
+    Raises
+    ------
+    ValueError
+        When the folder already records other arguments under that name.
+    """
+    path = root / reading.name / READING_FILE
+    if path.exists():
+        old = json.loads(path.read_text())
+        if tuple(old.get("args", ())) != reading.args:
+            raise ValueError(f"{path} records reading {reading.name!r} with arguments "
+                             f"{old.get('args')}, not {list(reading.args)}: choose another "
+                             "name or --out")
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({**asdict(reading), "args": list(reading.args)}, indent=2) + "\n")
+
+
+def missing_task_fields(reading: Reading, extra: Sequence[str] = ()) -> list[str]:
+    """The ``--task KEY=...`` keys of ``reading`` that this code's TaskSpec lacks (a reading
+    written for a field another branch adds, e.g. ``contact_model``); none when ``--env-id``
+    in the reading or ``extra`` names another env, whose task fields may differ."""
+    import dataclasses
+
+    from envs.spec import TaskSpec
+
+    if "--env-id" in (*reading.args, *extra):
+        return []
+    have = {f.name for f in dataclasses.fields(TaskSpec)}
+    keys = [reading.args[i + 1].partition("=")[0] for i, a in enumerate(reading.args[:-1])
+            if a == "--task"]
+    return [k for k in keys if k not in have]
+
+
+def units_for(readings: Sequence[Reading], settings: Sequence[tuple[str, int]], seeds: int,
+              root: Path, episodes: int) -> list[Unit]:
+    """One unit per reading and setting, reading-major."""
+    return [Unit(region, joints, tuple(range(seeds)), root / r.name, episodes, r.args, r.name)
+            for r in readings for region, joints in settings]
+
+
+def collect(units: Sequence[Unit], dest: Path) -> tuple[int, list[str]]:
+    """Copy every finished unit's `COLLECTED_FILES` (and its reading.json) to
+    ``dest/runs/<reading>/<region>-j<joints>/s<seed>``.
+
+    Returns
+    -------
+    copied : int
+        Units copied.
+    skipped : list of str
+        The unfinished units, each with its seeds' statuses.
+    """
+    copied, skipped = 0, []
+    for unit in units:
+        status = [unit.status(s) for s in unit.seeds]
+        if any(st != "done" for st in status):
+            skipped.append(f"{unit.name} ({', '.join(status)})")
+            continue
+        base = dest / "runs" / unit.tag
+        for seed in unit.seeds:
+            target = base / unit.setting / f"s{seed}"
+            target.mkdir(parents=True, exist_ok=True)
+            for name in COLLECTED_FILES:
+                shutil.copy2(unit.run_dir(seed) / name, target / name)
+        if (unit.root / READING_FILE).exists():
+            shutil.copy2(unit.root / READING_FILE, base / READING_FILE)
+        copied += 1
+    return copied, skipped
+
+
+# --- the report ---------------------------------------------------------------------------------
+
+Interval = tuple[float, float, float]
+"""(estimate, low, high), successes per 100 test goals."""
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One reading x one setting at the budget: the seeds' successes and their intervals."""
+
+    reading: str
+    region: str
+    joints: int
+    episode: int
+    """The evaluation judged: the last one common to every seed at or below the budget."""
+    successes: tuple[float, ...]
+    """Per seed, goals hit per 100 test goals at ``episode``."""
+    t: Interval
+    """Mean with the Student-t interval (analysis.runs.mean_ci)."""
+    boot_mean: Interval | None
+    """Mean with rliable's percentile bootstrap interval (None: rliable missing)."""
+    boot_iqm: Interval | None
+    """Interquartile mean with rliable's percentile bootstrap interval."""
+    partial: str = ""
+    """Why the cell falls short of the study (fewer seeds, fewer episodes); empty when not."""
+    worth: Interval | None = None
+    """Share of goals worth reaching (analysis.optimality), percent, with its interval."""
+
+    @property
+    def setting(self) -> tuple[str, int]:
+        return self.region, self.joints
+
+
+def iqm(scores: np.ndarray) -> float:
+    """Interquartile mean of all of ``scores``: rliable's ``metrics.aggregate_iqm`` (scipy's
+    ``trim_mean`` cutting ``int(0.25 n)`` values at each end), in numpy: ten times faster, which
+    is most of a bootstrap's time."""
+    a = np.sort(np.asarray(scores, dtype=float), axis=None)
+    cut = int(0.25 * a.size)
+    return float(a[cut:a.size - cut].mean())
+
+
+def bootstrap_intervals(successes: np.ndarray, level: float, reps: int,
+                        seed: int) -> tuple[Interval, Interval]:
+    """Mean and IQM of one setting's seeds with rliable's percentile bootstrap intervals.
+
+    Parameters
+    ----------
+    successes : (n_seeds,) float, successes per 100 test goals
+    level : float in (0, 1)
+        Two-sided coverage (the same as the Student-t interval's, so they compare).
+    reps : int
+        Bootstrap resamples.
+    seed : int
+        Seed of the resampling (the same successes give the same intervals).
+
+    Returns
+    -------
+    mean, iqm : (estimate, low, high)
+        One task of ``n_seeds`` runs, so rliable's stratified bootstrap resamples the seeds.
+        With one seed, both intervals are the value itself.
+    """
+    from rliable import library as rly
+
+    values = np.asarray(successes, dtype=float).reshape(-1, 1)  # (runs, tasks = 1)
+    if len(values) < 2:
+        v = float(values[0, 0])
+        return (v, v, v), (v, v, v)
+    with warnings.catch_warnings():
+        # rliable 1.2 hands arch a RandomState through the argument arch 7 deprecates
+        warnings.filterwarnings("ignore", "random_state is deprecated", FutureWarning)
+        point, interval = rly.get_interval_estimates(
+            {"s": values},
+            lambda x: np.array([x.mean(), iqm(x)]),
+            reps=reps, confidence_interval_size=level, random_state=np.random.RandomState(seed))
+    (m, q), (low, high) = point["s"], interval["s"]
+    return (float(m), float(low[0]), float(high[0])), (float(q), float(low[1]), float(high[1]))
+
+
+def reading_of(run: Run, root: Path) -> str | None:
+    """The reading folder a run lies in below ``root`` (None: not in ROOT/<reading>/...)."""
+    parts = run.path.resolve().relative_to(root.resolve()).parts
+    return parts[0] if len(parts) >= 2 else None
+
+
+def group_runs(root: Path) -> dict[str, dict[tuple[str, int], list[Run]]]:
+    """The runs with evaluations below ``root``, by reading folder and (region, joints)."""
+    out: dict[str, dict[tuple[str, int], list[Run]]] = {}
+    for run in find_runs([root]):
+        reading = reading_of(run, root)
+        if reading is None or not len(run.episode):
+            continue
+        out.setdefault(reading, {}).setdefault(run.setting, []).append(run)
+    return out
+
+
+def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level: float,
+              reps: int, boot_seed: int) -> Cell:
+    """The statistics of one reading x setting at the budget (see `Cell`)."""
+    episode, table = aligned_successes(runs)
+    if len(episode) == 0:
+        raise ValueError(f"runs {[str(r.path) for r in runs]} share no evaluation episode")
+    at = np.nonzero(episode <= budget)[0]
+    i = int(at[-1]) if len(at) else 0
+    values = table[:, i]
+    short = []
+    if len(runs) < seeds:
+        short.append(f"{len(runs)} of {seeds} seeds")
+    if episode[i] < budget:
+        short.append(f"{int(episode[i]):,} of {budget:,} episodes")
+    t = tuple(float(x) for x in mean_ci(values, level, PERCENT))
+    try:
+        boot_mean, boot_iqm = bootstrap_intervals(values, level, reps, boot_seed)
+    except ImportError:
+        boot_mean = boot_iqm = None
+    return Cell(reading, runs[0].region, runs[0].joints, int(episode[i]),
+                tuple(float(v) for v in values), t, boot_mean, boot_iqm, "; ".join(short))
+
+
+def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
+                 goals: int, seed: int) -> tuple[dict[tuple[str, str, int], Interval], str]:
+    """Each cell's share of goals worth reaching (``analysis.optimality.worth_reaching`` on the
+    task its runs recorded, with their discount), in percent; and a note for the report.
+
+    Cells with the same task and discount share one computation. Before the diagnostic exists
+    (ImportError) or when ``goals`` is 0, no shares and a note saying so.
+    """
+    if goals <= 0:
+        return {}, "worth-reaching diagnostic skipped (--worth-goals 0)"
+    try:
+        from analysis.optimality import worth_reaching
+    except ImportError as err:
+        return {}, f"worth-reaching diagnostic not available ({err})"
+    from envs.spec import TaskSpec
+
+    cache: dict[str, Interval | None] = {}
+    out, problems = {}, []
+    for cell in cells:
+        spec = groups[cell.reading][cell.setting][0].spec
+        gamma = float(spec.get("agent", {}).get("gamma", 0.98))
+        key = json.dumps([spec.get("task"), gamma], sort_keys=True)
+        if key not in cache:
+            try:
+                task = TaskSpec.from_dict(spec["task"])
+                cache[key] = _share(worth_reaching(task, goals=goals, gamma=gamma, seed=seed))
+            except (KeyError, TypeError, ValueError) as err:
+                problems.append(f"{cell.reading} {cell.region} {cell.joints}: {err}")
+                cache[key] = None
+        if cache[key] is not None:
+            out[(cell.reading, *cell.setting)] = cache[key]
+    note = (f"worth reaching: analysis.optimality.worth_reaching, {goals} goals per setting, "
+            f"seed {seed}, the runs' own task and discount")
+    if problems:
+        note += "; not computed for " + "; ".join(problems)
+    return out, note
+
+
+SHARE_FIELDS = ("share", "worth_share", "share_worth_reaching", "worth_reaching", "fraction")
+"""Names under which an optimality result may hold its share (a fraction in [0, 1])."""
+
+
+def _share(result: Any) -> Interval:
+    """(share, low, high) in percent from an ``OptimalityResult`` (see `SHARE_FIELDS`); its
+    interval from ``ci`` / ``share_ci`` (a pair) or ``ci_low``/``ci_high`` (else the share)."""
+    name = next((n for n in SHARE_FIELDS if isinstance(getattr(result, n, None), float | int)),
+                None)
+    if name is None:
+        raise TypeError(f"{type(result).__name__} has none of the fields {SHARE_FIELDS}")
+    share = float(getattr(result, name))
+    pair = getattr(result, "ci", None) or getattr(result, "share_ci", None)
+    if pair is None and hasattr(result, "ci_low"):
+        pair = (result.ci_low, result.ci_high)
+    low, high = (float(pair[0]), float(pair[1])) if pair is not None else (share, share)
+    return 100.0 * share, 100.0 * low, 100.0 * high
+
+
+@dataclass(frozen=True)
+class VerdictRow:
+    """One claim x one reading: the verdict on each kind of interval."""
+
+    claim: str
+    reading: str
+    t: Verdict
+    boot_mean: Verdict | None
+    boot_iqm: Verdict | None
+    detail_t: str
+    detail_boot_mean: str
+    detail_boot_iqm: str
+    partial: str = ""
+    """The claim's settings of this reading that fall short of the study, with why."""
+
+
+def verdicts(cells: Sequence[Cell], readings: Sequence[str]) -> list[VerdictRow]:
+    """Every claim of `analysis.report.judge_claims` for every reading, claim-major."""
+    needs = claim_settings()
+    per: dict[str, list[VerdictRow]] = {}
+    for reading in readings:
+        mine = {c.setting: c for c in cells if c.reading == reading}
+        t = judge_claims({k: c.t for k, c in mine.items()})
+        have_boot = all(c.boot_mean is not None for c in mine.values())
+        bm = judge_claims({k: c.boot_mean for k, c in mine.items()}) if have_boot else None
+        bi = judge_claims({k: c.boot_iqm for k, c in mine.items()}) if have_boot else None
+        for n, (claim, verdict, detail) in enumerate(t):
+            short = [f"{r} {j}: {mine[(r, j)].partial}" for r, j in needs[claim]
+                     if (r, j) in mine and mine[(r, j)].partial]
+            per.setdefault(claim, []).append(VerdictRow(
+                claim, reading, verdict, bm[n][1] if bm else None, bi[n][1] if bi else None,
+                detail, bm[n][2] if bm else "rliable not installed",
+                bi[n][2] if bi else "rliable not installed",
+                "; ".join(short) if verdict is not Verdict.NOT_RUN else ""))
+    return [row for rows in per.values() for row in rows]
+
+
+def word(verdict: Verdict | None, partial: str = "") -> str:
+    """A verdict as the tables print it (``(partial)`` appended when it rests on a setting
+    that falls short of the study)."""
+    if verdict is None:
+        return "-"
+    return VERDICT_WORDS[verdict] + (" (partial)" if partial else "")
+
+
+VERDICT_COLUMNS = ("claim", "reading", "verdict_t", "verdict_bootstrap_mean",
+                   "verdict_bootstrap_iqm", "partial", "detail_t", "detail_bootstrap_mean",
+                   "detail_bootstrap_iqm")
+"""Columns of verdicts.csv: one row per claim and reading; verdicts read holds | fails |
+within noise | not run; partial names the claim's settings below the study's seeds or budget."""
+
+FINAL_COLUMNS = ("reading", "region", "joints", "seeds", "episode", "partial", "successes",
+                 "mean", "t_low", "t_high", "boot_mean_low", "boot_mean_high", "iqm",
+                 "boot_iqm_low", "boot_iqm_high", "worth_reaching", "worth_low", "worth_high")
+"""Columns of finals.csv: per reading and setting, successes per 100 test goals at the judged
+evaluation (each seed's, ';'-separated), their intervals, and the worth-reaching share (%)."""
+
+CURVE_COLUMNS = ("reading", "region", "joints", "episode", "seeds", "mean_successes", "ci_low",
+                 "ci_high")
+"""Columns of curves.csv: the plotted numbers, successes per 100 test goals."""
+
+
+def _r(x: float | None) -> str:
+    return "" if x is None else f"{x:.4g}"
+
+
+def write_csvs(cells: Sequence[Cell], rows: Sequence[VerdictRow], curves: Sequence[dict],
+               out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "verdicts.csv", "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(VERDICT_COLUMNS)
+        for r in rows:
+            w.writerow([r.claim, r.reading, word(r.t), word(r.boot_mean), word(r.boot_iqm),
+                        r.partial, r.detail_t, r.detail_boot_mean, r.detail_boot_iqm])
+    with open(out / "finals.csv", "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(FINAL_COLUMNS)
+        for c in cells:
+            bm, bi, wr = c.boot_mean or (None,) * 3, c.boot_iqm or (None,) * 3, \
+                c.worth or (None,) * 3
+            w.writerow([c.reading, c.region, c.joints, len(c.successes), c.episode, c.partial,
+                        ";".join(f"{v:g}" for v in c.successes), _r(c.t[0]), _r(c.t[1]),
+                        _r(c.t[2]), _r(bm[1]), _r(bm[2]), _r(bi[0]), _r(bi[1]), _r(bi[2]),
+                        _r(wr[0]), _r(wr[1]), _r(wr[2])])
+    with open(out / "curves.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=CURVE_COLUMNS, lineterminator="\n")
+        w.writeheader()
+        w.writerows(curves)
+
+
+def curve_rows(groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
+               level: float) -> list[dict]:
+    """Per reading, setting and evaluation episode: mean successes and interval over seeds."""
+    rows = []
+    for reading, settings in groups.items():
+        for (region, joints), runs in settings.items():
+            episode, table = aligned_successes(runs)
+            mean, low, high = mean_ci(table, level, PERCENT)
+            rows += [{"reading": reading, "region": region, "joints": joints,
+                      "episode": int(e), "seeds": len(runs),
+                      "mean_successes": round(float(mean[i]), 4),
+                      "ci_low": round(float(low[i]), 4), "ci_high": round(float(high[i]), 4)}
+                     for i, e in enumerate(episode)]
+    return rows
+
+
+def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],
+                readings: Sequence[str], budget: int, level: float, out: Path) -> None:
+    """One panel per setting, one line per reading (mean, band = interval), the budget dotted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = min(len(settings), 3)
+    nrows = -(-len(settings) // cols)
+    fig, axes = plt.subplots(nrows, cols, squeeze=False, sharey=True,
+                             figsize=(3.6 * cols + 0.4, 2.8 * nrows + 0.9))
+    for ax, (region, joints) in zip(axes.flat, settings, strict=False):
+        for k, reading in enumerate(readings):
+            mine = [r for r in rows if r["reading"] == reading and r["region"] == region
+                    and r["joints"] == joints]
+            if not mine:
+                continue
+            e = [r["episode"] for r in mine]
+            ax.fill_between(e, [r["ci_low"] for r in mine], [r["ci_high"] for r in mine],
+                            color=f"C{k}", alpha=0.2, lw=0)
+            ax.plot(e, [r["mean_successes"] for r in mine], color=f"C{k}", lw=1.5,
+                    label=f"{reading} ({mine[0]['seeds']} seeds)")
+        ax.axvline(budget, color="0.5", ls=":", lw=1)
+        ax.set_title(f"{region}, joints 1-{joints}", fontsize=9)
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("training episodes")
+        ax.legend(fontsize=6, loc="upper left")
+    for ax in axes.flat[len(settings):]:
+        ax.set_visible(False)
+    for row in axes:
+        row[0].set_ylabel("goals hit / 100")
+    fig.suptitle(f"Test successes per reading: mean and {level:.0%} Student-t interval over "
+                 f"seeds (budget {budget:,} episodes dotted)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
+               readings: Sequence[str], out: Path) -> None:
+    """Grouped bars: per setting, each reading's share of goals worth reaching (%)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.4 * len(settings) + 1), 3.4))
+    width = 0.8 / max(1, len(readings))
+    labelled: set[str] = set()
+    for k, reading in enumerate(readings):
+        for i, setting in enumerate(settings):
+            cell = next((c for c in cells if c.reading == reading and c.setting == setting
+                         and c.worth is not None), None)
+            if cell is None:
+                continue
+            share, low, high = cell.worth
+            ax.bar(i + (k - (len(readings) - 1) / 2) * width, share, width, color=f"C{k}",
+                   yerr=[[share - low], [high - share]], capsize=2,
+                   label=None if reading in labelled else reading)
+            labelled.add(reading)
+    ax.set_xticks(range(len(settings)), [f"{r} {j}" for r, j in settings], fontsize=8)
+    ax.set_ylabel("goals worth reaching (%)")
+    ax.set_ylim(0, 105)
+    ax.legend(fontsize=7)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def _fmt(stat: Interval | None) -> str:
+    if stat is None:
+        return "-"
+    m, lo, hi = stat
+    return f"{m:.1f} [{lo:.1f}, {hi:.1f}]"
+
+
+def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence[str],
+           known: Mapping[str, Reading], budget: int, seeds: int, level: float, reps: int,
+           worth_note: str) -> str:
+    """report.md: the readings, each cell's statistics, and the verdict tables."""
+    from importlib import metadata
+
+    try:
+        boot = f"rliable {metadata.version('rliable')} percentile bootstrap, {reps:,} resamples"
+    except metadata.PackageNotFoundError:
+        boot = "rliable not installed: no bootstrap intervals"
+    lines = [
+        "# Sensitivity of the paper's claims to the reproduction's unstated choices", "",
+        f"Budget {budget:,} training episodes and {seeds} seeds per unit; every claim judged at "
+        "the last evaluation at or below the budget. Intervals are two-sided "
+        f"{level:.0%}: Student-t of the mean over seeds (the paper's), and {boot} of the mean "
+        "and the interquartile mean (IQM) over seeds. Successes per 100 test goals. Settings "
+        "with fewer seeds or episodes than the study are marked *partial*.", "",
+        "## Readings", "", "| reading | the paper | this reading | ddpg_her.train arguments |",
+        "|---|---|---|---|"]
+    for name in readings:
+        r = known.get(name)
+        lines.append(f"| {name} | {r.paper if r else '?'} | {r.ours if r else '?'} | "
+                     f"{' '.join(r.args) if r and r.args else '(none)' if r else '?'} |")
+    lines += ["", "## The paper's claims, per reading", "",
+              "Each cell: the verdict on the Student-t interval / on the bootstrap interval of "
+              "the mean / of the IQM. *holds*: the intervals lie apart in the claimed order (and "
+              "as far apart as the claim says); *fails*: they lie apart the other way, or can't "
+              "be as far apart as claimed; *within noise*: they overlap; *not run*: a setting "
+              "the claim needs was not run for this reading.", "",
+              "| claim | " + " | ".join(readings) + " |",
+              "|---|" + "---|" * len(readings)]
+    for claim in dict.fromkeys(r.claim for r in rows):
+        cells_ = []
+        for name in readings:
+            row = next(r for r in rows if r.claim == claim and r.reading == name)
+            if row.t is Verdict.NOT_RUN:
+                cells_.append("not run")
+            else:
+                cells_.append(f"{word(row.t, row.partial)} / {word(row.boot_mean)} / "
+                              f"{word(row.boot_iqm)}")
+        lines.append(f"| {claim} | " + " | ".join(cells_) + " |")
+    lines += ["", "## Final successes", "",
+              "| reading | setting | seeds | episode | mean [t] | mean [bootstrap] | "
+              "IQM [bootstrap] | worth reaching (%) | partial |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for c in cells:
+        lines.append(f"| {c.reading} | {c.region} {c.joints} | {len(c.successes)} | "
+                     f"{c.episode:,} | {_fmt(c.t)} | {_fmt(c.boot_mean)} | "
+                     f"{_fmt(c.boot_iqm)} | {_fmt(c.worth)} | {c.partial or '-'} |")
+    lines += ["", worth_note + ".", "", "## Verdict details", "",
+              "| claim | reading | Student-t | bootstrap mean | bootstrap IQM |",
+              "|---|---|---|---|---|"]
+    for r in rows:
+        if r.t is Verdict.NOT_RUN:
+            lines.append(f"| {r.claim} | {r.reading} | not run: {r.detail_t} | - | - |")
+            continue
+        lines.append(f"| {r.claim} | {r.reading} | {word(r.t, r.partial)}: {r.detail_t} | "
+                     f"{word(r.boot_mean)}: {r.detail_boot_mean} | "
+                     f"{word(r.boot_iqm)}: {r.detail_boot_iqm} |")
+    lines += ["", "Figures: `curves.png` (numbers in `curves.csv`)"
+              + (", `worth_reaching.png`" if any(c.worth for c in cells) else "")
+              + "; tables: `verdicts.csv`, `finals.csv`."]
+    return "\n".join(lines) + "\n"
+
+
+@dataclass
+class StudyReport:
+    """What `report` computed (also written to disk)."""
+
+    cells: list[Cell]
+    rows: list[VerdictRow]
+    readings: list[str]
+    text: str
+    files: list[Path] = field(default_factory=list)
+
+
+def known_readings(root: Path, extra: Sequence[Reading] = ()) -> dict[str, Reading]:
+    """Built-in readings, those recorded below ``root`` (reading.json) and ``extra``."""
+    known = dict(READINGS)
+    for path in sorted(root.glob(f"*/{READING_FILE}")):
+        try:
+            data = json.loads(path.read_text())
+            known.setdefault(data["name"], Reading(data["name"], tuple(data["args"]),
+                                                   data.get("paper", ""), data.get("ours", "")))
+        except (KeyError, ValueError, TypeError):
+            continue
+    known.update({r.name: r for r in extra})
+    return known
+
+
+def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STUDY_SEEDS,
+           level: float = CONFIDENCE, reps: int = BOOTSTRAP_REPS, boot_seed: int = 0,
+           worth_goals: int = WORTH_GOALS, readings: Sequence[str] | None = None,
+           extra: Sequence[Reading] = ()) -> StudyReport:
+    """Judge every claim for every reading below ``root`` and write report.md, verdicts.csv,
+    finals.csv, curves.png/csv (and worth_reaching.png) to ``out``.
+
+    ``readings`` orders and filters the readings shown (default: the built-in ones, run or not,
+    then any other folder below ``root`` with runs).
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``root`` does not exist.
+    """
+    if not root.exists():
+        raise FileNotFoundError(f"runs root {root} does not exist")
+    groups = group_runs(root)
+    known = known_readings(root, extra)
+    names = list(readings) if readings else [*READINGS, *sorted(set(groups) - set(READINGS))]
+    settings = [*(s for s in SETTINGS if any(s in groups.get(r, {}) for r in names)),
+                *sorted({s for r in names for s in groups.get(r, {})} - set(SETTINGS))]
+    cells = [make_cell(r, groups[r][s], budget, seeds, level, reps, boot_seed)
+             for r in names for s in settings if s in groups.get(r, {})]
+    shares, note = worth_shares(cells, groups, worth_goals, boot_seed)
+    cells = [Cell(**{**asdict(c), "worth": shares.get((c.reading, *c.setting))}) for c in cells]
+    rows = verdicts(cells, names)
+    curves = curve_rows({r: groups[r] for r in names if r in groups}, level)
+    write_csvs(cells, rows, curves, out)
+    files = [out / "verdicts.csv", out / "finals.csv", out / "curves.csv"]
+    if settings:
+        plot_curves(curves, settings, [r for r in names if r in groups], budget, level,
+                    out / "curves.png")
+        files.append(out / "curves.png")
+    if shares:
+        plot_worth(cells, settings, [r for r in names if r in groups], out / "worth_reaching.png")
+        files.append(out / "worth_reaching.png")
+    text = render(cells, rows, names, known, budget, seeds, level, reps, note)
+    (out / "report.md").write_text(text)
+    files.append(out / "report.md")
+    return StudyReport(cells, rows, names, text, files)
+
+
+# --- command line -------------------------------------------------------------------------------
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a count >= 1; got {value}")
+    return value
+
+
+def _add_reading_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--reading", type=parse_reading, action="append", default=[],
+                        metavar="NAME=ARGS",
+                        help="define a reading: ddpg_her.train arguments as one shell-quoted "
+                             "string, e.g. --reading 'tau01=--tau 0.01'; repeatable")
+    parser.add_argument("--readings-file", type=Path, default=None,
+                        help="define readings from a JSON or TOML file: {NAME: {args: [...] or "
+                             "'...', paper: '...', ours: '...'}}")
+
+
+def _user_readings(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Reading]:
+    user = list(args.reading)
+    if args.readings_file is not None:
+        try:
+            user += load_readings(args.readings_file)
+        except (OSError, ValueError) as err:
+            parser.error(f"--readings-file: {err}")
+    clash = [r.name for r in user if r.name in READINGS and READINGS[r.name].args != r.args]
+    if clash:
+        parser.error(f"reading(s) {clash} are built in with other arguments; choose another "
+                     "name")
+    return user
+
+
+def report_main(argv: Sequence[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.sensitivity report",
+        description="Judge the paper's claims for every reading below ROOT (ROOT/<reading>/"
+                    "<region>-j<joints>/s<seed>, e.g. runs/sensitivity or a --collect "
+                    "DEST/runs) and write report.md, verdicts.csv, finals.csv, curves.png/csv.",
+        formatter_class=HelpFormatter)
+    parser.add_argument("root", type=Path, metavar="ROOT", help="the study's runs root")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="folder of the report's files (default: ROOT)")
+    parser.add_argument("--episodes", type=_positive, default=STUDY_EPISODES,
+                        help="the budget (training episodes, >= 1): claims are judged at the "
+                             "last evaluation at or below it; less is partial")
+    parser.add_argument("--seeds", type=_positive, default=STUDY_SEEDS,
+                        help="seeds a complete setting has (count, >= 1); fewer is partial")
+    parser.add_argument("--confidence", type=float, default=CONFIDENCE,
+                        help="two-sided level of every interval (fraction in (0, 1); the "
+                             "paper's figures: 0.65)")
+    parser.add_argument("--reps", type=_positive, default=BOOTSTRAP_REPS,
+                        help="bootstrap resamples per interval (count, >= 1)")
+    parser.add_argument("--bootstrap-seed", type=int, default=0,
+                        help="seed of the bootstrap resampling and of the worth-reaching goals")
+    parser.add_argument("--worth-goals", type=int, default=WORTH_GOALS,
+                        help="goals per setting and reading for analysis.optimality's "
+                             "worth-reaching share (count, >= 0; 0 skips it)")
+    parser.add_argument("--readings", nargs="+", default=None, metavar="NAME",
+                        help="readings shown, in this order (default: the built-in ones, then "
+                             "any other folder with runs)")
+    _add_reading_arguments(parser)
+    args = parser.parse_args(argv)
+    if not 0.0 < args.confidence < 1.0:
+        parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
+    if args.worth_goals < 0:
+        parser.error(f"--worth-goals must be >= 0; got {args.worth_goals}")
+    try:
+        result = report(args.root, args.out or args.root, args.episodes, args.seeds,
+                        args.confidence, args.reps, args.bootstrap_seed, args.worth_goals,
+                        args.readings, _user_readings(parser, args))
+    except FileNotFoundError as err:
+        parser.error(str(err))
+    print(result.text, end="")
+    print("wrote " + ", ".join(map(str, result.files)), file=sys.stderr)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["report"]:
+        return report_main(argv[1:])
+    argv, extra = split_passthrough(argv)
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.sensitivity", description=__doc__.split("\n\n")[0],
+        epilog="Arguments after -- pass to every python -m ddpg_her.train (after the reading's "
+               "own). 'python -m analysis.sensitivity report --help' explains the report. "
+               "Readings: " + "; ".join(f"{r.name}: {' '.join(r.args) or '(defaults)'}"
+                                        for r in READINGS.values()),
+        formatter_class=HelpFormatter)
+    parser.add_argument("--readings", nargs="+", default=None, metavar="NAME",
+                        help="readings to run (default: the built-in ones, "
+                             f"{', '.join(READINGS)}, and every --reading/--readings-file one)")
+    _add_reading_arguments(parser)
+    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
+                        help="a (region, joints) setting, joints in 2..6; repeatable (default: "
+                             + ", ".join(f"{r}:{j}" for r, j in SETTINGS) + ")")
+    add_execution_arguments(parser, Path("runs/sensitivity"), unit_word="unit")
+    parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
+    parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
+                        help="train nothing: copy each finished unit's spec.json and eval.csv to "
+                             "DEST/runs/<reading>/<region>-j<joints>/s<seed> (no checkpoints)")
+    args = parser.parse_args(argv)
+    threads = check_execution_arguments(parser, args)
+    user = _user_readings(parser, args)
+    known = {**READINGS, **{r.name: r for r in user}}
+    names = args.readings or list(known)
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        parser.error(f"unknown reading(s) {unknown}; known: {', '.join(known)} (define one "
+                     "with --reading NAME=ARGS)")
+    readings = []
+    for name in names:
+        lacking = missing_task_fields(known[name], extra)
+        if lacking:
+            print(f"reading {name}: this code's TaskSpec has no field {', '.join(lacking)}; "
+                  "skipped", file=sys.stderr)
+        else:
+            readings.append(known[name])
+    units = units_for(readings, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
+    if args.dry_run:
+        print_dry_run(units, threads, extra, args.device)
+        return 0
+    if args.collect is not None:
+        copied, skipped = collect(units, args.collect)
+        for reading in readings:  # units started by hand have no reading.json of their own
+            if (args.collect / "runs" / reading.name).is_dir():
+                try:
+                    write_reading(args.collect / "runs", reading)
+                except ValueError as err:
+                    parser.error(str(err))
+        print(f"copied {copied} finished unit(s) to {args.collect / 'runs'}; "
+              f"{len(skipped)} not finished" + (": " + ", ".join(skipped) if skipped else ""),
+              file=sys.stderr)
+        return 0
+    try:
+        for reading in readings:
+            write_reading(args.out, reading)
+    except ValueError as err:
+        parser.error(str(err))
+    return execute(units, args, threads, extra, unit_word="units")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,367 @@
+"""analysis.sensitivity: units and commands, status, --collect, the verdicts on hand-made run
+folders against hand-computed intervals, and one tiny real unit trained and reported."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from analysis import sensitivity as sens
+from analysis.report import Verdict
+from analysis.sweep import Unit, busy, training_outs
+from ddpg_her.run import RunFolder
+from envs.spec import TaskSpec
+
+TESTS = Path(__file__).parent
+BUDGET = 1000
+T65 = stats.t.ppf(0.825, 4)
+"""Student-t quantile of a two-sided 65 % interval over 5 seeds."""
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(TESTS), str(TESTS.parent), os.environ.get("PYTHONPATH", "")])}
+
+
+def _module(*args: str, check: bool = True, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
+                          env=_env(), timeout=timeout, check=check)
+
+
+def _write_run(folder: Path, region: str, joints: int, seed: int, final: float,
+               upto: int = BUDGET, planned: int = BUDGET, after: float | None = None,
+               extra_task: dict | None = None) -> None:
+    """A run folder through the trainer's own writer: evaluations every 100 episodes up to
+    ``upto`` climbing to ``final`` successes per 100, then (``after``) one more row beyond."""
+    task = TaskSpec(region=region, n_joints=joints, **(extra_task or {})).to_dict()
+    f = RunFolder(folder)
+    f.write_spec({"format": "ddpg_her-run-1", "env_id": "UR5Reach-v0",
+                  "env_kwargs": {"region": region, "n_joints": joints}, "task": task,
+                  "seed": seed, "agent": {"episodes": planned, "gamma": 0.98}})
+    episodes = list(range(100, upto + 1, 100))
+    values = [round(final * e / upto) for e in episodes]
+    if after is not None:
+        episodes.append(upto + 200)
+        values.append(round(after))
+    f.write_eval([{"episode": e, "successes": v, "tests": 100, "mean_return": 0.0,
+                   "mean_final_distance_m": 0.1, "env_steps": e * 100, "wall_s": 1.0}
+                  for e, v in zip(episodes, values, strict=True)])
+
+
+def _hand_t(values) -> tuple[float, float, float]:
+    """The paper's 65 % Student-t interval of the mean, by scipy (clipped to 0-100)."""
+    m = float(np.mean(values))
+    if len(values) < 2:
+        return m, m, m
+    low, high = stats.t.interval(0.65, len(values) - 1, loc=m, scale=stats.sem(values))
+    return m, max(low, 0.0), min(high, 100.0)
+
+
+# --- units, commands and status -----------------------------------------------------------------
+
+def test_dry_run_lists_every_reading_and_setting_with_its_command(tmp_path: Path) -> None:
+    proc = _module("analysis.sensitivity", "--dry-run", "--out", str(tmp_path), "--threads", "1",
+                   "--reading", "tau01=--tau 0.01")
+    lines = proc.stdout.strip().splitlines()
+    has_contact = "contact_model" in {f.name for f in dataclasses.fields(TaskSpec)}
+    readings = ["ours", "actor_penalty", *(["compliant"] if has_contact else []),
+                "gauss02_nowarmup", "tau01"]
+    assert len(lines) == len(readings) * len(sens.SETTINGS) * 5
+    if not has_contact:
+        assert "reading compliant: this code's TaskSpec has no field contact_model" in proc.stderr
+    for reading in readings:
+        for region, joints in sens.SETTINGS:
+            mine = [ln for ln in lines if f" {tmp_path / reading / f'{region}-j{joints}'}/s" in ln]
+            assert [ln.split()[0] for ln in mine] == ["new"] * 5, (reading, region, joints)
+            cmd = mine[0].split("<- python ")[1].split()
+            expect = {"ours": [], "tau01": ["--tau", "0.01"], **{
+                k: list(v.args) for k, v in sens.READINGS.items()}}[reading]
+            at = cmd.index("--out")
+            assert cmd[at - len(expect):at] == expect and cmd[at - len(expect) - 2] == "--episodes"
+            assert cmd[at + 1] == f"{tmp_path / reading / f'{region}-j{joints}'}/s{{seed}}"
+            assert cmd[cmd.index("--seeds") + 1:cmd.index("--episodes")] == list("01234")
+            assert cmd[cmd.index("--episodes") + 1] == "1000"
+    assert not (tmp_path / "ours").exists()  # a dry run writes nothing
+
+
+def test_units_match_the_commands_started_by_hand(tmp_path: Path) -> None:
+    """The two units started in the background before this command existed: same folders, same
+    training arguments, so the study resumes them as its own."""
+    by_hand = ["--region", "zheight", "--joints", "3", "--seeds", "0", "1", "2", "3", "4",
+               "--episodes", "1000", "--task", "action_penalty_unit=actor", "--out",
+               str(tmp_path / "actor_penalty/zheight-j3/s{seed}"), "--resume", "--no-progress",
+               "--threads", "1"]
+    units = sens.units_for([sens.READINGS["actor_penalty"]], [("zheight", 3)], 5, tmp_path, 1000)
+    assert units[0].command(1, [])[3:3 + len(by_hand)] == by_hand
+
+
+def test_status_of_done_partial_and_new_units(tmp_path: Path) -> None:
+    root = tmp_path / "actor_penalty"
+    for seed in range(5):
+        _write_run(root / "zheight-j3" / f"s{seed}", "zheight", 3, seed, 50.0)
+        _write_run(root / "farbox-j6" / f"s{seed}", "farbox", 6, seed, 50.0,
+                   upto=BUDGET if seed else 300)
+    units = {u.setting: u for u in sens.units_for(
+        [sens.READINGS["actor_penalty"]], [("zheight", 3), ("farbox", 6), ("closebox", 3)], 5,
+        tmp_path, BUDGET)}
+    assert [units["zheight-j3"].status(s) for s in range(5)] == ["done"] * 5
+    assert [units["farbox-j6"].status(s) for s in range(5)] == ["resume"] + ["done"] * 4
+    assert [units["closebox-j3"].status(s) for s in range(5)] == ["new"] * 5
+    assert [u.pending() for u in units.values()] == [False, True, True]
+    assert units["farbox-j6"].episodes_done() == 300 + 4 * BUDGET
+    # a larger budget makes the finished unit resumable again
+    longer = sens.units_for([sens.READINGS["actor_penalty"]], [("zheight", 3)], 5, tmp_path,
+                            1500)
+    assert longer[0].status(0) == "resume"
+    out = _module("analysis.sensitivity", "--dry-run", "--out", str(tmp_path), "--readings",
+                  "actor_penalty", "--setting", "zheight:3", "--setting", "farbox:6",
+                  "--setting", "closebox:3").stdout.splitlines()
+    assert [ln.split()[0] for ln in out] == ["done"] * 5 + ["resume"] + ["done"] * 4 + ["new"] * 5
+
+
+def test_a_unit_another_process_trains_is_busy(tmp_path: Path) -> None:
+    unit = Unit("zheight", 3, (0, 1), tmp_path / "actor_penalty", 1000)
+    assert not busy(unit, training_outs())
+    # a stand-in with a trainer's command line (python -c ... ddpg_her.train --out OUT)
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)",
+                             "ddpg_her.train", "--out", unit.out])
+    try:
+        deadline = time.monotonic() + 10
+        while not busy(unit, training_outs()) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert busy(unit, training_outs())
+        other = Unit("zheight", 3, (0, 1), tmp_path / "ours", 1000)
+        assert not busy(other, training_outs())
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_readings_from_the_command_line_and_a_file(tmp_path: Path) -> None:
+    r = sens.parse_reading("slow=--tau 0.0001 --critic-lr 1e-4")
+    assert r.args == ("--tau", "0.0001", "--critic-lr", "1e-4")
+    path = tmp_path / "readings.json"
+    path.write_text(json.dumps({"her_future": {"args": "--her-strategy future",
+                                               "paper": "final", "ours": "future"}}))
+    (loaded,) = sens.load_readings(path)
+    assert loaded == sens.Reading("her_future", ("--her-strategy", "future"), "final", "future")
+    for bad in ("noequals", "bad/name=--tau 1"):
+        with pytest.raises(Exception, match=r"NAME=ARGS|must match"):
+            sens.parse_reading(bad)
+    proc = _module("analysis.sensitivity", "--dry-run", "--readings", "nope", check=False)
+    assert proc.returncode == 2 and "unknown reading(s) ['nope']" in proc.stderr
+    proc = _module("analysis.sensitivity", "--dry-run", "--reading", "ours=--tau 1", check=False)
+    assert proc.returncode == 2 and "built in with other arguments" in proc.stderr
+    sens.write_reading(tmp_path, loaded)
+    with pytest.raises(ValueError, match="records reading 'her_future'"):
+        sens.write_reading(tmp_path, sens.Reading("her_future", ("--her-k", "8")))
+
+
+# --- collect --------------------------------------------------------------------------------------
+
+def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path) -> None:
+    root, dest = tmp_path / "runs", tmp_path / "dest"
+    for seed in range(2):
+        run = root / "ours" / "zheight-j3" / f"s{seed}"
+        _write_run(run, "zheight", 3, seed, 40.0)
+        for junk in ("checkpoints/episode-001000.pt", "buffer/episode-001000.npz", "tb/x"):
+            (run / junk).parent.mkdir(parents=True, exist_ok=True)
+            (run / junk).write_bytes(b"x")
+        _write_run(root / "ours" / "farbox-j6" / f"s{seed}", "farbox", 6, seed, 40.0, upto=500)
+    (root / "ours" / "logs").mkdir()
+    (root / "ours" / "logs" / "zheight-j3.log").write_text("log")
+    proc = _module("analysis.sensitivity", "--collect", str(dest), "--out", str(root),
+                   "--seeds", "2", "--readings", "ours", "--setting", "zheight:3",
+                   "--setting", "farbox:6")
+    assert "copied 1 finished unit(s)" in proc.stderr and "ours/farbox-j6" in proc.stderr
+    copied = sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*") if p.is_file())
+    # no reading.json at the source (units started by hand): written from the reading
+    assert json.loads((dest / "runs/ours/reading.json").read_text())["args"] == []
+    assert copied == ["runs/ours/reading.json",
+                      *(f"runs/ours/zheight-j3/s{s}/{n}" for s in range(2)
+                        for n in ("eval.csv", "spec.json"))]
+    for seed in range(2):
+        for name in ("eval.csv", "spec.json"):
+            assert (dest / f"runs/ours/zheight-j3/s{seed}/{name}").read_bytes() == \
+                (root / f"ours/zheight-j3/s{seed}/{name}").read_bytes()
+
+
+# --- the verdicts ---------------------------------------------------------------------------------
+
+FINALS = {
+    # reading: {setting: each seed's successes at the budget}
+    "holds": {("farbox", 6): [95, 96, 97, 98, 99], ("unconstrained", 3): [40, 42, 44, 46, 48],
+              ("zheight", 3): [20, 21, 22, 23, 24], ("closebox", 3): [18, 19, 20, 21, 22],
+              ("unconstrained", 2): [95, 96, 97, 98, 99]},
+    "fails": {("farbox", 6): [40, 42, 44, 46, 48], ("unconstrained", 3): [60, 62, 64, 66, 68],
+              ("zheight", 3): [80, 82, 84, 86, 88], ("closebox", 3): [18, 19, 20, 21, 22],
+              ("unconstrained", 2): [50, 52, 54, 56, 58]},
+    "noise": {("farbox", 6): [0, 100, 50, 20, 80], ("unconstrained", 3): [40, 42, 44, 46, 48],
+              ("zheight", 3): [10, 80, 45, 30, 60], ("unconstrained", 2): [70, 100, 90, 80, 100]},
+    "close": {("farbox", 6): [50, 51, 52, 53, 54], ("unconstrained", 3): [40, 41, 42, 43, 44]},
+    "lonely": {("zheight", 3): [20, 21, 22, 23, 24], ("closebox", 3): [18, 19, 20, 21, 22]},
+    "short": {("farbox", 6): [95, 97, 99], ("unconstrained", 3): [40, 44, 48]},
+}
+CLAIMS = ("farbox far above unconstrained (3-6 joints)",
+          "unconstrained (3-6 joints) above zheight and closebox",
+          "2 joints high (unconstrained)")
+EXPECTED = {"holds": ("YES", "YES", "YES"), "fails": ("NO", "NO", "NO"),
+            "noise": ("NOISE", "NOISE", "NOISE"), "close": ("NO", "NOT_RUN", "NOT_RUN"),
+            "lonely": ("NOT_RUN", "NOT_RUN", "NOT_RUN"),
+            "short": ("YES", "YES", "NOT_RUN")}
+
+
+def _synthetic_study(root: Path) -> None:
+    for reading, settings in FINALS.items():
+        for (region, joints), finals in settings.items():
+            for seed, final in enumerate(finals):
+                # a row after the budget that would turn every verdict: it must not count
+                _write_run(root / reading / f"{region}-j{joints}" / f"s{seed}", region, joints,
+                           seed, final, after=100 - final)
+    # fewer episodes than the budget: judged at its last evaluation, marked partial
+    for seed, final in enumerate([20, 21, 22, 23, 24]):
+        _write_run(root / "short" / "zheight-j3" / f"s{seed}", "zheight", 3, seed, final,
+                   upto=500)
+
+
+def test_verdicts_on_hand_made_runs_follow_hand_computed_intervals(tmp_path: Path) -> None:
+    _synthetic_study(tmp_path)
+    result = sens.report(tmp_path, tmp_path / "out", reps=4000, worth_goals=0)
+    assert result.readings == ["ours", "actor_penalty", "compliant", "gauss02_nowarmup",
+                               *sorted(FINALS)]
+    cells = {(c.reading, c.setting): c for c in result.cells}
+    for reading, settings in FINALS.items():
+        for setting, finals in settings.items():
+            cell = cells[(reading, setting)]
+            assert cell.episode == BUDGET and cell.successes == pytest.approx(finals)
+            assert cell.t == pytest.approx(_hand_t(finals))
+            # rliable's percentile bootstrap against a plain numpy one (independent resampling)
+            rng = np.random.default_rng(7)
+            draws = rng.choice(finals, size=(20_000, len(finals)))
+            means = draws.mean(axis=1)
+            assert cell.boot_mean[1:] == pytest.approx(
+                tuple(np.quantile(means, [0.175, 0.825])), abs=2.5)
+            assert cell.boot_iqm[0] == pytest.approx(stats.trim_mean(finals, 0.25))
+    short_z = cells[("short", ("zheight", 3))]
+    assert short_z.episode == 500 and short_z.partial == "500 of 1,000 episodes"
+    assert short_z.t == pytest.approx(_hand_t([20, 21, 22, 23, 24]))
+    assert cells[("short", ("farbox", 6))].partial == "3 of 5 seeds"
+    assert not cells[("holds", ("farbox", 6))].partial
+
+    rows = {(r.claim, r.reading): r for r in result.rows}
+    for reading, expected in EXPECTED.items():
+        for claim, verdict in zip(CLAIMS, expected, strict=True):
+            row = rows[(claim, reading)]
+            assert row.t is Verdict[verdict], (claim, reading, row.detail_t)
+            if verdict != "NOT_RUN":  # these data are clear enough for every interval
+                assert row.boot_mean is Verdict[verdict] and row.boot_iqm is Verdict[verdict]
+    for reading in ("ours", "actor_penalty", "compliant", "gauss02_nowarmup"):
+        assert all(rows[(c, reading)].t is Verdict.NOT_RUN for c in CLAIMS)
+    assert rows[(CLAIMS[0], "short")].partial == \
+        "farbox 6: 3 of 5 seeds; unconstrained 3: 3 of 5 seeds"
+    assert rows[(CLAIMS[1], "short")].partial == \
+        "unconstrained 3: 3 of 5 seeds; zheight 3: 500 of 1,000 episodes"
+    assert rows[(CLAIMS[0], "holds")].partial == ""
+
+    with open(tmp_path / "out" / "verdicts.csv") as f:
+        table = {(r["claim"], r["reading"]): r for r in csv.DictReader(f)}
+    assert len(table) == len(CLAIMS) * len(result.readings)
+    assert table[(CLAIMS[0], "holds")]["verdict_t"] == "holds"
+    assert table[(CLAIMS[1], "fails")]["verdict_bootstrap_iqm"] == "fails"
+    assert table[(CLAIMS[2], "noise")]["verdict_t"] == "within noise"
+    assert table[(CLAIMS[0], "compliant")]["verdict_t"] == "not run"
+    assert table[(CLAIMS[0], "short")]["verdict_t"] == "holds"
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "| farbox far above unconstrained (3-6 joints) | not run | not run | not run | " \
+           "not run | fails / fails / fails | fails / fails / fails | holds / holds / holds | " \
+           "not run | " \
+           "within noise / within noise / within noise | holds (partial) / holds / holds |" in text
+    assert (tmp_path / "out" / "curves.png").stat().st_size > 1000
+    with open(tmp_path / "out" / "curves.csv") as f:
+        curve = [r for r in csv.DictReader(f) if r["reading"] == "holds"
+                 and r["region"] == "farbox" and r["episode"] == str(BUDGET)]
+    assert float(curve[0]["mean_successes"]) == pytest.approx(97.0)
+
+
+def test_the_worth_reaching_column_uses_the_optimality_diagnostic(tmp_path: Path,
+                                                                  monkeypatch) -> None:
+    for reading, extra in (("ours", {}), ("actor_penalty", {"action_penalty_unit": "actor"})):
+        for seed in range(2):
+            _write_run(tmp_path / reading / "zheight-j3" / f"s{seed}", "zheight", 3, seed, 30.0,
+                       extra_task=extra)
+    monkeypatch.setitem(sys.modules, "analysis.optimality", None)  # not importable
+    result = sens.report(tmp_path, tmp_path / "a", seeds=2, reps=200, worth_goals=10)
+    assert all(c.worth is None for c in result.cells)
+    assert "worth-reaching diagnostic not available" in result.text
+
+    calls = []
+
+    @dataclasses.dataclass(frozen=True)
+    class FakeResult:
+        share: float
+        ci_low: float
+        ci_high: float
+
+    def worth_reaching(task, goals=500, gamma=0.98, seed=0):
+        calls.append((task.action_penalty_unit, goals, gamma, seed))
+        return FakeResult(0.5 if task.action_penalty_unit == "actor" else 0.25, 0.2, 0.6)
+
+    fake = type(sys)("analysis.optimality")
+    fake.worth_reaching = worth_reaching
+    monkeypatch.setitem(sys.modules, "analysis.optimality", fake)
+    result = sens.report(tmp_path, tmp_path / "b", seeds=2, reps=200, worth_goals=10,
+                         boot_seed=3)
+    assert sorted(calls) == [("actor", 10, 0.98, 3), ("command", 10, 0.98, 3)]
+    worth = {c.reading: c.worth for c in result.cells}
+    assert worth == {"ours": (25.0, 20.0, 60.0), "actor_penalty": (50.0, 20.0, 60.0)}
+    with open(tmp_path / "b" / "finals.csv") as f:
+        assert {r["reading"]: r["worth_reaching"] for r in csv.DictReader(f)} == \
+            {"ours": "25", "actor_penalty": "50"}
+    assert (tmp_path / "b" / "worth_reaching.png").stat().st_size > 1000
+
+
+# --- a real unit, end to end ----------------------------------------------------------------------
+
+def test_a_tiny_study_trains_resumes_collects_and_reports(tmp_path: Path) -> None:
+    root = tmp_path / "runs"
+    toy = ["--env-id", "toy_goal_env:ToyReach-v0", "--hidden-sizes", "16", "16",
+           "--eval-every", "2", "--eval-episodes", "2", "--updates-per-episode", "2"]
+
+    def study(*more: str) -> subprocess.CompletedProcess:
+        return _module("analysis.sensitivity", "--out", str(root), "--seeds", "2",
+                       "--episodes", "4", "--setting", "box:2", "--readings", "ours", "cheap",
+                       "--reading", "cheap=--task action_cost=0.01", "--threads", "1", *more,
+                       "--", *toy)
+
+    first = study()
+    assert "0 of 2 units already finished" in first.stderr
+    for reading in ("ours", "cheap"):
+        for seed in (0, 1):
+            run = json.loads((root / reading / "box-j2" / f"s{seed}" / "spec.json").read_text())
+            assert run["task"]["action_cost"] == (0.01 if reading == "cheap" else 0.05)
+            assert run["seed"] == seed and run["agent"]["episodes"] == 4
+    assert json.loads((root / "cheap" / "reading.json").read_text())["args"] == \
+        ["--task", "action_cost=0.01"]
+    log = (root / "cheap" / "logs" / "box-j2.log").read_text()
+    assert "2 of 2 units already finished" in study().stderr
+    assert (root / "cheap" / "logs" / "box-j2.log").read_text() == log  # nothing re-ran
+
+    study("--collect", str(tmp_path / "dest"))
+    assert len(list((tmp_path / "dest" / "runs").rglob("eval.csv"))) == 4
+    proc = _module("analysis.sensitivity", "report", str(tmp_path / "dest" / "runs"),
+                   "--out", str(tmp_path / "report"), "--episodes", "4", "--seeds", "2",
+                   "--reps", "200", "--worth-goals", "0")
+    assert "| cheap | box 2 | 2 | 4 |" in proc.stdout
+    for name in ("report.md", "verdicts.csv", "finals.csv", "curves.csv", "curves.png"):
+        assert (tmp_path / "report" / name).exists(), name
+    assert "--task action_cost=0.01" in (tmp_path / "report" / "report.md").read_text()
