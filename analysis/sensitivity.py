@@ -365,15 +365,12 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
     """Each cell's share of goals worth reaching (``analysis.optimality.worth_reaching`` on the
     task its runs recorded, with their discount), in percent; and a note for the report.
 
-    Cells with the same task and discount share one computation. Before the diagnostic exists
-    (ImportError) or when ``goals`` is 0, no shares and a note saying so.
+    Cells with the same task and discount share one computation. When ``goals`` is 0, no
+    shares and a note saying so.
     """
     if goals <= 0:
         return {}, "worth-reaching diagnostic skipped (--worth-goals 0)"
-    try:
-        from analysis.optimality import worth_reaching
-    except ImportError as err:
-        return {}, f"worth-reaching diagnostic not available ({err})"
+    from analysis import optimality  # Pinocchio and the env: only when shares are asked for
     from envs.spec import TaskSpec
 
     cache: dict[str, Interval | None] = {}
@@ -385,7 +382,8 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
         if key not in cache:
             try:
                 task = TaskSpec.from_dict(spec["task"])
-                cache[key] = _share(worth_reaching(task, goals=goals, gamma=gamma, seed=seed))
+                cache[key] = _share(optimality.worth_reaching(task, goals=goals, gamma=gamma,
+                                                                 seed=seed))
             except (KeyError, TypeError, ValueError) as err:
                 problems.append(f"{cell.reading} {cell.region} {cell.joints}: {err}")
                 cache[key] = None
@@ -398,23 +396,10 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
     return out, note
 
 
-SHARE_FIELDS = ("share", "worth_share", "share_worth_reaching", "worth_reaching", "fraction")
-"""Names under which an optimality result may hold its share (a fraction in [0, 1])."""
-
-
 def _share(result: Any) -> Interval:
-    """(share, low, high) in percent from an ``OptimalityResult`` (see `SHARE_FIELDS`); its
-    interval from ``ci`` / ``share_ci`` (a pair) or ``ci_low``/``ci_high`` (else the share)."""
-    name = next((n for n in SHARE_FIELDS if isinstance(getattr(result, n, None), float | int)),
-                None)
-    if name is None:
-        raise TypeError(f"{type(result).__name__} has none of the fields {SHARE_FIELDS}")
-    share = float(getattr(result, name))
-    pair = getattr(result, "ci", None) or getattr(result, "share_ci", None)
-    if pair is None and hasattr(result, "ci_low"):
-        pair = (result.ci_low, result.ci_high)
-    low, high = (float(pair[0]), float(pair[1])) if pair is not None else (share, share)
-    return 100.0 * share, 100.0 * low, 100.0 * high
+    """(share, low, high) in percent from an :class:`analysis.optimality.OptimalityResult`."""
+    low, high = result.share_worth_ci
+    return 100.0 * result.share_worth, 100.0 * low, 100.0 * high
 
 
 @dataclass(frozen=True)

@@ -299,26 +299,24 @@ def test_the_worth_reaching_column_uses_the_optimality_diagnostic(tmp_path: Path
         for seed in range(2):
             _write_run(tmp_path / reading / "zheight-j3" / f"s{seed}", "zheight", 3, seed, 30.0,
                        extra_task=extra)
-    monkeypatch.setitem(sys.modules, "analysis.optimality", None)  # not importable
-    result = sens.report(tmp_path, tmp_path / "a", seeds=2, reps=200, worth_goals=10)
+    result = sens.report(tmp_path, tmp_path / "a", seeds=2, reps=200, worth_goals=0)
     assert all(c.worth is None for c in result.cells)
-    assert "worth-reaching diagnostic not available" in result.text
+    assert "worth-reaching diagnostic skipped" in result.text
 
     calls = []
 
     @dataclasses.dataclass(frozen=True)
     class FakeResult:
-        share: float
-        ci_low: float
-        ci_high: float
+        share_worth: float
+        share_worth_ci: tuple[float, float]
 
     def worth_reaching(task, goals=500, gamma=0.98, seed=0):
         calls.append((task.action_penalty_unit, goals, gamma, seed))
-        return FakeResult(0.5 if task.action_penalty_unit == "actor" else 0.25, 0.2, 0.6)
+        return FakeResult(0.5 if task.action_penalty_unit == "actor" else 0.25, (0.2, 0.6))
 
-    fake = type(sys)("analysis.optimality")
-    fake.worth_reaching = worth_reaching
-    monkeypatch.setitem(sys.modules, "analysis.optimality", fake)
+    import analysis.optimality
+
+    monkeypatch.setattr(analysis.optimality, "worth_reaching", worth_reaching)
     result = sens.report(tmp_path, tmp_path / "b", seeds=2, reps=200, worth_goals=10,
                          boot_seed=3)
     assert sorted(calls) == [("actor", 10, 0.98, 3), ("command", 10, 0.98, 3)]
