@@ -9,7 +9,7 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from test_env_dynamics import brute_force_heights
+from arm_geometry import brute_force_heights
 
 import envs
 import regions
