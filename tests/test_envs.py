@@ -23,17 +23,21 @@ def make(env_id: str = "UR5Reach-v0", **kwargs):
     return gymnasium.make(env_id, **kwargs)
 
 
-def rollout(env, steps: int, seed: int, action_seed: int = 0, angles: list | None = None):
+def rollout(env, steps: int, seed: int, action_seed: int = 0, angles: list | None = None,
+            spread: float = 1.0):
     """Random actions from a seeded generator; every transition, restarting ended episodes.
 
-    ``angles`` collects all six joint angles after each step when given.
+    Actions are uniform in the action box scaled by ``spread`` about its centre (``spread`` > 1
+    sends actions outside the box, which the env clips). ``angles`` collects all six joint
+    angles after each step when given.
     """
     rng = np.random.default_rng(action_seed)
     space = env.action_space
+    centre, half = (space.high + space.low) / 2, (space.high - space.low) / 2
     obs, _ = env.reset(seed=seed)
     out = []
     for _ in range(steps):
-        action = rng.uniform(space.low, space.high)
+        action = rng.uniform(centre - spread * half, centre + spread * half)
         nxt, reward, terminated, truncated, info = env.step(action)
         out.append((obs, action, reward, terminated, truncated, info, nxt))
         if angles is not None:
@@ -79,10 +83,17 @@ def test_render_rgb_array_draws_the_scene():
 
 @pytest.mark.parametrize("reward_type", ["dense", "sparse"])
 def test_goal_env_reward_invariant(reward_type):
+    """reward == compute_reward(achieved, desired, info), with half the actions sent outside the
+    action box: the reward and info["action"] both use the action as applied (clipped)."""
     env = make(region="zheight", n_joints=3, reward_type=reward_type)
-    transitions = rollout(env, 300, seed=1)
+    transitions = rollout(env, 300, seed=1, spread=2.0)
     u = env.unwrapped
-    for _, _, reward, _, _, info, nxt in transitions:
+    space = u.action_space
+    sent = np.stack([t[1] for t in transitions])
+    outside = (sent < space.low) | (sent > space.high)
+    assert 0.3 < outside.any(axis=1).mean() < 0.99  # clipping is exercised, and not always
+    for (_, action, reward, _, _, info, nxt) in transitions:
+        np.testing.assert_array_equal(info["action"], np.clip(action, space.low, space.high))
         assert reward == u.compute_reward(nxt["achieved_goal"], nxt["desired_goal"], info)
     rewards = np.array([t[2] for t in transitions])
     achieved = np.stack([t[6]["achieved_goal"] for t in transitions])
@@ -99,9 +110,10 @@ def test_goal_env_reward_invariant(reward_type):
     np.testing.assert_array_equal(grid, rewards.reshape(30, 10))
     success = np.array([i["is_success"] for i in infos])
     np.testing.assert_array_equal(u.compute_terminated(achieved, desired, infos), success)
-    if reward_type == "dense":  # eq. 2 written out
+    if reward_type == "dense":  # eq. 2 written out, with the sent actions clipped here
         d = np.linalg.norm(achieved - desired, axis=-1)
-        np.testing.assert_allclose(rewards, -d - (actions**2).sum(-1) + 100.0 * (d <= 0.1))
+        applied = np.clip(sent, -np.pi, np.pi)
+        np.testing.assert_allclose(rewards, -d - (applied**2).sum(-1) + 100.0 * (d <= 0.1))
     else:
         np.testing.assert_array_equal(rewards, 100.0 * success)
 
