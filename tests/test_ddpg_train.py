@@ -243,7 +243,10 @@ def test_tensorboard_gets_eval_and_training_scalars(tmp_path, monkeypatch):
     assert logged["closed"]
 
 
-def test_learns_the_toy_task_in_seconds(tmp_path):
+def test_learns_the_toy_task_in_seconds_and_her_is_what_makes_it_learn(tmp_path):
+    """HER against a no-HER control with everything else equal (measured with seed 0: the last
+    three sessions score 27, 24, 28 of 30 with HER and 8, 7, 5 without; seeds 1 and 2 keep a
+    margin over 10 too)."""
     config = AgentConfig(episodes=80, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
                          updates_per_episode=40, actor_lr=1e-3, tau=0.05,
                          exploration="epsilon", exploration_rate=0.3, warmup_episodes=0)
@@ -252,6 +255,10 @@ def test_learns_the_toy_task_in_seconds(tmp_path):
     assert hits[0] <= 3, hits  # an untrained policy hits next to nothing ...
     assert hits[-1] >= 18, hits  # ... after 80 episodes most goals
     assert rows[-1]["mean_final_distance_m"] < 0.3 * rows[0]["mean_final_distance_m"]
+    plain = AgentConfig(**{**config.to_dict(), "her_strategy": "none"})
+    control = [r["successes"] for r in train([tmp_path / "no-her"], seeds=[0],
+                                             config=plain)[0]]
+    assert np.mean(hits[-3:]) >= np.mean(control[-3:]) + 10, (hits, control)
 
 
 # --- the command line -------------------------------------------------------------------------
