@@ -28,11 +28,8 @@ TESTS_DIR = Path(__file__).parent
 
 
 @pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def one_thread(one_torch_thread):
+    """Every test here on one torch thread (conftest.one_torch_thread)."""
 
 
 def train(dirs, seeds=(0,), config=TINY, **kwargs):
