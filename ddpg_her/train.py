@@ -74,7 +74,7 @@ def make_parser() -> argparse.ArgumentParser:
     task.add_argument("--task", type=_task_option, action="append", default=[],
                       metavar="KEY=VALUE",
                       help="override a field of the task specification (VALUE read as JSON, "
-                           "else as a string); repeatable, e.g. --task reward=sparse")
+                           "else as a string); repeatable, e.g. --task reward_type=sparse")
     task.add_argument("--env-id", default="UR5Reach-v0",
                       help="Gymnasium id of the goal env; 'module:Id' imports module first "
                            "(default: %(default)s)")

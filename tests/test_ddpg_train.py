@@ -285,13 +285,13 @@ def test_bench_prints_every_figure_as_json():
     assert 140 < result["update_mflop_per_agent"] < 150
 
 
-def test_cli_help_lists_every_flag_with_units():
+def test_cli_help_lists_every_agent_field_as_a_flag():
+    """Each flag's help text and unit are checked in tests/test_cli.py."""
     out = cli("--help")
     assert out.returncode == 0, out.stderr
     for field in AgentConfig.__dataclass_fields__:
         assert "--" + field.replace("_", "-") in out.stdout
-    for text in ("--region", "--joints", "--seeds", "--resume", "--device", "rad", "0.98",
-                 "transitions"):
+    for text in ("--region", "--joints", "--seeds", "--resume", "--device", "0.98)"):
         assert text in out.stdout
 
 
