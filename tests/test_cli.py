@@ -184,7 +184,7 @@ def test_examples_are_found():
 @pytest.mark.parametrize(("where", "target", "argv"), EXAMPLES,
                          ids=[f"{w}: {t} {' '.join(a)}" for w, t, a in EXAMPLES])
 def test_every_example_command_runs_or_at_least_parses(where, target, argv, tmp_path,
-                                                       monkeypatch, one_torch_thread):
+                                                       monkeypatch):
     """Training examples run up to the training itself (the task and agent fully checked);
     sweep dry runs run; the other examples (long studies over run folders) are parsed."""
     monkeypatch.chdir(tmp_path)

@@ -27,11 +27,6 @@ TINY = AgentConfig(episodes=12, eval_every=3, eval_episodes=4, hidden_sizes=(16,
 TESTS_DIR = Path(__file__).parent
 
 
-@pytest.fixture(autouse=True)
-def one_thread(one_torch_thread):
-    """Every test here on one torch thread (conftest.one_torch_thread)."""
-
-
 def train(dirs, seeds=(0,), config=TINY, **kwargs):
     trainer = Trainer(ENV_ID, TASK, config, list(seeds), [str(d) for d in dirs],
                       progress=False, tensorboard=False, **kwargs)

@@ -323,7 +323,7 @@ def test_batched_autoreset_modes():
         BatchedReach(2, task, autoreset_mode="sometimes")
 
 
-def test_sb3_ddpg_with_her_runs_on_the_env_unmodified(one_torch_thread):
+def test_sb3_ddpg_with_her_runs_on_the_env_unmodified():
     """A smoke test: SB3's DDPG + HER trains on UR5Reach-v0 with both rewards (sparse, and dense
     with the infos copied for the action penalty). Too short to learn; see the next test."""
     from stable_baselines3 import DDPG, HerReplayBuffer
@@ -355,7 +355,7 @@ def _toy_successes(model, goals: int = 50, seed: int = 1000) -> int:
     return int(success.sum())
 
 
-def test_sb3_ddpg_with_her_learns_a_goal_env_with_the_same_reward_contract(one_torch_thread):
+def test_sb3_ddpg_with_her_learns_a_goal_env_with_the_same_reward_contract():
     """SB3's DDPG + HER, configured as for UR5Reach-v0's dense reward (the action read from the
     copied infos), learns the toy goal env of tests/toy_goal_env.py in 2,000 steps.
 
