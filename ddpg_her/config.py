@@ -51,7 +51,7 @@ class AgentConfig:
 
     # --- Table I -------------------------------------------------------------------------------
     gamma: float = 0.98
-    """Discount factor gamma (Table I)."""
+    """Discount factor gamma, in [0, 1] (Table I)."""
     buffer_size: int = 1_000_000
     """Replay buffer capacity B per agent, transitions (real and relabelled together); the
     oldest are overwritten first; sampling is uniform (Table I)."""
@@ -63,12 +63,12 @@ class AgentConfig:
     range, so 0.01 is 0.0314 rad for joint angles in [-pi, pi]), or the per-step probability of
     a uniformly random action."""
     tau: float = 0.001
-    """Target update ratio tau: target <- (1 - tau) target + tau online, after every update
-    (Table I)."""
+    """Target update ratio tau, in (0, 1]: target <- (1 - tau) target + tau online, after every
+    update (Table I)."""
     actor_lr: float = 1e-4
-    """Actor learning rate lambda_mu, Adam (Table I)."""
+    """Actor learning rate lambda_mu of Adam, > 0 (Table I)."""
     critic_lr: float = 1e-3
-    """Critic learning rate lambda_Q, Adam (Table I)."""
+    """Critic learning rate lambda_Q of Adam, > 0 (Table I)."""
     episodes: int = 20_000
     """Training episodes M per agent (Table I). May be raised on --resume to extend a run."""
     eval_every: int = 100
@@ -81,8 +81,8 @@ class AgentConfig:
     The action enters the critic at its second layer; the actor's tanh output is scaled to the
     action box."""
     final_init: float = 3e-3
-    """Final layers of actor and critic are initialised uniform in +-final_init (Lillicrap et al.);
-    the hidden layers uniform in +-1/sqrt(fan_in)."""
+    """Final layers of actor and critic are initialised uniform in [-final_init, final_init],
+    final_init > 0 (Lillicrap et al.); the hidden layers uniform in +-1/sqrt(fan_in)."""
     her_strategy: HERStrategy = HERStrategy.FINAL
     """Hindsight relabelling after each episode: final (paper), future, or none."""
     her_k: int = 4
@@ -116,7 +116,8 @@ class AgentConfig:
     norm_eps: float = 0.01
     """Lower bound of the normaliser's standard deviation, in the input's units."""
     critic_l2: float = 0.0
-    """L2 weight decay of the critic (Lillicrap et al. used 1e-2; Table I lists none)."""
+    """L2 weight decay coefficient of the critic, >= 0 (Lillicrap et al. used 1e-2; Table I lists
+    none)."""
     flush_denormals: bool = True
     """Flush subnormal floats (below 1.2e-38 in float32) to zero on the CPU while training. Adam's
     second moment of a weight whose gradient has gone to zero (a dead ReLU unit) decays through

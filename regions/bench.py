@@ -1,8 +1,9 @@
 """Timings and sampler comparison of the regions package: ``python -m regions.bench``.
 
 Prints the time to draw goals (the issue's figure: 10,000 farbox goals with 3 joints), the cost
-of one plane-clearance call on the env's (20, 6) batch of sub-step configurations, and the
-joint-space and Cartesian samplers side by side on the paper's regions.
+of one plane-clearance call on the env's (20, 6) batch of sub-step configurations, how long a
+sampler takes to refuse a region it cannot reach, and the joint-space and Cartesian samplers side
+by side on the paper's regions.
 """
 
 from __future__ import annotations
@@ -51,6 +52,32 @@ def time_clearance(calls: int, seed: int) -> dict[str, float]:
     return out
 
 
+UNREACHABLE = (("box:-0.2,0.2,-0.2,0.2,5,6", 3, "joint"),
+               ("box:-0.2,0.2,-0.2,0.2,5,6", 3, "cartesian"),
+               ("box:-0.1,0.1,-0.1,0.1,0.9,1.0", 2, "joint"))
+"""Regions the samplers cannot reach (region string, joints, sampler): far above the arm, and a
+box off the surface that 2 joints sweep from the constrained start (the tests' cases)."""
+
+
+def time_unreachable(repeats: int) -> list[tuple[str, int, str, float]]:
+    """Seconds until each :data:`UNREACHABLE` sampler raises UnreachableRegionError (best of
+    ``repeats``); rows ``(region, joints, sampler, s)``."""
+    classes = {"joint": JointSpaceSampler, "cartesian": CartesianSampler}
+    rows = []
+    for spec, n, kind in UNREACHABLE:
+        best = float("inf")
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            try:
+                classes[kind](regions.parse(spec), n, regions.CONSTRAINED_START)
+            except regions.UnreachableRegionError:
+                best = min(best, time.perf_counter() - t0)
+            else:
+                raise AssertionError(f"{spec} with {n} joints was reachable")
+        rows.append((spec, n, kind, best))
+    return rows
+
+
 def compare_samplers(joints: Sequence[int], goals: int, seed: int, progress: bool
                      ) -> list[tuple[str, int, str, float, float, float]]:
     """Acceptance, reachable fraction of the region and mean goal distance of both samplers.
@@ -97,6 +124,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     costs = time_clearance(args.calls, args.seed)
     print(f"clearance on a ({ENV_BATCH}, 6) batch: " + ", ".join(
         f"{name} {us:.1f} us" for name, us in costs.items()))
+    for spec, n, kind, seconds in time_unreachable(args.repeats):
+        print(f"unreachable {spec}, {n} joints, {kind} sampler: refused in {seconds:.3f} s")
     if not args.skip_comparison:
         print("\nregion         n  sampler      acceptance  reachable  mean dist m")
         for name, n, kind, acc, reach, dist in compare_samplers(

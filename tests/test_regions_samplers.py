@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -104,23 +103,20 @@ def test_cartesian_goals_are_uniform_in_a_reachable_box() -> None:
 
 
 @pytest.mark.parametrize("cls", [JointSpaceSampler, CartesianSampler])
-def test_unreachable_region_fails_fast(cls) -> None:
-    start = time.perf_counter()
+def test_unreachable_region_fails_at_construction(cls) -> None:
+    # How fast it fails is measured by python -m regions.bench, not asserted here.
     with pytest.raises(UnreachableRegionError, match=r"no goals reachable|outside the box"):
         cls(regions.parse("box:-0.2,0.2,-0.2,0.2,5,6"), 3, CONSTRAINED_START)
-    assert time.perf_counter() - start < 5.0
 
 
-def test_region_out_of_reach_of_few_joints_fails_fast() -> None:
+def test_region_out_of_reach_of_few_joints_fails_at_construction() -> None:
     # With 2 joints and the constrained start, tool0 stays on a surface; a small box off it
     # holds no goal. The error says so and names the region, the joints and the start.
-    start = time.perf_counter()
     with pytest.raises(UnreachableRegionError) as info:
         JointSpaceSampler(regions.parse("box:-0.1,0.1,-0.1,0.1,0.9,1.0"), 2, CONSTRAINED_START)
     message = str(info.value)
     assert "box:-0.1,0.1,-0.1,0.1,0.9,1.0" in message and "2 joints" in message
     assert "0 of" in message
-    assert time.perf_counter() - start < 5.0
 
 
 def test_cartesian_sampler_needs_three_joints() -> None:

@@ -1,0 +1,219 @@
+"""Every command line: each flag's help gives a unit or a range, and every example runs.
+
+The command lines are found, not listed (see ``cli_tools``): a new ``python -m`` entry point is
+checked without editing this file. Examples come from the README, ``docs/``, the modules'
+docstrings, the parsers' descriptions and epilogs, and the "e.g. --flag VALUE" in flags' help.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import re
+from pathlib import Path
+
+import pytest
+from cli_tools import (
+    ROOT,
+    cli_modules,
+    example_scripts,
+    load,
+    options,
+    parser_of,
+    split_command,
+    takes_a_number,
+)
+
+CLIS = cli_modules() + example_scripts()
+
+DEFAULT = re.compile(r"\(default: (?:%\(default\)s|[^)]*)\)|%\(default\)s")
+"""argparse's default notes: they hold numbers and an "s" that would pass for a unit."""
+UNIT = re.compile(
+    r"(?<![\w^/'])(m|s|rad|rad/s|rad/s\^2|N m|Hz|m\^3|m/s)(?![\w/^])|%"
+    r"|(?i:\b(count|fraction|probability|standard deviations|units|frames per second|episodes?|"
+    r"steps?|transitions|updates|goals|configurations|agents|threads|copies|rounds|draws|"
+    r"calls|samples|joints|processes|seeds?)\b)")
+"""A physical unit, or the thing a count counts (an integer flag's unit is what it counts; a
+seed is its own unit)."""
+RANGE = re.compile(r"\d\s*\.\.\s*\w|\b\d+\s*-\s*\d+\b|[<>]=?\s*-?\d|\bin [\[(]")
+"""A range: 2..6, 0..K-1, 2-6, >= 1, > 0, in [0, 1], in (0, 1]."""
+
+
+def unit_or_range(text: str) -> bool:
+    """Whether a flag's help states a unit or a range (argparse's default notes aside)."""
+    text = DEFAULT.sub("", text)
+    return bool(UNIT.search(text) or RANGE.search(text))
+
+
+def test_the_unit_check_tells_units_from_none():
+    for text in ("grid cell edge (m)", "controlled joints 2-6", "seed of the goals",
+                 "torch CPU threads (count)", "Discount factor gamma, in [0, 1]",
+                 "frames per second of the animation", "learning rate, > 0"):
+        assert unit_or_range(text), text
+    for text in ("grid cell edge", "Discount factor gamma (Table I). (default: %(default)s)",
+                 "the agent's size (default: 3)", "learning rate of Adam"):
+        assert not unit_or_range(text), text
+
+
+@pytest.mark.parametrize("target", CLIS)
+def test_every_flag_has_help_and_numbers_have_a_unit_or_range(target):
+    parser = parser_of(target)
+    assert parser.format_help()  # the help renders (a bare "%" in a help text would not)
+    missing = [a.dest for a in options(parser) if not (a.help or "").strip()]
+    assert not missing, f"{target}: flags without help: {missing}"
+    unitless = [f"{'/'.join(a.option_strings) or a.dest}: {a.help!r}"
+                for a in options(parser) if takes_a_number(a) and not unit_or_range(a.help)]
+    assert not unitless, f"{target}: numeric flags whose help gives no unit or range:\n" + \
+        "\n".join(unitless)
+
+
+def test_the_command_lines_are_all_found():
+    """The discovery finds the known entry points (so the parametrised tests are not empty)."""
+    assert {"ddpg_her.train", "analysis.sweep", "analysis.region_volumes", "envs.bench",
+            "ur5kin.bench", "regions.bench", "examples/animate_episode.py"} <= set(CLIS)
+
+
+# --- examples -------------------------------------------------------------------------------
+PLACEHOLDER = re.compile(r"^(\[|<)|^[A-Z][A-Z_]*(\.\.\.)?$|^[A-Z_]+=")
+"""A word standing for a value (K, RUN..., KEY=VALUE, [--flag N], <x>): not a runnable line."""
+
+
+def _lines_of_markdown(text: str) -> list[str]:
+    """Command lines of a Markdown text: lines of fenced blocks (backslash continuations
+    joined) and inline code spans with arguments."""
+    lines, fenced, held = [], False, ""
+    for line in text.splitlines():
+        if line.strip().startswith("```"):
+            fenced = not fenced
+            continue
+        if fenced:
+            held += line.rstrip()
+            if held.endswith("\\"):
+                held = held[:-1] + " "
+                continue
+            lines.append(held.strip())
+            held = ""
+        else:  # a span without arguments names a command rather than giving an example
+            lines.extend(span for span in re.findall(r"`([^`]+)`", line)
+                         if len(span.split()) > 3 or "examples/" in span)
+    return lines
+
+
+def _lines_of_cli(target: str) -> list[str]:
+    """Command lines in a CLI's module docstring, its parser's description and epilog."""
+    parser = parser_of(target)
+    texts = [load(target).__doc__ or "", parser.description or "", parser.epilog or ""]
+    return [line.strip() for text in texts for line in text.splitlines()]
+
+
+def _help_fragments(target: str) -> list[list[str]]:
+    """The "e.g. --flag VALUE" examples in a CLI's flags' help, as argv fragments."""
+    found = []
+    for action in options(parser_of(target)):
+        for fragment in re.findall(r"e\.g\. (--[\w-]+ [^\s,;)]+)", action.help or ""):
+            found.append(fragment.split())
+    return found
+
+
+def collect_examples() -> list[tuple[str, str, list[str]]]:
+    """``(where, target, argv)`` of every runnable example command."""
+    sources = [("README.md", line) for line in _lines_of_markdown((ROOT / "README.md")
+                                                                  .read_text())]
+    for page in sorted((ROOT / "docs").glob("*.md")):
+        sources += [(f"docs/{page.name}", line) for line in _lines_of_markdown(page.read_text())]
+    for target in CLIS:
+        sources += [(target, line) for line in _lines_of_cli(target)]
+    examples: dict[tuple[str, tuple[str, ...]], str] = {}  # the first place each is given
+    first: dict[str, list[str]] = {}
+    for where, line in sources:
+        command = split_command(line) if line.startswith("python ") else None
+        if command is None or any(PLACEHOLDER.search(word) for word in command[1]):
+            continue
+        examples.setdefault((command[0], tuple(command[1])), where)
+        first.setdefault(command[0], command[1])
+    for target in CLIS:
+        for fragment in _help_fragments(target):
+            assert target in first, f"{target}: an e.g. in its help but no full example to " \
+                "extend; give one in its module docstring"
+            examples.setdefault((target, (*first[target], *fragment)), f"{target} --help")
+    return [(where, target, list(argv)) for (target, argv), where in examples.items()]
+
+
+EXAMPLES = collect_examples()
+
+
+class _StubTrainer:
+    """Stands in for ddpg_her.trainer.Trainer: builds the env as the trainer would, which checks
+    every task field, and trains nothing."""
+
+    def __init__(self, env_id, env_kwargs, config, seeds, dirs, **kwargs):
+        import gymnasium
+
+        gymnasium.make(env_id, **env_kwargs).close()
+        self.seeds = seeds
+
+    def run(self):
+        return [[] for _ in self.seeds]
+
+    def close(self):
+        pass
+
+
+def _run_train(argv: list[str], monkeypatch) -> None:
+    """``python -m ddpg_her.train ARGV`` in this process, without training."""
+    import torch
+
+    from ddpg_her import train
+
+    monkeypatch.setattr("ddpg_her.trainer.Trainer", _StubTrainer)
+    deterministic, threads = torch.are_deterministic_algorithms_enabled(), torch.get_num_threads()
+    try:
+        assert train.main(argv) == 0
+    finally:
+        torch.use_deterministic_algorithms(deterministic)
+        torch.set_num_threads(threads)
+
+
+def test_examples_are_found():
+    targets = {target for _, target, _ in EXAMPLES}
+    assert {"ddpg_her.train", "analysis.sweep", "analysis.success_map"} <= targets
+    assert any(where.endswith("--help") for where, _, _ in EXAMPLES)  # the --task e.g.
+
+
+@pytest.mark.parametrize(("where", "target", "argv"), EXAMPLES,
+                         ids=[f"{w}: {t} {' '.join(a)}" for w, t, a in EXAMPLES])
+def test_every_example_command_runs_or_at_least_parses(where, target, argv, tmp_path,
+                                                       monkeypatch):
+    """Training examples run up to the training itself (the task and agent fully checked);
+    sweep dry runs run; the other examples (long studies over run folders) are parsed."""
+    monkeypatch.chdir(tmp_path)
+    stderr = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
+            if target == "ddpg_her.train":
+                _run_train(argv, monkeypatch)
+            elif target == "analysis.sweep" and "--dry-run" in argv:
+                assert load(target).main(argv) == 0
+            else:
+                cut = argv.index("--") if target == "analysis.sweep" and "--" in argv else None
+                parser_of(target).parse_args(argv[:cut])
+    except SystemExit as stop:
+        error = stderr.getvalue().strip().splitlines()[-1:]
+        pytest.fail(f"{where}: python {'-m ' if not target.endswith('.py') else ''}{target} "
+                    f"{' '.join(argv)} exited with {stop.code}: {error}")
+    assert not list(Path(tmp_path).rglob("*.pt")), "an example trained"
+
+
+def test_a_broken_example_is_caught(monkeypatch, tmp_path):
+    """The check above catches a task field that does not exist (the old --help example)."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit), contextlib.redirect_stderr(io.StringIO()):
+        _run_train(["--region", "farbox", "--task", "reward=sparse"], monkeypatch)
+
+
+def test_parser_of_leaves_argparse_as_it_was():
+    parser_of("ddpg_her.summary")
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--x", type=int)
+    assert parser.parse_args(["--x", "3"]).x == 3
