@@ -3,6 +3,7 @@
     python -m analysis.optimality --regions unconstrained zheight closebox farbox --joints 3 \
         --goals 500 --readings ours actor_penalty --out DIR
     python -m analysis.optimality --settings farbox:6 unconstrained:2 --grid 16 --out DIR
+    python -m analysis.optimality --settings zheight:3 --goals 100 --out runs/optimality
 
 For a task (region, joints, reward reading) and a discount gamma, draw goals with the env's own
 goal sampler and, per goal, roll out constant-command policies in the env's own dynamics for a

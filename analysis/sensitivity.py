@@ -6,6 +6,7 @@ choices it leaves unstated.
                                    [--device cpu|cuda] [--dry-run] [-- TRAIN_ARGS...]
     python -m analysis.sensitivity --collect DEST          # finished units' spec.json, eval.csv
     python -m analysis.sensitivity report ROOT [--out DIR] # curves, verdicts, report.md
+    python -m analysis.sensitivity --readings actor_penalty --setting zheight:3 --dry-run
 
 A *reading* is a named set of extra ``ddpg_her.train`` arguments (`READINGS`, or your own with
 ``--reading NAME=ARGS`` or ``--readings-file``); a *setting* a (region, joints) pair. A unit is
