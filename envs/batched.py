@@ -15,11 +15,7 @@ from gymnasium.vector.utils import batch_space
 from envs.core import ReachCore
 from envs.reach import RENDER_MODES, make_task
 from envs.reward import compute_reward, compute_success
-from envs.spec import TaskSpec
-
-DEFAULT_EPISODE_STEPS = {f.name: f.default for f in dataclasses.fields(TaskSpec)}[
-    "max_episode_steps"]
-"""The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
+from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
 
 INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit")
 """Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""

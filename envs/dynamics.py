@@ -21,7 +21,7 @@ torque        the commanded torque (N m)            PD to the start angles
 ============  ====================================  ===========================================
 
 Stops (inelastic, the same model for both): after the substeps, every substep configuration is
-checked for plane clearance (one batched :func:`regions.link_heights` call) and against the URDF
+checked for plane clearance (one batched :func:`ur5kin.link_heights` call) and against the URDF
 joint position limits. If some substep violates either, the copy goes back to the last valid
 substep state with all its joint velocities set to zero: the whole arm stops dead for the rest
 of the control step, the way an arm hitting a rigid table or an end stop with no bounce would
@@ -55,20 +55,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pinocchio as pin
 
-import regions
 import ur5kin
+from envs.checks import validate
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
 
-INERTIA_SAMPLES = 4096
-"""Configurations sampled (uniform in [-pi, pi]^6) to bound the diagonal of the mass matrix."""
-
-INERTIA_SEED = 5
-"""Seed of that sample, fixed so the bounds (and the checks on them) are reproducible."""
-
 CLEARANCE_BATCH = 192
-"""Most configurations per :func:`regions.link_heights` call. Its ``(359, 13) @ (13, B)``
+"""Most configurations per :func:`ur5kin.link_heights` call. Its ``(359, 13) @ (13, B)``
 product goes to multithreaded OpenBLAS from B ~ 256 on, which was measured 20x slower than one
 thread on a loaded two-core machine (15 ms instead of 0.6 ms at B = 840); blocks below the
 threshold cost about the same per configuration either way."""
@@ -81,79 +75,6 @@ def _clip_fallback(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, out: np.ndarra
 clip = getattr(getattr(np, "_core", np).umath, "clip", _clip_fallback)
 """``clip(x, lo, hi, out=out)``: numpy's clip ufunc itself. ``np.clip`` wraps it in Python
 argument handling that costs several times the ufunc call on 6-vectors, in the hot loop."""
-
-
-@functools.cache
-def joint_inertia_bounds() -> tuple[np.ndarray, np.ndarray]:
-    """Smallest and largest diagonal entry of the UR5's mass matrix, per joint.
-
-    Returns
-    -------
-    low, high : (6,) float, kg m^2
-        Min and max of ``M_ii(q)`` over :data:`INERTIA_SAMPLES` configurations uniform in
-        [-pi, pi]^6: an estimate from a sample, within 0.4 % of the extremes of a ten times
-        larger one.
-    """
-    model = ur5kin.load_model()
-    data = model.createData()
-    q = np.random.default_rng(INERTIA_SEED).uniform(-np.pi, np.pi, (INERTIA_SAMPLES, 6))
-    diag = np.array([np.diag(pin.crba(model, data, qi)) for qi in q])
-    return diag.min(axis=0), diag.max(axis=0)
-
-
-def pd_gains(bandwidth: float, damping_ratio: float, inertia: Any
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """PD gains that give each joint, taken alone, a pole pair at ``bandwidth``.
-
-    Parameters
-    ----------
-    bandwidth : float, rad/s
-        Natural frequency w of each joint's closed loop.
-    damping_ratio : float
-        zeta (1 = critically damped).
-    inertia : (6,) float, kg m^2
-        The inertia each joint is designed for (the defaults use the largest diagonal entry of
-        the mass matrix, :func:`joint_inertia_bounds`, so lighter poses are better damped).
-
-    Returns
-    -------
-    kp : (6,) float, N m/rad
-        ``inertia * w^2``.
-    kd : (6,) float, N m s/rad
-        ``2 zeta inertia w``.
-    """
-    inertia = np.asarray(inertia, dtype=float)
-    return inertia * bandwidth**2, 2.0 * damping_ratio * inertia * bandwidth
-
-
-def pd_stability_violations(kp: Any, kd: Any, h: float) -> list[str]:
-    """Joints whose PD loop is unstable under semi-implicit Euler with step ``h``.
-
-    For one joint of inertia I, the substep maps ``(q, h v)`` by the matrix
-    ``[[1 - a, 1 - b], [-a, 1 - b]]`` with ``a = kp h^2 / I``, ``b = kd h / I``; it is stable
-    (Jury's test) iff ``0 < b < 2`` and ``a + 2 b < 4``. This checks that at each joint's
-    smallest diagonal inertia (:func:`joint_inertia_bounds`), where the loop is fastest. It is a
-    necessary condition; the coupled loop is tested on sampled configurations in the test suite.
-
-    Parameters
-    ----------
-    kp : (6,) float, N m/rad
-    kd : (6,) float, N m s/rad
-    h : float, s
-
-    Returns
-    -------
-    problems : list of str
-        One message per unstable joint (empty when all pass).
-    """
-    low, _ = joint_inertia_bounds()
-    a = np.asarray(kp, dtype=float) * h**2 / low
-    b = np.asarray(kd, dtype=float) * h / low
-    return [
-        f"joint {j + 1}: kd h / I = {b[j]:.3g} (need < 2), kp h^2 / I + 2 kd h / I = "
-        f"{a[j] + 2 * b[j]:.3g} (need < 4) at I = {low[j]:.4g} kg m^2"
-        for j in range(6) if not (0.0 < b[j] < 2.0 and a[j] + 2.0 * b[j] < 4.0)
-    ]
 
 
 @functools.cache
@@ -170,7 +91,7 @@ def height_lipschitz() -> np.ndarray:
     model = ur5kin.load_model()
     offsets = [float(np.linalg.norm(model.jointPlacements[j].translation)) for j in range(7)]
     reach = [float(np.linalg.norm(link.hull, axis=1).max())
-             for link in regions.collision_geometry()]
+             for link in ur5kin.collision_geometry()]
     R = np.zeros((6, 6))
     for i in range(2, 7):  # joint i (1-based) moves links i..6; link k is the child of joint k
         for k in range(i, 7):
@@ -190,13 +111,13 @@ def command_bounds(task: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     low, high : (n,) float
-        Position: the joint-space goal range ``[-pi, pi]`` (rad, :data:`regions.samplers.
-        JOINT_LIMIT`); velocity: the URDF velocity limits (rad/s); torque: the URDF effort
+        Position: the joint-space goal range ``[-pi, pi]`` (rad, :data:`ur5kin.JOINT_LIMIT`);
+        velocity: the URDF velocity limits (rad/s); torque: the URDF effort
         limits (N m).
     """
     n = task.n_joints
     if task.control_mode == "position":
-        high = np.full(n, regions.samplers.JOINT_LIMIT)
+        high = np.full(n, ur5kin.JOINT_LIMIT)
     elif task.control_mode == "velocity":
         high = ur5kin.velocity_limits()[:n]
     else:
@@ -210,7 +131,8 @@ class ArmDynamics:
     Parameters
     ----------
     task : TaskSpec
-        Start pose, controlled joints, control mode, gains, rates, base height, plane margin.
+        Start pose, controlled joints, control mode, gains, rates, base height, plane margin;
+        checked against the robot model (:func:`envs.checks.validate`).
     num_copies : int
         B, the number of independent arms.
 
@@ -236,7 +158,7 @@ class ArmDynamics:
     def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-        self.task = task
+        self.task = validate(task)
         B, K, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
         self.num_copies = B
         base = ur5kin.load_model()
@@ -332,7 +254,7 @@ class ArmDynamics:
 
     def _link_heights(self, q: np.ndarray) -> np.ndarray:
         """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""
-        return regions.link_heights(q, self.task.base_height)[..., 1:]
+        return ur5kin.link_heights(q, self.task.base_height)[..., 1:]
 
     # ------------------------------------------------------------------ public API
     def reset(self, q: Any, index: Any = None) -> None:
@@ -488,5 +410,4 @@ class ArmDynamics:
             out[0] = pin.updateFramePlacement(self.model, self.data, self._tool).translation
         else:
             out[:] = ur5kin.fk(self.q)
-        out[:, 2] += self.task.base_height
-        return out
+        return ur5kin.to_world(out, self.task.base_height, out=out)
