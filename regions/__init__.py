@@ -28,7 +28,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("reach_ball", "reach_radius"), "regions.reach"),
     **dict.fromkeys(("CONSTRAINED_START", "DEFAULT_BASE_HEIGHT", "PAPER_REGIONS",
                      "UNCONSTRAINED_REGION", "UNCONSTRAINED_START", "default_start", "get",
-                     "names", "parse", "spec_help"), "regions.registry"),
+                     "names", "paper_order", "parse", "spec_help"), "regions.registry"),
     **dict.fromkeys(("CartesianSampler", "GoalBatch", "GoalSampler", "JointSpaceSampler",
                      "SamplingLimits", "UnreachableRegionError", "sampler_from_dict"),
                     "regions.samplers"),

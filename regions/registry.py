@@ -69,6 +69,13 @@ PAPER_REGIONS: tuple[str, ...] = tuple(_BUILDERS)
 """Names of the paper's regions, in the paper's order."""
 
 
+def paper_order(name: str) -> tuple[int, str]:
+    """Sort key of region names: the paper's regions in the paper's order, then the others
+    alphabetically (figure rows and tables)."""
+    rank = PAPER_REGIONS.index(name) if name in PAPER_REGIONS else len(PAPER_REGIONS)
+    return rank, name
+
+
 def names() -> tuple[str, ...]:
     """Names accepted by :func:`get`."""
     return PAPER_REGIONS
