@@ -22,7 +22,6 @@ from typing import Any
 from ddpg_her.config import AgentConfig, field_docs
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
-JOINTS = range(2, 7)
 
 
 def _task_option(text: str) -> tuple[str, Any]:
@@ -69,12 +68,17 @@ def make_parser() -> argparse.ArgumentParser:
     task.add_argument("--region", required=True,
                       help="goal constraint region: a name (unconstrained, zheight, closebox, "
                            "farbox, farbox_tall) or a spec such as box:... (see regions.parse)")
-    task.add_argument("--joints", type=int, default=3,
-                      help="controlled joints n, 2..6; joints 1..n move (default: %(default)s)")
+    from envs.spec import N_JOINTS_RANGE  # numpy and gymnasium only: --help stays fast
+
+    lo, hi = N_JOINTS_RANGE
+    task.add_argument("--joints", type=int, default=3, choices=range(lo, hi + 1),
+                      metavar=f"{{{lo}..{hi}}}",
+                      help=f"controlled joints n, {lo}..{hi}; joints 1..n move "
+                           "(default: %(default)s)")
     task.add_argument("--task", type=_task_option, action="append", default=[],
                       metavar="KEY=VALUE",
                       help="override a field of the task specification (VALUE read as JSON, "
-                           "else as a string); repeatable, e.g. --task reward=sparse")
+                           "else as a string); repeatable, e.g. --task reward_type=sparse")
     task.add_argument("--env-id", default="UR5Reach-v0",
                       help="Gymnasium id of the goal env; 'module:Id' imports module first "
                            "(default: %(default)s)")
@@ -121,8 +125,6 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
 def main(argv: Sequence[str] | None = None) -> int:
     parser = make_parser()
     args = parser.parse_args(argv)
-    if args.joints not in JOINTS:
-        parser.error(f"--joints must be in 2..6, got {args.joints}")
     seeds = args.seeds if args.seeds is not None else [args.seed]
     if len(set(seeds)) != len(seeds):
         parser.error(f"--seeds must be distinct, got {seeds}")
