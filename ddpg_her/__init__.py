@@ -6,12 +6,12 @@ ddpg_her.train`` runs the paper's protocol, and `load` returns a trained policy 
 
 from ddpg_her.config import AgentConfig, Exploration, HERStrategy
 
-__all__ = ["EVAL_COLUMNS", "AgentConfig", "Exploration", "HERStrategy", "Policy", "load"]
+__all__ = ["EVAL_COLUMNS", "AgentConfig", "Exploration", "HERStrategy", "TrainedPolicy", "load"]
 
 
 def __getattr__(name: str):
     # torch loads only when needed, so that `python -m ddpg_her.train --help` answers at once.
-    if name in ("EVAL_COLUMNS", "Policy", "load"):
+    if name in ("EVAL_COLUMNS", "TrainedPolicy", "load"):
         from ddpg_her import run
 
         return getattr(run, name)

@@ -176,7 +176,7 @@ class RunFolder:
                 p.unlink(missing_ok=True)
 
 
-class Policy:
+class TrainedPolicy:
     """A trained agent's deterministic policy, acting on the env's Dict observations.
 
     ``policy(obs)`` with obs arrays ``observation (obs_dim,)``, ``achieved_goal (goal_dim,)``,
@@ -211,7 +211,7 @@ class Policy:
 
 
 def load(run_dir: str | os.PathLike, *, episode: int | None = None,
-         device: str = "cpu") -> Policy:
+         device: str = "cpu") -> TrainedPolicy:
     """The policy of the run in ``run_dir`` at its latest checkpoint (or at ``episode``)."""
     folder = RunFolder(run_dir)
     if not folder.exists():
@@ -235,4 +235,4 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
                                    device=torch.device(device))
     normalizer.load_state(0, state["normalizer"])
     scale = ActionScale(np.array(dims["action_low"]), np.array(dims["action_high"]))
-    return Policy(actor, normalizer, scale, spec, episode)
+    return TrainedPolicy(actor, normalizer, scale, spec, episode)
