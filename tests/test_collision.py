@@ -1,4 +1,5 @@
-"""ur5kin.collision: capsules contain the meshes; heights match a brute-force Pinocchio reference."""
+"""ur5kin.collision: capsules contain the meshes; heights match a brute-force Pinocchio
+reference."""
 
 from __future__ import annotations
 

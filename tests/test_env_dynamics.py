@@ -14,7 +14,6 @@ import pytest
 import trimesh
 from scipy.spatial import ConvexHull
 
-import regions
 import ur5kin
 from envs.dynamics import ArmDynamics, height_lipschitz
 from envs.spec import TaskSpec

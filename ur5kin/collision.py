@@ -2,7 +2,8 @@
 
 The robot base sits at (0, 0, ``base_height``) of the world (:mod:`ur5kin.world`), so a point
 ``p`` of link ``k`` (in the link's own frame) lies at world height ``base_height + row_k(q) .
-[p, 1]``, where ``row_k`` is the third row of the link's pose in ``base_link``. Two answers are offered:
+[p, 1]``, where ``row_k`` is the third row of the link's pose in ``base_link``. Two answers are
+offered:
 
 - :func:`link_heights`: the exact lowest point of each link's URDF collision geometry. The lowest
   point of a mesh is one of its convex-hull vertices, so it is a min over those. Every height is
