@@ -14,14 +14,11 @@ so that ``import envs.spec`` (reading a task) loads neither Pinocchio nor torch.
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-from typing import Any
-
 import gymnasium
 
 from envs.checks import validate
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
+from ur5kin.lazy import lazy_attributes
 
 ENV_IDS: tuple[str, ...] = ("UR5Reach-v0",)
 """Ids registered on import: the tests and benchmarks run over this list."""
@@ -47,16 +44,4 @@ __all__ = ["ENV_IDS", "BatchedReach", "FlatObservation", "TaskSpec", "UR5ReachEn
            "compute_reward", "validate"]
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-    elif name.isidentifier() and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        value = importlib.import_module(f"{__name__}.{name}")
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

@@ -18,9 +18,7 @@ array([ True])
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-from typing import Any
+from ur5kin.lazy import lazy_attributes
 
 _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("CoverageRow", "VoxelWorkspace", "WorkspaceSamples", "coverage_row",
@@ -40,16 +38,4 @@ _EXPORTS: dict[str, str] = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    elif name.isidentifier() and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        value = importlib.import_module(f"{__name__}.{name}")
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_attributes(__name__, _EXPORTS)
