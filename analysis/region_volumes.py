@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 import regions
 import ur5kin
+from envs.spec import N_JOINTS_RANGE
 from regions.coverage import (
     DEFAULT_RESOLUTION,
     DEFAULT_SAMPLES,
@@ -67,8 +68,8 @@ class Settings:
 
     regions: tuple[str, ...] = PAPER_REGIONS
     """Region strings (names or regions.parse forms)."""
-    joints: tuple[int, ...] = (2, 3, 4, 5, 6)
-    """Controlled joint counts."""
+    joints: tuple[int, ...] = tuple(range(N_JOINTS_RANGE[0], N_JOINTS_RANGE[1] + 1))
+    """Controlled joint counts (every count the task allows)."""
     samples: int = DEFAULT_SAMPLES
     """Uniform joint-space samples per joint count and held-joint angles."""
     seed: int = 0

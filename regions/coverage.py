@@ -27,7 +27,7 @@ import numpy as np
 from regions.samplers import draw_joint_space
 from regions.shapes import Region
 from ur5kin import fk_world, plane_clear
-from ur5kin.checks import joint_array
+from ur5kin.checks import joint_array, joint_count
 from ur5kin.world import check_base_height
 
 SURFACE_JOINTS = 2
@@ -93,8 +93,7 @@ def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int
     chunk : int
         Samples per block (bounds the memory of the clearance check).
     """
-    if not isinstance(n_joints, int | np.integer) or not 1 <= n_joints <= 6:
-        raise ValueError(f"n_joints must be an integer in 1..6; got {n_joints!r}")
+    n_joints = joint_count(n_joints)
     if not isinstance(count, int | np.integer) or count < 1:
         raise ValueError(f"count must be an integer >= 1 (samples); got {count!r}")
     start = joint_array(q_start, "q_start")

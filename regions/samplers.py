@@ -27,11 +27,8 @@ import numpy as np
 import ur5kin  # lazy: Pinocchio loads at the first sample, not on import
 from regions.reach import reach_ball
 from regions.shapes import Region, region_from_dict
-from ur5kin.checks import joint_array
+from ur5kin.checks import joint_array, joint_count
 from ur5kin.world import DEFAULT_BASE_HEIGHT, check_base_height, to_base
-
-N_JOINTS_RANGE = (1, 6)
-"""Smallest and largest number of controlled joints a sampler accepts."""
 
 PROBE_SEED = 20190916
 """Seed of the acceptance probe. The probe never touches the caller's generator, so the goals
@@ -163,13 +160,10 @@ class GoalSampler(abc.ABC):
     def __post_init__(self) -> None:
         if not isinstance(self.region, Region):
             raise ValueError(f"region must be a regions.Region; got {type(self.region).__name__}")
-        lo, hi = N_JOINTS_RANGE
-        if not isinstance(self.n_joints, int | np.integer) or not lo <= self.n_joints <= hi:
-            raise ValueError(f"n_joints must be an integer in {lo}..{hi}; got {self.n_joints!r}")
         start = joint_array(self.q_start, "q_start")
         if start.shape != (6,):
             raise ValueError(f"q_start must have shape (6,) (rad); got shape {start.shape}")
-        object.__setattr__(self, "n_joints", int(self.n_joints))
+        object.__setattr__(self, "n_joints", joint_count(self.n_joints))
         object.__setattr__(self, "q_start", tuple(float(x) for x in start))
         object.__setattr__(self, "base_height", check_base_height(self.base_height))
         _ = self.acceptance  # fail fast
