@@ -55,8 +55,7 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, p
     private-torch fast path and on the public-torch path a torch without it takes."""
     config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01, critic_l2=critic_l2)
     k, n = 3, 64
-    if path == "plain":
-        monkeypatch.setattr(agent_module, "FAST", PLAIN)
+    monkeypatch.setattr(agent_module, "FAST", PLAIN if path == "plain" else FastPaths())
     agent = make_agent(k, config)
     assert agent.fast == (PLAIN if path == "plain" else FastPaths())
     rng = np.random.default_rng(0)
@@ -166,6 +165,7 @@ def test_this_torch_passes_every_fast_path_probe():
 
 def test_fallback_equals_fast_path_to_1e_10(monkeypatch):
     config = AgentConfig(hidden_sizes=HIDDEN, tau=0.05)
+    monkeypatch.setattr(agent_module, "FAST", FastPaths())  # every private function
     fast = make_agent(2, config)
     monkeypatch.setattr(agent_module, "FAST", PLAIN)
     plain = make_agent(2, config)
