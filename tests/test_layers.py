@@ -129,3 +129,17 @@ def test_reading_modules_load_neither_pinocchio_nor_torch(module):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=ROOT).stdout
     assert out.strip() == "[]", f"import {module} loaded {out.strip()}"
+
+
+@pytest.mark.parametrize("package", ["ur5kin", "regions", "envs"])
+def test_lazy_exports_stay_the_exported_objects_once_every_submodule_is_loaded(package):
+    # a submodule loaded by the import system must not shadow an exported name (ur5kin.ik)
+    import importlib
+    import types
+
+    pkg = importlib.import_module(package)
+    for module in MODULES:
+        if module.startswith(package + "."):
+            importlib.import_module(module)
+    for name in pkg.__all__:
+        assert not isinstance(getattr(pkg, name), types.ModuleType), f"{package}.{name}"

@@ -20,7 +20,7 @@ from __future__ import annotations
 from ur5kin.lazy import lazy_attributes
 
 _EXPORTS: dict[str, str] = {
-    **dict.fromkeys(("ik", "ik_position", "wrap"), "ur5kin.ik"),
+    **dict.fromkeys(("ik", "ik_position", "wrap"), "ur5kin.analytic_ik"),
     **dict.fromkeys(("fk", "fk_pose", "fk_torch", "fk_world", "jacobian", "link_poses"),
                     "ur5kin.kinematics"),
     **dict.fromkeys(("BASE_FRAME", "JOINT_LIMIT", "JOINT_NAMES", "LINK_NAMES", "TOOL_FRAME",

@@ -25,8 +25,12 @@ def lazy_attributes(package: str, exports: Mapping[str, str]
 
     def __getattr__(name: str) -> Any:
         if name in exports:
-            value = getattr(importlib.import_module(exports[name]), name)
-        elif name.isidentifier() and importlib.util.find_spec(f"{package}.{name}") is not None:
+            module = importlib.import_module(exports[name])
+            for other, source in exports.items():  # bind all of the module's names at once
+                if source == exports[name]:
+                    setattr(sys.modules[package], other, getattr(module, other))
+            return getattr(module, name)
+        if name.isidentifier() and importlib.util.find_spec(f"{package}.{name}") is not None:
             value = importlib.import_module(f"{package}.{name}")
         else:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
