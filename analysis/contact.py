@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, fields
 import gymnasium
 import numpy as np
 
-import regions
+import ur5kin
 from envs.core import task_sampler
 from envs.dynamics import ArmDynamics
 from envs.spec import CONTACT_MODELS, TaskSpec
@@ -107,7 +107,7 @@ def random_steps(task: TaskSpec, steps: int, seed: int) -> tuple[float, float, f
         contacts += info["contact"]
         stops += bool(dyn.depth_stop[0])
         if info["contact"]:
-            heights = regions.link_heights(dyn.q[0], task.base_height)[1:]
+            heights = ur5kin.link_heights(dyn.q[0], task.base_height)[1:]
             deepest = max(deepest, task.plane_margin - float(heights.min()))
         if terminated or truncated:
             env.reset()

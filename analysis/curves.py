@@ -25,9 +25,7 @@ from analysis.runs import (
     mean_ci,
     settings_from_args,
 )
-
-REGION_ORDER = ("unconstrained", "zheight", "closebox", "farbox", "farbox_tall")
-"""Rows of the figure, in the paper's order; other regions follow alphabetically."""
+from regions.registry import paper_order
 
 CSV_COLUMNS = ("region", "joints", "episode", "seeds", "mean_successes", "ci_low", "ci_high")
 """Columns of the CSV beside the figure; successes are per 100 test goals, the interval is clipped
@@ -50,8 +48,7 @@ def curve_rows(groups: dict[tuple[str, int], list[Run]], level: float) -> list[d
 
 
 def _layout(settings: Sequence[tuple[str, int]]) -> tuple[list[str], list[int]]:
-    regions = sorted({r for r, _ in settings},
-                     key=lambda r: (REGION_ORDER.index(r) if r in REGION_ORDER else 99, r))
+    regions = sorted({r for r, _ in settings}, key=paper_order)  # figure rows
     return regions, sorted({j for _, j in settings})
 
 

@@ -27,6 +27,8 @@ from scipy.spatial import ConvexHull
 from tqdm import tqdm
 
 import regions
+import ur5kin
+from envs.spec import N_JOINTS_RANGE
 from regions.coverage import (
     DEFAULT_RESOLUTION,
     DEFAULT_SAMPLES,
@@ -37,7 +39,7 @@ from regions.coverage import (
     sample_workspace,
 )
 from regions.registry import DEFAULT_BASE_HEIGHT, PAPER_REGIONS
-from regions.samplers import CartesianSampler, UnreachableRegionError, tool_positions
+from regions.samplers import CartesianSampler, UnreachableRegionError
 
 START_CHOICES = ("paper", "zero", "constrained")
 """``--start`` values: the paper's per-region choice, or one start for every region."""
@@ -66,8 +68,8 @@ class Settings:
 
     regions: tuple[str, ...] = PAPER_REGIONS
     """Region strings (names or regions.parse forms)."""
-    joints: tuple[int, ...] = (2, 3, 4, 5, 6)
-    """Controlled joint counts."""
+    joints: tuple[int, ...] = tuple(range(N_JOINTS_RANGE[0], N_JOINTS_RANGE[1] + 1))
+    """Controlled joint counts (every count the task allows)."""
     samples: int = DEFAULT_SAMPLES
     """Uniform joint-space samples per joint count and held-joint angles."""
     seed: int = 0
@@ -90,9 +92,11 @@ def start_for(region_name: str, choice: str) -> tuple[float, ...]:
     ``paper``: DESIGN.md's choice, the zero start for ``unconstrained`` and the constrained
     start for every other region (user regions included).
     """
-    if choice == "zero" or (choice == "paper" and region_name == "unconstrained"):
+    if choice == "paper":
+        return regions.default_start(region_name)
+    if choice == "zero":
         return regions.UNCONSTRAINED_START
-    if choice in ("paper", "constrained"):
+    if choice == "constrained":
         return regions.CONSTRAINED_START
     raise ValueError(f"start must be one of {START_CHOICES}; got {choice!r}")
 
@@ -183,7 +187,7 @@ def _with_cartesian(row: CoverageRow, region: regions.Region, start: tuple[float
             sampler = CartesianSampler(region, row.joints, start, settings.base_height)
             batch = sampler.sample(settings.goals, _rng(settings.seed, "cartesian", region.name,
                                                         row.joints))
-            origin = tool_positions(np.asarray(start)[None], settings.base_height)[0]
+            origin = ur5kin.fk_world(start, settings.base_height)
             values = {"goal_acceptance": batch.reachable_fraction,
                       "mean_goal_distance_m": float(np.linalg.norm(batch.goals - origin,
                                                                    axis=1).mean())}
@@ -302,7 +306,7 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
         cloud = rng.choice(clear, size=min(PLOT_CLOUD_POINTS, len(clear)), replace=False)
         accepted = clear[region.contains(ws.goals[clear])]
         goals = rng.choice(accepted, size=min(PLOT_GOAL_POINTS, len(accepted)), replace=False)
-        tip = tool_positions(np.asarray(start)[None], settings.base_height)[0]
+        tip = ur5kin.fk_world(start, settings.base_height)
         starts[region.name] = tip.tolist()
         outlines[region.name] = {}
         for row, (i, j, label) in enumerate(((0, 2, "x-z side"), (0, 1, "x-y top"))):

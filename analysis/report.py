@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.curves import REGION_ORDER
 from analysis.paper import (
     HIGH_SUCCESS,
     PAPER_EPISODES,
@@ -35,6 +34,7 @@ from analysis.runs import (
     mean_ci,
     settings_from_args,
 )
+from regions.registry import paper_order
 
 
 @dataclass(frozen=True)
@@ -203,8 +203,7 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
              "| region | joints | seeds | episodes | final | best | first >= "
              f"{HIGH_SUCCESS:g} | paper |",
              "|---|---|---|---|---|---|---|---|"]
-    order = sorted(summaries, key=lambda k: (
-        REGION_ORDER.index(k[0]) if k[0] in REGION_ORDER else 99, k[0], k[1]))
+    order = sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1]))
     for key in order:
         s = summaries[key]
         paper = PAPER_RESULTS.get(key)

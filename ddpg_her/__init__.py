@@ -6,7 +6,7 @@ ddpg_her.train`` runs the paper's protocol, and `load` returns a trained policy 
 
 from ddpg_her.config import AgentConfig, Exploration, HERStrategy
 
-__all__ = ["EVAL_COLUMNS", "AgentConfig", "Exploration", "HERStrategy", "Policy", "load"]
+__all__ = ["EVAL_COLUMNS", "AgentConfig", "Exploration", "HERStrategy", "TrainedPolicy", "load"]
 
 
 def __getattr__(name: str):
@@ -15,7 +15,7 @@ def __getattr__(name: str):
         from ddpg_her.runfolder import EVAL_COLUMNS
 
         return EVAL_COLUMNS
-    if name in ("Policy", "load"):
+    if name in ("TrainedPolicy", "load"):
         from ddpg_her import run
 
         return getattr(run, name)

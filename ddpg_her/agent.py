@@ -3,12 +3,20 @@
 Agent k owns slice k of every parameter, optimiser moment and normaliser statistic; the losses of
 the K agents are summed, so each agent's gradient is that of its own loss alone, and Adam, being
 elementwise, steps every slice as K separate optimisers would.
+
+The update is fast through three private torch functions (``torch._fused_adam_`` with
+``torch._foreach_add_``, ``torch.ops.aten.threshold_backward``, ``torch._foreach_lerp_``). Each
+is checked once at import against the public computation it replaces (:func:`probe_fast_paths`);
+one that is missing or answers differently is replaced by that public computation, with a
+warning naming it: a torch upgrade costs speed, never correctness.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+import dataclasses
+import warnings
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
@@ -16,6 +24,103 @@ import torch
 from ddpg_her.config import AgentConfig
 from ddpg_her.networks import Actor, Critic, agent_slice, load_agent_slices
 from ddpg_her.normalizer import RunningNormalizer
+
+
+@dataclasses.dataclass(frozen=True)
+class FastPaths:
+    """Which private torch functions `DDPG.update` may call; each False takes the plain path."""
+
+    fused_adam: bool = True
+    """``torch._fused_adam_`` and ``torch._foreach_add_`` called directly; else ``opt.step()``."""
+    threshold_backward: bool = True
+    """``torch.ops.aten.threshold_backward`` for a ReLU's backward; else ``torch.where``."""
+    foreach_lerp: bool = True
+    """``torch._foreach_lerp_`` for the soft target update; else ``Tensor.lerp_`` per tensor."""
+
+
+PLAIN = FastPaths(fused_adam=False, threshold_backward=False, foreach_lerp=False)
+"""Public torch only: the path a torch without the private functions takes."""
+
+PROBE_TOL = 1e-12
+"""Largest difference accepted between a private function and its public twin on the probe's
+float64 values (the same arithmetic: they agree to rounding)."""
+
+
+def _probe_fused_adam() -> None:
+    p, g = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64), torch.tensor([0.3, -0.1, 0.0],
+                                                                              dtype=torch.float64)
+    m, v, step = torch.zeros_like(p), torch.zeros_like(p), torch.zeros((), dtype=torch.float64)
+    lr, beta1, beta2, eps = 0.1, 0.9, 0.999, 1e-8
+    expected = p - lr * g / (g.abs() + eps)  # Adam's first step: m_hat = g, v_hat = g^2
+    torch._foreach_add_([step], 1)
+    torch._fused_adam_([p], [g], [m], [v], [], [step], amsgrad=False, lr=lr, beta1=beta1,
+                       beta2=beta2, weight_decay=0.0, eps=eps, maximize=False, grad_scale=None,
+                       found_inf=None)
+    if not torch.allclose(p, expected, rtol=0.0, atol=PROBE_TOL):
+        raise ValueError(f"first Adam step gave {p.tolist()}, expected {expected.tolist()}")
+
+
+def _probe_threshold_backward() -> None:
+    grad = torch.tensor([1.0, 2.0, 3.0, 4.0], dtype=torch.float64)
+    out = torch.tensor([0.5, 0.0, -1.0, 2.0], dtype=torch.float64)
+    got = torch.ops.aten.threshold_backward(grad, out, 0.0)
+    if not torch.equal(got, _relu_backward_plain(grad, out)):
+        raise ValueError(f"gave {got.tolist()} for the ReLU backward [1, 0, 0, 4]")
+
+
+def _probe_foreach_lerp() -> None:
+    a, b = torch.tensor([1.0, 2.0], dtype=torch.float64), torch.tensor([3.0, -2.0],
+                                                                        dtype=torch.float64)
+    expected = a.lerp(b, 0.25)
+    torch._foreach_lerp_([a], [b], 0.25)
+    if not torch.allclose(a, expected, rtol=0.0, atol=PROBE_TOL):
+        raise ValueError(f"gave {a.tolist()}, expected {expected.tolist()}")
+
+
+_PROBES: dict[str, tuple[str, Callable[[], None]]] = {
+    "fused_adam": ("torch._fused_adam_ / torch._foreach_add_", _probe_fused_adam),
+    "threshold_backward": ("torch.ops.aten.threshold_backward", _probe_threshold_backward),
+    "foreach_lerp": ("torch._foreach_lerp_", _probe_foreach_lerp),
+}
+"""Field of `FastPaths` -> (the private functions it calls, a check against the public twin)."""
+
+
+def probe_fast_paths() -> FastPaths:
+    """Try each private function on a small float64 example against its public twin.
+
+    Returns the `FastPaths` that passed; warns (``RuntimeWarning``) naming each one that is
+    missing or answers differently, and the plain path that replaces it.
+    """
+    ok, failed = {}, []
+    for field, (names, probe) in _PROBES.items():
+        try:
+            with torch.no_grad():
+                probe()
+            ok[field] = True
+        except Exception as err:  # any failure of a private API means: do not use it
+            ok[field] = False
+            failed.append(f"{names} ({type(err).__name__}: {err})")
+    if failed:
+        warnings.warn(
+            f"torch {torch.__version__}: {'; '.join(failed)}. ddpg_her.agent uses the plain "
+            "public-torch path for these instead: the same update, slower",
+            RuntimeWarning, stacklevel=2)
+    return FastPaths(**ok)
+
+
+def _relu_backward_plain(grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """grad where the ReLU's output is positive, else 0 (public ops)."""
+    return torch.where(out > 0.0, grad, 0.0)
+
+
+def _relu_backward(grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """grad where the ReLU's output is positive, else 0: one fused pass, no mask tensor."""
+    return torch.ops.aten.threshold_backward(grad, out, 0.0)
+
+
+FAST = probe_fast_paths()
+"""The private functions this torch offers and that pass their check; `DDPG` reads it when
+built (a test sets it to `PLAIN` to exercise the fallback)."""
 
 
 def _adam(params, lr: float, weight_decay: float) -> torch.optim.Adam:
@@ -37,10 +142,10 @@ class _AdamStep:
     state), go through ``opt.step()``. Call `reset` after ``opt.load_state_dict``.
     """
 
-    def __init__(self, opt: torch.optim.Adam):
+    def __init__(self, opt: torch.optim.Adam, allowed: bool = True):
         self.opt = opt
         group = opt.param_groups[0]
-        self.direct = (len(opt.param_groups) == 1 and bool(group.get("fused"))
+        self.direct = (allowed and len(opt.param_groups) == 1 and bool(group.get("fused"))
                        and not group["amsgrad"] and not group["maximize"]
                        and not group.get("decoupled_weight_decay", False)
                        and not torch.is_tensor(group["lr"]) and hasattr(torch, "_fused_adam_"))
@@ -66,28 +171,6 @@ class _AdamStep:
         torch._fused_adam_(params, grads, exp_avg, exp_avg_sq, [], steps, amsgrad=False,
                            lr=g["lr"], beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"],
                            eps=g["eps"], maximize=False, grad_scale=None, found_inf=None)
-
-
-def _actor_forward(actor: Actor, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """Hidden activations and output of the actor: x (K, N, in) -> a1, a2, mu."""
-    a1 = torch.relu_(torch.baddbmm(actor.l1.bias, x, actor.l1.weight))
-    a2 = torch.relu_(torch.baddbmm(actor.l2.bias, a1, actor.l2.weight))
-    return a1, a2, torch.tanh_(torch.baddbmm(actor.l3.bias, a2, actor.l3.weight))
-
-
-def _critic_forward(critic: Critic, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """Hidden activations and output of the critic: x (K, N, in), u (K, N, act) ->
-    c1 (K, N, h1), the second layer's input [c1, u] (K, N, h1 + act), c2 (K, N, h2), q (K, N, 1).
-    """
-    c1 = torch.relu_(torch.baddbmm(critic.l1.bias, x, critic.l1.weight))
-    c1u = torch.cat([c1, u], dim=-1)
-    c2 = torch.relu_(torch.baddbmm(critic.l2.bias, c1u, critic.l2.weight))
-    return c1, c1u, c2, torch.baddbmm(critic.l3.bias, c2, critic.l3.weight)
-
-
-def _relu_backward(grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """grad where the ReLU's output is positive, else 0: one fused pass, no mask tensor."""
-    return torch.ops.aten.threshold_backward(grad, out, 0.0)
 
 
 class DDPG:
@@ -117,8 +200,11 @@ class DDPG:
             **net)
         self.actor_opt = _adam(self.actor.parameters(), config.actor_lr, 0.0)
         self.critic_opt = _adam(self.critic.parameters(), config.critic_lr, config.critic_l2)
-        self._actor_step, self._critic_step = _AdamStep(self.actor_opt), _AdamStep(
-            self.critic_opt)
+        self.fast = FAST
+        self._actor_step = _AdamStep(self.actor_opt, self.fast.fused_adam)
+        self._critic_step = _AdamStep(self.critic_opt, self.fast.fused_adam)
+        self._relu_backward = (_relu_backward if self.fast.threshold_backward
+                               else _relu_backward_plain)
         self._online = list(self.actor.parameters()) + list(self.critic.parameters())
         self._target = list(self.actor_target.parameters()) + list(
             self.critic_target.parameters())
@@ -149,8 +235,8 @@ class DDPG:
         away (the critic's weight gradients in the actor step, the gradient of the state half
         of the critic's second-layer input: 144 instead of 160 MFLOP per agent-update at
         400-300, batch 64), fuses each ReLU's backward into one pass and reuses preallocated
-        gradient buffers. `tests/test_ddpg_agent.py` checks it against a plain autograd
-        DDPG to 1e-10 in float64.
+        gradient buffers. `tests/test_ddpg_agent.py` checks it, on the fast and on the plain
+        path (`FastPaths`), against a plain autograd DDPG to 1e-10 in float64.
         """
         gamma, tau = self.config.gamma, self.config.tau
         n = x.shape[1]
@@ -158,46 +244,51 @@ class DDPG:
         x, x2 = self.normalizer(x), self.normalizer(x2)
         actor, critic = self.actor, self.critic
         at, ct = self.actor_target, self.critic_target
+        relu_backward = self._relu_backward
 
         # target y = r + gamma (1 - terminated) Q'(s', mu'(s'))
-        q2 = _critic_forward(ct, x2, _actor_forward(at, x2)[-1])[-1]
+        q2 = ct(x2, at(x2))
         y = torch.addcmul(r, (1.0 - terminated) * gamma, q2)
 
         # critic step
-        c1, c1u, c2, q = _critic_forward(critic, x, u)
+        c1, c1u, c2, q = critic.activations(x, u)
         err = q - y                                                   # (K, N, 1)
         critic_loss = err.square().mean(dim=(1, 2))
         dq = err.mul_(2.0 / n)                                        # d(loss)/dq
         g = self._grads
         torch.bmm(c2.mT, dq, out=g[critic.l3.weight])
         torch.sum(dq, dim=1, keepdim=True, out=g[critic.l3.bias])
-        dc2 = _relu_backward(dq * critic.l3.weight.mT, c2)          # (K, N, h2)
+        dc2 = relu_backward(dq * critic.l3.weight.mT, c2)          # (K, N, h2)
         torch.bmm(c1u.mT, dc2, out=g[critic.l2.weight])
         torch.sum(dc2, dim=1, keepdim=True, out=g[critic.l2.bias])
-        dc1 = _relu_backward(torch.bmm(dc2, critic.l2.weight[:, :h1].mT), c1)
+        dc1 = relu_backward(torch.bmm(dc2, critic.l2.weight[:, :h1].mT), c1)
         torch.bmm(x.mT, dc1, out=g[critic.l1.weight])
         torch.sum(dc1, dim=1, keepdim=True, out=g[critic.l1.bias])
         self._critic_step()
 
         # actor step: ascend Q(s, mu(s)) of the updated critic; only the actor moves
-        a1, a2, mu = _actor_forward(actor, x)
-        _, _, c2, q = _critic_forward(critic, x, mu)
+        a1, a2, mu = actor.activations(x)
+        _, _, c2, q = critic.activations(x, mu)
         actor_loss = -q.mean(dim=(1, 2))
-        dc2 = _relu_backward((critic.l3.weight.mT * (-1.0 / n)).expand_as(c2), c2)
+        dc2 = relu_backward((critic.l3.weight.mT * (-1.0 / n)).expand_as(c2), c2)
         dmu = torch.bmm(dc2, critic.l2.weight[:, h1:].mT)            # (K, N, act_dim)
         da3 = dmu.mul_(1.0 - mu * mu)
         torch.bmm(a2.mT, da3, out=g[actor.l3.weight])
         torch.sum(da3, dim=1, keepdim=True, out=g[actor.l3.bias])
-        da2 = _relu_backward(torch.bmm(da3, actor.l3.weight.mT), a2)
+        da2 = relu_backward(torch.bmm(da3, actor.l3.weight.mT), a2)
         torch.bmm(a1.mT, da2, out=g[actor.l2.weight])
         torch.sum(da2, dim=1, keepdim=True, out=g[actor.l2.bias])
-        da1 = _relu_backward(torch.bmm(da2, actor.l2.weight.mT), a1)
+        da1 = relu_backward(torch.bmm(da2, actor.l2.weight.mT), a1)
         torch.bmm(x.mT, da1, out=g[actor.l1.weight])
         torch.sum(da1, dim=1, keepdim=True, out=g[actor.l1.bias])
         self._actor_step()
 
         # targets: theta' <- (1 - tau) theta' + tau theta
-        torch._foreach_lerp_(self._target, self._online, tau)
+        if self.fast.foreach_lerp:
+            torch._foreach_lerp_(self._target, self._online, tau)
+        else:
+            for target, online in zip(self._target, self._online, strict=True):
+                target.lerp_(online, tau)
         return critic_loss, actor_loss
 
     # --- per-agent state, for one checkpoint per agent ----------------------------------------

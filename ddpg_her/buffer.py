@@ -19,7 +19,7 @@ from ddpg_her.spaces import ActionScale, goal_input
 
 GoalFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """``f(achieved_goal (L, goal_dim), desired_goal (L, goal_dim), action (L, act_dim)) -> (L,)``:
-the env's reward or its success test for L transitions, the action in env units."""
+the env's reward or its termination test for L transitions, the action in env units."""
 
 
 @dataclass
@@ -56,20 +56,21 @@ def her_goal_steps(strategy: HERStrategy, length: int, k: int,
     return np.zeros(0, dtype=int)
 
 
-def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, success_fn: GoalFn) -> Episode:
-    """A copy of ``ep`` that pursues ``ep.achieved_goal[goal_step]``, cut at its first success.
+def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, terminated_fn: GoalFn) -> Episode:
+    """A copy of ``ep`` that pursues ``ep.achieved_goal[goal_step]``, cut where it terminates.
 
-    The copy's transition t keeps (s_t, a_t, s_t+1) and gets the reward and the success of
-    reaching s_t+1's achieved goal, computed by the env. The achieved goal at ``goal_step`` is hit
-    exactly by transition ``goal_step - 1``, so a success always comes, at that step or earlier,
-    and the copy ends there, terminated.
+    The copy's transition t keeps (s_t, a_t, s_t+1) and gets the reward and the termination
+    (``terminated_fn``, the env's ``compute_terminated``: a success, in the paper's task) of
+    reaching s_t+1's achieved goal. The achieved goal at ``goal_step`` is hit exactly by
+    transition ``goal_step - 1``, so with termination at success the copy ends there or
+    earlier, terminated.
     """
     if not 1 <= goal_step <= len(ep):
         raise ValueError(f"goal_step must be in 1..{len(ep)}, got {goal_step}")
     goal = ep.achieved_goal[goal_step]
     goals = np.broadcast_to(goal, ep.achieved_goal[1:].shape)
-    success = np.asarray(success_fn(ep.achieved_goal[1:], goals, ep.action), dtype=bool)
-    n = int(np.argmax(success)) + 1 if success.any() else len(ep)
+    terminated = np.asarray(terminated_fn(ep.achieved_goal[1:], goals, ep.action), dtype=bool)
+    n = int(np.argmax(terminated)) + 1 if terminated.any() else len(ep)
     reward = np.asarray(reward_fn(ep.achieved_goal[1:n + 1], goals[:n], ep.action[:n]),
                         dtype=np.float64)
     return Episode(
@@ -78,7 +79,7 @@ def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, success_fn: GoalFn) 
         desired_goal=goal.copy(),
         action=ep.action[:n],
         reward=reward,
-        terminated=success[:n].copy(),
+        terminated=terminated[:n].copy(),
     )
 
 

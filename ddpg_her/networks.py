@@ -65,10 +65,18 @@ class Actor(nn.Module):
         self.l2.init_uniform_(None, generators)
         self.l3.init_uniform_(final_init, generators)
 
+    def activations(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Hidden activations and output: x (K, B, in) -> a1 (K, B, h1), a2 (K, B, h2), mu.
+
+        The hand-written backward pass of `ddpg_her.agent` needs the hidden layers; the in-place
+        ReLU and tanh are safe under autograd too (their backward reads the output).
+        """
+        a1 = torch.relu_(torch.baddbmm(self.l1.bias, x, self.l1.weight))
+        a2 = torch.relu_(torch.baddbmm(self.l2.bias, a1, self.l2.weight))
+        return a1, a2, torch.tanh_(torch.baddbmm(self.l3.bias, a2, self.l3.weight))
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        h = torch.relu(self.l1(x))
-        h = torch.relu(self.l2(h))
-        return torch.tanh(self.l3(h))
+        return self.activations(x)[-1]
 
 
 class Critic(nn.Module):
@@ -90,10 +98,16 @@ class Critic(nn.Module):
         self.l2.init_uniform_(None, generators)
         self.l3.init_uniform_(final_init, generators)
 
+    def activations(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Hidden activations and output: x (K, B, in), u (K, B, act) -> c1 (K, B, h1), the
+        second layer's input [c1, u] (K, B, h1 + act), c2 (K, B, h2), q (K, B, 1)."""
+        c1 = torch.relu_(torch.baddbmm(self.l1.bias, x, self.l1.weight))
+        c1u = torch.cat([c1, u], dim=-1)
+        c2 = torch.relu_(torch.baddbmm(self.l2.bias, c1u, self.l2.weight))
+        return c1, c1u, c2, torch.baddbmm(self.l3.bias, c2, self.l3.weight)
+
     def forward(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        h = torch.relu(self.l1(x))
-        h = torch.relu(self.l2(torch.cat([h, u], dim=-1)))
-        return self.l3(h)
+        return self.activations(x, u)[-1]
 
 
 def agent_slice(module: nn.Module, k: int) -> dict[str, torch.Tensor]:

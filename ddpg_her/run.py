@@ -27,7 +27,7 @@ from ddpg_her.runfolder import (  # noqa: F401  (re-exported)
 from ddpg_her.spaces import ActionScale, goal_input
 
 
-class Policy:
+class TrainedPolicy:
     """A trained agent's deterministic policy, acting on the env's Dict observations.
 
     ``policy(obs)`` with obs arrays ``observation (obs_dim,)``, ``achieved_goal (goal_dim,)``,
@@ -62,7 +62,7 @@ class Policy:
 
 
 def load(run_dir: str | os.PathLike, *, episode: int | None = None,
-         device: str = "cpu") -> Policy:
+         device: str = "cpu") -> TrainedPolicy:
     """The policy of the run in ``run_dir`` at its latest checkpoint (or at ``episode``).
 
     Raises
@@ -93,4 +93,4 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
                                    device=torch.device(device))
     normalizer.load_state(0, state["normalizer"])
     scale = ActionScale(np.array(dims["action_low"]), np.array(dims["action_high"]))
-    return Policy(actor, normalizer, scale, spec, episode)
+    return TrainedPolicy(actor, normalizer, scale, spec, episode)

@@ -22,7 +22,6 @@ from typing import Any
 from ddpg_her.config import VALID, AgentConfig, field_docs
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
-JOINTS = range(2, 7)
 DEFAULT_JOINTS = 3
 """Controlled joints when neither --joints nor --task n_joints is given."""
 
@@ -101,8 +100,12 @@ def make_parser() -> argparse.ArgumentParser:
     task.add_argument("--region", required=True,
                       help="goal constraint region: a name (unconstrained, zheight, closebox, "
                            "farbox, farbox_tall) or a spec such as box:... (see regions.parse)")
-    task.add_argument("--joints", type=int, default=None,
-                      help=f"controlled joints n, 2..6; joints 1..n move (default: "
+    from envs.spec import N_JOINTS_RANGE  # numpy and gymnasium only: --help stays fast
+
+    lo, hi = N_JOINTS_RANGE
+    task.add_argument("--joints", type=int, default=None, choices=range(lo, hi + 1),
+                      metavar=f"{{{lo}..{hi}}}",
+                      help=f"controlled joints n, {lo}..{hi}; joints 1..n move (default: "
                            f"{DEFAULT_JOINTS}, or the --task n_joints=N given)")
     task.add_argument("--task", type=_task_option, action="append", default=[],
                       metavar="KEY=VALUE",
@@ -161,9 +164,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as e:
         parser.error(str(e))
     joints = env_kwargs["n_joints"]
-    if joints not in JOINTS:
-        flag = "--joints" if args.joints is not None else "--task n_joints"
-        parser.error(f"{flag} must be in 2..6, got {joints}")
+    from envs.spec import N_JOINTS_RANGE
+
+    lo, hi = N_JOINTS_RANGE
+    if not isinstance(joints, int) or not lo <= joints <= hi:
+        parser.error(f"--task n_joints must be an integer in {lo}..{hi}, got {joints!r}")
     seeds = args.seeds if args.seeds is not None else [args.seed]
     if len(set(seeds)) != len(seeds):
         parser.error(f"--seeds must be distinct, got {seeds}")

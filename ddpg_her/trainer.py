@@ -283,7 +283,7 @@ class Trainer:
         for k, ep in enumerate(episodes):
             goals = her_goal_steps(self.config.her_strategy, len(ep), self.config.her_k,
                                    self.rngs[k])
-            copies = [relabel(ep, int(j), self.envs.reward_fn, self.envs.success_fn)
+            copies = [relabel(ep, int(j), self.envs.reward_fn, self.envs.terminated_fn)
                       for j in goals]
             rows = np.concatenate([pack(e, self.scale) for e in [ep, *copies]])
             self.buffer.add(k, rows)

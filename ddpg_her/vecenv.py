@@ -187,9 +187,10 @@ class GoalVecEnv:
         return np.asarray(self.goal_env.compute_reward(achieved_goal, desired_goal,
                                                        {"action": action}), dtype=np.float64)
 
-    def success_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
-                   action: np.ndarray) -> np.ndarray:
-        """The env's success test (its ``compute_terminated``) for L transitions, (L,) bool."""
+    def terminated_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
+                      action: np.ndarray) -> np.ndarray:
+        """The env's ``compute_terminated`` for L transitions, (L,) bool: whether each ends the
+        episode (a success, when the task ends episodes at success)."""
         return np.asarray(self.goal_env.compute_terminated(achieved_goal, desired_goal,
                                                            {"action": action}), dtype=bool)
 
@@ -198,12 +199,12 @@ class GoalVecEnv:
             g.close()
 
 
-Policy = Callable[[dict[str, np.ndarray], np.ndarray], np.ndarray]
+ActionFn = Callable[[dict[str, np.ndarray], np.ndarray], np.ndarray]
 """``policy(obs, active) -> action``: obs arrays (N, ...), active (N,) bool -> (N, act_dim)
 action in env units (rows of inactive copies are ignored)."""
 
 
-def rollout(envs: GoalVecEnv, policy: Policy,
+def rollout(envs: GoalVecEnv, policy: ActionFn,
             seeds: Sequence[int]) -> tuple[list[Episode], np.ndarray]:
     """One episode in each of the N copies, in lockstep until the last one ends.
 

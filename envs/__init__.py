@@ -1,6 +1,7 @@
 """The UR5 Reacher as Gymnasium environments (see ../shared/DESIGN.md).
 
-Importing the package registers :data:`ENV_IDS`:
+Importing the package registers :data:`ENV_IDS`; the env classes load on first use (PEP 562),
+so that ``import envs.spec`` (reading a task) loads neither Pinocchio nor torch.
 
 >>> import gymnasium, envs
 >>> env = gymnasium.make("UR5Reach-v0", region="zheight", n_joints=3)
@@ -11,13 +12,13 @@ Importing the package registers :data:`ENV_IDS`:
 ((9,), (3,))
 """
 
+from __future__ import annotations
+
 import gymnasium
 
-from envs.batched import DEFAULT_EPISODE_STEPS, BatchedReach
-from envs.reach import UR5ReachEnv
-from envs.reward import compute_reward
-from envs.spec import TaskSpec
-from envs.wrappers import FlatObservation
+from envs.checks import validate
+from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
+from ur5kin.lazy import lazy_attributes
 
 ENV_IDS: tuple[str, ...] = ("UR5Reach-v0",)
 """Ids registered on import: the tests and benchmarks run over this list."""
@@ -31,5 +32,16 @@ for _env_id in ENV_IDS:
             max_episode_steps=DEFAULT_EPISODE_STEPS,
         )
 
+_LAZY: dict[str, str] = {
+    "BatchedReach": "envs.batched",
+    "FlatObservation": "envs.wrappers",
+    "UR5ReachEnv": "envs.reach",
+    "compute_reward": "envs.reward",
+}
+"""Public names that load their module (and with it Pinocchio) on first use."""
+
 __all__ = ["ENV_IDS", "BatchedReach", "FlatObservation", "TaskSpec", "UR5ReachEnv",
-           "compute_reward"]
+           "compute_reward", "validate"]
+
+
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

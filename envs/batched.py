@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -17,11 +16,7 @@ from envs.core import ReachCore
 from envs.dynamics import ArmDynamics
 from envs.reach import RENDER_MODES, make_task, real_actions
 from envs.reward import compute_reward, compute_success
-from envs.spec import TaskSpec
-
-DEFAULT_EPISODE_STEPS = {f.name: f.default for f in dataclasses.fields(TaskSpec)}[
-    "max_episode_steps"]
-"""The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
+from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
 
 DYNAMICS = ("auto", "fast", "pinocchio")
 """Values of BatchedReach's ``dynamics`` option: ``fast`` is :class:`envs.fastdyn.

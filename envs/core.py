@@ -16,6 +16,7 @@ import numpy as np
 
 import regions
 import ur5kin
+from envs.checks import validate
 from envs.dynamics import ArmDynamics, clip, command_bounds
 from envs.reward import goal_distance, reach_reward
 from envs.spec import TaskSpec
@@ -73,7 +74,7 @@ class ReachCore:
     """
 
     def __init__(self, task: TaskSpec, num_copies: int, dynamics: Any = None) -> None:
-        self.task = task
+        self.task = validate(task)
         n, B = task.n_joints, num_copies
         self.sampler = task_sampler(task)
         self.dynamics = ArmDynamics(task, num_copies) if dynamics is None else dynamics

@@ -21,7 +21,7 @@ torque        the commanded torque (N m)            PD to the start angles
 ============  ====================================  ===========================================
 
 Stops (inelastic, the same model for both): after the substeps, every substep configuration is
-checked for plane clearance (one batched :func:`regions.link_heights` call) and against the URDF
+checked for plane clearance (one batched :func:`ur5kin.link_heights` call) and against the URDF
 joint position limits. If some substep violates either, the copy goes back to the last valid
 substep state with all its joint velocities set to zero: the whole arm stops dead for the rest
 of the control step, the way an arm hitting a rigid table or an end stop with no bounce would
@@ -57,9 +57,10 @@ The URDF velocity limits are the motors'; clipping the ground's reaction joint b
 joint held at its limit drive a link 10 cm and more through the plane, so the reaction is added
 after the clip, and the governor scales the whole velocity back into the limits: that keeps its
 direction (a point leaving the plane still leaves it) and only removes kinetic energy. Stability:
-one contact on an effective mass m is the loop of :func:`pd_stability_violations` with
-``a = k h^2 / m`` and ``b = c h / m``; :func:`contact_stability_violations` checks it at the
-smallest effective mass a touching point has (:data:`CONTACT_MIN_EFFECTIVE_MASS`).
+one contact on an effective mass m is the loop of :func:`envs.gains.pd_stability_violations`
+with ``a = k h^2 / m`` and ``b = c h / m``; :func:`envs.gains.contact_stability_violations`
+checks it at the smallest effective mass a touching point has
+(:data:`envs.gains.CONTACT_MIN_EFFECTIVE_MASS`).
 The plane stays impermeable in this model too: after the substeps, a copy that put a link more
 than ``contact_max_depth`` below ``z = plane_margin`` at some substep falls back to the stop (to
 the last substep within that depth, velocities zero); ``depth_stop`` reports it, and
@@ -94,30 +95,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pinocchio as pin
 
-import regions
 import ur5kin
+from envs.checks import validate
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
 
-INERTIA_SAMPLES = 4096
-"""Configurations sampled (uniform in [-pi, pi]^6) to bound the diagonal of the mass matrix."""
-
-INERTIA_SEED = 5
-"""Seed of that sample, fixed so the bounds (and the checks on them) are reproducible."""
-
 CLEARANCE_BATCH = 192
-"""Most configurations per :func:`regions.link_heights` call. Its ``(359, 13) @ (13, B)``
+"""Most configurations per :func:`ur5kin.link_heights` call. Its ``(359, 13) @ (13, B)``
 product goes to multithreaded OpenBLAS from B ~ 256 on, which was measured 20x slower than one
 thread on a loaded two-core machine (15 ms instead of 0.6 ms at B = 840); blocks below the
 threshold cost about the same per configuration either way."""
-
-
-CONTACT_MIN_EFFECTIVE_MASS = 2.4
-"""Smallest effective mass (kg) of a link's deepest point along a world axis,
-``1 / (e^T J M^-1 J^T e)``: 3.0 kg along z and 2.5 kg along x or y (wrist_3_link) over 2000
-configurations uniform in [-pi, pi]^6, rounded down; tested on a fresh sample. The stiffest,
-fastest contact mode the compliant model can excite; :func:`contact_stability_violations`."""
 
 
 def _clip_fallback(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -130,87 +118,14 @@ argument handling that costs several times the ufunc call on 6-vectors, in the h
 
 
 @functools.cache
-def joint_inertia_bounds() -> tuple[np.ndarray, np.ndarray]:
-    """Smallest and largest diagonal entry of the UR5's mass matrix, per joint.
-
-    Returns
-    -------
-    low, high : (6,) float, kg m^2
-        Min and max of ``M_ii(q)`` over :data:`INERTIA_SAMPLES` configurations uniform in
-        [-pi, pi]^6: an estimate from a sample, within 0.4 % of the extremes of a ten times
-        larger one.
-    """
-    model = ur5kin.load_model()
-    data = model.createData()
-    q = np.random.default_rng(INERTIA_SEED).uniform(-np.pi, np.pi, (INERTIA_SAMPLES, 6))
-    diag = np.array([np.diag(pin.crba(model, data, qi)) for qi in q])
-    return diag.min(axis=0), diag.max(axis=0)
-
-
-def pd_gains(bandwidth: float, damping_ratio: float, inertia: Any
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """PD gains that give each joint, taken alone, a pole pair at ``bandwidth``.
-
-    Parameters
-    ----------
-    bandwidth : float, rad/s
-        Natural frequency w of each joint's closed loop.
-    damping_ratio : float
-        zeta (1 = critically damped).
-    inertia : (6,) float, kg m^2
-        The inertia each joint is designed for (the defaults use the largest diagonal entry of
-        the mass matrix, :func:`joint_inertia_bounds`, so lighter poses are better damped).
-
-    Returns
-    -------
-    kp : (6,) float, N m/rad
-        ``inertia * w^2``.
-    kd : (6,) float, N m s/rad
-        ``2 zeta inertia w``.
-    """
-    inertia = np.asarray(inertia, dtype=float)
-    return inertia * bandwidth**2, 2.0 * damping_ratio * inertia * bandwidth
-
-
-def pd_stability_violations(kp: Any, kd: Any, h: float) -> list[str]:
-    """Joints whose PD loop is unstable under semi-implicit Euler with step ``h``.
-
-    For one joint of inertia I, the substep maps ``(q, h v)`` by the matrix
-    ``[[1 - a, 1 - b], [-a, 1 - b]]`` with ``a = kp h^2 / I``, ``b = kd h / I``; it is stable
-    (Jury's test) iff ``0 < b < 2`` and ``a + 2 b < 4``. This checks that at each joint's
-    smallest diagonal inertia (:func:`joint_inertia_bounds`), where the loop is fastest. It is a
-    necessary condition; the coupled loop is tested on sampled configurations in the test suite.
-
-    Parameters
-    ----------
-    kp : (6,) float, N m/rad
-    kd : (6,) float, N m s/rad
-    h : float, s
-
-    Returns
-    -------
-    problems : list of str
-        One message per unstable joint (empty when all pass).
-    """
-    low, _ = joint_inertia_bounds()
-    a = np.asarray(kp, dtype=float) * h**2 / low
-    b = np.asarray(kd, dtype=float) * h / low
-    return [
-        f"joint {j + 1}: kd h / I = {b[j]:.3g} (need < 2), kp h^2 / I + 2 kd h / I = "
-        f"{a[j] + 2 * b[j]:.3g} (need < 4) at I = {low[j]:.4g} kg m^2"
-        for j in range(6) if not (0.0 < b[j] < 2.0 and a[j] + 2.0 * b[j] < 4.0)
-    ]
-
-
-@functools.cache
 def link_hulls() -> tuple[np.ndarray, ...]:
     """Convex-hull vertices ``(n_k, 3)`` (m, link frame) of the six moving links.
 
     shoulder_link .. wrist_3_link (``ee_link``'s box joins wrist_3_link): the URDF collision
-    geometry of :func:`regions.collision_geometry`, which the clearance check uses too. The one
+    geometry of :func:`ur5kin.collision_geometry`, which the clearance check uses too. The one
     place this module reads the collision geometry.
     """
-    return tuple(link.hull for link in regions.collision_geometry()[1:])
+    return tuple(link.hull for link in ur5kin.collision_geometry()[1:])
 
 
 @functools.cache
@@ -232,35 +147,6 @@ def height_lipschitz() -> np.ndarray:
         for k in range(i, 7):
             R[i - 1, k - 1] = sum(offsets[i + 1 : k + 1]) + reach[k]
     return R
-
-
-def contact_stability_violations(stiffness: float, damping: float, h: float) -> list[str]:
-    """Why a compliant contact ``(k, c)`` would be unstable under semi-implicit Euler with step h.
-
-    One contact on a point of effective mass m is the loop of :func:`pd_stability_violations`
-    with ``a = k h^2 / m`` and ``b = c h / m`` (the friction's viscous slope is c too); stable iff
-    ``b < 2`` and ``a + 2 b < 4``. Checked at :data:`CONTACT_MIN_EFFECTIVE_MASS`, where the loop
-    is fastest. Necessary, not sufficient: the coupled loop with the PD is tested on sampled
-    contact configurations in the test suite.
-
-    Parameters
-    ----------
-    stiffness : float, N/m
-    damping : float, N s/m
-    h : float, s
-
-    Returns
-    -------
-    problems : list of str
-        Empty when stable.
-    """
-    m = CONTACT_MIN_EFFECTIVE_MASS
-    a, b = stiffness * h * h / m, damping * h / m
-    if b < 2.0 and a + 2.0 * b < 4.0:
-        return []
-    return [f"at the smallest effective mass {m} kg, c h / m = {b:.3g} (need < 2) and "
-            f"k h^2 / m + 2 c h / m = {a + 2.0 * b:.3g} (need < 4) for k = {stiffness} N/m, "
-            f"c = {damping} N s/m, h = {h} s"]
 
 
 class PlaneContact:
@@ -384,13 +270,13 @@ def command_bounds(task: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     low, high : (n,) float
-        Position: the joint-space goal range ``[-pi, pi]`` (rad, :data:`regions.samplers.
-        JOINT_LIMIT`); velocity: the URDF velocity limits (rad/s); torque: the URDF effort
+        Position: the joint-space goal range ``[-pi, pi]`` (rad, :data:`ur5kin.JOINT_LIMIT`);
+        velocity: the URDF velocity limits (rad/s); torque: the URDF effort
         limits (N m).
     """
     n = task.n_joints
     if task.control_mode == "position":
-        high = np.full(n, regions.samplers.JOINT_LIMIT)
+        high = np.full(n, ur5kin.JOINT_LIMIT)
     elif task.control_mode == "velocity":
         high = ur5kin.velocity_limits()[:n]
     else:
@@ -404,7 +290,8 @@ class ArmDynamics:
     Parameters
     ----------
     task : TaskSpec
-        Start pose, controlled joints, control mode, gains, rates, base height, plane margin.
+        Start pose, controlled joints, control mode, gains, rates, base height, plane margin;
+        checked against the robot model (:func:`envs.checks.validate`).
     num_copies : int
         B, the number of independent arms.
 
@@ -435,14 +322,7 @@ class ArmDynamics:
     def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-        if task.contact_model == "compliant":
-            problems = contact_stability_violations(task.contact_stiffness,
-                                                    task.contact_damping, task.sim_dt)
-            if problems:
-                raise ValueError("the compliant contact is unstable under semi-implicit Euler at "
-                                 f"sim_hz={task.sim_hz} Hz: " + "; ".join(problems)
-                                 + ". Lower contact_stiffness / contact_damping or raise sim_hz")
-        self.task = task
+        self.task = validate(task)
         B, K, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
         self.num_copies = B
         base = ur5kin.load_model()
@@ -547,7 +427,7 @@ class ArmDynamics:
 
     def _link_heights(self, q: np.ndarray) -> np.ndarray:
         """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""
-        return regions.link_heights(q, self.task.base_height)[..., 1:]
+        return ur5kin.link_heights(q, self.task.base_height)[..., 1:]
 
     # ------------------------------------------------------------------ public API
     def reset(self, q: Any, index: Any = None) -> None:
@@ -791,5 +671,4 @@ class ArmDynamics:
             out[0] = pin.updateFramePlacement(self.model, self.data, self._tool).translation
         else:
             out[:] = ur5kin.fk(self.q)
-        out[:, 2] += self.task.base_height
-        return out
+        return ur5kin.to_world(out, self.task.base_height, out=out)

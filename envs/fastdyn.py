@@ -11,8 +11,8 @@ Pinocchio stays the source and the reference: :class:`ChainModel` reads the join
 axes, spatial inertias, armature and gravity from the pinocchio model that
 :func:`ur5kin.load_model` returns, and the tests compare :func:`aba` with ``pin.aba`` and
 :class:`FastArmDynamics` with ArmDynamics. The plane check is the same math as
-:func:`regions.link_heights` (every link height is linear in 13 trigonometric features of ``q``;
-the coefficient matrix is read from :mod:`regions.clearance`), screened per substep by the
+:func:`ur5kin.link_heights` (every link height is linear in 13 trigonometric features of ``q``;
+the coefficient matrix is read from :mod:`ur5kin.collision`), screened per substep by the
 Lipschitz bound of :func:`envs.dynamics.height_lipschitz`: an exact check runs only where the
 bound cannot prove the arm clear, which changes the cost, never the answer.
 
@@ -32,7 +32,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-import regions
 import ur5kin
 from envs.dynamics import height_lipschitz
 
@@ -158,7 +157,7 @@ def ur5_chain(dtype: str = "float64") -> ChainModel:
 
 @dataclass(frozen=True)
 class PlaneModel:
-    """The plane check's constants, from :mod:`regions.clearance` (same math, same numbers).
+    """The plane check's constants, from :mod:`ur5kin.collision` (same math, same numbers).
 
     Attributes
     ----------
@@ -167,7 +166,7 @@ class PlaneModel:
     bounds : (8,) int
         Rows ``bounds[k]:bounds[k + 1]`` belong to link k (0 = base_link, never checked).
     lift_offset, wrist_offset : float, rad
-        Offsets of the pitches the features use (:func:`regions.clearance._features`).
+        Offsets of the pitches the features use (:func:`ur5kin.collision._features`).
     lipschitz : (6, 6) float, m/rad
         :func:`envs.dynamics.height_lipschitz`: ``|dz_k| <= sum_i R[i, k] |dq_i|``.
     """
@@ -182,7 +181,7 @@ class PlaneModel:
 @functools.cache
 def ur5_plane(dtype: str = "float64") -> PlaneModel:
     """:class:`PlaneModel` of the UR5 as ``dtype`` (cached)."""
-    from regions import clearance
+    from ur5kin import collision as clearance
 
     kernels = clearance._kernels()
     lift, wrist = clearance._angle_offsets()
@@ -481,7 +480,7 @@ def _link_heights(q, vh, bounds, lift, wrist, base_height, feat, out
                   ):  # pragma: no cover - compiled
     """``out[k - 1]``: exact lowest point (m, world z) of moving link k = 1..6 at ``q``.
 
-    The features and the product of :func:`regions.clearance._exact`, written out.
+    The features and the product of :func:`ur5kin.collision._exact`, written out.
     """
     a = q[1] + lift
     b = a + q[2]
@@ -751,7 +750,7 @@ class FastArmDynamics:
 
     def _link_heights(self, q: np.ndarray) -> np.ndarray:
         """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""
-        return regions.link_heights(q, self.task.base_height)[..., 1:]
+        return ur5kin.link_heights(q, self.task.base_height)[..., 1:]
 
     def _update_tools(self, rows: np.ndarray) -> None:
         c = self._chain
@@ -842,12 +841,12 @@ def link_heights(q: Any, base_height: float, dtype: Any = np.float64) -> np.ndar
     -------
     heights : (B, 6) float, m, world z
         Lowest collision-geometry point of shoulder_link .. wrist_3_link
-        (:func:`regions.link_heights` without the fixed base link).
+        (:func:`ur5kin.link_heights` without the fixed base link).
     """
     name = _dtype_name(dtype)
     plane = ur5_plane(name)
     q = _batch(q, "q", DTYPES[name])
     out = np.empty_like(q)
     _heights_batch(q, plane.vertex_heights, plane.bounds, plane.lift_offset, plane.wrist_offset,
-                   float(regions.clearance.check_base_height(base_height)), out)
+                   float(ur5kin.check_base_height(base_height)), out)
     return out

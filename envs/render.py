@@ -122,8 +122,8 @@ class ReachRenderer:
         -------
         frame : (H, W, 3) uint8, or None in human mode
         """
-        points = np.asarray(ur5kin.link_poses(np.asarray(q, dtype=float)))[:, :3, 3]
-        points = points + np.array([0.0, 0.0, self.task.base_height])
+        base_points = np.asarray(ur5kin.link_poses(np.asarray(q, dtype=float)))[:, :3, 3]
+        points = ur5kin.to_world(base_points, self.task.base_height)
         goal = np.asarray(goal, dtype=float)
         color = self.config.contact_color if contact else self.config.arm_color
         for k, (_, (i, j), *_rest) in enumerate(self._views):

@@ -2,6 +2,9 @@
 
 A :class:`TaskSpec` is what a training run records: it is immutable, hashable, checked at
 construction, and round-trips through JSON (:meth:`TaskSpec.to_json` / :meth:`TaskSpec.from_json`).
+It is a plain record: construction checks types, ranges and choices only, and loads neither
+Pinocchio nor meshes. Whether the robot can run the task (start pose within the URDF limits and
+clear of the plane, stable gains) is :func:`envs.checks.validate`, which the env calls.
 The defaults are DESIGN.md's table (the paper's task); every choice the paper leaves open is a
 field here, with its reason in the field's docstring.
 
@@ -23,12 +26,18 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-import regions
-import ur5kin
+from envs.gains import DEFAULT_KD, DEFAULT_KP
+from regions import registry
+from regions.registry import UNCONSTRAINED_REGION, default_start
+from regions.samplers import CartesianSampler
+from ur5kin.world import DEFAULT_BASE_HEIGHT
+
+if TYPE_CHECKING:
+    import regions
 
 N_JOINTS_RANGE = (2, 6)
 """Fewest and most controlled joints (the paper: 2 <= n <= 6)."""
@@ -57,20 +66,14 @@ GOAL_SAMPLERS = ("joint", "cartesian")
 :class:`regions.JointSpaceSampler`); ``cartesian``: uniform in the reachable part of the region
 (:class:`regions.CartesianSampler`, needs n_joints >= 3)."""
 
-UNCONSTRAINED_REGION = "unconstrained"
-"""The region whose default start pose is :data:`regions.UNCONSTRAINED_START` (all zeros); every
-other region starts from :data:`regions.CONSTRAINED_START` (DESIGN.md, open point 1)."""
-
-DEFAULT_KP = (3920.0, 3600.0, 781.0, 232.0, 228.0, 15.4)
-"""Default proportional gains (N m/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
-
-DEFAULT_KD = (261.0, 240.0, 52.0, 15.5, 15.2, 1.03)
-"""Default derivative gains (N m s/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
 
 
 @dataclass(frozen=True)
 class TaskSpec:
     """Everything that defines one UR5 Reacher task (DESIGN.md), checked at construction.
+
+    Construction checks each field alone (type, range, choice); :func:`envs.checks.validate`
+    checks the task against the robot model.
 
     Lengths in m (world frame: ground plane z = 0, robot base at (0, 0, ``base_height``)),
     angles in rad, torques in N m, rates in Hz.
@@ -97,9 +100,9 @@ class TaskSpec:
     """Start configuration (6 angles, rad) of every episode. ``None`` resolves at construction:
     all zeros for ``unconstrained`` (the paper), else [0, -pi/4, pi/2, 0, 0, 0] (the paper's
     [0, pi/2, pi/4, 0, 0, 0] read as DESIGN.md's open point 1). Must lie within the URDF joint
-    limits and clear of the plane."""
+    limits and clear of the plane (:func:`envs.checks.validate`)."""
 
-    base_height: float = regions.DEFAULT_BASE_HEIGHT
+    base_height: float = DEFAULT_BASE_HEIGHT
     """Height (m) of the robot base above the ground plane (0.1, where ROS's ur_gazebo spawns
     the UR5)."""
 
@@ -153,7 +156,7 @@ class TaskSpec:
     The defaults place a critically damped pair of poles at 30 rad/s for each joint taken alone
     at its largest diagonal inertia over the joint space, ``I_max = (4.35, 4.01, 0.867, 0.258,
     0.253, 0.0171) kg m^2``: ``kp = I_max w^2``, ``kd = 2 zeta I_max w`` with ``w = 30 rad/s``,
-    ``zeta = 1`` (:func:`envs.dynamics.pd_gains`, rounded). Lighter poses see a faster, more
+    ``zeta = 1`` (:func:`envs.gains.pd_gains`, rounded). Lighter poses see a faster, more
     damped loop. With them a commanded pose is reached and held to < 1e-4 rad within the 2 s of
     an episode (the arm moves at its 3.15 rad/s limit most of the way), and the coupled
     closed loop linearised at 2000 sampled configurations is stable under 1 kHz semi-implicit
@@ -185,7 +188,7 @@ class TaskSpec:
     0.4 m lever (375 N) 1.9 mm; a near-rigid table, as Gazebo's is. Stable under the 1 kHz
     semi-implicit Euler: ``k h^2 / m = 0.08`` at the smallest effective mass that can touch
     (2.4 kg, a wrist link's point, sampled over the joint space), far below the limit 4 (see
-    :func:`envs.dynamics.contact_stability_violations`)."""
+    :func:`envs.gains.contact_stability_violations`)."""
 
     contact_damping: float = 2.0e3
     """Normal damping c (N s/m) of the compliant contact, also the slope of the regularised
@@ -226,9 +229,9 @@ class TaskSpec:
                                    ("contact_friction", "dimensionless", False),
                                    ("contact_max_depth", "m", True)):
             _set(name, _number(name, getattr(self, name), minimum=0.0, strict=strict, unit=unit))
-        if self.goal_sampler == "cartesian" and self.n_joints < regions.CartesianSampler.MIN_JOINTS:
+        if self.goal_sampler == "cartesian" and self.n_joints < CartesianSampler.MIN_JOINTS:
             raise ValueError(
-                f"goal_sampler='cartesian' needs n_joints >= {regions.CartesianSampler.MIN_JOINTS}"
+                f"goal_sampler='cartesian' needs n_joints >= {CartesianSampler.MIN_JOINTS}"
                 f" (with fewer, tool0 reaches only a surface); got n_joints={self.n_joints}. "
                 "Use goal_sampler='joint'"
             )
@@ -250,8 +253,6 @@ class TaskSpec:
         _set("kd", _joint_vector("kd", self.kd, "N m s/rad", positive=True))
         start = default_start(self.region) if self.start_q is None else self.start_q
         _set("start_q", _joint_vector("start_q", start, "rad"))
-        _check_start(self)
-        _check_gains(self)
 
     # ------------------------------------------------------------------ derived quantities
     @property
@@ -272,7 +273,7 @@ class TaskSpec:
     @functools.cached_property
     def goal_region(self) -> regions.Region:
         """The region :attr:`region` names, built for :attr:`base_height`."""
-        return regions.parse(self.region, self.base_height)
+        return registry.parse(self.region, self.base_height)
 
     # ------------------------------------------------------------------ JSON
     def to_dict(self) -> dict[str, Any]:
@@ -322,14 +323,11 @@ class TaskSpec:
         return dataclasses.replace(self, **overrides)
 
 
-def default_start(region: str) -> tuple[float, ...]:
-    """The start pose (6 angles, rad) a task in ``region`` gets when ``start_q`` is None."""
-    start = (regions.UNCONSTRAINED_START if region == UNCONSTRAINED_REGION
-             else regions.CONSTRAINED_START)
-    return tuple(float(x) for x in start)
+DEFAULT_EPISODE_STEPS: int = TaskSpec.__dataclass_fields__["max_episode_steps"].default
+"""The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
 
 
-# ---------------------------------------------------------------------- checks
+# ---------------------------------------------------------------------- field checks
 def _check_field_names(data: Mapping[str, Any]) -> None:
     names = {f.name for f in dataclasses.fields(TaskSpec)}
     unknown = sorted(set(data) - names)
@@ -381,53 +379,27 @@ def _joint_vector(name: str, value: Any, unit: str, positive: bool = False
 
 
 def _region_string(region: Any, base_height: float) -> str:
-    """The canonical string form of a region given as a string, a Region or its dict form."""
+    """The canonical string form of a region given as a string, a Region or its dict form.
+
+    A registered name is kept as it is without building its region (building the reach ball
+    loads the robot model); any other string is parsed, so a bad one fails here.
+    """
+    from regions.shapes import Region, region_from_dict  # numpy only
+
     if isinstance(region, Mapping):
-        region = regions.region_from_dict(dict(region))
-    if isinstance(region, regions.Region):
-        if region.name in regions.names():
+        region = region_from_dict(dict(region))
+    if isinstance(region, Region):
+        if region.name in registry.names():
             try:
-                if regions.get(region.name, base_height) == region:
+                if registry.get(region.name, base_height) == region:
                     return region.name
             except ValueError:
                 pass
         return json.dumps(region.to_dict(), separators=(",", ":"))
     if not isinstance(region, str):
-        raise ValueError(f"region must be a region name or string ({regions.spec_help()}), a "
+        raise ValueError(f"region must be a region name or string ({registry.spec_help()}), a "
                          f"regions.Region or its to_dict() form; got {type(region).__name__}")
     region = region.strip()
-    regions.parse(region, base_height)  # raises ValueError naming the accepted forms
+    if region not in registry.names():
+        registry.parse(region, base_height)  # raises ValueError naming the accepted forms
     return region
-
-
-def _check_start(task: TaskSpec) -> None:
-    """Raise ``ValueError`` if ``start_q`` is outside the URDF limits or not clear of the plane."""
-    model = ur5kin.load_model()
-    q = np.asarray(task.start_q)
-    lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
-    outside = np.flatnonzero((q < lo) | (q > hi))
-    if outside.size:
-        j = int(outside[0])
-        raise ValueError(f"start_q[{j}] = {q[j]} rad is outside joint {j + 1}'s URDF limits "
-                         f"[{lo[j]}, {hi[j]}] rad; start_q = {list(task.start_q)}")
-    heights = regions.link_heights(q, task.base_height)[1:]
-    if heights.min() < task.plane_margin:
-        link = ur5kin.LINK_NAMES[1 + int(np.argmin(heights))]
-        raise ValueError(
-            f"start_q = {list(task.start_q)} rad puts {link} at z = {heights.min():.4f} m, below "
-            f"the plane margin {task.plane_margin} m (base at {task.base_height} m): the start "
-            "pose must be clear of the ground plane"
-        )
-
-
-def _check_gains(task: TaskSpec) -> None:
-    """Raise ``ValueError`` when the PD gains cannot be stable under the task's integrator."""
-    from envs.dynamics import pd_stability_violations  # dynamics imports this module
-
-    problems = pd_stability_violations(task.kp, task.kd, task.sim_dt)
-    if problems:
-        raise ValueError(
-            f"the PD gains kp={list(task.kp)} N m/rad, kd={list(task.kd)} N m s/rad are unstable "
-            f"under semi-implicit Euler at sim_hz={task.sim_hz} Hz: " + "; ".join(problems)
-            + ". Lower the gains or raise sim_hz"
-        )

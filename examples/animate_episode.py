@@ -28,9 +28,9 @@ def ik_action(env: gymnasium.Env, goal: np.ndarray) -> np.ndarray | None:
         return None
     q_now = env.unwrapped.joint_angles
     wrist = np.asarray(task.start_q[3:])
-    target = goal - np.array([0.0, 0.0, task.base_height])  # world -> base_link
+    target = ur5kin.to_base(goal, task.base_height)
     q, valid = ur5kin.ik_position(target, wrist)
-    valid &= regions.plane_clear(np.nan_to_num(q), task.base_height)
+    valid &= ur5kin.plane_clear(np.nan_to_num(q), task.base_height)
     if not valid.any():
         return None
     candidates = q[valid]

@@ -1,7 +1,11 @@
 """Goal constraint regions of the UR5 Reacher task, their goal samplers and coverage statistics.
 
 World frame throughout: ground plane z = 0, robot base at (0, 0, base_height), m (see
-DESIGN.md). The paper's regions are registered by name; users build their own from a string.
+DESIGN.md; the transform is :mod:`ur5kin.world`). The paper's regions are registered by name;
+users build their own from a string. The arm's collision geometry and plane clearance belong
+to the robot: :mod:`ur5kin.collision`.
+
+Names load on first use (PEP 562), so that ``import regions.registry`` does not load Pinocchio.
 
 >>> import regions
 >>> regions.names()
@@ -12,68 +16,26 @@ DESIGN.md). The paper's regions are registered by name; users build their own fr
 array([ True])
 """
 
-from regions.clearance import capsule_heights, collision_geometry, link_heights, plane_clear
-from regions.coverage import (
-    CoverageRow,
-    VoxelWorkspace,
-    WorkspaceSamples,
-    coverage_row,
-    sample_workspace,
-)
-from regions.reach import reach_ball, reach_radius
-from regions.registry import (
-    CONSTRAINED_START,
-    DEFAULT_BASE_HEIGHT,
-    PAPER_REGIONS,
-    UNCONSTRAINED_START,
-    get,
-    names,
-    parse,
-    spec_help,
-)
-from regions.samplers import (
-    CartesianSampler,
-    GoalBatch,
-    GoalSampler,
-    JointSpaceSampler,
-    SamplingLimits,
-    UnreachableRegionError,
-    sampler_from_dict,
-)
-from regions.shapes import Ball, Box, Intersection, MeshRegion, Region, ZLimit, region_from_dict
+from __future__ import annotations
 
-__all__ = [
-    "CONSTRAINED_START",
-    "DEFAULT_BASE_HEIGHT",
-    "PAPER_REGIONS",
-    "UNCONSTRAINED_START",
-    "Ball",
-    "Box",
-    "CartesianSampler",
-    "CoverageRow",
-    "GoalBatch",
-    "GoalSampler",
-    "Intersection",
-    "JointSpaceSampler",
-    "MeshRegion",
-    "Region",
-    "SamplingLimits",
-    "UnreachableRegionError",
-    "VoxelWorkspace",
-    "WorkspaceSamples",
-    "ZLimit",
-    "capsule_heights",
-    "collision_geometry",
-    "coverage_row",
-    "get",
-    "link_heights",
-    "names",
-    "parse",
-    "plane_clear",
-    "reach_ball",
-    "reach_radius",
-    "region_from_dict",
-    "sample_workspace",
-    "sampler_from_dict",
-    "spec_help",
-]
+from ur5kin.lazy import lazy_attributes
+
+_EXPORTS: dict[str, str] = {
+    **dict.fromkeys(("CoverageRow", "VoxelWorkspace", "WorkspaceSamples", "coverage_row",
+                     "sample_workspace"), "regions.coverage"),
+    **dict.fromkeys(("reach_ball", "reach_radius"), "regions.reach"),
+    **dict.fromkeys(("CONSTRAINED_START", "DEFAULT_BASE_HEIGHT", "PAPER_REGIONS",
+                     "UNCONSTRAINED_REGION", "UNCONSTRAINED_START", "default_start", "get",
+                     "names", "paper_order", "parse", "spec_help"), "regions.registry"),
+    **dict.fromkeys(("CartesianSampler", "GoalBatch", "GoalSampler", "JointSpaceSampler",
+                     "SamplingLimits", "UnreachableRegionError", "sampler_from_dict"),
+                    "regions.samplers"),
+    **dict.fromkeys(("Ball", "Box", "Intersection", "MeshRegion", "Region", "ZLimit",
+                     "region_from_dict"), "regions.shapes"),
+}
+"""Public name -> the module that defines it."""
+
+__all__ = sorted(_EXPORTS)
+
+
+__getattr__, __dir__ = lazy_attributes(__name__, _EXPORTS)

@@ -18,7 +18,8 @@ import numpy as np
 from tqdm import tqdm
 
 import regions
-from regions.samplers import CartesianSampler, JointSpaceSampler, tool_positions
+import ur5kin
+from regions.samplers import CartesianSampler, JointSpaceSampler
 
 ENV_BATCH = 20
 """Configurations per clearance call in the env: 1 kHz sub-steps of one 50 Hz control step."""
@@ -26,7 +27,7 @@ ENV_BATCH = 20
 
 def time_goals(region: str, n_joints: int, goals: int, repeats: int, seed: int) -> list[float]:
     """Seconds to draw ``goals`` goals (the sampler built and probed beforehand)."""
-    start = regions.UNCONSTRAINED_START if region == "unconstrained" else regions.CONSTRAINED_START
+    start = regions.default_start(region)
     sampler = JointSpaceSampler(regions.get(region), n_joints, start)
     out = []
     for k in range(repeats):
@@ -43,9 +44,9 @@ def time_clearance(calls: int, seed: int) -> dict[str, float]:
     q = np.asarray(regions.CONSTRAINED_START) + rng.normal(0.0, 0.3, (ENV_BATCH, 6))
     h = regions.DEFAULT_BASE_HEIGHT
     out = {}
-    for name, func in (("plane_clear", regions.plane_clear),
-                       ("link_heights", regions.link_heights),
-                       ("capsule_heights", regions.capsule_heights)):
+    for name, func in (("plane_clear", ur5kin.plane_clear),
+                       ("link_heights", ur5kin.link_heights),
+                       ("capsule_heights", ur5kin.capsule_heights)):
         func(q, h)
         best = min(timeit.repeat(lambda f=func: f(q, h), number=calls, repeat=7))
         out[name] = best / calls * 1e6
@@ -88,11 +89,10 @@ def compare_samplers(joints: Sequence[int], goals: int, seed: int, progress: boo
     jobs = [(r, n, cls) for r in regions.PAPER_REGIONS for n in joints
             for cls in (JointSpaceSampler, CartesianSampler)]
     for name, n, cls in tqdm(jobs, desc="samplers", disable=not progress, file=sys.stderr):
-        start = regions.UNCONSTRAINED_START if name == "unconstrained" else \
-            regions.CONSTRAINED_START
+        start = regions.default_start(name)
         sampler = cls(regions.get(name), n, start)
         batch = sampler.sample(goals, np.random.default_rng(seed))
-        origin = tool_positions(np.asarray(start)[None], regions.DEFAULT_BASE_HEIGHT)[0]
+        origin = ur5kin.fk_world(start, regions.DEFAULT_BASE_HEIGHT)
         distance = float(np.linalg.norm(batch.goals - origin, axis=1).mean())
         rows.append((name, n, cls.kind, batch.acceptance, batch.reachable_fraction, distance))
     return rows

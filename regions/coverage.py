@@ -24,10 +24,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from regions.clearance import check_base_height, plane_clear
-from regions.samplers import draw_joint_space, tool_positions
+from regions.samplers import draw_joint_space
 from regions.shapes import Region
-from ur5kin.checks import joint_array
+from ur5kin import fk_world, plane_clear
+from ur5kin.checks import joint_array, joint_count
+from ur5kin.world import check_base_height
 
 SURFACE_JOINTS = 2
 """Joint counts up to this one reach only a surface (or a curve): zero volume."""
@@ -72,7 +73,7 @@ class WorkspaceSamples:
     @property
     def start_position(self) -> np.ndarray:
         """tool0 position ``(3,) m`` (world) at ``q_start``."""
-        return tool_positions(np.asarray(self.q_start)[None], self.base_height)[0]
+        return fk_world(self.q_start, self.base_height)
 
 
 def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int,
@@ -92,8 +93,7 @@ def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int
     chunk : int
         Samples per block (bounds the memory of the clearance check).
     """
-    if not isinstance(n_joints, int | np.integer) or not 1 <= n_joints <= 6:
-        raise ValueError(f"n_joints must be an integer in 1..6; got {n_joints!r}")
+    n_joints = joint_count(n_joints)
     if not isinstance(count, int | np.integer) or count < 1:
         raise ValueError(f"count must be an integer >= 1 (samples); got {count!r}")
     start = joint_array(q_start, "q_start")
@@ -103,7 +103,7 @@ def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int
     goals, clear = np.empty((count, 3)), np.empty(count, dtype=bool)
     for lo in range(0, count, chunk):
         q = draw_joint_space(int(n_joints), start, min(chunk, count - lo), rng)
-        goals[lo : lo + len(q)] = tool_positions(q, h)
+        goals[lo : lo + len(q)] = fk_world(q, h)
         clear[lo : lo + len(q)] = plane_clear(q, h)
     return WorkspaceSamples(int(n_joints), tuple(float(x) for x in start), h, goals, clear)
 
@@ -298,7 +298,7 @@ def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspa
     if start_q.shape != (6,) or not np.array_equal(start_q[n:], samples.q_start[n:]):
         raise ValueError(f"q_start {list(np.ravel(start_q))} must be 6 angles (rad) whose held "
                          f"joints {n + 1}..6 equal the samples' {list(samples.q_start[n:])}")
-    start = tool_positions(start_q[None], samples.base_height)[0]
+    start = fk_world(start_q, samples.base_height)
     accepted = samples.clear & region.contains(samples.goals)
     distances = np.linalg.norm(samples.goals[accepted] - start, axis=-1)
     workspace, workspace_err = voxels.volume, voxels.error

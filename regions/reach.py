@@ -10,7 +10,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 import ur5kin
 from regions.shapes import Ball
@@ -43,6 +42,8 @@ def reach_radius() -> float:
     it is a maximum over q5 alone: found on a grid of :data:`REACH_GRID` points, refined by
     Brent's method, plus :data:`REACH_MARGIN`.
     """
+    from scipy.optimize import minimize_scalar  # loaded only when the reach is first needed
+
     g = ur5kin.geometry()
     grid = np.linspace(0.0, np.pi, REACH_GRID)
     i = int(np.argmax(_reach_sq(grid, g)))
@@ -57,7 +58,7 @@ def reach_radius() -> float:
 def shoulder_centre(base_height: float) -> np.ndarray:
     """World position ``(3,) m`` of the shoulder centre: on the pan axis at the lift joint's
     height, ``(0, 0, base_height + d1)``."""
-    return np.array([0.0, 0.0, float(base_height) + ur5kin.geometry().d1])
+    return ur5kin.to_world([0.0, 0.0, ur5kin.geometry().d1], base_height)
 
 
 def reach_ball(base_height: float) -> Ball:

@@ -14,9 +14,11 @@ from collections.abc import Callable
 
 from regions.reach import reach_ball
 from regions.shapes import Box, Intersection, MeshRegion, Region, ZLimit, region_from_dict
+from ur5kin.world import DEFAULT_BASE_HEIGHT
 
-DEFAULT_BASE_HEIGHT = 0.1
-"""Height (m) of the robot base above the plane: where ROS's ur_gazebo spawns the UR5."""
+UNCONSTRAINED_REGION = "unconstrained"
+"""The region whose default start pose is :data:`UNCONSTRAINED_START` (all zeros); every other
+region, user regions included, starts from :data:`CONSTRAINED_START` (DESIGN.md, open point 1)."""
 
 UNCONSTRAINED_START = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 """The paper's start configuration (rad) of the unconstrained task: the arm stretched along +x."""
@@ -26,6 +28,12 @@ CONSTRAINED_START = (0.0, -math.pi / 4, math.pi / 2, 0.0, 0.0, 0.0)
 as DESIGN.md's open point 1 explains (elbow pi/2, shoulder lift pi/4 upwards, i.e. -pi/4 in this
 URDF); tool0 sits near (0.51, 0.19, 0.15) m in the world (base at 0.1 m), inside zheight,
 closebox and farbox."""
+
+def default_start(region: str) -> tuple[float, ...]:
+    """The start pose (6 angles, rad) of a task in ``region`` (a region string) by default."""
+    start = UNCONSTRAINED_START if region == UNCONSTRAINED_REGION else CONSTRAINED_START
+    return tuple(float(x) for x in start)
+
 
 PLANE_Z = 0.0
 """Height (m) of the ground plane, the floor of every paper region."""
@@ -50,7 +58,7 @@ def cut_to_reach(zmin: float, zmax: float, base_height: float, name: str) -> Int
 
 
 _BUILDERS: dict[str, Callable[[float], Region]] = {
-    "unconstrained": lambda h: cut_to_reach(PLANE_Z, math.inf, h, "unconstrained"),
+    UNCONSTRAINED_REGION: lambda h: cut_to_reach(PLANE_Z, math.inf, h, UNCONSTRAINED_REGION),
     "zheight": lambda h: cut_to_reach(PLANE_Z, ZHEIGHT_MAX, h, "zheight"),
     "closebox": lambda h: Box.from_limits(CLOSEBOX_LIMITS, "closebox"),
     "farbox": lambda h: Box.from_limits(FARBOX_LIMITS, "farbox"),
@@ -59,6 +67,13 @@ _BUILDERS: dict[str, Callable[[float], Region]] = {
 
 PAPER_REGIONS: tuple[str, ...] = tuple(_BUILDERS)
 """Names of the paper's regions, in the paper's order."""
+
+
+def paper_order(name: str) -> tuple[int, str]:
+    """Sort key of region names: the paper's regions in the paper's order, then the others
+    alphabetically (figure rows and tables)."""
+    rank = PAPER_REGIONS.index(name) if name in PAPER_REGIONS else len(PAPER_REGIONS)
+    return rank, name
 
 
 def names() -> tuple[str, ...]:

@@ -24,19 +24,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-import ur5kin
-from regions.clearance import check_base_height, plane_clear
+import ur5kin  # lazy: Pinocchio loads at the first sample, not on import
 from regions.reach import reach_ball
-from regions.registry import DEFAULT_BASE_HEIGHT
 from regions.shapes import Region, region_from_dict
-from ur5kin.checks import joint_array
-
-JOINT_LIMIT = math.pi
-"""Half-width (rad) of the range [-pi, pi] the controlled joints are drawn from (DESIGN.md: the
-action range)."""
-
-N_JOINTS_RANGE = (1, 6)
-"""Smallest and largest number of controlled joints a sampler accepts."""
+from ur5kin.checks import joint_array, joint_count
+from ur5kin.world import DEFAULT_BASE_HEIGHT, check_base_height, to_base
 
 PROBE_SEED = 20190916
 """Seed of the acceptance probe. The probe never touches the caller's generator, so the goals
@@ -130,16 +122,8 @@ def draw_joint_space(n_joints: int, q_start: Any, count: int,
     -------
     q : (count, 6) float, rad
     """
-    q = np.empty((count, 6))
-    q[:] = np.asarray(q_start, dtype=float)
-    q[:, :n_joints] = rng.uniform(-JOINT_LIMIT, JOINT_LIMIT, size=(count, n_joints))
-    return q
-
-
-def tool_positions(q: Any, base_height: float) -> np.ndarray:
-    """tool0 positions ``(..., 3)`` m in the world frame for ``q (..., 6)`` rad."""
-    p = np.asarray(ur5kin.fk(np.asarray(q, dtype=float)), dtype=float)
-    return p + np.array([0.0, 0.0, base_height])
+    return ur5kin.SubChain(n_joints, q_start).full(
+        rng.uniform(-ur5kin.JOINT_LIMIT, ur5kin.JOINT_LIMIT, size=(count, n_joints)))
 
 
 @dataclass(frozen=True)
@@ -176,13 +160,10 @@ class GoalSampler(abc.ABC):
     def __post_init__(self) -> None:
         if not isinstance(self.region, Region):
             raise ValueError(f"region must be a regions.Region; got {type(self.region).__name__}")
-        lo, hi = N_JOINTS_RANGE
-        if not isinstance(self.n_joints, int | np.integer) or not lo <= self.n_joints <= hi:
-            raise ValueError(f"n_joints must be an integer in {lo}..{hi}; got {self.n_joints!r}")
         start = joint_array(self.q_start, "q_start")
         if start.shape != (6,):
             raise ValueError(f"q_start must have shape (6,) (rad); got shape {start.shape}")
-        object.__setattr__(self, "n_joints", int(self.n_joints))
+        object.__setattr__(self, "n_joints", joint_count(self.n_joints))
         object.__setattr__(self, "q_start", tuple(float(x) for x in start))
         object.__setattr__(self, "base_height", check_base_height(self.base_height))
         _ = self.acceptance  # fail fast
@@ -292,10 +273,10 @@ class JointSpaceSampler(GoalSampler):
     def _propose(self, count: int, rng: np.random.Generator
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         q = draw_joint_space(self.n_joints, self.q_start, count, rng)
-        goals = tool_positions(q, self.base_height)
+        goals = ur5kin.fk_world(q, self.base_height)
         inside = self.region.contains(goals)
         candidates = np.flatnonzero(inside)
-        kept = candidates[plane_clear(q[candidates], self.base_height)]
+        kept = candidates[ur5kin.plane_clear(q[candidates], self.base_height)]
         return goals[kept], q[kept], kept, inside
 
 
@@ -364,15 +345,17 @@ class CartesianSampler(GoalSampler):
         inside = self.region.contains(points)
         candidates = np.flatnonzero(inside & reach_ball(self.base_height).contains(points))
         tries = 1 if self.n_joints == 3 else self.wrist_tries
-        wrist = np.empty((len(candidates), tries, 3))
-        wrist[:] = self.q_start[3:]
-        wrist[..., : self.n_joints - 3] = rng.uniform(
-            -JOINT_LIMIT, JOINT_LIMIT, size=(len(candidates), tries, self.n_joints - 3))
-        target = points[candidates] - np.array([0.0, 0.0, self.base_height])
+        shape = (len(candidates), tries)
+        arm = np.zeros((*shape, 3))  # joints 1-3 come from the IK below; these are ignored
+        bound = ur5kin.JOINT_LIMIT
+        drawn = rng.uniform(-bound, bound, size=(*shape, self.n_joints - 3))
+        wrist = ur5kin.SubChain(self.n_joints, self.q_start).full(
+            np.concatenate([arm, drawn], axis=-1))[..., 3:]
+        target = to_base(points[candidates], self.base_height)
         q, valid = ur5kin.ik_position(np.broadcast_to(target[:, None, :], wrist.shape), wrist)
         q, valid = q.reshape(len(candidates), -1, 6), valid.reshape(len(candidates), -1)
         ok = np.zeros_like(valid)
-        ok[valid] = plane_clear(q[valid], self.base_height)
+        ok[valid] = ur5kin.plane_clear(q[valid], self.base_height)
         score = np.where(ok, rng.random(ok.shape), -1.0)  # a random clear solution per point
         pick = np.argmax(score, axis=1)
         reached = ok.any(axis=1)

@@ -13,10 +13,12 @@ import functools
 import math
 import pathlib
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-import trimesh
+
+if TYPE_CHECKING:
+    import trimesh
 
 VOLUME_GRID_CELLS = 128
 """Cells per axis of the midpoint grid over the bounds that estimates a volume with no closed
@@ -184,6 +186,8 @@ class Box(Region):
 
     @property
     def mesh(self) -> trimesh.Trimesh:
+        import trimesh  # on first use: importing regions stays light
+
         return trimesh.creation.box(bounds=self.bounds)
 
     def _params(self) -> dict[str, Any]:
@@ -241,6 +245,8 @@ class ZLimit(Region):
 
 def _revolved(center: np.ndarray, radius: float, z_lo: float, z_hi: float) -> trimesh.Trimesh:
     """Mesh of the part of a ball (centre, radius, m) with z_lo <= z <= z_hi, by revolution."""
+    import trimesh  # on first use: importing regions stays light
+
     t_lo = math.asin(np.clip((z_lo - center[2]) / radius, -1.0, 1.0))
     t_hi = math.asin(np.clip((z_hi - center[2]) / radius, -1.0, 1.0))
     theta = np.linspace(t_lo, t_hi, ARC_SEGMENTS + 1)
@@ -382,6 +388,8 @@ class Intersection(Region):
 
     @property
     def mesh(self) -> trimesh.Trimesh:
+        import trimesh  # on first use: importing regions stays light
+
         form = self._closed_form()
         if form is not None and form[0] == "zone":
             _, box, ball = form
@@ -434,6 +442,8 @@ class MeshRegion(Region):
     kind: ClassVar[str] = "mesh"
 
     def __init__(self, mesh: trimesh.Trimesh, name: str = "mesh", source: str | None = None):
+        import trimesh  # on first use: importing regions stays light
+
         if not isinstance(mesh, trimesh.Trimesh):
             raise ValueError(f"MeshRegion needs a trimesh.Trimesh; got {type(mesh).__name__}")
         mesh = mesh.copy()
@@ -455,6 +465,8 @@ class MeshRegion(Region):
     @classmethod
     def from_file(cls, path: str | pathlib.Path, name: str | None = None) -> MeshRegion:
         """Load a mesh file (STL, OBJ, PLY, ...; coordinates in m, world frame)."""
+        import trimesh  # on first use: importing regions stays light
+
         path = pathlib.Path(path)
         if not path.is_file():
             raise ValueError(f"mesh file {str(path)!r} does not exist")
@@ -531,6 +543,8 @@ def region_from_dict(data: Any) -> Region:
     ValueError
         When ``data`` is not a dict with a known ``kind`` and that kind's parameters.
     """
+    import trimesh  # on first use: importing regions stays light
+
     if not isinstance(data, dict) or "kind" not in data:
         raise ValueError(f"a region description must be a dict with a 'kind' key "
                          f"({sorted(KINDS)}); got {data!r:.200}")

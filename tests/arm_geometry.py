@@ -1,7 +1,7 @@
 """An independent ground-plane check shared by the env tests (not a test module).
 
 ``brute_force_heights`` applies Pinocchio's geometry placements (oMg) to the convex hulls of the
-URDF's collision meshes, with none of regions.clearance's closed forms, so the tests can check
+URDF's collision meshes, with none of ur5kin.collision's closed forms, so the tests can check
 the clearance code and the dynamics' plane against a second path.
 """
 

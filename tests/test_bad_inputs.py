@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 import envs
-import regions
 import ur5kin
 from envs import UR5ReachEnv
 
@@ -108,7 +107,7 @@ def test_ik_position_speaks_of_a_position_in_m_for_its_target():
 # --- info["clearance"] ------------------------------------------------------------------------
 def lowest_link(q: np.ndarray, base_height: float) -> np.ndarray:
     """The second path: link heights computed directly, minimum over the moving links."""
-    return regions.link_heights(q, base_height)[..., 1:].min(axis=-1)
+    return ur5kin.link_heights(q, base_height)[..., 1:].min(axis=-1)
 
 
 def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step():

@@ -1,11 +1,14 @@
 """ddpg_her's stacked K-agent DDPG against K separate, plainly written DDPG agents."""
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
 from torch import nn
 
-from ddpg_her.agent import DDPG
+from ddpg_her import agent as agent_module
+from ddpg_her.agent import DDPG, PLAIN, FastPaths, probe_fast_paths
 from ddpg_her.config import AgentConfig
 from ddpg_her.reference import ReferenceDDPG
 
@@ -45,12 +48,16 @@ def make_agent(k: int, config: AgentConfig, seed0: int = 0) -> DDPG:
     return DDPG(config, IN, ACT, init_generators=gens, dtype=torch.float64)
 
 
-@pytest.mark.parametrize("critic_l2", [0.0, 1e-2])
-def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2):
-    """Our hand-written gradients against autograd through nn.Linear, agent by agent."""
+@pytest.mark.parametrize(("critic_l2", "path"), [(0.0, "fast"), (1e-2, "fast"), (1e-2, "plain")])
+def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, path,
+                                                                    monkeypatch):
+    """Our hand-written gradients against autograd through nn.Linear, agent by agent, on the
+    private-torch fast path and on the public-torch path a torch without it takes."""
     config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01, critic_l2=critic_l2)
     k, n = 3, 64
+    monkeypatch.setattr(agent_module, "FAST", PLAIN if path == "plain" else FastPaths())
     agent = make_agent(k, config)
+    assert agent.fast == (PLAIN if path == "plain" else FastPaths())
     rng = np.random.default_rng(0)
     # each agent's normaliser sees its own data, with a different scale per agent
     data = [rng.normal(size=(500, IN)) * (1 + i) + i for i in range(k)]
@@ -149,3 +156,54 @@ def test_agent_state_round_trip_continues_identically():
         b.update(*batch, term)
     for p, q in zip(a._online + a._target, b._online + b._target, strict=True):
         assert torch.equal(p, q)
+
+
+def test_this_torch_passes_every_fast_path_probe():
+    # the fast path is what we time; a torch that fails a probe runs, but slower
+    assert FastPaths() == agent_module.FAST
+
+
+def test_fallback_equals_fast_path_to_1e_10(monkeypatch):
+    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.05)
+    monkeypatch.setattr(agent_module, "FAST", FastPaths())  # every private function
+    fast = make_agent(2, config)
+    monkeypatch.setattr(agent_module, "FAST", PLAIN)
+    plain = make_agent(2, config)
+    assert not (plain._actor_step.direct or plain._critic_step.direct)
+    gen = torch.Generator().manual_seed(3)
+    for _ in range(50):
+        batch = [torch.randn(2, 16, d, generator=gen, dtype=torch.float64) * 2
+                 for d in (IN, ACT, 1, IN)]
+        term = (torch.rand(2, 16, 1, generator=gen) < 0.3).double()
+        for a, b in zip(fast.update(*batch, term), plain.update(*batch, term), strict=True):
+            torch.testing.assert_close(a, b, atol=1e-10, rtol=0)
+    for name in ("actor", "critic", "actor_target", "critic_target"):
+        for p, q in zip(getattr(fast, name).parameters(), getattr(plain, name).parameters(),
+                        strict=True):
+            torch.testing.assert_close(p, q, atol=1e-10, rtol=0)
+
+
+@pytest.mark.parametrize(("missing", "field"), [
+    ("_fused_adam_", "fused_adam"), ("_foreach_lerp_", "foreach_lerp")])
+def test_a_missing_private_function_warns_and_turns_its_fast_path_off(monkeypatch, missing,
+                                                                      field):
+    monkeypatch.delattr(torch, missing)
+    with pytest.warns(RuntimeWarning, match=f"torch.{missing}"):
+        paths = probe_fast_paths()
+    assert paths == FastPaths(**{field: False})
+
+
+def test_a_private_function_that_changed_meaning_is_not_used(monkeypatch):
+    class Ops:  # threshold_backward that no longer zeroes the gradient
+        class aten:
+            @staticmethod
+            def threshold_backward(grad, out, threshold):
+                return grad.clone()
+
+    monkeypatch.setattr(torch, "ops", Ops)
+    with pytest.warns(RuntimeWarning, match="threshold_backward"):
+        assert probe_fast_paths() == FastPaths(threshold_backward=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        monkeypatch.undo()
+        assert probe_fast_paths() == FastPaths()

@@ -89,7 +89,7 @@ def reward_fn(ag, g, a):
     return -d - COST * np.sum(a**2, axis=-1) + BONUS * (d <= EPS)
 
 
-def success_fn(ag, g, a):
+def terminated_fn(ag, g, a):
     return np.linalg.norm(ag - g, axis=-1) <= EPS
 
 
@@ -107,7 +107,7 @@ def episode() -> Episode:
 
 def test_final_relabelling_pursues_the_final_achieved_goal_and_stops_at_first_success():
     ep = episode()
-    copy = relabel(ep, len(ep), reward_fn, success_fn)
+    copy = relabel(ep, len(ep), reward_fn, terminated_fn)
     # goal (1.5, 0); transition 2 reaches (1.45, 0), 0.05 away: success, the copy ends there
     np.testing.assert_array_equal(copy.desired_goal, [1.5, 0.0])
     assert len(copy) == 3
@@ -127,12 +127,12 @@ def test_final_relabelling_pursues_the_final_achieved_goal_and_stops_at_first_su
 
 def test_relabelling_towards_an_earlier_goal_cuts_there():
     ep = episode()
-    copy = relabel(ep, 1, reward_fn, success_fn)  # goal (0.5, 0), reached by transition 0
+    copy = relabel(ep, 1, reward_fn, terminated_fn)  # goal (0.5, 0), reached by transition 0
     assert len(copy) == 1
     np.testing.assert_array_equal(copy.terminated, [True])
     np.testing.assert_allclose(copy.reward, [-0.0 - COST * 1.0 + BONUS])
     with pytest.raises(ValueError, match="goal_step"):
-        relabel(ep, 0, reward_fn, success_fn)
+        relabel(ep, 0, reward_fn, terminated_fn)
 
 
 def test_her_goal_steps():

@@ -310,7 +310,7 @@ def test_cli_tiny_run_and_its_errors(tmp_path):
     run = ["--out", str(tmp_path / "runs" / "s0")]
     fails(*tiny, *run, message="already holds a run")
     fails(*tiny, *run, "--resume", "--gamma", "0.5", message="agent.gamma")
-    fails(*tiny, "--joints", "7", message="--joints must be in 2..6, got 7")
+    fails(*tiny, "--joints", "7", message="--joints: invalid choice: 7")
     fails(*tiny[:3], "nowhere", "--out", str(tmp_path / "x"), message="unknown region 'nowhere'")
     fails(*tiny, "--gamma", "1.5", message="gamma=1.5")
     fails(*tiny, "--exploration", "boltzmann", message="invalid choice")

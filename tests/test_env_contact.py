@@ -1,7 +1,7 @@
 """The ground-contact models of envs.dynamics (TaskSpec.contact_model), against independent checks.
 
 The references here share no code with envs.dynamics.PlaneContact: link heights come from
-regions.link_heights (the closed-form clearance kernel) or from Pinocchio's geometry placements
+ur5kin.link_heights (the closed-form clearance kernel) or from Pinocchio's geometry placements
 (test_env_dynamics.brute_force_heights), point Jacobians from ur5kin.link_poses' closed form.
 """
 
@@ -10,17 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from test_env_dynamics import brute_force_heights
+from arm_geometry import brute_force_heights
 
-import regions
 import ur5kin
-from envs.dynamics import (
-    CONTACT_MIN_EFFECTIVE_MASS,
-    ArmDynamics,
-    PlaneContact,
-    contact_stability_violations,
-    link_hulls,
-)
+from envs.dynamics import ArmDynamics, PlaneContact, link_hulls
+from envs.gains import CONTACT_MIN_EFFECTIVE_MASS, contact_stability_violations
 from envs.spec import TaskSpec
 from ur5kin.closed_form import JOINT_AXES
 
@@ -45,7 +39,7 @@ def contact_states(task: TaskSpec, count: int, seed: int) -> tuple[np.ndarray, n
     found = []
     while len(found) < count:
         q = rng.uniform(-np.pi, np.pi, (4000, 6))
-        low = regions.link_heights(q, task.base_height)[:, 1:].min(axis=1) - task.plane_margin
+        low = ur5kin.link_heights(q, task.base_height)[:, 1:].min(axis=1) - task.plane_margin
         found.extend(q[(low < -0.0005) & (low > -0.015)])
     return np.array(found[:count]), rng.uniform(-2.0, 2.0, (count, 6))
 
@@ -96,12 +90,12 @@ def test_the_contact_torque_matches_a_closed_form_jacobian():
 
 def test_the_elastic_torque_is_minus_the_potentials_gradient():
     # without damping and friction, tau = -dU/dq with U = k/2 sum_k depth_k^2, the depths from
-    # regions.link_heights (the clearance kernel: no Jacobian, no Pinocchio)
+    # ur5kin.link_heights (the clearance kernel: no Jacobian, no Pinocchio)
     task = TaskSpec(**COMPLIANT, contact_damping=0.0, contact_friction=0.0)
     contact = PlaneContact(task, ur5kin.load_model())
 
     def potential(q: np.ndarray) -> float:
-        depth = np.maximum(task.plane_margin - regions.link_heights(q, task.base_height)[1:], 0)
+        depth = np.maximum(task.plane_margin - ur5kin.link_heights(q, task.base_height)[1:], 0)
         return 0.5 * task.contact_stiffness * float(depth @ depth)
 
     qs, _ = contact_states(task, 30, seed=1)
@@ -222,7 +216,7 @@ def test_no_link_ends_a_step_deeper_than_the_bound(region, n_joints):
         dyn = ArmDynamics(task, 8)
         commands = np.random.default_rng(seed).uniform(-np.pi, np.pi, (120, 8, n_joints))
         log = run(dyn, commands)
-        heights = regions.link_heights(log["q"], task.base_height)[..., 1:].min(axis=-1)
+        heights = ur5kin.link_heights(log["q"], task.base_height)[..., 1:].min(axis=-1)
         assert heights.min() >= task.plane_margin - depth - 1e-12
         assert np.all(log["v"][log["depth_stop"]] == 0.0)
         if depth == 0.02:

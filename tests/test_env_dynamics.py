@@ -1,7 +1,7 @@
 """The arm's physics (envs.dynamics), checked against Pinocchio and first principles.
 
 The plane checks use ``arm_geometry.brute_force_heights``: Pinocchio's geometry placements (oMg)
-applied to the URDF's collision meshes, with none of regions.clearance's closed forms.
+applied to the URDF's collision meshes, with none of ur5kin.collision's closed forms.
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ import pinocchio as pin
 import pytest
 from arm_geometry import brute_force_heights
 
-import regions
 import ur5kin
 from envs.dynamics import ArmDynamics, height_lipschitz
 from envs.spec import TaskSpec
@@ -186,7 +185,7 @@ def test_the_clearance_bound_holds():
     rng = np.random.default_rng(5)
     q = rng.uniform(-np.pi, np.pi, (4000, 6))
     q2 = q + rng.uniform(-0.1, 0.1, q.shape)
-    dz = np.abs(regions.link_heights(q2, 0.1) - regions.link_heights(q, 0.1))[:, 1:]
+    dz = np.abs(ur5kin.link_heights(q2, 0.1) - ur5kin.link_heights(q, 0.1))[:, 1:]
     bound = np.abs(q2 - q) @ R
     assert np.all(dz <= bound + 1e-12)
     assert (dz / np.maximum(bound, 1e-12)).max() > 0.3  # and it is not vacuous

@@ -1,4 +1,5 @@
-"""The task specification: defaults from DESIGN.md, JSON round trips, errors at construction."""
+"""The task specification: defaults from DESIGN.md, JSON round trips, errors at construction,
+and the physics checks that construction leaves to :func:`envs.checks.validate`."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import dataclasses
 import json
 import math
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -13,8 +16,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import regions
-from envs.dynamics import joint_inertia_bounds, pd_gains
-from envs.spec import DEFAULT_KD, DEFAULT_KP, TaskSpec
+from envs.checks import validate
+from envs.dynamics import ArmDynamics
+from envs.gains import DEFAULT_KD, DEFAULT_KP, joint_inertia_bounds, pd_gains
+from envs.reach import UR5ReachEnv
+from envs.spec import TaskSpec
 
 
 def test_defaults_are_the_papers_task():
@@ -106,18 +112,54 @@ BAD_FIELDS = [
     ({"kd": (0.0,) * 6}, "kd"),
     ({"region": "nowhere"}, "nowhere"),
     ({"region": 3}, "region"),
-    ({"start_q": (0.0, math.pi / 2, 0.0, 0.0, 0.0, 0.0)}, "plane"),  # the arm points down
-    ({"start_q": (0.0, -1.0, 4.0, 0.0, 0.0, 0.0)}, "start_q[2]"),  # elbow beyond pi
     ({"start_q": (0.0, 0.0)}, "start_q"),
+]
+
+UNRUNNABLE = [
+    ({"start_q": (0.0, math.pi / 2, 0.0, 0.0, 0.0, 0.0)}, "plane"),  # the arm points down
+    ({"start_q": (0.0, -1.0, 7.0, 0.0, 0.0, 0.0)}, "start_q[2]"),  # elbow beyond 2 pi
     ({"kd": tuple(100 * k for k in DEFAULT_KD)}, "unstable"),
     ({"sim_hz": 100, "control_hz": 50}, "unstable"),
 ]
+"""Tasks that are well-formed records but that the robot cannot run."""
 
 
 @pytest.mark.parametrize(("fields", "message"), BAD_FIELDS)
 def test_invalid_values_raise_at_construction_naming_the_field(fields, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         TaskSpec(**fields)
+
+
+@pytest.mark.parametrize(("fields", "message"), UNRUNNABLE)
+def test_unrunnable_tasks_are_records_that_validate_and_the_dynamics_refuse(fields, message):
+    task = TaskSpec(**fields)  # a record: reading it checks no physics
+    assert TaskSpec.from_json(task.to_json()) == task
+    for check in (validate, ArmDynamics, lambda t: UR5ReachEnv(spec=t)):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            check(task)
+
+
+def test_runnable_tasks_pass_validate_unchanged():
+    for region in regions.names():
+        task = TaskSpec(region=region)
+        assert validate(task) is task
+
+
+def test_reading_a_task_loads_neither_pinocchio_nor_torch_nor_the_inertias():
+    # a fresh interpreter: this one has loaded everything already
+    code = (
+        "import sys\n"
+        "from envs.spec import TaskSpec\n"
+        "for region in ('unconstrained', 'zheight', 'closebox', 'farbox', 'farbox_tall'):\n"
+        "    task = TaskSpec(region=region, n_joints=4, goal_sampler='cartesian')\n"
+        "    assert TaskSpec.from_json(task.to_json()) == task\n"
+        "import envs.gains\n"
+        "print(sorted(m for m in ('pinocchio', 'torch') if m in sys.modules),\n"
+        "      envs.gains.joint_inertia_bounds.cache_info().currsize)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.split() == ["[]", "0"]
 
 
 def test_unknown_fields_are_named_with_the_valid_ones():

@@ -8,8 +8,8 @@ import warnings
 import gymnasium
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 from arm_geometry import brute_force_heights
+from gymnasium.utils.env_checker import check_env
 
 import envs
 import regions
@@ -267,7 +267,7 @@ def test_1e5_random_steps_keep_the_arm_above_the_plane():
     q = np.array(angles)
     assert np.all(np.isfinite([t[6]["observation"] for t in transitions]))
     assert brute_force_heights(q[::10], task.base_height).min() >= -1e-9
-    assert regions.link_heights(q, task.base_height)[:, 1:].min() >= -1e-12
+    assert ur5kin.link_heights(q, task.base_height)[:, 1:].min() >= -1e-12
 
 
 def test_make_vec_builds_the_batched_env_and_copies_match_single_envs():

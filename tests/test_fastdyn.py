@@ -1,7 +1,7 @@
 """The compiled batched dynamics (envs.fastdyn), checked against Pinocchio and ArmDynamics.
 
 Two paths everywhere: the kernel's ABA and gravity against ``pin.aba`` /
-``pin.computeGeneralizedGravity`` row by row, its plane check against regions.link_heights and
+``pin.computeGeneralizedGravity`` row by row, its plane check against ur5kin.link_heights and
 the brute-force mesh check of test_env_dynamics, its tool position against ur5kin.fk, and whole
 control steps against ArmDynamics (Pinocchio in a Python loop, numpy stops).
 """
@@ -11,10 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from test_env_dynamics import brute_force_heights
+from arm_geometry import brute_force_heights
 
 import envs
-import regions
 import ur5kin
 from envs import fastdyn
 from envs.batched import make_dynamics
@@ -84,7 +83,7 @@ def test_the_chain_is_read_from_pinocchio():
 def test_plane_heights_are_regions_and_the_meshes():
     q = np.random.default_rng(3).uniform(-np.pi, np.pi, (300, 6))
     heights = fastdyn.link_heights(q, 0.5)
-    np.testing.assert_allclose(heights, regions.link_heights(q, 0.5)[:, 1:], atol=1e-12)
+    np.testing.assert_allclose(heights, ur5kin.link_heights(q, 0.5)[:, 1:], atol=1e-12)
     np.testing.assert_allclose(heights[:40].min(axis=1), brute_force_heights(q[:40], 0.5),
                                atol=1e-9)
 

@@ -30,7 +30,7 @@ def _check_batch(batch: regions.GoalBatch, region: regions.Region, n_joints: int
     assert region.contains(batch.goals).all()
     reached = ur5kin.fk(batch.q) + np.array([0.0, 0.0, H])
     assert np.abs(reached - batch.goals).max() < 1e-9
-    assert regions.plane_clear(batch.q, H).all()
+    assert ur5kin.plane_clear(batch.q, H).all()
     # Held joints stay at the start; moving joints stay in [-pi, pi].
     np.testing.assert_array_equal(batch.q[:, n_joints:], np.broadcast_to(
         np.asarray(start)[n_joints:], (n, 6 - n_joints)))
@@ -87,7 +87,7 @@ def test_joint_space_acceptance_matches_a_direct_count() -> None:
     q = np.tile(np.asarray(CONSTRAINED_START), (200_000, 1))
     q[:, :3] = np.random.default_rng(4).uniform(-np.pi, np.pi, (200_000, 3))
     goals = ur5kin.fk(q) + np.array([0.0, 0.0, H])
-    direct = np.mean(region.contains(goals) & regions.plane_clear(q, H))
+    direct = np.mean(region.contains(goals) & ur5kin.plane_clear(q, H))
     sigma = np.sqrt(direct * (1 - direct) / 3000) * 4
     assert batch.acceptance == pytest.approx(direct, abs=sigma)
 

@@ -239,6 +239,28 @@ def test_subchain_moves_only_the_first_joints() -> None:
         chain.full(np.zeros(4))
 
 
+def test_world_transform_is_pinocchio_with_the_base_lifted() -> None:
+    # second path: Pinocchio's own placement of base_link at (0, 0, h) in a world frame
+    h = 0.37
+    model = ur5kin.load_model()
+    data = model.createData()
+    frame = model.getFrameId(ur5kin.TOOL_FRAME)
+    world_M_base = pin.SE3(np.eye(3), np.array([0.0, 0.0, h]))
+    q = np.random.default_rng(11).uniform(-np.pi, np.pi, (20, 6))
+    expected = []
+    for qi in q:
+        pin.framesForwardKinematics(model, data, qi)
+        expected.append((world_M_base * data.oMf[frame]).translation)
+    np.testing.assert_allclose(ur5kin.fk_world(q, h), expected, atol=1e-12)
+    np.testing.assert_allclose(ur5kin.to_base(ur5kin.fk_world(q, h), h), ur5kin.fk(q),
+                               atol=1e-12)
+    out = ur5kin.fk(q)
+    assert ur5kin.to_world(out, h, out=out) is out
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    with pytest.raises(ValueError, match="base_height"):
+        ur5kin.to_world(out, -0.1)
+
+
 @pytest.mark.parametrize("func", [ur5kin.fk, ur5kin.fk_pose, ur5kin.jacobian, ur5kin.link_poses])
 def test_bad_joint_input_raises(func) -> None:
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 6\).*got shape \(5,\)"):

@@ -1,50 +1,40 @@
-"""UR5 kinematics on Pinocchio: forward kinematics, Jacobians and analytic inverse kinematics.
+"""UR5 kinematics on Pinocchio: forward kinematics, Jacobians, analytic inverse kinematics, and
+the arm's collision geometry with its clearance above the ground plane.
 
-Every quantity is in the robot's ``base_link`` frame, SI units (m, rad); the end effector is the
-URDF frame ``tool0``. ``q`` is ``(..., 6)``: shoulder_pan, shoulder_lift, elbow, wrist_1, wrist_2,
-wrist_3. In this URDF all zeros stretches the arm along +x and a negative shoulder_lift raises it.
+Every kinematic quantity is in the robot's ``base_link`` frame, SI units (m, rad); the end
+effector is the URDF frame ``tool0``. ``q`` is ``(..., 6)``: shoulder_pan, shoulder_lift, elbow,
+wrist_1, wrist_2, wrist_3. In this URDF all zeros stretches the arm along +x and a negative
+shoulder_lift raises it. The task world puts the base at (0, 0, ``base_height``)
+(:mod:`ur5kin.world`: :func:`to_world`, :func:`fk_world`, :func:`link_heights`).
+
+Names load on first use (PEP 562), so that ``import ur5kin.world`` or ``ur5kin.checks`` does not
+load Pinocchio.
 
 >>> import ur5kin
 >>> ur5kin.fk([0, 0, 0, 0, 0, 0]).round(4)
 array([ 0.8173,  0.1914, -0.0055])
 """
 
-from ur5kin.ik import ik, ik_position, wrap
-from ur5kin.kinematics import fk, fk_pose, fk_torch, jacobian, link_poses
-from ur5kin.model import (
-    BASE_FRAME,
-    JOINT_NAMES,
-    LINK_NAMES,
-    TOOL_FRAME,
-    UR5Geometry,
-    effort_limits,
-    geometry,
-    load_model,
-    resolve_package_uri,
-    urdf_path,
-    velocity_limits,
-)
-from ur5kin.subchain import SubChain
+from __future__ import annotations
 
-__all__ = [
-    "BASE_FRAME",
-    "JOINT_NAMES",
-    "LINK_NAMES",
-    "TOOL_FRAME",
-    "SubChain",
-    "UR5Geometry",
-    "effort_limits",
-    "fk",
-    "fk_pose",
-    "fk_torch",
-    "geometry",
-    "ik",
-    "ik_position",
-    "jacobian",
-    "link_poses",
-    "load_model",
-    "resolve_package_uri",
-    "urdf_path",
-    "velocity_limits",
-    "wrap",
-]
+from ur5kin.lazy import lazy_attributes
+
+_EXPORTS: dict[str, str] = {
+    **dict.fromkeys(("ik", "ik_position", "wrap"), "ur5kin.analytic_ik"),
+    **dict.fromkeys(("fk", "fk_pose", "fk_torch", "fk_world", "jacobian", "link_poses"),
+                    "ur5kin.kinematics"),
+    **dict.fromkeys(("BASE_FRAME", "JOINT_LIMIT", "JOINT_NAMES", "LINK_NAMES", "TOOL_FRAME",
+                     "UR5Geometry", "effort_limits", "geometry", "load_model",
+                     "resolve_package_uri", "urdf_path", "velocity_limits"), "ur5kin.model"),
+    "SubChain": "ur5kin.subchain",
+    **dict.fromkeys(("capsule_heights", "collision_geometry", "link_heights", "plane_clear"),
+                    "ur5kin.collision"),
+    **dict.fromkeys(("DEFAULT_BASE_HEIGHT", "check_base_height", "height_to_world", "to_base",
+                     "to_world"), "ur5kin.world"),
+}
+"""Public name -> the module that defines it."""
+
+__all__ = sorted(_EXPORTS)
+
+
+__getattr__, __dir__ = lazy_attributes(__name__, _EXPORTS)

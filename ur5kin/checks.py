@@ -6,6 +6,10 @@ from typing import Any
 
 import numpy as np
 
+MOVING_JOINTS_RANGE = (1, 6)
+"""Fewest and most moving joints of a sub-chain (joints 1..n move; the task itself uses 2..6,
+:data:`envs.spec.N_JOINTS_RANGE`)."""
+
 ROTATION_TOL = 1e-6
 """Largest deviation of ``R^T R`` from the identity, and of ``det R`` from 1, accepted in a pose."""
 
@@ -54,6 +58,14 @@ def joint_array(q: Any, name: str = "q", n: int = 6, what: str = "joint angles i
         raise ValueError(f"{name} must have shape (..., {n}) ({describe}); got shape {arr.shape}")
     check_finite(arr, name)
     return arr
+
+
+def joint_count(n: Any, name: str = "n_joints") -> int:
+    """Return ``n`` as an int in :data:`MOVING_JOINTS_RANGE`, or raise ``ValueError``."""
+    lo, hi = MOVING_JOINTS_RANGE
+    if isinstance(n, bool | np.bool_) or not isinstance(n, int | np.integer) or not lo <= n <= hi:
+        raise ValueError(f"{name} must be an integer in {lo}..{hi} (joints 1..n move); got {n!r}")
+    return int(n)
 
 
 def check_finite(arr: np.ndarray, name: str) -> None:

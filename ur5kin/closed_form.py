@@ -193,22 +193,29 @@ def jacobian_from_poses(poses: Any) -> Any:
     return xp.concatenate([xp.swapaxes(linear, -1, -2), xp.swapaxes(axes, -1, -2)], axis=-2)
 
 
-def chunked(func: Any, q: Any, out_tail: tuple[int, ...]) -> Any:
+def chunked(func: Any, q: Any, out_tail: tuple[int, ...], block: int | None = None,
+            dtype: Any = None) -> Any:
     """Apply a batched ``func`` to ``q (..., 6)`` in cache-sized blocks of rows.
 
-    numpy arrays go in blocks of :data:`CHUNK` rows, CPU tensors in blocks of
-    :data:`TORCH_CPU_CHUNK`; GPU tensors in one piece.
+    numpy arrays go in blocks of ``block`` rows (:data:`CHUNK` by default), CPU tensors in
+    blocks of :data:`TORCH_CPU_CHUNK`; GPU tensors in one piece. The output has ``q``'s dtype
+    unless ``dtype`` is given (numpy only: a boolean answer, for instance).
     """
     xp = array_module(q)
     flat = q.reshape(-1, q.shape[-1])
     on_cpu = xp is np or flat.device.type == "cpu"
-    block = (CHUNK if xp is np else TORCH_CPU_CHUNK) if on_cpu else len(flat)
+    if not on_cpu:
+        block = len(flat)
+    elif xp is not np:
+        block = TORCH_CPU_CHUNK
+    elif block is None:
+        block = CHUNK
     if len(flat) <= block:
-        return func(flat).reshape(*q.shape[:-1], *out_tail)
+        return func(flat).reshape((*q.shape[:-1], *out_tail))
     if xp is np:
-        out = np.empty((len(flat), *out_tail), dtype=q.dtype)
+        out = np.empty((len(flat), *out_tail), dtype=q.dtype if dtype is None else dtype)
     else:
         out = xp.empty((len(flat), *out_tail), dtype=q.dtype, device=q.device)
     for start in range(0, len(flat), block):
         out[start : start + block] = func(flat[start : start + block])
-    return out.reshape(*q.shape[:-1], *out_tail)
+    return out.reshape((*q.shape[:-1], *out_tail))

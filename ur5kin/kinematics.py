@@ -17,6 +17,7 @@ import pinocchio as pin
 from ur5kin import closed_form
 from ur5kin.checks import check_finite, joint_array
 from ur5kin.model import TOOL_FRAME, load_model
+from ur5kin.world import to_world
 
 _local = threading.local()
 
@@ -93,6 +94,21 @@ def fk(q: Any) -> Any:
         propagating NaN or dropping an imaginary part.
     """
     return _dispatch(q, closed_form.position, (3,), _single_position)
+
+
+def fk_world(q: Any, base_height: float) -> np.ndarray:
+    """Position of tool0 in the task world (base at (0, 0, ``base_height``), :mod:`ur5kin.world`).
+
+    Parameters
+    ----------
+    q : (..., 6) float array_like, rad
+    base_height : float, m
+
+    Returns
+    -------
+    p : (..., 3) float, m, world frame
+    """
+    return to_world(fk(np.asarray(q, dtype=float)), base_height)
 
 
 def fk_pose(q: Any) -> Any:

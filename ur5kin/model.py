@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import importlib.metadata
+import math
 import pathlib
 from dataclasses import dataclass
 
@@ -33,6 +34,11 @@ JOINT_NAMES: tuple[str, ...] = (
     "wrist_3_joint",
 )
 """Joints 1-6, in the order of every ``q`` in this project."""
+
+JOINT_LIMIT = math.pi
+"""Half-width (rad) of the range [-pi, pi] the task's joints live in (DESIGN.md: the action
+range): goals are drawn there and position commands are clipped to it. Every angle once; the
+URDF itself allows [-2 pi, 2 pi]."""
 
 LINK_NAMES: tuple[str, ...] = (
     "base_link",

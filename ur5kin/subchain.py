@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ur5kin.checks import joint_array
+from ur5kin.checks import joint_array, joint_count
 from ur5kin.kinematics import fk, jacobian
 
 
@@ -28,12 +28,11 @@ class SubChain:
     q_rest: tuple[float, ...]
 
     def __post_init__(self) -> None:
-        if not isinstance(self.n_joints, int | np.integer) or not 1 <= self.n_joints <= 6:
-            raise ValueError(f"n_joints must be an integer in 1..6; got {self.n_joints!r}")
+        n_joints = joint_count(self.n_joints)
         rest = joint_array(self.q_rest, "q_rest")
         if rest.shape != (6,):
             raise ValueError(f"q_rest must have shape (6,); got shape {rest.shape}")
-        object.__setattr__(self, "n_joints", int(self.n_joints))
+        object.__setattr__(self, "n_joints", n_joints)
         object.__setattr__(self, "q_rest", tuple(float(x) for x in rest))
 
     def full(self, q_head: Any) -> np.ndarray:

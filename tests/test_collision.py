@@ -1,4 +1,5 @@
-"""Plane clearance: capsules contain the meshes; heights match a brute-force Pinocchio reference."""
+"""ur5kin.collision: capsules contain the meshes; heights match a brute-force Pinocchio
+reference."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import trimesh
 
 import regions
 import ur5kin
-from regions import clearance
+from ur5kin import collision
 
 CAPSULE_SLACK = 0.08
 """Largest allowed gap (m) between a capsule's lowest point and its mesh's: the capsules are
@@ -20,7 +21,7 @@ def _brute_force(q: np.ndarray, base_height: float) -> np.ndarray:
     """Lowest world z of every vertex of each link's collision geometry, via Pinocchio's oMi."""
     model = ur5kin.load_model()
     data = model.createData()
-    links = clearance.collision_geometry()
+    links = collision.collision_geometry()
     out = np.empty((len(q), len(links)))
     for i, qi in enumerate(q):
         pin.forwardKinematics(model, data, qi)
@@ -46,7 +47,7 @@ def reference(configurations: np.ndarray) -> np.ndarray:
 
 
 def test_collision_geometry_comes_from_every_urdf_mesh() -> None:
-    links = clearance.collision_geometry()
+    links = collision.collision_geometry()
     assert [link.name for link in links] == list(ur5kin.LINK_NAMES)
     model = ur5kin.load_model()
     package_root = ur5kin.resolve_package_uri("package://example-robot-data/").parent
@@ -59,7 +60,7 @@ def test_collision_geometry_comes_from_every_urdf_mesh() -> None:
 
 
 def test_capsules_contain_every_collision_vertex() -> None:
-    for link in clearance.collision_geometry():
+    for link in collision.collision_geometry():
         distance = link.capsule.distance(link.vertices)
         assert np.all(distance <= link.capsule.radius), link.name
         # And they are fitted, not loose: some vertex lies within a millimetre of the surface.
@@ -69,25 +70,25 @@ def test_capsules_contain_every_collision_vertex() -> None:
 def test_capsules_contain_the_meshes_surfaces_too() -> None:
     # Points on the hull's triangles, not only its vertices (a capsule is convex: it must hold).
     rng = np.random.default_rng(0)
-    for link in clearance.collision_geometry():
+    for link in collision.collision_geometry():
         hull = trimesh.convex.convex_hull(link.vertices)
         points, _ = trimesh.sample.sample_surface(hull, 2000, seed=rng.integers(1 << 31))
         assert link.capsule.contains(points).all(), link.name
 
 
 def test_height_rows_equal_link_poses(configurations: np.ndarray) -> None:
-    rows = clearance.link_z_rows(configurations)
+    rows = collision.link_z_rows(configurations)
     np.testing.assert_allclose(rows, ur5kin.link_poses(configurations)[..., :7, 2, :],
                                atol=1e-12)
 
 
 def test_link_heights_are_the_exact_mesh_minimum(configurations, reference) -> None:
-    np.testing.assert_allclose(clearance.link_heights(configurations, 0.1), reference,
+    np.testing.assert_allclose(collision.link_heights(configurations, 0.1), reference,
                                atol=1e-12)
 
 
 def test_capsule_heights_are_conservative_and_tight(configurations, reference) -> None:
-    capsule = clearance.capsule_heights(configurations, 0.1)
+    capsule = collision.capsule_heights(configurations, 0.1)
     assert np.all(capsule <= reference + 1e-12)
     assert np.all(reference - capsule <= CAPSULE_SLACK)
 
@@ -97,41 +98,41 @@ def test_plane_clear_is_the_exact_answer(configurations, reference) -> None:
     assert 0.05 < expected.mean() < 0.95  # both answers occur
     # Large batches take the capsule filter; small ones the exact heights directly.
     big = np.tile(configurations, (2, 1))
-    assert len(big) >= clearance.PREFILTER_MIN
-    np.testing.assert_array_equal(clearance.plane_clear(big, 0.1), np.tile(expected, 2))
+    assert len(big) >= collision.PREFILTER_MIN
+    np.testing.assert_array_equal(collision.plane_clear(big, 0.1), np.tile(expected, 2))
     small = configurations[:20]
-    np.testing.assert_array_equal(clearance.plane_clear(small, 0.1), expected[:20])
+    np.testing.assert_array_equal(collision.plane_clear(small, 0.1), expected[:20])
     # A margin is a raised plane.
     raised = reference[:, 1:].min(axis=1) >= 0.05
-    np.testing.assert_array_equal(clearance.plane_clear(big, 0.1, margin=0.05),
+    np.testing.assert_array_equal(collision.plane_clear(big, 0.1, margin=0.05),
                                   np.tile(raised, 2))
 
 
 def test_base_link_is_reported_not_checked() -> None:
     q = np.zeros((1, 6))
-    heights = clearance.link_heights(q, 0.0)
+    heights = collision.link_heights(q, 0.0)
     assert heights[0, 0] < 0.0  # the base mesh reaches 3 mm below base_link
-    assert clearance.plane_clear(q, 0.0)[0] == (heights[0, 1:].min() >= 0.0)
+    assert collision.plane_clear(q, 0.0)[0] == (heights[0, 1:].min() >= 0.0)
 
 
 def test_batch_shapes_are_kept() -> None:
     q = np.zeros((4, 5, 6))
-    assert clearance.link_heights(q, 0.1).shape == (4, 5, 7)
-    assert clearance.capsule_heights(q, 0.1).shape == (4, 5, 7)
-    assert clearance.plane_clear(q, 0.1).shape == (4, 5)
-    assert clearance.plane_clear(np.zeros(6), 0.1).shape == ()
+    assert collision.link_heights(q, 0.1).shape == (4, 5, 7)
+    assert collision.capsule_heights(q, 0.1).shape == (4, 5, 7)
+    assert collision.plane_clear(q, 0.1).shape == (4, 5)
+    assert collision.plane_clear(np.zeros(6), 0.1).shape == ()
 
 
 def test_start_poses_are_clear() -> None:
     starts = np.array([regions.UNCONSTRAINED_START, regions.CONSTRAINED_START])
-    assert clearance.plane_clear(starts, regions.DEFAULT_BASE_HEIGHT).all()
+    assert collision.plane_clear(starts, regions.DEFAULT_BASE_HEIGHT).all()
 
 
 def test_an_arm_pointing_down_is_not_clear() -> None:
     # Shoulder lift +pi/2 turns the stretched arm straight down (a positive lift lowers it).
     q = np.array([0.0, np.pi / 2, 0.0, 0.0, 0.0, 0.0])
-    assert not clearance.plane_clear(q, 0.1)
-    assert clearance.link_heights(q, 0.1)[6] < -0.5
+    assert not collision.plane_clear(q, 0.1)
+    assert collision.link_heights(q, 0.1)[6] < -0.5
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
@@ -141,9 +142,9 @@ def test_an_arm_pointing_down_is_not_clear() -> None:
 ])
 def test_bad_arguments_are_named(kwargs: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
-        clearance.plane_clear(np.zeros(6), **kwargs)
+        collision.plane_clear(np.zeros(6), **kwargs)
 
 
 def test_q_shape_is_checked() -> None:
     with pytest.raises(ValueError, match=r"\(\.\.\., 6\)"):
-        clearance.link_heights(np.zeros((3, 5)), 0.1)
+        collision.link_heights(np.zeros((3, 5)), 0.1)

@@ -1,8 +1,9 @@
-"""Clearance of the UR5's links above the ground plane z = 0 of the task world, batched and fast.
+"""The UR5's collision geometry and its clearance above the ground plane z = 0, batched and fast.
 
-The robot base sits at (0, 0, ``base_height``) of the world, so a point ``p`` of link ``k`` (in
-the link's own frame) lies at world height ``base_height + row_k(q) . [p, 1]``, where ``row_k``
-is the third row of the link's pose in ``base_link``. Two answers are offered:
+The robot base sits at (0, 0, ``base_height``) of the world (:mod:`ur5kin.world`), so a point
+``p`` of link ``k`` (in the link's own frame) lies at world height ``base_height + row_k(q) .
+[p, 1]``, where ``row_k`` is the third row of the link's pose in ``base_link``. Two answers are
+offered:
 
 - :func:`link_heights`: the exact lowest point of each link's URDF collision geometry. The lowest
   point of a mesh is one of its convex-hull vertices, so it is a min over those. Every height is
@@ -35,8 +36,17 @@ import trimesh
 from scipy.optimize import minimize
 from scipy.spatial import ConvexHull
 
-import ur5kin
 from ur5kin.checks import joint_array
+from ur5kin.closed_form import chunked
+from ur5kin.model import (
+    LINK_NAMES,
+    UR5Geometry,
+    geometry,
+    load_model,
+    resolve_package_uri,
+    urdf_path,
+)
+from ur5kin.world import check_base_height, height_to_world
 
 N_LINKS = 7
 """Links checked: base_link, shoulder_link, upper_arm_link, forearm_link, wrist_1..3_link."""
@@ -45,8 +55,8 @@ MOVING_LINKS = slice(1, N_LINKS)
 """Links whose clearance depends on ``q`` (all but the fixed base link): the ones checked."""
 
 CHUNK = 8192
-"""Configurations per block of :func:`link_heights` and :func:`capsule_heights`: bounds the
-``(V, block)`` vertex heights (V = 359) to 24 MB."""
+"""Configurations per block of :func:`link_heights` and :func:`capsule_heights` (through
+:func:`ur5kin.closed_form.chunked`): bounds the ``(V, block)`` vertex heights (V = 359) to 24 MB."""
 
 FILTER_CHUNK = 32768
 """Configurations per block of :func:`plane_clear` on large batches. Its temporaries are
@@ -195,16 +205,16 @@ def collision_geometry() -> tuple[LinkGeometry, ...]:
         base_link .. wrist_3_link, in the order of :data:`ur5kin.LINK_NAMES`. Geometry on links
         fixed to a joint's link (``ee_link``'s box on ``wrist_3_link``) joins that link.
     """
-    model = ur5kin.load_model()
-    package_root = ur5kin.resolve_package_uri("package://example-robot-data/").parent
+    model = load_model()
+    package_root = resolve_package_uri("package://example-robot-data/").parent
     geom = pin.buildGeomFromUrdf(
-        model, str(ur5kin.urdf_path()), pin.GeometryType.COLLISION, package_dirs=[str(package_root)]
+        model, str(urdf_path()), pin.GeometryType.COLLISION, package_dirs=[str(package_root)]
     )
     per_link: list[list[np.ndarray]] = [[] for _ in range(N_LINKS)]
     for obj in geom.geometryObjects:
         per_link[obj.parentJoint].append(_geometry_vertices(obj))
     links = []
-    for name, parts in zip(ur5kin.LINK_NAMES, per_link, strict=True):
+    for name, parts in zip(LINK_NAMES, per_link, strict=True):
         if not parts:
             raise RuntimeError(f"the URDF gives {name} no collision geometry")
         vertices = np.vstack(parts)
@@ -221,7 +231,7 @@ forearm and the wrist (``a = q2 + lift_offset``, ``b = a + q3``, ``c = b + q4 + 
 ``s``/``c`` prefixes their sines/cosines, ``s5, c5, s6, c6`` those of joints 5 and 6."""
 
 
-def _row_coefficients(g: ur5kin.UR5Geometry) -> np.ndarray:
+def _row_coefficients(g: UR5Geometry) -> np.ndarray:
     """Constant ``A (13, 7, 4)`` with ``rows = features @ A`` (rows as in :func:`link_z_rows`).
 
     Written out for the chain of :class:`ur5kin.UR5Geometry`: the shoulder pan turns about z, so
@@ -251,7 +261,7 @@ def _row_coefficients(g: ur5kin.UR5Geometry) -> np.ndarray:
 @functools.cache
 def _angle_offsets() -> tuple[float, float]:
     """Offsets (rad) of the pitches ``a = q2 + lift`` and ``c = q2 + q3 + q4 + lift + wrist``."""
-    g = ur5kin.geometry()
+    g = geometry()
     return g.lift_offset, g.wrist_offset
 
 
@@ -333,7 +343,7 @@ def _stack(blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 @functools.cache
 def _kernels() -> _Kernels:
     """Build the :class:`_Kernels` once from the collision geometry."""
-    A = _row_coefficients(ur5kin.geometry())
+    A = _row_coefficients(geometry())
     links = collision_geometry()
     vertices, witnesses, ends = [], [], np.ones((N_LINKS, 4, 2))
     for k, link in enumerate(links):
@@ -364,35 +374,9 @@ def link_z_rows(q: Any) -> np.ndarray:
         ``base_link``.
     """
     q = joint_array(q)
-    A = _row_coefficients(ur5kin.geometry()).reshape(len(FEATURES), 4 * N_LINKS)
+    A = _row_coefficients(geometry()).reshape(len(FEATURES), 4 * N_LINKS)
     rows = _features(q.reshape(-1, 6)).T @ A
     return rows.reshape(*q.shape[:-1], N_LINKS, 4)
-
-
-def check_base_height(base_height: Any) -> float:
-    """Return ``base_height`` (m) as a float, or raise ``ValueError`` if not finite and >= 0."""
-    try:
-        h = float(base_height)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"base_height must be a number (m); got {base_height!r}") from err
-    if not np.isfinite(h) or h < 0.0:
-        raise ValueError(
-            f"base_height must be a finite height (m) >= 0 of the robot base above the plane; "
-            f"got {base_height!r}"
-        )
-    return h
-
-
-def _blocks(q: np.ndarray, func: Any, tail: tuple[int, ...], dtype: Any = float,
-            chunk: int = CHUNK) -> np.ndarray:
-    """Apply ``func`` to ``q (..., 6)`` in blocks of ``chunk`` rows."""
-    flat = q.reshape(-1, 6)
-    if len(flat) <= chunk:
-        return func(flat).reshape((*q.shape[:-1], *tail))
-    out = np.empty((len(flat), *tail), dtype=dtype)
-    for start in range(0, len(flat), chunk):
-        out[start : start + chunk] = func(flat[start : start + chunk])
-    return out.reshape((*q.shape[:-1], *tail))
 
 
 def _link_minima(heights: np.ndarray, bounds: np.ndarray) -> np.ndarray:
@@ -473,7 +457,7 @@ def link_heights(q: Any, base_height: float) -> np.ndarray:
         When ``q`` is not ``(..., 6)`` finite or ``base_height`` is not a finite number >= 0.
     """
     q = joint_array(q)
-    return _blocks(q, _exact, (N_LINKS,)) + check_base_height(base_height)
+    return height_to_world(chunked(_exact, q, (N_LINKS,), CHUNK), base_height)
 
 
 def capsule_heights(q: Any, base_height: float) -> np.ndarray:
@@ -483,7 +467,7 @@ def capsule_heights(q: Any, base_height: float) -> np.ndarray:
     than the exact heights for large batches. Parameters as :func:`link_heights`.
     """
     q = joint_array(q)
-    return _blocks(q, _capsules, (N_LINKS,)) + check_base_height(base_height)
+    return height_to_world(chunked(_capsules, q, (N_LINKS,), CHUNK), base_height)
 
 
 def plane_clear(q: Any, base_height: float, margin: float = 0.0) -> np.ndarray:
@@ -512,11 +496,11 @@ def plane_clear(q: Any, base_height: float, margin: float = 0.0) -> np.ndarray:
         raise ValueError(f"margin must be a number (m); got {margin!r}") from err
     if not np.isfinite(margin):
         raise ValueError(f"margin must be a finite clearance (m); got {margin!r}")
-    threshold = margin - h
+    threshold = margin - h  # the margin as a height above base_link (ur5kin.world)
 
     def clear(flat: np.ndarray) -> np.ndarray:
         if len(flat) < PREFILTER_MIN:
             return _exact(flat)[:, MOVING_LINKS].min(axis=-1) >= threshold
         return _clear_filtered(flat, threshold)
 
-    return _blocks(q, clear, (), dtype=bool, chunk=FILTER_CHUNK)
+    return chunked(clear, q, (), FILTER_CHUNK, dtype=bool)
