@@ -89,7 +89,7 @@ class Settings:
 def start_for(region_name: str, choice: str) -> tuple[float, ...]:
     """Start configuration (rad) of a region's rows.
 
-    ``paper``: DESIGN.md's choice, the zero start for ``unconstrained`` and the constrained
+    ``paper``: docs/design.md's choice, the zero start for ``unconstrained`` and the constrained
     start for every other region (user regions included).
     """
     if choice == "paper":
@@ -230,7 +230,7 @@ def format_table(study: Study, settings: Settings) -> str:
         "mean dist: from the start's tool0 to the goals; start in: the start's tool0 lies in the "
         "region",
         "start: zero = " + str(list(regions.UNCONSTRAINED_START)) + ", constrained = "
-        + "[0, -pi/4, pi/2, 0, 0, 0] rad (DESIGN.md open point 1)",
+        + "[0, -pi/4, pi/2, 0, 0, 0] rad (docs/design.md open point 1)",
         f"base height {settings.base_height} m; seed {settings.seed}; "
         f"{study.seconds:.1f} s",
     ]
@@ -400,7 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--start", choices=START_CHOICES, default=d.start,
                         help="start pose of the rows: paper = zero start [0,0,0,0,0,0] rad for "
                         "'unconstrained' and the constrained start [0,-pi/4,pi/2,0,0,0] rad for "
-                        "every other region (DESIGN.md); zero or constrained for all")
+                        "every other region (docs/design.md); zero or constrained for all")
     parser.add_argument("--sampler", choices=SAMPLER_CHOICES, default=d.sampler,
                         help="sampler of the acceptance and distance columns: joint_space = the "
                         "paper's (accepted / uniform joint samples); cartesian = uniform in the "

@@ -1,4 +1,4 @@
-"""DDPG + Hindsight Experience Replay in PyTorch (see ../shared/DESIGN.md).
+"""DDPG + Hindsight Experience Replay in PyTorch (see docs/design.md).
 
 K independent agents train in one process through stacked networks; ``python -m
 ddpg_her.train`` runs the paper's protocol, and `load` returns a trained policy for analysis.

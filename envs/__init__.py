@@ -1,4 +1,4 @@
-"""The UR5 Reacher as Gymnasium environments (see ../shared/DESIGN.md).
+"""The UR5 Reacher as Gymnasium environments (see docs/design.md).
 
 Importing the package registers :data:`ENV_IDS`; the env classes load on first use (PEP 562),
 so that ``import envs.spec`` (reading a task) loads neither Pinocchio nor torch.

@@ -55,7 +55,7 @@ def make_task(spec: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str,
 class UR5ReachEnv(gymnasium.Env):
     """Move the UR5's end effector (``tool0``) to a goal drawn from a goal constraint region.
 
-    The paper's task (Lewis, Moll, Kavraki 2019; DESIGN.md): a UR5 on an impermeable ground
+    The paper's task (Lewis, Moll, Kavraki 2019; docs/design.md): a UR5 on an impermeable ground
     plane, joints 1..n under a 50 Hz controller, a new goal every episode. Every number below
     is a field of the task (:class:`envs.TaskSpec`, ``env.unwrapped.task``); the tables give
     the defaults. World frame: ground plane z = 0, robot base at (0, 0, ``base_height`` = 0.1 m),

@@ -5,7 +5,7 @@ construction, and round-trips through JSON (:meth:`TaskSpec.to_json` / :meth:`Ta
 It is a plain record: construction checks types, ranges and choices only, and loads neither
 Pinocchio nor meshes. Whether the robot can run the task (start pose within the URDF limits and
 clear of the plane, stable gains) is :func:`envs.checks.validate`, which the env calls.
-The defaults are DESIGN.md's table (the paper's task); every choice the paper leaves open is a
+The defaults are docs/design.md's table (the paper's task); every choice the paper leaves open is a
 field here, with its reason in the field's docstring.
 
 >>> from envs.spec import TaskSpec
@@ -50,14 +50,14 @@ REWARD_TYPES = ("dense", "sparse")
 """``dense``: the paper's eq. 2; ``sparse``: its success term alone."""
 
 ACTION_PENALTY_UNITS = ("command", "actor")
-"""How eq. 2's ``|a|^2`` reads the action a (the paper gives no unit; DESIGN.md open point 5).
+"""How eq. 2's ``|a|^2`` reads the action a (the paper gives no unit; docs/design.md open point 5).
 ``command``: in the command's own unit, rad^2 in position mode (the literal reading, ours so far);
 ``actor``: in the actor's unit, each joint divided by its command bound (``a / pi`` in position
 mode), so ``|a|^2 <= n``."""
 
 CONTACT_MODELS = ("stop", "compliant")
-"""How the ground plane acts on the arm (DESIGN.md open point 6; :mod:`envs.dynamics`). ``stop``:
-any plane contact stops the whole arm dead for the rest of the control step (ours so far);
+"""How the ground plane acts on the arm (docs/design.md open point 6; :mod:`envs.dynamics`).
+``stop``: any plane contact stops the whole arm dead for the rest of the control step (ours so far);
 ``compliant``: a penalty contact (spring-damper with Coulomb friction) pushes each link out of the
 plane, so the arm can slide along it, as in Gazebo, where the paper ran."""
 
@@ -70,7 +70,7 @@ GOAL_SAMPLERS = ("joint", "cartesian")
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """Everything that defines one UR5 Reacher task (DESIGN.md), checked at construction.
+    """Everything that defines one UR5 Reacher task (docs/design.md), checked at construction.
 
     Construction checks each field alone (type, range, choice); :func:`envs.checks.validate`
     checks the task against the robot model.
@@ -99,7 +99,7 @@ class TaskSpec:
     start_q: tuple[float, ...] | None = None
     """Start configuration (6 angles, rad) of every episode. ``None`` resolves at construction:
     all zeros for ``unconstrained`` (the paper), else [0, -pi/4, pi/2, 0, 0, 0] (the paper's
-    [0, pi/2, pi/4, 0, 0, 0] read as DESIGN.md's open point 1). Must lie within the URDF joint
+    [0, pi/2, pi/4, 0, 0, 0] read as docs/design.md's open point 1). Must lie within the URDF joint
     limits and clear of the plane (:func:`envs.checks.validate`)."""
 
     base_height: float = DEFAULT_BASE_HEIGHT
@@ -147,7 +147,7 @@ class TaskSpec:
     """Control rate (Hz): one env step lasts 1 / control_hz s (paper: 50 Hz)."""
 
     sim_hz: int = 1000
-    """Integration rate (Hz) of the dynamics; a multiple of ``control_hz`` (DESIGN.md: 1 kHz or
+    """Integration rate (Hz) of the dynamics; a multiple of ``control_hz`` (docs/design.md: 1 kHz or
     finer), so each step is ``sim_hz / control_hz`` semi-implicit Euler substeps."""
 
     kp: tuple[float, ...] = DEFAULT_KP

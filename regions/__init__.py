@@ -1,7 +1,7 @@
 """Goal constraint regions of the UR5 Reacher task, their goal samplers and coverage statistics.
 
 World frame throughout: ground plane z = 0, robot base at (0, 0, base_height), m (see
-DESIGN.md; the transform is :mod:`ur5kin.world`). The paper's regions are registered by name;
+docs/design.md; the transform is :mod:`ur5kin.world`). The paper's regions are registered by name;
 users build their own from a string. The arm's collision geometry and plane clearance belong
 to the robot: :mod:`ur5kin.collision`.
 

@@ -1,6 +1,6 @@
 """The paper's goal constraint regions by name, and the parser of region strings for CLIs.
 
-The numbers are DESIGN.md's table (world frame: ground plane z = 0, robot base at
+The numbers are docs/design.md's table (world frame: ground plane z = 0, robot base at
 (0, 0, base_height)). Users build their own regions from a string (:func:`parse`) without
 editing code.
 """
@@ -18,15 +18,16 @@ from ur5kin.world import DEFAULT_BASE_HEIGHT
 
 UNCONSTRAINED_REGION = "unconstrained"
 """The region whose default start pose is :data:`UNCONSTRAINED_START` (all zeros); every other
-region, user regions included, starts from :data:`CONSTRAINED_START` (DESIGN.md, open point 1)."""
+region, user regions included, starts from :data:`CONSTRAINED_START` (docs/design.md, open
+point 1)."""
 
 UNCONSTRAINED_START = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 """The paper's start configuration (rad) of the unconstrained task: the arm stretched along +x."""
 
 CONSTRAINED_START = (0.0, -math.pi / 4, math.pi / 2, 0.0, 0.0, 0.0)
 """Start configuration (rad) of the constrained tasks: the paper's [0, pi/2, pi/4, 0, 0, 0] read
-as DESIGN.md's open point 1 explains (elbow pi/2, shoulder lift pi/4 upwards, i.e. -pi/4 in this
-URDF); tool0 sits near (0.51, 0.19, 0.15) m in the world (base at 0.1 m), inside zheight,
+as docs/design.md's open point 1 explains (elbow pi/2, shoulder lift pi/4 upwards, i.e. -pi/4
+in this URDF); tool0 sits near (0.51, 0.19, 0.15) m in the world (base at 0.1 m), inside zheight,
 closebox and farbox."""
 
 def default_start(region: str) -> tuple[float, ...]:
@@ -43,7 +44,7 @@ ZHEIGHT_MAX = 0.4
 
 CLOSEBOX_LIMITS = (0.0, 0.9, -0.4, 0.4, 0.0, 0.4)
 """xmin, xmax, ymin, ymax, zmin, zmax (m) of the close box: "0.9 x 0.8 x 0.4 m box that includes
-the robot's base" (placement x in [0, 0.9]: DESIGN.md open point 2)."""
+the robot's base" (placement x in [0, 0.9]: docs/design.md open point 2)."""
 
 FARBOX_LIMITS = (0.5, 0.9, -0.4, 0.4, 0.0, 0.4)
 """Limits (m) of the far box: "0.4 x 0.8 x 0.4 m box 0.5 m along the X-axis from the base"."""

@@ -1,4 +1,4 @@
-"""The task specification: defaults from DESIGN.md, JSON round trips, errors at construction,
+"""The task specification: defaults from docs/design.md, JSON round trips, errors at construction,
 and the physics checks that construction leaves to :func:`envs.checks.validate`."""
 
 from __future__ import annotations

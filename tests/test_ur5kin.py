@@ -88,7 +88,7 @@ def test_known_configurations() -> None:
     zero = ur5kin.fk(np.zeros(6))
     np.testing.assert_allclose(
         zero, [g.upper_arm + g.forearm, g.lateral + g.wrist_3, g.d1 - g.wrist_2], atol=1e-9)
-    # DESIGN.md's constrained start: tool0 near (0.51, 0.19) m, 0.05 m above base_link.
+    # docs/design.md's constrained start: tool0 near (0.51, 0.19) m, 0.05 m above base_link.
     start = ur5kin.fk([0.0, -np.pi / 4, np.pi / 2, 0.0, 0.0, 0.0])
     np.testing.assert_allclose(start, [0.51, 0.19, 0.05], atol=0.01)
     # A negative shoulder lift raises the arm.

@@ -13,13 +13,13 @@ import numpy as np
 import ur5kin
 
 BASE_HEIGHT = 0.1
-"""Height (m) of base_link above the ground plane in the task world (DESIGN.md)."""
+"""Height (m) of base_link above the ground plane in the task world (docs/design.md)."""
 
 START_POSES = {
     "unconstrained start": np.zeros(6),
     "constrained start": np.array([0.0, -np.pi / 4, np.pi / 2, 0.0, 0.0, 0.0]),
 }
-"""The two start configurations of DESIGN.md (rad)."""
+"""The two start configurations of docs/design.md (rad)."""
 
 
 def main(argv: list[str] | None = None) -> None:

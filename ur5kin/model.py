@@ -36,7 +36,7 @@ JOINT_NAMES: tuple[str, ...] = (
 """Joints 1-6, in the order of every ``q`` in this project."""
 
 JOINT_LIMIT = math.pi
-"""Half-width (rad) of the range [-pi, pi] the task's joints live in (DESIGN.md: the action
+"""Half-width (rad) of the range [-pi, pi] the task's joints live in (docs/design.md: the action
 range): goals are drawn there and position commands are clipped to it. Every angle once; the
 URDF itself allows [-2 pi, 2 pi]."""
 
