@@ -17,6 +17,7 @@ import shlex
 from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("ur5kin", "regions", "envs", "ddpg_her", "analysis")
@@ -67,9 +68,10 @@ def load(target: str) -> ModuleType:
 
 
 class _Caught(Exception):
-    def __init__(self, parser: argparse.ArgumentParser) -> None:
+    def __init__(self, parser: argparse.ArgumentParser, args: Any = None) -> None:
         super().__init__(parser.prog)
         self.parser = parser
+        self.args = args
 
 
 @contextlib.contextmanager
@@ -77,7 +79,7 @@ def _catch_parsers() -> Iterator[None]:
     original = argparse.ArgumentParser.parse_args
 
     def catch(self, *args, **kwargs):
-        raise _Caught(self)
+        raise _Caught(self, args[0] if args else kwargs.get("args"))
 
     argparse.ArgumentParser.parse_args = catch  # type: ignore[method-assign]
     try:
@@ -95,6 +97,20 @@ def parser_of(target: str) -> argparse.ArgumentParser:
         except _Caught as caught:
             return caught.parser
     raise AssertionError(f"{target}: main() returned without calling parse_args")
+
+
+def parse_as_main(target: str, argv: list[str]) -> argparse.Namespace:
+    """Parse ``argv`` the way ``main(argv)`` of a CLI would, subcommands included (``main``
+    picks the parser and the arguments it gets), without running anything after parsing."""
+    module = load(target)
+    with _catch_parsers():
+        try:
+            module.main(list(argv))
+        except _Caught as caught:
+            parser, args = caught.parser, caught.args
+        else:
+            raise AssertionError(f"{target}: main() returned without calling parse_args")
+    return parser.parse_args(args)
 
 
 def options(parser: argparse.ArgumentParser) -> list[argparse.Action]:

@@ -20,6 +20,7 @@ from cli_tools import (
     example_scripts,
     load,
     options,
+    parse_as_main,
     parser_of,
     split_command,
     takes_a_number,
@@ -196,8 +197,7 @@ def test_every_example_command_runs_or_at_least_parses(where, target, argv, tmp_
             elif target == "analysis.sweep" and "--dry-run" in argv:
                 assert load(target).main(argv) == 0
             else:
-                cut = argv.index("--") if target == "analysis.sweep" and "--" in argv else None
-                parser_of(target).parse_args(argv[:cut])
+                parse_as_main(target, argv)
     except SystemExit as stop:
         error = stderr.getvalue().strip().splitlines()[-1:]
         pytest.fail(f"{where}: python {'-m ' if not target.endswith('.py') else ''}{target} "
