@@ -284,6 +284,34 @@ def command_bounds(task: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
     return -high, high.copy()
 
 
+def put_at_rest(dyn: Any, q: Any, index: Any) -> Any:
+    """The reset every dynamics shares: copies ``index`` of ``dyn`` at rest at ``q``.
+
+    ``dyn`` is :class:`ArmDynamics` or :class:`envs.fastdyn.FastArmDynamics` (the same state
+    arrays). Returns the selection, so the caller can reset its own state too.
+
+    Raises
+    ------
+    ValueError
+        When a configuration is not clear of the plane by the task's margin.
+    """
+    sel = slice(None) if index is None else index
+    q = np.asarray(q, dtype=float)
+    heights = dyn._link_heights(q)
+    if np.any(heights < dyn.task.plane_margin):
+        raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
+                         f"{heights.min():.4f} m, below the plane margin "
+                         f"{dyn.task.plane_margin} m")
+    dyn.q[sel] = q
+    dyn.v[sel] = 0.0
+    dyn._w[sel] = 0.0
+    dyn.acceleration[sel] = 0.0
+    dyn.contact[sel] = False
+    dyn.limit_stop[sel] = False
+    dyn._clearance[sel] = heights
+    return sel
+
+
 class ArmDynamics:
     """B copies of the UR5 under the task's controller, advanced one control step at a time.
 
@@ -445,21 +473,8 @@ class ArmDynamics:
         ValueError
             When a configuration is not clear of the plane by the task's margin.
         """
-        sel = slice(None) if index is None else index
-        q = np.asarray(q, dtype=float)
-        heights = self._link_heights(q)
-        if np.any(heights < self.task.plane_margin):
-            raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
-                             f"{heights.min():.4f} m, below the plane margin "
-                             f"{self.task.plane_margin} m")
-        self.q[sel] = q
-        self.v[sel] = 0.0
-        self._w[sel] = 0.0
-        self.acceleration[sel] = 0.0
-        self.contact[sel] = False
-        self.limit_stop[sel] = False
+        sel = put_at_rest(self, q, index)
         self.depth_stop[sel] = False
-        self._clearance[sel] = heights
 
     def step(self, command: np.ndarray) -> None:
         """Advance every copy by one control step of ``task.substeps`` substeps.

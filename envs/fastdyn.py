@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
-from envs.dynamics import height_lipschitz
+from envs.dynamics import height_lipschitz, put_at_rest
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -772,20 +772,7 @@ class FastArmDynamics:
         ValueError
             When a configuration is not clear of the plane by the task's margin.
         """
-        sel = slice(None) if index is None else index
-        q = np.asarray(q, dtype=float)
-        heights = self._link_heights(q)
-        if np.any(heights < self.task.plane_margin):
-            raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
-                             f"{heights.min():.4f} m, below the plane margin "
-                             f"{self.task.plane_margin} m")
-        self.q[sel] = q
-        self.v[sel] = 0.0
-        self._w[sel] = 0.0
-        self.acceleration[sel] = 0.0
-        self.contact[sel] = False
-        self.limit_stop[sel] = False
-        self._clearance[sel] = heights
+        sel = put_at_rest(self, q, index)
         self._update_tools(np.arange(self.num_copies)[sel].reshape(-1))
 
     def step(self, command: np.ndarray) -> None:
