@@ -48,6 +48,10 @@ from typing import Any
 
 import numpy as np
 
+from analysis.readings import READINGS as STUDY_READINGS
+from analysis.readings import task_fields
+from ddpg_her.train import task_option
+
 DEFAULT_GAMMA = 0.98
 """The discount of the paper's Table I (and of :class:`ddpg_her.config.AgentConfig`)."""
 
@@ -55,14 +59,14 @@ CONFIDENCE = 0.95
 """Level of the binomial (Wilson score) interval of the shares."""
 
 READINGS: dict[str, dict[str, Any]] = {
-    "ours": {},
-    "actor_penalty": {"action_penalty_unit": "actor"},
-    "compliant": {"contact_model": "compliant"},
+    name: task_fields(reading.args) for name, reading in STUDY_READINGS.items()
+    if not reading.args or task_fields(reading.args)
 }
-"""Named readings of the paper's unstated choices (issue 13): TaskSpec fields over the defaults.
-``ours`` is the code's default (rad^2 action penalty, stopping contact); ``actor_penalty`` reads
-eq. 2's ``|a|^2`` in the actor's units ``(a / pi)^2``; ``compliant`` uses a compliant ground
-contact (needs the ``contact_model`` field)."""
+"""The sensitivity study's readings (:data:`analysis.readings.READINGS`) that change the task,
+as TaskSpec fields over the defaults: ``ours`` (rad^2 action penalty, stopping contact),
+``actor_penalty`` (eq. 2's ``|a|^2`` in the actor's units ``(a / pi)^2``), ``compliant`` (the
+compliant ground contact). Readings of the agent alone (exploration, warm-up) leave the
+diagnostic unchanged and are left out."""
 
 EVALUATION_FIELDS = ("reward_type", "distance_weight", "action_weight", "action_penalty_unit",
                      "success_reward", "success_radius", "terminate_on_success")
@@ -784,18 +788,6 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
     plt.close(fig)
 
 
-def _task_option(text: str) -> tuple[str, Any]:
-    import json
-
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value
-
-
 def _gamma(text: str) -> float:
     value = float(text)
     if not 0.0 <= value <= 1.0:
@@ -833,7 +825,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="named readings (TaskSpec fields over the defaults): "
                              + "; ".join(f"{k}={v}" for k, v in READINGS.items())
                              + ". A reading whose field this TaskSpec lacks is skipped")
-    parser.add_argument("--task", type=_task_option, action="append", default=[],
+    parser.add_argument("--task", type=task_option, action="append", default=[],
                         metavar="KEY=VALUE",
                         help="override a TaskSpec field for every setting (VALUE read as JSON, "
                              "else as a string), e.g. --task action_weight=0.5; a reading's "

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import re
 import shlex
 import shutil
 import sys
@@ -35,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis.readings import READINGS, Reading
 from analysis.report import Verdict, claim_settings, judge_claims
 from analysis.runs import CONFIDENCE, PERCENT, Run, aligned_successes, find_runs, mean_ci
 from analysis.sweep import (
@@ -50,54 +50,6 @@ from analysis.sweep import (
 
 # --- readings -----------------------------------------------------------------------------------
 
-
-@dataclass(frozen=True)
-class Reading:
-    """One reading of the paper's unstated choices: extra ``ddpg_her.train`` arguments."""
-
-    name: str
-    """Folder name below the study root: letters, digits, ``_ . -``."""
-    args: tuple[str, ...]
-    """Arguments appended to every ``ddpg_her.train`` command of the reading."""
-    paper: str = ""
-    """What the paper says about the choice (its words where it has any)."""
-    ours: str = ""
-    """The choice this reading makes."""
-
-    def __post_init__(self) -> None:
-        if not READING_NAME.fullmatch(self.name):
-            raise ValueError(f"reading name {self.name!r} must match {READING_NAME.pattern} "
-                             "(it names a folder)")
-
-
-READING_NAME = re.compile(r"[A-Za-z0-9_.-]+")
-"""Allowed reading names."""
-
-READINGS: dict[str, Reading] = {r.name: r for r in (
-    Reading("ours", (),
-            paper="eq. 2: R = -|fk - goal| - |a|^2 + 100 * 1{reached}, a the desired absolute "
-                  "joint angles, no unit; Table I: exploration rate nu = 0.01, undefined; no "
-                  "warm-up stated; contact with the plane not described (ROS/Gazebo)",
-            ours="the defaults: |a|^2 in rad^2 with weight 1; Gaussian noise of std 0.01 in "
-                 "actor units (0.031 rad); 100 warm-up episodes of random actions; any plane "
-                 "contact stops the arm for the rest of the control step"),
-    Reading("actor_penalty", ("--task", "action_penalty_unit=actor"),
-            paper="eq. 2's -|a|^2 with a the absolute joint angles; no unit or scale given",
-            ours="|a|^2 in the actor's units, (a / pi)^2 per joint (a tenth of the rad^2 "
-                 "penalty); all else the defaults"),
-    Reading("compliant", ("--task", "contact_model=compliant"),
-            paper="an impermeable plane, simulated with ROS (Gazebo, whose contact is "
-                  "compliant: the arm is pushed out and slides)",
-            ours="a compliant penalty contact through the link Jacobians (the arm slides "
-                 "along the plane), impermeable to a stated depth; all else the defaults"),
-    Reading("gauss02_nowarmup",
-            ("--exploration", "gaussian", "--exploration-rate", "0.2", "--warmup-episodes", "0"),
-            paper="Table I: exploration rate nu = 0.01, its meaning not stated; no warm-up "
-                  "stated",
-            ours="Gaussian noise of std 0.2 in actor units (0.63 rad), no warm-up episodes; "
-                 "all else the defaults"),
-)}
-"""The study's built-in readings, in report order: ours today and one change each."""
 
 SETTINGS: tuple[tuple[str, int], ...] = (
     ("unconstrained", 2), ("unconstrained", 3), ("zheight", 3), ("closebox", 3), ("farbox", 6))

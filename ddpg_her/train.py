@@ -55,7 +55,8 @@ def _same(a: Any, b: Any) -> bool:
     return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 
-def _task_option(text: str) -> tuple[str, Any]:
+def task_option(text: str) -> tuple[str, Any]:
+    """One ``--task KEY=VALUE``: VALUE read as JSON, else kept as a string."""
     key, sep, value = text.partition("=")
     if not sep or not key.isidentifier():
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
@@ -107,7 +108,7 @@ def make_parser() -> argparse.ArgumentParser:
                       metavar=f"{{{lo}..{hi}}}",
                       help=f"controlled joints n, {lo}..{hi}; joints 1..n move (default: "
                            f"{DEFAULT_JOINTS}, or the --task n_joints=N given)")
-    task.add_argument("--task", type=_task_option, action="append", default=[],
+    task.add_argument("--task", type=task_option, action="append", default=[],
                       metavar="KEY=VALUE",
                       help="override a field of the task specification (VALUE read as JSON, "
                            "else as a string); repeatable, e.g. --task reward_type=sparse; a "

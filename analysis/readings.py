@@ -1,0 +1,67 @@
+"""The readings of the paper's unstated choices: one named set of ``ddpg_her.train`` arguments
+each, in one place for the sensitivity study and the optimality diagnostic (issue 13)."""
+
+from __future__ import annotations
+
+import itertools
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ddpg_her.train import task_option
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One reading of the paper's unstated choices: extra ``ddpg_her.train`` arguments."""
+
+    name: str
+    """Folder name below the study root: letters, digits, ``_ . -``."""
+    args: tuple[str, ...]
+    """Arguments appended to every ``ddpg_her.train`` command of the reading."""
+    paper: str = ""
+    """What the paper says about the choice (its words where it has any)."""
+    ours: str = ""
+    """The choice this reading makes."""
+
+    def __post_init__(self) -> None:
+        if not READING_NAME.fullmatch(self.name):
+            raise ValueError(f"reading name {self.name!r} must match {READING_NAME.pattern} "
+                             "(it names a folder)")
+
+
+READING_NAME = re.compile(r"[A-Za-z0-9_.-]+")
+"""Allowed reading names."""
+
+READINGS: dict[str, Reading] = {r.name: r for r in (
+    Reading("ours", (),
+            paper="eq. 2: R = -|fk - goal| - |a|^2 + 100 * 1{reached}, a the desired absolute "
+                  "joint angles, no unit; Table I: exploration rate nu = 0.01, undefined; no "
+                  "warm-up stated; contact with the plane not described (ROS/Gazebo)",
+            ours="the defaults: |a|^2 in rad^2 with weight 1; Gaussian noise of std 0.01 in "
+                 "actor units (0.031 rad); 100 warm-up episodes of random actions; any plane "
+                 "contact stops the arm for the rest of the control step"),
+    Reading("actor_penalty", ("--task", "action_penalty_unit=actor"),
+            paper="eq. 2's -|a|^2 with a the absolute joint angles; no unit or scale given",
+            ours="|a|^2 in the actor's units, (a / pi)^2 per joint (a tenth of the rad^2 "
+                 "penalty); all else the defaults"),
+    Reading("compliant", ("--task", "contact_model=compliant"),
+            paper="an impermeable plane, simulated with ROS (Gazebo, whose contact is "
+                  "compliant: the arm is pushed out and slides)",
+            ours="a compliant penalty contact through the link Jacobians (the arm slides "
+                 "along the plane), impermeable to a stated depth; all else the defaults"),
+    Reading("gauss02_nowarmup",
+            ("--exploration", "gaussian", "--exploration-rate", "0.2", "--warmup-episodes", "0"),
+            paper="Table I: exploration rate nu = 0.01, its meaning not stated; no warm-up "
+                  "stated",
+            ours="Gaussian noise of std 0.2 in actor units (0.63 rad), no warm-up episodes; "
+                 "all else the defaults"),
+)}
+"""The study's built-in readings, in report order: ours today and one change each."""
+
+
+def task_fields(args: Sequence[str]) -> dict[str, Any]:
+    """The TaskSpec fields that ``ddpg_her.train`` arguments set (their ``--task`` pairs)."""
+    return dict(task_option(value) for flag, value in itertools.pairwise(args)
+                if flag == "--task")
