@@ -758,20 +758,8 @@ class FastArmDynamics:
                     self._tool_pos, float(self.task.base_height), self._tool)
 
     def reset(self, q: Any, index: Any = None) -> None:
-        """Put copies at rest at configurations ``q``.
-
-        Parameters
-        ----------
-        q : (6,) or (m, 6) float, rad
-            Configurations, clear of the plane and within the joint limits.
-        index : None, int, slice, (m,) int or (B,) bool
-            Which copies (all when None).
-
-        Raises
-        ------
-        ValueError
-            When a configuration is not clear of the plane by the task's margin.
-        """
+        """Put copies at rest at configurations ``q`` (as :meth:`envs.dynamics.ArmDynamics.reset`:
+        ``q (6,)`` or ``(m, 6)`` rad, ``index`` the copies; ``ValueError`` below the plane)."""
         sel = put_at_rest(self, q, index)
         self._update_tools(np.arange(self.num_copies)[sel].reshape(-1))
 
