@@ -55,7 +55,7 @@ class SuccessMap:
 def slice_goals(task, count: int, z: tuple[float, float], seed: int) -> np.ndarray:
     """``count`` goals (m, world frame) of ``task``'s sampler, conditioned on the z slice."""
     import regions
-    from envs.core import task_sampler
+    from envs.task import task_sampler
 
     base = task_sampler(task)
     sliced = regions.Intersection((base.region, regions.ZLimit(z[0], z[1], name="slice")),
