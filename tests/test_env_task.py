@@ -111,3 +111,27 @@ def test_sample_goals_draws_each_goal_from_its_own_generator():
     np.testing.assert_array_equal(together, alone)
     assert rules.spec.goal_region.contains(together).all()
     assert len({tuple(g) for g in together}) == 3
+
+
+def test_info_puts_each_value_under_its_key_as_a_copy():
+    """Distinct values per key (so a swapped key shows), copied (so the env's in-place arrays
+    cannot change an info already returned), and one copy's row as Python scalars."""
+    inputs = {"action": np.array([[0.5, -1.0, 2.0], [0.0, 0.1, 0.2]]),
+              "distance": np.array([0.25, 0.05]), "success": np.array([False, True]),
+              "contact": np.array([True, False]), "joint_limit": np.array([False, True]),
+              "clearance": np.array([0.0, 0.3])}
+    info = ReachTask.info(**inputs)
+    assert list(info) == list(INFO_KEYS)
+    renamed = {"is_success": "success"}
+    for key in INFO_KEYS:
+        np.testing.assert_array_equal(info[key], inputs[renamed.get(key, key)])
+    for value in inputs.values():
+        value[...] = 7  # the env overwrites its arrays on the next step
+    assert info["distance"].tolist() == [0.25, 0.05] and info["contact"].tolist() == [True, False]
+    row = ReachTask.copy_info(info, 1)
+    assert row == {"action": row["action"], "distance": 0.05, "is_success": True,
+                   "contact": False, "joint_limit": True, "clearance": 0.3}
+    assert [type(row[k]) for k in SCALAR_TYPES] == list(SCALAR_TYPES.values())
+    np.testing.assert_array_equal(row["action"], [0.0, 0.1, 0.2])
+    row["action"][0] = 9.0
+    assert info["action"][1, 0] == 0.0
