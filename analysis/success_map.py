@@ -60,7 +60,7 @@ def slice_goals(task, count: int, z: tuple[float, float], seed: int) -> np.ndarr
     base = task_sampler(task)
     sliced = regions.Intersection((base.region, regions.ZLimit(z[0], z[1], name="slice")),
                                   name=f"{base.region.name}&z[{z[0]},{z[1]}]")
-    sampler = type(base)(sliced, base.n_joints, base.q_start, base.base_height, base.limits)
+    sampler = type(base)(sliced, base.n_joints, base.start_q, base.base_height, base.limits)
     return sampler.sample(count, np.random.default_rng(seed)).goals
 
 
