@@ -239,9 +239,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=int, default=d.threads,
                         help="CPU threads of the batched env's compiled dynamics")
     parser.add_argument("--reference", type=int, default=int(d.reference), choices=(0, 1),
-                        help="1: also time the batched env on the reference Pinocchio dynamics")
+                        help="switch, 0..1: 1 also times the batched env on the reference "
+                        "Pinocchio dynamics")
     parser.add_argument("--sync", type=int, default=int(d.sync), choices=(0, 1),
-                        help="1: also time Gymnasium's SyncVectorEnv of N single envs")
+                        help="switch, 0..1: 1 also times Gymnasium's SyncVectorEnv of N single "
+                        "envs")
     parser.add_argument("--region", default=d.region,
                         help="goal region of UR5Reach-v0 (a name or region string)")
     parser.add_argument("--n-joints", type=int, default=d.n_joints,

@@ -65,8 +65,9 @@ def test_single_and_batched_infos_match_key_by_key_and_follow_the_rules(terminat
         np.testing.assert_array_equal(obs["desired_goal"], vec_obs["desired_goal"][i])
     rng = np.random.default_rng(1)
     hold = np.asarray(task.start_q[:3])
-    successes = 0
-    for t in range(STEPS):
+    successes, steps = 0, 0
+    for _ in range(STEPS):
+        steps += 1
         actions = rng.uniform(-4.0, 4.0, (COPIES, 3))  # beyond the box: clipping shows in info
         actions[0] = hold
         vec_obs, vec_reward, vec_term, _, vec_info = vec.step(actions)
@@ -81,7 +82,7 @@ def test_single_and_batched_infos_match_key_by_key_and_follow_the_rules(terminat
         if vec_term.any():
             break
     assert successes >= 1  # the success branch was exercised
-    assert (t == 0) == terminate_on_success
+    assert (steps == 1) == terminate_on_success
 
 
 def test_goal_env_functions_are_the_tasks():
