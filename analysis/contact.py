@@ -146,7 +146,7 @@ def _parser() -> argparse.ArgumentParser:
             "goals": "goals per contact model for the reach share",
             "steps": "random-action env steps per round (contact share and cost)",
             "rounds": "interleaved timing rounds; the cost is the median over them",
-            "friction": "Coulomb coefficient mu of the compliant model (dimensionless); "
+            "friction": "Coulomb coefficient mu of the compliant model (dimensionless, >= 0); "
                         "negative: the TaskSpec default",
             "seed": "seed of the goals and the actions",
             "json": "print JSON instead of text"}

@@ -110,7 +110,7 @@ def make_parser() -> argparse.ArgumentParser:
     task.add_argument("--task", type=_task_option, action="append", default=[],
                       metavar="KEY=VALUE",
                       help="override a field of the task specification (VALUE read as JSON, "
-                           "else as a string); repeatable, e.g. --task reward_type=sparse. A "
+                           "else as a string); repeatable, e.g. --task reward_type=sparse; a "
                            "field given twice (also as --region or --joints) must have one "
                            "value")
     task.add_argument("--env-id", default="UR5Reach-v0",
