@@ -27,9 +27,9 @@ import gymnasium
 import numpy as np
 
 import ur5kin
-from envs.core import task_sampler
 from envs.dynamics import ArmDynamics
 from envs.spec import CONTACT_MODELS, TaskSpec
+from envs.task import task_sampler
 
 
 @dataclass(frozen=True)

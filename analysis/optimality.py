@@ -291,7 +291,7 @@ def env_goals(task: Any, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]
     """
     from gymnasium.utils import seeding
 
-    from envs.core import task_sampler
+    from envs.task import task_sampler
 
     sampler = task_sampler(task)
     batches = [sampler.sample(1, seeding.np_random(seed + i)[0]) for i in range(count)]

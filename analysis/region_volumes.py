@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 import regions
 import ur5kin
-from envs.spec import N_JOINTS_RANGE
+from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
 from regions.coverage import (
     DEFAULT_RESOLUTION,
     DEFAULT_SAMPLES,
@@ -44,7 +44,7 @@ from regions.samplers import CartesianSampler, UnreachableRegionError
 START_CHOICES = ("paper", "zero", "constrained")
 """``--start`` values: the paper's per-region choice, or one start for every region."""
 
-SAMPLER_CHOICES = ("joint_space", "cartesian")
+SAMPLER_CHOICES = GOAL_SAMPLERS
 """``--sampler`` values: which sampler fills the acceptance and distance columns."""
 
 CONVERGENCE_RESOLUTIONS = (0.1, 0.07, 0.05, 0.035, 0.025)
@@ -80,7 +80,7 @@ class Settings:
     """Height (m) of the robot base above the plane."""
     start: str = "paper"
     """Start pose: paper (zero for unconstrained, constrained otherwise), zero or constrained."""
-    sampler: str = "joint_space"
+    sampler: str = "joint"
     """Sampler behind goal_acceptance and mean_goal_distance_m."""
     goals: int = 5000
     """Goals drawn per row with --sampler cartesian."""
@@ -101,13 +101,13 @@ def start_for(region_name: str, choice: str) -> tuple[float, ...]:
     raise ValueError(f"start must be one of {START_CHOICES}; got {choice!r}")
 
 
-def start_label(start: Sequence[float]) -> str:
+def start_label(start_q: Sequence[float]) -> str:
     """Short name of a start configuration for the table."""
-    if tuple(start) == regions.UNCONSTRAINED_START:
+    if tuple(start_q) == regions.UNCONSTRAINED_START:
         return "zero"
-    if tuple(start) == regions.CONSTRAINED_START:
+    if tuple(start_q) == regions.CONSTRAINED_START:
         return "constrained"
-    return "[" + ", ".join(f"{x:.3g}" for x in start) + "]"
+    return "[" + ", ".join(f"{x:.3g}" for x in start_q) + "]"
 
 
 def _rng(seed: int, *key: object) -> np.random.Generator:
@@ -117,9 +117,9 @@ def _rng(seed: int, *key: object) -> np.random.Generator:
     return np.random.default_rng([seed, int.from_bytes(digest[:8], "little")])
 
 
-def _workspace_key(n_joints: int, start: Sequence[float]) -> tuple[int, tuple[float, ...]]:
+def _workspace_key(n_joints: int, start_q: Sequence[float]) -> tuple[int, tuple[float, ...]]:
     """Samples depend on the joint count and the held joints n+1..6 only."""
-    return n_joints, tuple(start[n_joints:])
+    return n_joints, tuple(start_q[n_joints:])
 
 
 @dataclass
@@ -146,15 +146,15 @@ def run_study(settings: Settings, progress: bool = True) -> Study:
     keys: dict[tuple[int, tuple[float, ...]], tuple[float, ...]] = {}
     for spec in settings.regions:
         for n in settings.joints:
-            start = start_for(objs[spec].name, settings.start)
-            keys.setdefault(_workspace_key(n, start), start)
+            start_q = start_for(objs[spec].name, settings.start)
+            keys.setdefault(_workspace_key(n, start_q), start_q)
     samples, voxels = {}, {}
     steps = len(keys) + len(settings.regions) * len(settings.joints)
     with tqdm(total=steps, desc="region volumes", disable=not progress, file=sys.stderr) as bar:
-        for key, start in keys.items():
+        for key, start_q in keys.items():
             n = key[0]
             bar.set_postfix_str(f"workspace n={n}")
-            ws = sample_workspace(n, start, settings.base_height, settings.samples,
+            ws = sample_workspace(n, start_q, settings.base_height, settings.samples,
                                   _rng(settings.seed, "workspace", *key))
             samples[key] = ws
             voxels[key] = VoxelWorkspace.from_points(ws.goals[ws.clear], settings.resolution)
@@ -164,17 +164,17 @@ def run_study(settings: Settings, progress: bool = True) -> Study:
             region = objs[spec]
             for n in settings.joints:
                 bar.set_postfix_str(f"{region.name} n={n}")
-                start = start_for(region.name, settings.start)
-                key = _workspace_key(n, start)
-                row = coverage_row(region, samples[key], voxels[key], start)
+                start_q = start_for(region.name, settings.start)
+                key = _workspace_key(n, start_q)
+                row = coverage_row(region, samples[key], voxels[key], start_q)
                 if settings.sampler == "cartesian":
-                    row = _with_cartesian(row, region, start, settings)
+                    row = _with_cartesian(row, region, start_q, settings)
                 rows.append(row)
                 bar.update()
     return Study(rows, samples, objs, time.perf_counter() - t0)
 
 
-def _with_cartesian(row: CoverageRow, region: regions.Region, start: tuple[float, ...],
+def _with_cartesian(row: CoverageRow, region: regions.Region, start_q: tuple[float, ...],
                     settings: Settings) -> CoverageRow:
     """Replace the joint-space acceptance and distance by the Cartesian sampler's.
 
@@ -184,10 +184,10 @@ def _with_cartesian(row: CoverageRow, region: regions.Region, start: tuple[float
     values = {"goal_acceptance": math.nan, "mean_goal_distance_m": math.nan}
     if row.joints >= CartesianSampler.MIN_JOINTS:
         try:
-            sampler = CartesianSampler(region, row.joints, start, settings.base_height)
+            sampler = CartesianSampler(region, row.joints, start_q, settings.base_height)
             batch = sampler.sample(settings.goals, _rng(settings.seed, "cartesian", region.name,
                                                         row.joints))
-            origin = ur5kin.fk_world(start, settings.base_height)
+            origin = ur5kin.fk_world(start_q, settings.base_height)
             values = {"goal_acceptance": batch.reachable_fraction,
                       "mean_goal_distance_m": float(np.linalg.norm(batch.goals - origin,
                                                                    axis=1).mean())}
@@ -210,7 +210,7 @@ def format_table(study: Study, settings: Settings) -> str:
         workspace = f"{_fmt(r.workspace_volume_m3)}±{_fmt(r.workspace_volume_error_m3)}"
         covered = f"{_fmt(r.covered_volume_m3)}±{_fmt(r.covered_volume_error_m3)}"
         lines.append((r.region, str(r.joints) + ("*" if r.workspace_is_surface else ""),
-                      start_label(r.start), volume, workspace, covered,
+                      start_label(r.start_q), volume, workspace, covered,
                       _fmt(r.workspace_fraction), _fmt(r.goal_acceptance, 4),
                       _fmt(r.mean_goal_distance_m), "yes" if r.start_inside else "no"))
     widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
@@ -218,7 +218,7 @@ def format_table(study: Study, settings: Settings) -> str:
     out.append("  ".join("-" * w for w in widths))
     out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) for line in lines]
     sampler = ("joint-space sampler (paper): accepted / uniform joint samples"
-               if settings.sampler == "joint_space" else
+               if settings.sampler == "joint" else
                f"Cartesian sampler: reachable fraction of uniform region points "
                f"({settings.goals} goals per row)")
     out += [
@@ -254,15 +254,15 @@ def convergence(settings: Settings, progress: bool = True) -> list[dict[str, flo
     jobs = [(n, res) for n in settings.joints for res in CONVERGENCE_RESOLUTIONS]
     reference: dict[int, tuple[float, float]] = {}
     for n, res in tqdm(jobs, desc="convergence", disable=not progress, file=sys.stderr):
-        start = start_for("unconstrained", settings.start)
+        start_q = start_for("unconstrained", settings.start)
         if n >= CartesianSampler.MIN_JOINTS and n not in reference:
-            batch = CartesianSampler(ball, n, start, settings.base_height).sample(
+            batch = CartesianSampler(ball, n, start_q, settings.base_height).sample(
                 IK_REFERENCE_GOALS, _rng(settings.seed, "ik-reference", n))
             f = batch.reachable_fraction
             reference[n] = (f * ball.volume,
                             math.sqrt(f * (1 - f) / batch.in_region) * ball.volume)
         count = round(settings.samples * (settings.resolution / res) ** 3)
-        ws = sample_workspace(n, start, settings.base_height, count,
+        ws = sample_workspace(n, start_q, settings.base_height, count,
                               _rng(settings.seed, "convergence", n, res))
         vox = VoxelWorkspace.from_points(ws.goals[ws.clear], res)
         ref, ref_err = reference.get(n, (math.nan, math.nan))
@@ -300,13 +300,13 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     starts: dict[str, list[float]] = {}
     for col, spec in enumerate(names):
         region = study.region_objects[spec]
-        start = start_for(region.name, settings.start)
-        ws = study.samples[_workspace_key(n_joints, start)]
+        start_q = start_for(region.name, settings.start)
+        ws = study.samples[_workspace_key(n_joints, start_q)]
         clear = np.flatnonzero(ws.clear)
         cloud = rng.choice(clear, size=min(PLOT_CLOUD_POINTS, len(clear)), replace=False)
         accepted = clear[region.contains(ws.goals[clear])]
         goals = rng.choice(accepted, size=min(PLOT_GOAL_POINTS, len(accepted)), replace=False)
-        tip = ur5kin.fk_world(start, settings.base_height)
+        tip = ur5kin.fk_world(start_q, settings.base_height)
         starts[region.name] = tip.tolist()
         outlines[region.name] = {}
         for row, (i, j, label) in enumerate(((0, 2, "x-z side"), (0, 1, "x-y top"))):
@@ -402,7 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "'unconstrained' and the constrained start [0,-pi/4,pi/2,0,0,0] rad for "
                         "every other region (docs/design.md); zero or constrained for all")
     parser.add_argument("--sampler", choices=SAMPLER_CHOICES, default=d.sampler,
-                        help="sampler of the acceptance and distance columns: joint_space = the "
+                        help="sampler of the acceptance and distance columns: joint = the "
                         "paper's (accepted / uniform joint samples); cartesian = uniform in the "
                         "region, kept where IK reaches it (acceptance = reachable fraction of the "
                         "region; needs N >= 3)")

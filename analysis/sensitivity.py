@@ -688,8 +688,8 @@ def _add_reading_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reading", type=parse_reading, action="append", default=[],
                         metavar="NAME=ARGS",
                         help="define a reading: ddpg_her.train arguments as one shell-quoted "
-                             "string, e.g. --reading tau01=--tau=0.01 or 'tau01=--tau 0.01'; "
-                             "repeatable")
+                             "string, e.g. --reading tau01=--tau=0.01 (quote ARGS that hold "
+                             "spaces: 'tau01=--tau 0.01'); repeatable")
     parser.add_argument("--readings-file", type=Path, default=None,
                         help="define readings from a JSON or TOML file: {NAME: {args: [...] or "
                              "'...', paper: '...', ours: '...'}}")

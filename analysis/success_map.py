@@ -55,12 +55,12 @@ class SuccessMap:
 def slice_goals(task, count: int, z: tuple[float, float], seed: int) -> np.ndarray:
     """``count`` goals (m, world frame) of ``task``'s sampler, conditioned on the z slice."""
     import regions
-    from envs.core import task_sampler
+    from envs.task import task_sampler
 
     base = task_sampler(task)
     sliced = regions.Intersection((base.region, regions.ZLimit(z[0], z[1], name="slice")),
                                   name=f"{base.region.name}&z[{z[0]},{z[1]}]")
-    sampler = type(base)(sliced, base.n_joints, base.q_start, base.base_height, base.limits)
+    sampler = type(base)(sliced, base.n_joints, base.start_q, base.base_height, base.limits)
     return sampler.sample(count, np.random.default_rng(seed)).goals
 
 

@@ -43,16 +43,17 @@ class Episode:
         return len(self.action)
 
 
-def her_goal_steps(strategy: HERStrategy, length: int, k: int,
+def her_goal_steps(strategy: HERStrategy, length: int, her_k: int,
                    rng: np.random.Generator) -> np.ndarray:
     """Which achieved goals the relabelled copies pursue: indices into ``achieved_goal``, 1..L.
 
-    final: ``[L]``; future: k indices uniform in 1..L; none: empty.
+    final: ``[L]``; future: ``her_k`` indices uniform in 1..L (the config's ``her_k``, not the
+    agent index k of this module); none: empty.
     """
     if strategy is HERStrategy.FINAL:
         return np.array([length])
     if strategy is HERStrategy.FUTURE:
-        return rng.integers(1, length + 1, size=k)
+        return rng.integers(1, length + 1, size=her_k)
     return np.zeros(0, dtype=int)
 
 

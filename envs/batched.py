@@ -15,8 +15,8 @@ from envs import fastdyn
 from envs.core import ReachCore
 from envs.dynamics import ArmDynamics
 from envs.reach import RENDER_MODES, make_task, real_actions
-from envs.reward import compute_reward, compute_success
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
+from envs.task import INFO_KEYS
 
 DYNAMICS = ("auto", "fast", "pinocchio")
 """Values of BatchedReach's ``dynamics`` option: ``fast`` is :class:`envs.fastdyn.
@@ -24,9 +24,6 @@ FastArmDynamics` (one compiled call per step), ``pinocchio`` the reference
 :class:`envs.dynamics.ArmDynamics` (Pinocchio's ``abaInParallel`` in a Python substep loop),
 ``auto`` the fast path for N > 1 where it is available and implements the task, else
 pinocchio."""
-
-INFO_KEYS = ("action", "distance", "is_success", "contact", "joint_limit", "clearance")
-"""Keys of the per-copy step information (each with Gymnasium's ``_key`` mask)."""
 
 
 def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto", threads: int = 1
@@ -98,7 +95,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         their cores with the learner; more pay on many-core hosts at large N).
 
     Observations are the single env's Dict with a leading (N,) axis; ``info`` holds
-    :data:`INFO_KEYS` as (N, ...) arrays, each with a ``_key`` mask.
+    :data:`envs.task.INFO_KEYS` as (N, ...) arrays, each with a ``_key`` mask.
     """
 
     def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
@@ -234,13 +231,12 @@ class BatchedReach(gymnasium.vector.VectorEnv):
     # ------------------------------------------------------------------ GoalEnv functions
     def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
         """The task's reward, vectorised (see :meth:`envs.UR5ReachEnv.compute_reward`)."""
-        return compute_reward(achieved_goal, desired_goal, info, self.task)
+        return self._core.rules.compute_reward(achieved_goal, desired_goal, info)
 
     def compute_terminated(self, achieved_goal: Any, desired_goal: Any, info: Any
                            ) -> np.ndarray:
         """Success, if ``terminate_on_success`` (as :meth:`envs.UR5ReachEnv.compute_terminated`)."""
-        return compute_success(achieved_goal, desired_goal, self.task) & \
-            self.task.terminate_on_success
+        return self._core.rules.compute_terminated(achieved_goal, desired_goal, info)
 
     # ------------------------------------------------------------------ rendering
     def render(self) -> tuple[np.ndarray, ...] | None:

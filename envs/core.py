@@ -2,42 +2,23 @@
 
 The single env (:class:`envs.reach.UR5ReachEnv`, B = 1) and the batched one
 (:class:`envs.batched.BatchedReach`) are thin Gymnasium faces over this one class, so they
-cannot drift apart.
+cannot drift apart. The task's rules (goals, reward, episode end, step information) are
+:class:`envs.task.ReachTask`'s; this class holds the arrays and calls it.
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from typing import Any
 
 import gymnasium
 import numpy as np
 
-import regions
 import ur5kin
 from envs.checks import validate
 from envs.dynamics import ArmDynamics, clip, command_bounds
-from envs.reward import goal_distance, reach_reward
 from envs.spec import TaskSpec
-
-
-@functools.lru_cache(maxsize=64)
-def goal_sampler(region: str, n_joints: int, start_q: tuple[float, ...], base_height: float,
-                 kind: str) -> regions.GoalSampler:
-    """The goal sampler of a task (shared between envs: it is immutable and takes the rng).
-
-    Built once per distinct task, because construction probes the region's acceptance (and
-    raises :class:`regions.UnreachableRegionError` for a region the joints cannot reach).
-    """
-    cls = regions.JointSpaceSampler if kind == "joint" else regions.CartesianSampler
-    return cls(regions.parse(region, base_height), n_joints, start_q, base_height)
-
-
-def task_sampler(task: TaskSpec) -> regions.GoalSampler:
-    """:func:`goal_sampler` for ``task``."""
-    return goal_sampler(task.region, task.n_joints, task.start_q, task.base_height,
-                        task.goal_sampler)
+from envs.task import ReachTask
 
 
 class ReachCore:
@@ -54,6 +35,8 @@ class ReachCore:
 
     Attributes
     ----------
+    rules : ReachTask
+        Goal sampling, reward, termination and the step information of ``task``.
     goal : (B, 3) float, m, world frame
         Desired goals.
     achieved : (B, 3) float, m, world frame
@@ -76,7 +59,7 @@ class ReachCore:
     def __init__(self, task: TaskSpec, num_copies: int, dynamics: Any = None) -> None:
         self.task = validate(task)
         n, B = task.n_joints, num_copies
-        self.sampler = task_sampler(task)
+        self.rules = ReachTask(task)
         self.dynamics = ArmDynamics(task, num_copies) if dynamics is None else dynamics
         self.action_low, self.action_high = command_bounds(task)
         self.goal = np.zeros((B, 3))
@@ -92,7 +75,7 @@ class ReachCore:
         self.started = np.zeros(B, dtype=bool)
         self._obs_views = (self.observation[:, :n], self.observation[:, n : 2 * n],
                            self.observation[:, 2 * n :])
-        self._start = np.asarray(task.start_q)
+        self._start_q = np.asarray(task.start_q)
 
     def reset(self, index: Sequence[int] | np.ndarray, rngs: Sequence[np.random.Generator],
               goals: np.ndarray | None = None) -> None:
@@ -109,9 +92,9 @@ class ReachCore:
         """
         index = np.asarray(index, dtype=np.intp)
         if goals is None:
-            goals = np.array([self.sampler.sample(1, rng).goals[0] for rng in rngs])
+            goals = self.rules.sample_goals(rngs)
         self.goal[index] = goals
-        self.dynamics.reset(self._start, index)
+        self.dynamics.reset(self._start_q, index)
         self.elapsed[index] = 0
         self.started[index] = True
         self.action[index] = 0.0
@@ -139,10 +122,9 @@ class ReachCore:
         self.dynamics.step(self.action)
         self.elapsed += 1
         self._observe()
-        task = self.task
-        self.reward[:] = reach_reward(self.distance, self.action, task)
-        np.logical_and(self.success, task.terminate_on_success, out=self.terminated)
-        np.greater_equal(self.elapsed, task.max_episode_steps, out=self.truncated)
+        self.rules.reward(self.distance, self.action, out=self.reward)
+        self.rules.terminated(self.success, out=self.terminated)
+        np.greater_equal(self.elapsed, self.task.max_episode_steps, out=self.truncated)
 
     def _observe(self) -> None:
         """Refresh observation, achieved goal, distance and success from the dynamics."""
@@ -152,8 +134,8 @@ class ReachCore:
         theta_dot[:] = dyn.v[:, :n]
         theta_ddot[:] = dyn.acceleration[:, :n]
         dyn.tool_positions(self.achieved)
-        self.distance[:] = goal_distance(self.achieved, self.goal)
-        np.less_equal(self.distance, self.task.success_radius, out=self.success)
+        self.rules.distance(self.achieved, self.goal, out=self.distance)
+        self.rules.is_success(self.distance, out=self.success)
 
     def single_spaces(self) -> tuple[gymnasium.spaces.Dict, gymnasium.spaces.Box]:
         """Observation and action space of one copy.
@@ -184,8 +166,8 @@ class ReachCore:
         return self.dynamics._link_heights(self.dynamics.q).min(axis=-1)
 
     def info_arrays(self) -> dict[str, Any]:
-        """Per-copy step information as arrays (the batched env's info)."""
+        """Per-copy step information now, :meth:`envs.task.ReachTask.info` of the B copies."""
         dyn = self.dynamics
-        return {"action": self.action.copy(), "distance": self.distance.copy(),
-                "is_success": self.success.copy(), "contact": dyn.contact.copy(),
-                "joint_limit": dyn.limit_stop.copy(), "clearance": self.clearance()}
+        return self.rules.info(action=self.action, distance=self.distance, success=self.success,
+                               contact=dyn.contact, joint_limit=dyn.limit_stop,
+                               clearance=self.clearance())

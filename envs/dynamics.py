@@ -31,18 +31,18 @@ of the control step, the way an arm hitting a rigid table or an end stop with no
 
 The ``compliant`` contact model (:class:`PlaneContact`) replaces the plane stop by a penalty
 contact, as in Gazebo, where the paper ran: the arm is pushed out of the plane and slides on it.
-At every substep, for each moving link k whose lowest collision point (its URDF collision
-geometry's convex hull, the same geometry as the clearance check) lies ``d_k > 0`` m below
-``z = plane_margin`` (world frame), a force acts at that deepest point ``p_k``::
+At every substep, for each moving link l whose lowest collision point (its URDF collision
+geometry's convex hull, the same geometry as the clearance check) lies ``d_l > 0`` m below
+``z = plane_margin`` (world frame), a force acts at that deepest point ``p_l``::
 
-    f_n   = max(0, k d_k - c dz_k/dt)                          # N, along +z (world)
+    f_n   = max(0, k d_l - c dz_l/dt)                          # N, along +z (world)
     f_t   = -min(mu f_n, c |u_t|) u_t / |u_t|                  # N, in the plane
-    tau_c = sum_k J_k^T [f_t, f_n]                             # N m, joints 1-6
+    tau_c = sum_l J_l^T [f_t, f_n]                             # N m, joints 1-6
 
-with ``u = J_k v`` the point's velocity (m/s, world axes), ``u_t`` its x, y part, ``dz_k/dt`` its
-z part, ``J_k (3, 6)`` the point's translational Jacobian (LOCAL_WORLD_ALIGNED) and k, c, mu the
+with ``u = J_l v`` the point's velocity (m/s, world axes), ``u_t`` its x, y part, ``dz_l/dt`` its
+z part, ``J_l (3, 6)`` the point's translational Jacobian (LOCAL_WORLD_ALIGNED) and k, c, mu the
 task's ``contact_stiffness`` (N/m), ``contact_damping`` (N s/m) and ``contact_friction``. The
-elastic part is minus the gradient of the potential ``sum_k k d_k(q)^2 / 2`` (``d_k`` is
+elastic part is minus the gradient of the potential ``sum_l k d_l(q)^2 / 2`` (``d_l`` is
 continuous in q, the deepest vertex may change), so it stores and returns energy; the damping
 and the friction only dissipate. The friction is Coulomb's, regularised: below its bound it is
 a viscous drag of slope c (a point under a tangential load F creeps at F / c m/s instead of
@@ -259,7 +259,7 @@ class PlaneContact:
         return active
 
 def _last_valid(invalid: np.ndarray) -> np.ndarray:
-    """Per column of ``invalid (K+1, m) bool``, the index before its first True (K if none)."""
+    """Per column of ``invalid (S+1, m) bool``, the index before its first True (S if none)."""
     first = np.argmax(invalid, axis=0)
     return np.where(invalid.any(axis=0), first - 1, invalid.shape[0] - 1)
 
@@ -351,7 +351,7 @@ class ArmDynamics:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
         self.task = validate(task)
-        B, K, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
+        B, S, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
         self.num_copies = B
         base = ur5kin.load_model()
         # the time-scaled model: gravity * h^2, so that ABA returns h^2 * a (module docstring)
@@ -375,13 +375,13 @@ class ArmDynamics:
         self._w_max = ur5kin.velocity_limits() * h
         lo, hi = np.asarray(base.lowerPositionLimit), np.asarray(base.upperPositionLimit)
         self._q_mid, self._q_half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        self._start = np.asarray(task.start_q, dtype=float)
+        self._start_q = np.asarray(task.start_q, dtype=float)
         self._lipschitz = height_lipschitz()
-        # no point of link k falls more than K w_max . R[:, k] within one step
-        # (|q_k - q_0| <= k w_max): links with more clearance than that skip the exact check
-        self._plane_screen = task.plane_margin + K * (self._w_max @ self._lipschitz)
-        # likewise a joint farther than K w_max from its limits cannot pass them in one step
-        self._limit_screen = self._q_half - K * self._w_max
+        # no point of link k falls more than S w_max . R[:, k] within one step (after substep
+        # s, |q_s - q_0| <= s w_max): links with more clearance than that skip the exact check
+        self._plane_screen = task.plane_margin + S * (self._w_max @ self._lipschitz)
+        # likewise a joint farther than S w_max from its limits cannot pass them in one step
+        self._limit_screen = self._q_half - S * self._w_max
         self._limit_flags = np.zeros(6, dtype=bool)
         # the compliant contact (None: the stop model); a substep is deeper than allowed, and
         # stops, below _stop_level
@@ -398,9 +398,9 @@ class ArmDynamics:
         # scaled torque within a step: kp q_ref of position control, the torque command, ...).
         # Row 0 is the step's start. With b in the row, the PD torque is one product:
         # tau = x @ gains = b - kp_e q - kd_e w.
-        self._X = np.zeros((K + 1, B, 18))
+        self._X = np.zeros((S + 1, B, 18))
         self._Q, self._W = self._X[..., :6], self._X[..., 6:12]
-        self._X[..., 12 + n : 18] = kp[n:] * self._start[n:]  # held joints: PD to the start
+        self._X[..., 12 + n : 18] = kp[n:] * self._start_q[n:]  # held joints: PD to the start
         self._command_bias = self._X[..., 12 : 12 + n]
         gains = np.zeros((18, 6))
         gains[:6] = -np.diag(self._kp_eff)
@@ -413,19 +413,19 @@ class ArmDynamics:
         self._zeros = np.zeros((B, 6))
 
         # the state is the last history row: a step starts by copying it to row 0
-        self.q = self._Q[K]
-        self._w = self._W[K]
-        self.q[:] = self._start
+        self.q = self._Q[S]
+        self._w = self._W[S]
+        self.q[:] = self._start_q
         self.v = np.zeros((B, 6))
         self.acceleration = np.zeros((B, 6))
         self.contact = np.zeros(B, dtype=bool)
         self.limit_stop = np.zeros(B, dtype=bool)
         self.depth_stop = np.zeros(B, dtype=bool)
-        self._clearance = np.tile(self._link_heights(self._start), (B, 1))  # (B, 6) lower bounds
+        self._clearance = np.tile(self._link_heights(self._start_q), (B, 1))  # (B, 6) lower bounds
 
         X = self._X[:, 0] if B == 1 else self._X  # 1-D rows for Pinocchio's single calls
-        self._rows = [(X[k], X[k, ..., :6], X[k, ..., 6:12], X[k + 1, ..., :6],
-                       X[k + 1, ..., 6:12]) for k in range(K)]
+        self._rows = [(X[s], X[s, ..., :6], X[s, ..., 6:12], X[s + 1, ..., :6],
+                       X[s + 1, ..., 6:12]) for s in range(S)]
         one = 0 if B == 1 else slice(None)
         self._tau_row, self._zeros_row = self._tau[one], self._zeros[one]
         self._gravity, self._accel = self._kernels()
@@ -485,11 +485,11 @@ class ArmDynamics:
             Per copy, the command of joints 1..n in the control mode's unit (rad, rad/s or
             N m), already within :func:`command_bounds`.
         """
-        task, K = self.task, self.task.substeps
+        task, S = self.task, self.task.substeps
         # b of the controlled joints, in every row of the step (scaled: module docstring)
         np.multiply(self._command_gain, command, out=self._command_bias)
         X = self._X
-        X[0, :, :12] = X[K, :, :12]
+        X[0, :, :12] = X[S, :, :12]
 
         # Positional ``out`` arguments: keyword parsing costs ~10 % of a 6-vector ufunc call.
         dot, add, clip_ = np.dot, np.add, clip
@@ -598,7 +598,7 @@ class ArmDynamics:
         """Apply the joint-limit and plane stops, then publish the new state.
 
         Cheap screens decide which copies need the exact tests: a joint can pass its limit only
-        if it starts within a step's travel (``K w_max``) of it, and a link can touch the plane
+        if it starts within a step's travel (``S w_max``) of it, and a link can touch the plane
         only if its clearance is below a step's worth of fall (see ``__init__``). One copy
         takes a scalar path (array bookkeeping costs more than the tests on a batch of one);
         both paths are tested against each other.
@@ -610,71 +610,71 @@ class ArmDynamics:
         if self._contact is not None:  # the plane's stops are the depth bound's
             np.copyto(self.depth_stop, self.contact)
             np.logical_or(self.contact, self._touched, out=self.contact)
-        W, K = self._W, self.task.substeps
-        np.subtract(W[K], W[0], out=self.acceleration)
+        W, S = self._W, self.task.substeps
+        np.subtract(W[S], W[0], out=self.acceleration)
         self.acceleration *= self._w_to_accel
-        np.multiply(W[K], self._w_to_v, out=self.v)
+        np.multiply(W[S], self._w_to_v, out=self.v)
 
     def _finish_one(self) -> None:
-        Q, W, K, level = self._Q[:, 0], self._W[:, 0], self.task.substeps, self._stop_level
-        stop_limit = stop_plane = K  # the last valid substep
+        Q, W, S, level = self._Q[:, 0], self._W[:, 0], self.task.substeps, self._stop_level
+        stop_limit = stop_plane = S  # the last valid substep
         if np.greater(np.abs(Q[0] - self._q_mid), self._limit_screen, self._limit_flags).any():
-            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (K+1,)
+            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (S+1,)
             if beyond.any():
                 stop_limit = int(np.argmax(beyond)) - 1
         heights = None
         if (self._clearance[0] < self._plane_screen).any():
-            heights = self._link_heights(Q)  # (K+1, 6): one call for all substeps
+            heights = self._link_heights(Q)  # (S+1, 6): one call for all substeps
             below = heights.min(axis=-1) < level
             below[0] = False  # the step's start state is clear by construction
             if below.any():
                 stop_plane = int(np.argmax(below)) - 1
         stop = min(stop_limit, stop_plane)
-        self.contact[0] = stop < K and stop == stop_plane
-        self.limit_stop[0] = stop < K and stop == stop_limit
-        if stop < K:
-            Q[K] = Q[stop]  # back to the last valid substep ...
-            W[K] = 0.0  # ... and stopped dead
+        self.contact[0] = stop < S and stop == stop_plane
+        self.limit_stop[0] = stop < S and stop == stop_limit
+        if stop < S:
+            Q[S] = Q[stop]  # back to the last valid substep ...
+            W[S] = 0.0  # ... and stopped dead
         if heights is not None:
             self._clearance[0] = heights[stop]
         else:  # link heights change by at most |dq| @ R (height_lipschitz)
-            self._clearance[0] -= np.abs(Q[K] - Q[0]) @ self._lipschitz
+            self._clearance[0] -= np.abs(Q[S] - Q[0]) @ self._lipschitz
 
     def _finish_many(self) -> None:
-        Q, W, K, B = self._Q, self._W, self.task.substeps, self.num_copies
-        stop_limit = stop_plane = None  # per copy: the last valid substep, K if none failed
+        Q, W, S, B = self._Q, self._W, self.task.substeps, self.num_copies
+        stop_limit = stop_plane = None  # per copy: the last valid substep, S if none failed
         if np.greater(np.abs(Q[0] - self._q_mid), self._limit_screen).any():
-            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (K+1, B)
+            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (S+1, B)
             if beyond.any():
                 stop_limit = _last_valid(beyond)
         risky = (self._clearance < self._plane_screen).any(axis=-1)
         heights = None
         if risky.any():
             idx = np.flatnonzero(risky)
-            per_call = max(1, CLEARANCE_BATCH // (K + 1))  # copies per link_heights call
+            per_call = max(1, CLEARANCE_BATCH // (S + 1))  # copies per link_heights call
             heights = np.concatenate([self._link_heights(Q[:, idx[i : i + per_call]])
                                       for i in range(0, len(idx), per_call)], axis=1)
             below = heights.min(axis=-1) < self._stop_level
             below[0] = False  # the step's start state is clear by construction
             if below.any():
-                stop_plane = np.full(B, K)
+                stop_plane = np.full(B, S)
                 stop_plane[idx] = _last_valid(below)
-        stop = np.full(B, K)
+        stop = np.full(B, S)
         for part in (stop_limit, stop_plane):
             if part is not None:
                 np.minimum(stop, part, out=stop)
-        stopped = stop < K
-        np.logical_and(stopped, stop == (K if stop_plane is None else stop_plane),
+        stopped = stop < S
+        np.logical_and(stopped, stop == (S if stop_plane is None else stop_plane),
                        out=self.contact)
-        np.logical_and(stopped, stop == (K if stop_limit is None else stop_limit),
+        np.logical_and(stopped, stop == (S if stop_limit is None else stop_limit),
                        out=self.limit_stop)
         if stopped.any():
             rows = np.flatnonzero(stopped)
-            Q[K, rows] = Q[stop[rows], rows]  # back to the last valid substep ...
-            W[K, rows] = 0.0  # ... and stopped dead
+            Q[S, rows] = Q[stop[rows], rows]  # back to the last valid substep ...
+            W[S, rows] = 0.0  # ... and stopped dead
         # link heights change by at most |dq| @ R (height_lipschitz): new lower bounds, or the
         # exact heights where they were just computed
-        self._clearance -= np.abs(Q[K] - Q[0]) @ self._lipschitz
+        self._clearance -= np.abs(Q[S] - Q[0]) @ self._lipschitz
         if heights is not None:
             self._clearance[idx] = heights[stop[idx], np.arange(len(idx))]
 

@@ -732,19 +732,19 @@ class FastArmDynamics:
         self._w_max = (ur5kin.velocity_limits() * h).astype(cast)
         lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
         self._q_mid, self._q_half = (0.5 * (lo + hi)).astype(cast), (0.5 * (hi - lo)).astype(cast)
-        self._start = np.asarray(task.start_q, dtype=float)
+        self._start_q = np.asarray(task.start_q, dtype=float)
         self._bias = np.zeros((B, NJ), dtype=cast)
-        self._bias[:, n:] = kp[n:] * self._start[n:]  # held joints: PD to the start
+        self._bias[:, n:] = kp[n:] * self._start_q[n:]  # held joints: PD to the start
         self._w_to_v, self._w_to_accel = 1.0 / h, 1.0 / (h * task.dt)
 
-        self.q = np.tile(self._start, (B, 1)).astype(cast)
+        self.q = np.tile(self._start_q, (B, 1)).astype(cast)
         self._w = np.zeros((B, NJ), dtype=cast)
         self._dw = np.zeros((B, NJ), dtype=cast)
         self.v = np.zeros((B, NJ), dtype=cast)
         self.acceleration = np.zeros((B, NJ), dtype=cast)
         self.contact = np.zeros(B, dtype=bool)
         self.limit_stop = np.zeros(B, dtype=bool)
-        self._clearance = np.tile(self._link_heights(self._start), (B, 1)).astype(cast)
+        self._clearance = np.tile(self._link_heights(self._start_q), (B, 1)).astype(cast)
         self._tool = np.zeros((B, 3), dtype=cast)
         self._update_tools(np.arange(B))
 

@@ -9,8 +9,8 @@ import gymnasium
 import numpy as np
 
 from envs.core import ReachCore
-from envs.reward import ACTION_KEY, compute_reward, compute_success
 from envs.spec import TaskSpec
+from envs.task import RESET_INFO_KEYS
 
 RENDER_MODES = ("human", "rgb_array")
 """Render modes of the env: a matplotlib window, or frames as ``(H, W, 3) uint8`` arrays."""
@@ -219,10 +219,9 @@ class UR5ReachEnv(gymnasium.Env):
                 raise ValueError(f"options['goal'] must be 3 finite numbers (x, y, z in m, world "
                                  f"frame); got {options['goal']!r}")
             goals = goal[None]
-        self._core.reset([0], [self.np_random], goals)
         core = self._core
-        info = {"distance": float(core.distance[0]), "is_success": bool(core.success[0]),
-                "clearance": float(core.clearance()[0])}
+        core.reset([0], [self.np_random], goals)
+        info = core.rules.copy_info(core.info_arrays(), 0, RESET_INFO_KEYS)
         if self.render_mode == "human":
             self.render()
         return self._observation(), info
@@ -235,15 +234,7 @@ class UR5ReachEnv(gymnasium.Env):
                              f"{action!r}")
         core = self._core
         core.step(a.reshape(1, self._n))
-        dyn = core.dynamics
-        info = {
-            ACTION_KEY: core.action[0].copy(),
-            "distance": float(core.distance[0]),
-            "is_success": bool(core.success[0]),
-            "contact": bool(dyn.contact[0]),
-            "joint_limit": bool(dyn.limit_stop[0]),
-            "clearance": float(core.clearance()[0]),
-        }
+        info = core.rules.copy_info(core.info_arrays(), 0)
         if self.render_mode == "human":
             self.render()
         return (self._observation(), float(core.reward[0]), bool(core.terminated[0]),
@@ -262,14 +253,13 @@ class UR5ReachEnv(gymnasium.Env):
 
         Goals or actions that are not finite real numbers, or whose shapes do not fit, raise
         ``ValueError`` naming them (never a NaN reward); see :mod:`envs.reward`."""
-        return compute_reward(achieved_goal, desired_goal, info, self.task)
+        return self._core.rules.compute_reward(achieved_goal, desired_goal, info)
 
     def compute_terminated(self, achieved_goal: Any, desired_goal: Any, info: Any
                            ) -> np.ndarray:
         """Whether such transitions end the episode: success, if ``terminate_on_success``.
         Bad goals raise ``ValueError`` as in :meth:`compute_reward`."""
-        return compute_success(achieved_goal, desired_goal, self.task) & \
-            self.task.terminate_on_success
+        return self._core.rules.compute_terminated(achieved_goal, desired_goal, info)
 
     def compute_truncated(self, achieved_goal: Any, desired_goal: Any, info: Any) -> np.ndarray:
         """Always False: truncation depends on the step count, not on the goals."""

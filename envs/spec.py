@@ -251,8 +251,8 @@ class TaskSpec:
             )
         _set("kp", _joint_vector("kp", self.kp, "N m/rad", positive=True))
         _set("kd", _joint_vector("kd", self.kd, "N m s/rad", positive=True))
-        start = default_start(self.region) if self.start_q is None else self.start_q
-        _set("start_q", _joint_vector("start_q", start, "rad"))
+        start_q = default_start(self.region) if self.start_q is None else self.start_q
+        _set("start_q", _joint_vector("start_q", start_q, "rad"))
 
     # ------------------------------------------------------------------ derived quantities
     @property

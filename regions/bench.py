@@ -27,8 +27,8 @@ ENV_BATCH = 20
 
 def time_goals(region: str, n_joints: int, goals: int, repeats: int, seed: int) -> list[float]:
     """Seconds to draw ``goals`` goals (the sampler built and probed beforehand)."""
-    start = regions.default_start(region)
-    sampler = JointSpaceSampler(regions.get(region), n_joints, start)
+    start_q = regions.default_start(region)
+    sampler = JointSpaceSampler(regions.get(region), n_joints, start_q)
     out = []
     for k in range(repeats):
         rng = np.random.default_rng(seed + k)
@@ -89,10 +89,10 @@ def compare_samplers(joints: Sequence[int], goals: int, seed: int, progress: boo
     jobs = [(r, n, cls) for r in regions.PAPER_REGIONS for n in joints
             for cls in (JointSpaceSampler, CartesianSampler)]
     for name, n, cls in tqdm(jobs, desc="samplers", disable=not progress, file=sys.stderr):
-        start = regions.default_start(name)
-        sampler = cls(regions.get(name), n, start)
+        start_q = regions.default_start(name)
+        sampler = cls(regions.get(name), n, start_q)
         batch = sampler.sample(goals, np.random.default_rng(seed))
-        origin = ur5kin.fk_world(start, regions.DEFAULT_BASE_HEIGHT)
+        origin = ur5kin.fk_world(start_q, regions.DEFAULT_BASE_HEIGHT)
         distance = float(np.linalg.norm(batch.goals - origin, axis=1).mean())
         rows.append((name, n, cls.kind, batch.acceptance, batch.reachable_fraction, distance))
     return rows

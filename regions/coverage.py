@@ -51,7 +51,7 @@ class WorkspaceSamples:
     Attributes
     ----------
     n_joints : int
-    q_start : (6,) float, rad
+    start_q : (6,) float, rad
     base_height : float, m
     goals : (m, 3) float, m, world frame
         tool0 position of every sample.
@@ -60,7 +60,7 @@ class WorkspaceSamples:
     """
 
     n_joints: int
-    q_start: tuple[float, ...]
+    start_q: tuple[float, ...]
     base_height: float
     goals: np.ndarray
     clear: np.ndarray
@@ -72,11 +72,11 @@ class WorkspaceSamples:
 
     @property
     def start_position(self) -> np.ndarray:
-        """tool0 position ``(3,) m`` (world) at ``q_start``."""
-        return fk_world(self.q_start, self.base_height)
+        """tool0 position ``(3,) m`` (world) at ``start_q``."""
+        return fk_world(self.start_q, self.base_height)
 
 
-def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int,
+def sample_workspace(n_joints: int, start_q: Any, base_height: float, count: int,
                      rng: np.random.Generator, chunk: int = WORKSPACE_CHUNK) -> WorkspaceSamples:
     """Draw ``count`` uniform joint-space samples and evaluate their tool0 and plane clearance.
 
@@ -84,7 +84,7 @@ def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int
     ----------
     n_joints : int
         Controlled joints 1..n (1-6).
-    q_start : (6,) float, rad
+    start_q : (6,) float, rad
         Start configuration; joints n+1..6 stay there.
     base_height : float, m
     count : int
@@ -96,16 +96,16 @@ def sample_workspace(n_joints: int, q_start: Any, base_height: float, count: int
     n_joints = joint_count(n_joints)
     if not isinstance(count, int | np.integer) or count < 1:
         raise ValueError(f"count must be an integer >= 1 (samples); got {count!r}")
-    start = joint_array(q_start, "q_start")
-    if start.shape != (6,):
-        raise ValueError(f"q_start must have shape (6,) (rad); got shape {start.shape}")
+    start_q = joint_array(start_q, "start_q")
+    if start_q.shape != (6,):
+        raise ValueError(f"start_q must have shape (6,) (rad); got shape {start_q.shape}")
     h = check_base_height(base_height)
     goals, clear = np.empty((count, 3)), np.empty(count, dtype=bool)
     for lo in range(0, count, chunk):
-        q = draw_joint_space(int(n_joints), start, min(chunk, count - lo), rng)
+        q = draw_joint_space(int(n_joints), start_q, min(chunk, count - lo), rng)
         goals[lo : lo + len(q)] = fk_world(q, h)
         clear[lo : lo + len(q)] = plane_clear(q, h)
-    return WorkspaceSamples(int(n_joints), tuple(float(x) for x in start), h, goals, clear)
+    return WorkspaceSamples(int(n_joints), tuple(float(x) for x in start_q), h, goals, clear)
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,7 +200,7 @@ class CoverageRow:
     region : str
     joints : int
         Controlled joints 1..n.
-    start : (6,) float, rad
+    start_q : (6,) float, rad
         Start configuration (its joints n+1..6 are held; ``mean_goal_distance_m`` is measured
         from its tool0).
     region_volume_m3 : float
@@ -231,7 +231,7 @@ class CoverageRow:
 
     region: str
     joints: int
-    start: tuple[float, ...]
+    start_q: tuple[float, ...]
     region_volume_m3: float
     region_volume_exact: bool
     workspace_volume_m3: float
@@ -271,7 +271,7 @@ def _json_value(value: Any) -> Any:
 
 
 def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspace,
-                 q_start: Any = None) -> CoverageRow:
+                 start_q: Any = None) -> CoverageRow:
     """Coverage statistics of ``region`` for the sub-chain behind ``samples``.
 
     Parameters
@@ -281,32 +281,32 @@ def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspa
         Uniform joint-space samples of the sub-chain (they give acceptance and distances).
     voxels : VoxelWorkspace
         Voxelisation of ``samples``' plane-clear tool0 positions (the workspace estimate).
-    q_start : (6,) float, rad, optional
+    start_q : (6,) float, rad, optional
         Start configuration of the row (distances and ``start_inside`` use its tool0);
-        ``samples.q_start`` by default. The samples only depend on its held joints n+1..6, so
+        ``samples.start_q`` by default. The samples only depend on its held joints n+1..6, so
         one set of samples serves every start that agrees there.
 
     Raises
     ------
     ValueError
-        When ``q_start``'s held joints differ from those of ``samples``.
+        When ``start_q``'s held joints differ from those of ``samples``.
     """
     n = samples.n_joints
-    if q_start is None:
-        q_start = samples.q_start
-    start_q = joint_array(q_start, "q_start")
-    if start_q.shape != (6,) or not np.array_equal(start_q[n:], samples.q_start[n:]):
-        raise ValueError(f"q_start {list(np.ravel(start_q))} must be 6 angles (rad) whose held "
-                         f"joints {n + 1}..6 equal the samples' {list(samples.q_start[n:])}")
-    start = fk_world(start_q, samples.base_height)
+    if start_q is None:
+        start_q = samples.start_q
+    start_q = joint_array(start_q, "start_q")
+    if start_q.shape != (6,) or not np.array_equal(start_q[n:], samples.start_q[n:]):
+        raise ValueError(f"start_q {list(np.ravel(start_q))} must be 6 angles (rad) whose held "
+                         f"joints {n + 1}..6 equal the samples' {list(samples.start_q[n:])}")
+    start_tool = fk_world(start_q, samples.base_height)
     accepted = samples.clear & region.contains(samples.goals)
-    distances = np.linalg.norm(samples.goals[accepted] - start, axis=-1)
+    distances = np.linalg.norm(samples.goals[accepted] - start_tool, axis=-1)
     workspace, workspace_err = voxels.volume, voxels.error
     covered, covered_err = voxels.covered(region)
     return CoverageRow(
         region=region.name,
         joints=n,
-        start=tuple(float(x) for x in start_q),
+        start_q=tuple(float(x) for x in start_q),
         region_volume_m3=region.volume,
         region_volume_exact=region.volume_is_exact,
         workspace_volume_m3=workspace,
@@ -316,7 +316,7 @@ def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspa
         workspace_fraction=covered / workspace if workspace > 0 else 0.0,
         goal_acceptance=float(np.count_nonzero(accepted)) / samples.count,
         mean_goal_distance_m=float(distances.mean()) if len(distances) else math.nan,
-        start_inside=bool(region.contains(start)),
+        start_inside=bool(region.contains(start_tool)),
         resolution_m=voxels.resolution,
         samples=samples.count,
         workspace_is_surface=n <= SURFACE_JOINTS,

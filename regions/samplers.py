@@ -105,15 +105,15 @@ class GoalBatch:
         return len(self.goals) / self.in_region if self.in_region else math.nan
 
 
-def draw_joint_space(n_joints: int, q_start: Any, count: int,
+def draw_joint_space(n_joints: int, start_q: Any, count: int,
                      rng: np.random.Generator) -> np.ndarray:
-    """Configurations with joints 1..n uniform in [-pi, pi] and the others at ``q_start``.
+    """Configurations with joints 1..n uniform in [-pi, pi] and the others at ``start_q``.
 
     Parameters
     ----------
     n_joints : int
         Controlled joints (1-6).
-    q_start : (6,) float, rad
+    start_q : (6,) float, rad
         Start configuration; its joints n+1..6 are held.
     count : int
     rng : numpy.random.Generator
@@ -122,21 +122,21 @@ def draw_joint_space(n_joints: int, q_start: Any, count: int,
     -------
     q : (count, 6) float, rad
     """
-    return ur5kin.SubChain(n_joints, q_start).full(
+    return ur5kin.SubChain(n_joints, start_q).full(
         rng.uniform(-ur5kin.JOINT_LIMIT, ur5kin.JOINT_LIMIT, size=(count, n_joints)))
 
 
 @dataclass(frozen=True)
 class GoalSampler(abc.ABC):
-    """Draws goals in ``region`` reachable by moving joints 1..``n_joints`` from ``q_start``.
+    """Draws goals in ``region`` reachable by moving joints 1..``n_joints`` from ``start_q``.
 
     Parameters
     ----------
     region : Region
         Goal constraint region (world frame).
     n_joints : int
-        Controlled joints, 1-6 (the paper: 2-6); joints n+1..6 stay at ``q_start``.
-    q_start : (6,) float, rad
+        Controlled joints, 1-6 (the paper: 2-6); joints n+1..6 stay at ``start_q``.
+    start_q : (6,) float, rad
         Start configuration of the episode (the env's task specification owns the defaults).
     base_height : float, m
         Height of the robot base above the plane (0.1 by default).
@@ -152,7 +152,7 @@ class GoalSampler(abc.ABC):
 
     region: Region
     n_joints: int
-    q_start: tuple[float, ...]
+    start_q: tuple[float, ...]
     base_height: float = DEFAULT_BASE_HEIGHT
     limits: SamplingLimits = field(default_factory=SamplingLimits)
     kind: ClassVar[str]
@@ -160,11 +160,11 @@ class GoalSampler(abc.ABC):
     def __post_init__(self) -> None:
         if not isinstance(self.region, Region):
             raise ValueError(f"region must be a regions.Region; got {type(self.region).__name__}")
-        start = joint_array(self.q_start, "q_start")
-        if start.shape != (6,):
-            raise ValueError(f"q_start must have shape (6,) (rad); got shape {start.shape}")
+        start_q = joint_array(self.start_q, "start_q")
+        if start_q.shape != (6,):
+            raise ValueError(f"start_q must have shape (6,) (rad); got shape {start_q.shape}")
         object.__setattr__(self, "n_joints", joint_count(self.n_joints))
-        object.__setattr__(self, "q_start", tuple(float(x) for x in start))
+        object.__setattr__(self, "start_q", tuple(float(x) for x in start_q))
         object.__setattr__(self, "base_height", check_base_height(self.base_height))
         _ = self.acceptance  # fail fast
 
@@ -196,13 +196,13 @@ class GoalSampler(abc.ABC):
             bound = f"< {3.0 / proposals:.2g} at 95 %" if hits == 0 else f"~ {estimate:.2g}"
             raise UnreachableRegionError(
                 f"region {self.region.name!r} has {'no' if hits == 0 else 'almost no'} goals "
-                f"reachable with {self.n_joints} joints from q_start={list(self.q_start)} rad at "
+                f"reachable with {self.n_joints} joints from start_q={list(self.start_q)} rad at "
                 f"base height {self.base_height} m: {hits} of {proposals} {self.kind} proposals "
                 f"accepted (acceptance {bound}; at least {self.limits.min_acceptance:g} needed). "
                 f"Region bounds (m, world): {self.region.bounds.tolist()}; the arm reaches "
                 f"{reach_ball(self.base_height).radius:.3f} m from the shoulder at "
                 f"{list(reach_ball(self.base_height).center)}, and joints above n_joints stay at "
-                "q_start"
+                "start_q"
             )
         return estimate
 
@@ -253,7 +253,7 @@ class GoalSampler(abc.ABC):
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description; :func:`sampler_from_dict` rebuilds the sampler."""
         return {"sampler": self.kind, "region": self.region.to_dict(),
-                "n_joints": self.n_joints, "q_start": list(self.q_start),
+                "n_joints": self.n_joints, "start_q": list(self.start_q),
                 "base_height": self.base_height, **self._extra()}
 
     def _extra(self) -> dict[str, Any]:
@@ -268,11 +268,11 @@ class JointSpaceSampler(GoalSampler):
     ``GoalBatch.q`` holds the configuration each goal came from.
     """
 
-    kind: ClassVar[str] = "joint_space"
+    kind: ClassVar[str] = "joint"
 
     def _propose(self, count: int, rng: np.random.Generator
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        q = draw_joint_space(self.n_joints, self.q_start, count, rng)
+        q = draw_joint_space(self.n_joints, self.start_q, count, rng)
         goals = ur5kin.fk_world(q, self.base_height)
         inside = self.region.contains(goals)
         candidates = np.flatnonzero(inside)
@@ -349,7 +349,7 @@ class CartesianSampler(GoalSampler):
         arm = np.zeros((*shape, 3))  # joints 1-3 come from the IK below; these are ignored
         bound = ur5kin.JOINT_LIMIT
         drawn = rng.uniform(-bound, bound, size=(*shape, self.n_joints - 3))
-        wrist = ur5kin.SubChain(self.n_joints, self.q_start).full(
+        wrist = ur5kin.SubChain(self.n_joints, self.start_q).full(
             np.concatenate([arm, drawn], axis=-1))[..., 3:]
         target = to_base(points[candidates], self.base_height)
         q, valid = ur5kin.ik_position(np.broadcast_to(target[:, None, :], wrist.shape), wrist)
@@ -380,7 +380,7 @@ def sampler_from_dict(data: Any) -> GoalSampler:
     params = {k: v for k, v in data.items() if k != "sampler"}
     try:
         params["region"] = region_from_dict(params["region"])
-        params["q_start"] = tuple(params["q_start"])
+        params["start_q"] = tuple(params["start_q"])
         return SAMPLERS[data["sampler"]](**params)
     except (KeyError, TypeError) as err:
         raise ValueError(f"bad parameters for a {data['sampler']} sampler: {err}") from err

@@ -86,7 +86,7 @@ def test_coverage_rows_agree_with_the_samplers() -> None:
     vox = VoxelWorkspace.from_points(ws.goals[ws.clear], 0.05)
     farbox = regions.get("farbox")
     row = coverage_row(farbox, ws, vox)
-    assert row.region == "farbox" and row.joints == 3 and row.start == CONSTRAINED_START
+    assert row.region == "farbox" and row.joints == 3 and row.start_q == CONSTRAINED_START
     assert row.region_volume_m3 == pytest.approx(0.128)
     assert row.start_inside
     assert 0 < row.covered_volume_m3 <= row.workspace_volume_m3
@@ -122,7 +122,7 @@ def test_coverage_row_refuses_a_start_the_samples_do_not_hold() -> None:
         coverage_row(regions.get("farbox"), ws, vox, UNCONSTRAINED_START)
     # Joints 1..n may differ: the samples do not depend on them.
     row = coverage_row(regions.get("farbox"), ws, vox, (1.0, 0.5, *CONSTRAINED_START[2:]))
-    assert row.start[0] == 1.0
+    assert row.start_q[0] == 1.0
 
 
 def test_json_row_turns_nan_into_null() -> None:
@@ -135,7 +135,7 @@ def test_study_rows_use_the_paper_starts() -> None:
     settings = region_volumes.Settings(regions=("unconstrained", "farbox"), joints=(3,),
                                        samples=20_000, resolution=0.1)
     study = region_volumes.run_study(settings, progress=False)
-    starts = {row.region: row.start for row in study.rows}
+    starts = {row.region: row.start_q for row in study.rows}
     assert starts == {"unconstrained": UNCONSTRAINED_START, "farbox": CONSTRAINED_START}
     assert all(row.start_inside for row in study.rows)
     table = region_volumes.format_table(study, settings)

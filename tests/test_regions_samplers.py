@@ -25,34 +25,34 @@ CASES = [("unconstrained", UNCONSTRAINED_START), ("zheight", CONSTRAINED_START),
 
 
 def _check_batch(batch: regions.GoalBatch, region: regions.Region, n_joints: int,
-                 start: tuple[float, ...], n: int) -> None:
+                 start_q: tuple[float, ...], n: int) -> None:
     assert batch.goals.shape == (n, 3) and batch.q.shape == (n, 6)
     assert region.contains(batch.goals).all()
     reached = ur5kin.fk(batch.q) + np.array([0.0, 0.0, H])
     assert np.abs(reached - batch.goals).max() < 1e-9
     assert ur5kin.plane_clear(batch.q, H).all()
-    # Held joints stay at the start; moving joints stay in [-pi, pi].
+    # Held joints stay at their start angles; moving joints stay in [-pi, pi].
     np.testing.assert_array_equal(batch.q[:, n_joints:], np.broadcast_to(
-        np.asarray(start)[n_joints:], (n, 6 - n_joints)))
+        np.asarray(start_q)[n_joints:], (n, 6 - n_joints)))
     assert np.abs(batch.q).max() <= np.pi
 
 
-@pytest.mark.parametrize(("name", "start"), CASES)
+@pytest.mark.parametrize(("name", "start_q"), CASES)
 @pytest.mark.parametrize("n_joints", [2, 3, 6])
-def test_joint_space_goals_are_in_region_reached_and_clear(name, start, n_joints) -> None:
+def test_joint_space_goals_are_in_region_reached_and_clear(name, start_q, n_joints) -> None:
     region = regions.get(name)
-    sampler = JointSpaceSampler(region, n_joints, start)
+    sampler = JointSpaceSampler(region, n_joints, start_q)
     batch = sampler.sample(300, np.random.default_rng(1))
-    _check_batch(batch, region, n_joints, start, 300)
+    _check_batch(batch, region, n_joints, start_q, 300)
     assert batch.proposals >= 300 and 300 <= batch.in_region <= batch.proposals
 
 
-@pytest.mark.parametrize(("name", "start"), CASES)
+@pytest.mark.parametrize(("name", "start_q"), CASES)
 @pytest.mark.parametrize("n_joints", [3, 5])
-def test_cartesian_goals_are_in_region_reached_and_clear(name, start, n_joints) -> None:
+def test_cartesian_goals_are_in_region_reached_and_clear(name, start_q, n_joints) -> None:
     region = regions.get(name)
-    batch = CartesianSampler(region, n_joints, start).sample(200, np.random.default_rng(2))
-    _check_batch(batch, region, n_joints, start, 200)
+    batch = CartesianSampler(region, n_joints, start_q).sample(200, np.random.default_rng(2))
+    _check_batch(batch, region, n_joints, start_q, 200)
 
 
 @pytest.mark.parametrize("cls", [JointSpaceSampler, CartesianSampler])
@@ -111,7 +111,7 @@ def test_unreachable_region_fails_at_construction(cls) -> None:
 
 def test_region_out_of_reach_of_few_joints_fails_at_construction() -> None:
     # With 2 joints and the constrained start, tool0 stays on a surface; a small box off it
-    # holds no goal. The error says so and names the region, the joints and the start.
+    # holds no goal. The error says so and names the region, the joints and the start pose.
     with pytest.raises(UnreachableRegionError) as info:
         JointSpaceSampler(regions.parse("box:-0.1,0.1,-0.1,0.1,0.9,1.0"), 2, CONSTRAINED_START)
     message = str(info.value)
@@ -127,12 +127,12 @@ def test_cartesian_sampler_needs_three_joints() -> None:
 @pytest.mark.parametrize(("kwargs", "match"), [
     ({"n_joints": 7}, "n_joints"),
     ({"n_joints": 2.5}, "n_joints"),
-    ({"q_start": (0.0,) * 5}, "q_start"),
+    ({"start_q": (0.0,) * 5}, "start_q"),
     ({"base_height": -1.0}, "base_height"),
     ({"region": "farbox"}, "regions.Region"),
 ])
 def test_bad_sampler_arguments_are_named(kwargs: dict, match: str) -> None:
-    args = {"region": regions.get("farbox"), "n_joints": 3, "q_start": CONSTRAINED_START}
+    args = {"region": regions.get("farbox"), "n_joints": 3, "start_q": CONSTRAINED_START}
     with pytest.raises(ValueError, match=match):
         JointSpaceSampler(**{**args, **kwargs})
 

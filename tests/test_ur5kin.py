@@ -225,16 +225,16 @@ def test_ik_position_batched_and_unreachable() -> None:
 
 
 def test_subchain_moves_only_the_first_joints() -> None:
-    rest = np.array([0.0, -np.pi / 4, np.pi / 2, 0.3, -0.2, 0.1])
-    chain = ur5kin.SubChain(3, rest)
+    start_q = np.array([0.0, -np.pi / 4, np.pi / 2, 0.3, -0.2, 0.1])
+    chain = ur5kin.SubChain(3, start_q)
     head = np.array([[0.1, -0.5, 0.9], [0.4, -1.0, 1.5]])
     full = chain.full(head)
     np.testing.assert_array_equal(full[:, :3], head)
-    np.testing.assert_array_equal(full[:, 3:], np.broadcast_to(rest[3:], (2, 3)))
+    np.testing.assert_array_equal(full[:, 3:], np.broadcast_to(start_q[3:], (2, 3)))
     np.testing.assert_allclose(chain.fk(head), ur5kin.fk(full))
     np.testing.assert_allclose(chain.jacobian(head), ur5kin.jacobian(full)[..., :3])
     with pytest.raises(ValueError, match="n_joints"):
-        ur5kin.SubChain(7, rest)
+        ur5kin.SubChain(7, start_q)
     with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
         chain.full(np.zeros(4))
 

@@ -19,27 +19,28 @@ class SubChain:
     ----------
     n_joints : int
         Number of moving joints, 1-6; joints 1..n_joints move.
-    q_rest : (6,) float, rad
-        Full configuration whose entries n_joints+1..6 hold the fixed joints (the first
-        ``n_joints`` entries are ignored: they are what the sub-chain varies).
+    start_q : (6,) float, rad
+        The start pose (a task's ``start_q``): its entries n_joints+1..6 are the angles the
+        held joints keep (the first ``n_joints`` entries are ignored: they are what the
+        sub-chain varies).
     """
 
     n_joints: int
-    q_rest: tuple[float, ...]
+    start_q: tuple[float, ...]
 
     def __post_init__(self) -> None:
         n_joints = joint_count(self.n_joints)
-        rest = joint_array(self.q_rest, "q_rest")
-        if rest.shape != (6,):
-            raise ValueError(f"q_rest must have shape (6,); got shape {rest.shape}")
+        start_q = joint_array(self.start_q, "start_q")
+        if start_q.shape != (6,):
+            raise ValueError(f"start_q must have shape (6,) (rad); got shape {start_q.shape}")
         object.__setattr__(self, "n_joints", n_joints)
-        object.__setattr__(self, "q_rest", tuple(float(x) for x in rest))
+        object.__setattr__(self, "start_q", tuple(float(x) for x in start_q))
 
     def full(self, q_head: Any) -> np.ndarray:
         """Full configurations ``(..., 6)`` rad from the moving joints ``q_head (..., n)`` rad."""
         head = joint_array(q_head, "q_head", self.n_joints)
         out = np.empty((*head.shape[:-1], 6))
-        out[...] = self.q_rest
+        out[...] = self.start_q
         out[..., : self.n_joints] = head
         return out
 
