@@ -88,6 +88,18 @@ def _add_config_flags(group: argparse._ArgumentGroup) -> None:
             group.add_argument(flag, type=kind, default=f.default, help=help_text)
 
 
+def _task_fields_help() -> str:
+    """``--help``'s list of the fields ``--task KEY=VALUE`` sets, with their defaults."""
+    import dataclasses
+
+    from envs.spec import TaskSpec  # a plain record: no Pinocchio, --help stays fast
+
+    fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(TaskSpec))
+    return (f"Task fields for --task KEY=VALUE (UR5Reach-v0's envs.TaskSpec), with their "
+            f"defaults: {fields}. Each field's unit, range and reason: help(envs.TaskSpec) or "
+            "docs/design.md.")
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m ddpg_her.train",
@@ -96,6 +108,7 @@ def make_parser() -> argparse.ArgumentParser:
                     "of the deterministic policy; each seed's run folder gets spec.json, "
                     "eval.csv (episode, successes, tests, mean_return, mean_final_distance_m, "
                     "env_steps, wall_s) and checkpoints.",
+        epilog=_task_fields_help(),
     )
     task = parser.add_argument_group("task")
     task.add_argument("--region", required=True,

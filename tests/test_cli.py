@@ -217,3 +217,14 @@ def test_parser_of_leaves_argparse_as_it_was():
     parser = argparse.ArgumentParser()
     parser.add_argument("--x", type=int)
     assert parser.parse_args(["--x", "3"]).x == 3
+
+
+def test_train_help_lists_every_task_field_with_its_default():
+    """``--task KEY=VALUE`` sets TaskSpec fields; --help names each with its default."""
+    import dataclasses
+
+    from envs.spec import TaskSpec
+
+    text = " ".join(parser_of("ddpg_her.train").format_help().split())
+    for f in dataclasses.fields(TaskSpec):
+        assert f"{f.name}={f.default!r}".replace(" ", "") in text.replace(" ", ""), f.name
