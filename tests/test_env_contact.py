@@ -11,6 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from arm_geometry import brute_force_heights
+from stepping import record
 
 import ur5kin
 from envs.dynamics import ArmDynamics, PlaneContact, link_hulls
@@ -23,13 +24,7 @@ COMPLIANT = {"contact_model": "compliant"}
 
 def run(dyn: ArmDynamics, commands: np.ndarray) -> dict[str, np.ndarray]:
     """Step through ``commands (T, B, n)``; the state after each step, stacked."""
-    keys = ("q", "v", "contact", "limit_stop", "depth_stop")
-    log: dict[str, list[np.ndarray]] = {k: [] for k in keys}
-    for command in commands:
-        dyn.step(command)
-        for k in keys:
-            log[k].append(getattr(dyn, k).copy())
-    return {k: np.array(v) for k, v in log.items()}
+    return record(dyn, commands, ("q", "v", "contact", "limit_stop", "depth_stop"))
 
 
 def contact_states(task: TaskSpec, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from arm_geometry import brute_force_heights
+from stepping import record
 
 import ur5kin
 from envs.dynamics import ArmDynamics, height_lipschitz
@@ -20,13 +21,7 @@ H = 1e-3  # s, the default substep
 
 def run(dyn: ArmDynamics, commands: np.ndarray) -> dict[str, np.ndarray]:
     """Step through ``commands (T, B, n)``; the state after each step, stacked."""
-    keys = ("q", "v", "acceleration", "contact", "limit_stop")
-    log: dict[str, list[np.ndarray]] = {k: [] for k in keys}
-    for command in commands:
-        dyn.step(command)
-        for k in keys:
-            log[k].append(getattr(dyn, k).copy())
-    return {k: np.array(v) for k, v in log.items()}
+    return record(dyn, commands, ("q", "v", "acceleration", "contact", "limit_stop"))
 
 
 def test_time_scaled_model_gives_pinocchios_dynamics():
