@@ -127,7 +127,7 @@ class TaskSpec:
     """Unit in which eq. 2's action penalty ``|a|^2`` reads the action: one of
     :data:`ACTION_PENALTY_UNITS`. The paper: "-|a|^2", a = the commanded absolute joint angles,
     no unit or scale stated. ``command``: rad^2 in position mode (holding the constrained start
-    costs about 2.5 per step, comparable with the distance term); ``actor``: ``(a / pi)^2`` per
+    costs 3.1 per step, comparable with the distance term); ``actor``: ``(a / pi)^2`` per
     joint in position mode (a tenth of that), the reading of an implementation whose actor
     outputs [-1, 1]. Measured to change the paper's speeds several-fold (results/sensitivity)."""
 
