@@ -1,0 +1,601 @@
+"""The arm's batched dynamics as vectorised torch: one control step of B copies on any device.
+
+The physics is :class:`envs.fastdyn.FastArmDynamics`' (hence :class:`envs.dynamics.ArmDynamics`';
+its module docstring has the equations, the stop model and the time-scaled units): per substep
+PD + gravity compensation, effort clip, Featherstone's articulated-body algorithm, velocity clip,
+semi-implicit Euler, then the joint-limit and plane stops; the tool position after the step.
+Where the numba kernel loops over copies with scalar code, this module loops over the six joints
+in Python and over nothing else: every operation acts on tensors of shape ``(B, ...)``, so the
+same code runs on the CPU (tested here against the numba path and Pinocchio) and on CUDA, where
+the batch is the parallelism (the GPU half of issue 14; numba-cuda and Warp are not on the GPU
+machine, torch is).
+
+Pinocchio stays the source: the chain is :class:`envs.fastdyn.ChainModel` (read from
+:func:`ur5kin.load_model`) and the plane check's constants :class:`envs.fastdyn.PlaneModel`
+(read from :mod:`ur5kin.collision`), converted to tensors once.
+
+No host-device synchronisation inside a step: no ``.item()``, no data-dependent shapes. A copy
+that stops (plane or joint limit) keeps being integrated with the others and its results are
+discarded by ``torch.where`` masks, exactly as ArmDynamics computes every substep and then
+rolls a stopped copy back; the numba kernel's Lipschitz screen (which skips exact plane checks)
+is replaced by the exact check at every substep, a branch-free matrix product. The step is thus
+a fixed graph of tensor operations, ready for a CUDA graph or ``torch.compile``
+(:class:`TorchArmDynamics`' ``compile`` option). The syncs are at the edges: :meth:`reset`
+checks the reset configurations against the plane on the host, and a numpy command is copied
+to the device.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from dataclasses import replace as dataclasses_replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+import ur5kin
+from envs import fastdyn
+
+if TYPE_CHECKING:
+    from envs.spec import TaskSpec
+
+NJ = fastdyn.NJ
+"""Joints of the chain (the UR5's six revolute joints)."""
+
+DTYPES = {"float64": torch.float64, "float32": torch.float32}
+"""Floating-point types of the tensors."""
+
+
+def supports(task: TaskSpec) -> bool:
+    """Whether :class:`TorchArmDynamics` implements ``task``'s physics: the numba path's set
+    (:func:`envs.fastdyn.supports`, the stop contact model)."""
+    return fastdyn.supports(task)
+
+
+def _dtype(dtype: Any) -> torch.dtype:
+    """The torch dtype of ``dtype`` (a name, a numpy or a torch dtype); ValueError otherwise."""
+    if isinstance(dtype, torch.dtype):
+        name = str(dtype).removeprefix("torch.")
+    else:
+        try:
+            name = np.dtype(dtype).name
+        except TypeError:
+            name = str(dtype)
+    if name not in DTYPES:
+        raise ValueError(f"dtype must be one of {sorted(DTYPES)}; got {dtype!r}")
+    return DTYPES[name]
+
+
+def _skew(x: torch.Tensor) -> torch.Tensor:
+    """``[x]x (..., 3, 3)``, the cross-product matrix of ``x (..., 3)``."""
+    zero = torch.zeros_like(x[..., 0])
+    return torch.stack([torch.stack([zero, -x[..., 2], x[..., 1]], -1),
+                        torch.stack([x[..., 2], zero, -x[..., 0]], -1),
+                        torch.stack([-x[..., 1], x[..., 0], zero], -1)], -2)
+
+
+def _mv(M: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``M x``: ``M (..., r, c)`` times ``x (..., c)``, batched."""
+    return torch.matmul(M, x.unsqueeze(-1)).squeeze(-1)
+
+
+# ---------------------------------------------------------------------------- the model
+@dataclass(frozen=True)
+class TorchChain:
+    """:class:`envs.fastdyn.ChainModel` as tensors on one device, with the constants the
+    vectorised algorithms use. Spatial vectors are Pinocchio's: motions ``[v; w]``, forces
+    ``[f; n]`` (linear part first).
+
+    Attributes
+    ----------
+    rotation : (6, 3, 3) float
+        Joint placement rotations (joint frame in its parent's).
+    translation : (6, 3) float, m, parent frame
+        Joint placement translations.
+    skew_translation : (6, 3, 3) float, m
+        ``[p]x`` of each translation.
+    axis : (6, 3) float
+        Unit rotation axis of each joint, joint frame.
+    axis_outer : (6, 3, 3) float
+        ``a a^T`` of each axis (Rodrigues' formula).
+    skew_axis : (6, 3, 3) float
+        ``[a]x`` of each axis.
+    subspace : (6, 6) float
+        Each joint's motion subspace ``S = [0; a]``.
+    bias_map : (6, 6, 6) float
+        ``diag([a]x, [a]x)^T``: ``v @ bias_map[i] = v x_m S_i`` (the bias acceleration per unit
+        joint velocity).
+    inertia : (6, 6, 6) float
+        Spatial inertia of each body in its joint frame (kg, kg m, kg m^2).
+    armature : (6,) float, kg m^2
+        Rotor inertia on each joint's diagonal.
+    base_acceleration : (6,) float, m/s^2
+        ``[-g; 0]``: the base accelerates up, gravity as a fictitious force (in the units of
+        the chain's gravity, which the caller may have time-scaled).
+    """
+
+    rotation: torch.Tensor
+    translation: torch.Tensor
+    skew_translation: torch.Tensor
+    axis: torch.Tensor
+    axis_outer: torch.Tensor
+    skew_axis: torch.Tensor
+    subspace: torch.Tensor
+    bias_map: torch.Tensor
+    inertia: torch.Tensor
+    armature: torch.Tensor
+    base_acceleration: torch.Tensor
+
+    @classmethod
+    def from_chain(cls, chain: fastdyn.ChainModel, device: torch.device | str,
+                   dtype: torch.dtype) -> TorchChain:
+        """The tensors of ``chain`` on ``device`` as ``dtype`` (derived constants in float64
+        first, then cast)."""
+        def t(x: Any) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(x, dtype=np.float64))
+
+        axis, p = t(chain.axis), t(chain.translation)
+        skew_axis = _skew(axis)
+        zeros = torch.zeros_like(skew_axis)
+        block = torch.cat([torch.cat([skew_axis, zeros], -1), torch.cat([zeros, skew_axis], -1)],
+                          -2)
+        # v x_m [0; a] = [v_lin x a; w x a] = -diag([a]x, [a]x) v, as a row vector map: v @ M
+        bias_map = -block.transpose(-1, -2)
+        values = {
+            "rotation": t(chain.rotation), "translation": p, "skew_translation": _skew(p),
+            "axis": axis, "axis_outer": axis[:, :, None] * axis[:, None, :],
+            "skew_axis": skew_axis,
+            "subspace": torch.cat([torch.zeros_like(axis), axis], -1), "bias_map": bias_map,
+            "inertia": t(chain.inertia), "armature": t(chain.armature),
+            "base_acceleration": torch.cat([-t(chain.gravity), t(np.zeros(3))]),
+        }
+        return cls(**{k: v.to(device=device, dtype=dtype).contiguous() for k, v in values.items()})
+
+
+@dataclass(frozen=True)
+class TorchPlane:
+    """:class:`envs.fastdyn.PlaneModel` as tensors, laid out for one matrix product.
+
+    Attributes
+    ----------
+    vertex_heights : (13, 6 K) float, m
+        Per feature, the height above base_link of the candidate lowest vertices, link by link
+        (columns ``k K .. (k + 1) K - 1`` belong to moving link k = 0..5); links with fewer
+        than K candidates repeat one of their own columns, which changes no minimum.
+    lift_offset, wrist_offset : float, rad
+        Offsets of the pitches the features use.
+    """
+
+    vertex_heights: torch.Tensor
+    lift_offset: float
+    wrist_offset: float
+
+    @classmethod
+    def from_plane(cls, plane: fastdyn.PlaneModel, device: torch.device | str,
+                   dtype: torch.dtype) -> TorchPlane:
+        """The padded tensor of ``plane`` (float64 there) on ``device`` as ``dtype``."""
+        vh, bounds = np.asarray(plane.vertex_heights, dtype=np.float64), plane.bounds
+        rows = [np.arange(bounds[k], bounds[k + 1]) for k in range(1, NJ + 1)]
+        width = max(len(r) for r in rows)
+        padded = np.concatenate([np.pad(r, (0, width - len(r)), mode="edge") for r in rows])
+        table = torch.as_tensor(np.ascontiguousarray(vh[padded].T))
+        return cls(table.to(device=device, dtype=dtype), float(plane.lift_offset),
+                   float(plane.wrist_offset))
+
+
+@functools.cache
+def _ur5_models(device: str, dtype: torch.dtype) -> tuple[TorchChain, TorchPlane]:
+    """The UR5's chain (real gravity) and plane tensors (cached per device and dtype)."""
+    return (TorchChain.from_chain(fastdyn.ur5_chain("float64"), device, dtype),
+            TorchPlane.from_plane(fastdyn.ur5_plane("float64"), device, dtype))
+
+
+# ---------------------------------------------------------------------------- algorithms
+def placements(q: torch.Tensor, chain: TorchChain) -> torch.Tensor:
+    """Each body's rotation in its parent's frame, ``R (B, 6, 3, 3)`` for ``q (B, 6)`` rad:
+    the placement's rotation times Rodrigues' ``c I + (1 - c) a a^T + s [a]x``."""
+    s, c = torch.sin(q)[..., None, None], torch.cos(q)[..., None, None]
+    eye = torch.eye(3, dtype=q.dtype, device=q.device)
+    turn = c * eye + (1.0 - c) * chain.axis_outer + s * chain.skew_axis
+    return torch.matmul(chain.rotation, turn)
+
+
+def motion_transforms(R: torch.Tensor, chain: TorchChain) -> torch.Tensor:
+    """Parent-to-child motion transforms ``X (B, 6, 6, 6)`` of the placements ``(R, p)``:
+    ``X = [R^T, -R^T [p]x; 0, R^T]``. Forces go child-to-parent by ``X^T``."""
+    Rt = R.transpose(-1, -2)
+    top = torch.cat([Rt, -torch.matmul(Rt, chain.skew_translation)], -1)
+    bottom = torch.cat([torch.zeros_like(Rt), Rt], -1)
+    return torch.cat([top, bottom], -2)
+
+
+def gravity_torque(X: torch.Tensor, chain: TorchChain) -> torch.Tensor:
+    """``g(q) (B, 6)``: the recursive Newton-Euler algorithm at rest (v = 0, qdd = 0) for the
+    motion transforms ``X`` of ``q``, in the chain's gravity units."""
+    acc = chain.base_acceleration
+    forces = []
+    for i in range(NJ):
+        acc = _mv(X[:, i], acc)
+        forces.append(torch.matmul(acc, chain.inertia[i].T))
+    torques = [torch.empty(0)] * NJ
+    for i in range(NJ - 1, -1, -1):
+        torques[i] = torch.matmul(forces[i], chain.subspace[i])
+        if i > 0:
+            forces[i - 1] = forces[i - 1] + _mv(X[:, i].transpose(-1, -2), forces[i])
+    return torch.stack(torques, -1)
+
+
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return torch.linalg.cross(a, b, dim=-1)
+
+
+def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain: TorchChain
+                     ) -> torch.Tensor:
+    """Featherstone's articulated-body algorithm (Pinocchio's ``aba``), batched over copies.
+
+    Parameters
+    ----------
+    X : (B, 6, 6, 6) float
+        :func:`motion_transforms` of the configurations.
+    qd : (B, 6) float
+        Joint velocities (rad/s, or rad per substep in the time-scaled units).
+    tau : (B, 6) float
+        Joint torques, in the units of the chain's gravity times inertia.
+
+    Returns
+    -------
+    qdd : (B, 6) float
+        ``M(q)^-1 (tau - C(q, qd) qd - g(q))``.
+    """
+    S, inertia = chain.subspace, chain.inertia
+    # pass 1, base to tip: velocities v, bias accelerations c = v x_m (S qd), bias forces
+    # p = v x_f (I v)
+    vel, bias_acc, IA, pA = [], [], [], []
+    for i in range(NJ):
+        joint = qd[:, i : i + 1] * S[i]
+        v = joint if i == 0 else _mv(X[:, i], vel[-1]) + joint
+        vel.append(v)
+        bias_acc.append(qd[:, i : i + 1] * torch.matmul(v, chain.bias_map[i]))
+        h = torch.matmul(v, inertia[i].T)
+        lin, ang, h_lin = v[:, :3], v[:, 3:], h[:, :3]
+        pA.append(torch.cat([_cross(ang, h_lin),
+                             _cross(ang, h[:, 3:]) + _cross(lin, h_lin)], -1))
+        IA.append(inertia[i])  # broadcast (6, 6) until a child adds to it
+    # pass 2, tip to base: articulated inertias IA and bias forces pA
+    U, D, u = [torch.empty(0)] * NJ, [torch.empty(0)] * NJ, [torch.empty(0)] * NJ
+    for i in range(NJ - 1, -1, -1):
+        U[i] = torch.matmul(IA[i], S[i])  # (B, 6)
+        D[i] = torch.matmul(U[i], S[i]) + chain.armature[i]  # (B,)
+        u[i] = tau[:, i] - torch.matmul(pA[i], S[i])
+        if i == 0:
+            break
+        scaled = U[i] / D[i].unsqueeze(-1)
+        Ia = IA[i] - scaled.unsqueeze(-1) * U[i].unsqueeze(-2)
+        pa = pA[i] + _mv(Ia, bias_acc[i]) + scaled * u[i].unsqueeze(-1)
+        Xt = X[:, i].transpose(-1, -2)
+        IA[i - 1] = IA[i - 1] + torch.matmul(torch.matmul(Xt, Ia), X[:, i])
+        pA[i - 1] = pA[i - 1] + _mv(Xt, pa)
+    # pass 3, base to tip: accelerations (the base accelerates up: gravity)
+    acc = chain.base_acceleration
+    qdd = []
+    for i in range(NJ):
+        acc = _mv(X[:, i], acc) + bias_acc[i]
+        a = (u[i] - (U[i] * acc).sum(-1)) / D[i]
+        acc = acc + a.unsqueeze(-1) * S[i]
+        qdd.append(a)
+    return torch.stack(qdd, -1)
+
+
+def plane_heights(q: torch.Tensor, plane: TorchPlane, base_height: float) -> torch.Tensor:
+    """Lowest point ``(B, 6)`` (m, world z) of each moving link at ``q (B, 6)`` rad: the 13
+    trigonometric features of :func:`ur5kin.collision._features` times the vertex table, the
+    minimum per link (the numba kernel's ``_link_heights``)."""
+    a = q[:, 1] + plane.lift_offset
+    b = a + q[:, 2]
+    c = b + q[:, 3] + plane.wrist_offset
+    sc, cc = torch.sin(c), torch.cos(c)
+    s5, c5, s6, c6 = torch.sin(q[:, 4]), torch.cos(q[:, 4]), torch.sin(q[:, 5]), torch.cos(q[:, 5])
+    sc5 = sc * c5
+    feat = torch.stack([torch.ones_like(a), torch.sin(a), torch.cos(a), torch.sin(b),
+                        torch.cos(b), sc, cc, sc5, sc * s5, sc5 * c6, cc * s6, cc * c6,
+                        sc5 * s6], -1)
+    heights = torch.matmul(feat, plane.vertex_heights)  # (B, 6 K)
+    return heights.view(q.shape[0], NJ, -1).amin(-1) + base_height
+
+
+def tool_position(R: torch.Tensor, chain: TorchChain, tool: torch.Tensor, base_height: float
+                  ) -> torch.Tensor:
+    """tool0's world position ``(B, 3)`` m for the placements ``R (B, 6, 3, 3)``: the chain's
+    placements composed base to tip, the base at ``(0, 0, base_height)``; ``tool (3,)`` m is the
+    tool frame's origin in joint 6's frame."""
+    rot = R[:, 0]
+    pos = chain.translation[0].expand(R.shape[0], 3)
+    for i in range(1, NJ):
+        pos = pos + _mv(rot, chain.translation[i])
+        rot = torch.matmul(rot, R[:, i])
+    pos = pos + _mv(rot, tool)
+    lift = torch.zeros(3, dtype=pos.dtype, device=pos.device)
+    lift[2] = base_height
+    return pos + lift
+
+
+def _batch(x: Any, name: str, device: Any, dtype: torch.dtype) -> torch.Tensor:
+    """``x`` as a ``(B, 6)`` tensor on ``device``; ValueError naming ``name`` otherwise."""
+    t = torch.as_tensor(x, device=device, dtype=dtype)
+    if t.ndim != 2 or t.shape[1] != NJ:
+        raise ValueError(f"{name} must be a (B, 6) array or tensor; got shape {tuple(t.shape)}")
+    return t
+
+
+def aba(q: Any, v: Any, tau: Any, device: Any = "cpu", dtype: Any = "float64") -> torch.Tensor:
+    """Joint accelerations of B copies of the UR5 (Pinocchio's ``aba`` for each row), batched.
+
+    Parameters
+    ----------
+    q : (B, 6) float, rad
+    v : (B, 6) float, rad/s
+    tau : (B, 6) float, N m
+    device : str or torch.device
+    dtype : float64 or float32
+
+    Returns
+    -------
+    a : (B, 6) tensor, rad/s^2
+        ``M(q)^-1 (tau - C(q, v) v - g(q))`` under the model's gravity.
+    """
+    cast = _dtype(dtype)
+    chain, _ = _ur5_models(str(torch.device(device)), cast)
+    q, v, tau = (_batch(x, n, device, cast) for x, n in ((q, "q"), (v, "v"), (tau, "tau")))
+    if not q.shape == v.shape == tau.shape:
+        raise ValueError(f"q, v and tau must have one shape; got {tuple(q.shape)}, "
+                         f"{tuple(v.shape)}, {tuple(tau.shape)}")
+    return articulated_body(motion_transforms(placements(q, chain), chain), v, tau, chain)
+
+
+def generalized_gravity(q: Any, device: Any = "cpu", dtype: Any = "float64") -> torch.Tensor:
+    """Gravity torques ``g(q) (B, 6)`` N m (Pinocchio's ``computeGeneralizedGravity`` for each
+    row ``q (B, 6)`` rad), batched."""
+    cast = _dtype(dtype)
+    chain, _ = _ur5_models(str(torch.device(device)), cast)
+    q = _batch(q, "q", device, cast)
+    return gravity_torque(motion_transforms(placements(q, chain), chain), chain)
+
+
+def link_heights(q: Any, base_height: float, device: Any = "cpu", dtype: Any = "float64"
+                 ) -> torch.Tensor:
+    """The plane check: lowest point ``(B, 6)`` (m, world z) of shoulder_link .. wrist_3_link
+    for ``q (B, 6)`` rad, base_link ``base_height`` m above the plane
+    (:func:`ur5kin.link_heights` without the fixed base link)."""
+    cast = _dtype(dtype)
+    _, plane = _ur5_models(str(torch.device(device)), cast)
+    return plane_heights(_batch(q, "q", device, cast), plane,
+                         float(ur5kin.check_base_height(base_height)))
+
+
+# ---------------------------------------------------------------------------- the class
+class TorchArmDynamics:
+    """B copies of the UR5 under the task's controller, one vectorised torch step per call.
+
+    The same parameters, attributes and methods as :class:`envs.fastdyn.FastArmDynamics` (and
+    the same physics to rounding; tested against it), with tensors for arrays: the state lives
+    on ``device``, a step is a fixed graph of tensor operations.
+
+    Parameters
+    ----------
+    task : TaskSpec
+        Start pose, controlled joints, control mode, gains, rates, base height, plane margin.
+        Only the stop contact model (:func:`supports`).
+    num_copies : int
+        B, the number of independent arms.
+    device : str or torch.device
+        Where the tensors live and the step runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``).
+    dtype : {"float64", "float32"}
+        The arithmetic and the state's type. float32 drifts from float64 like the numba path's
+        (the bounds are in the tests).
+    compile : bool
+        Run the step through ``torch.compile`` (compiled on the first step; on the CPU it needs
+        a C++ compiler). The plain step is what the tests check; the compiled one is checked
+        against it where it is used.
+
+    Attributes
+    ----------
+    q : (B, 6) tensor, rad
+        Joint angles now.
+    v : (B, 6) tensor, rad/s
+        Joint velocities now.
+    acceleration : (B, 6) tensor, rad/s^2
+        Mean realised acceleration over the last step (zero after a reset).
+    contact : (B,) bool tensor
+        Whether the last step stopped on the plane.
+    limit_stop : (B,) bool tensor
+        Whether the last step stopped at a URDF joint position limit.
+
+    The tensors are owned by this object and overwritten in place by every step (their storage
+    never changes, as a CUDA graph needs); clone what you keep.
+    """
+
+    def __init__(self, task: TaskSpec, num_copies: int = 1, device: Any = "cpu",
+                 dtype: Any = "float64", compile: bool = False) -> None:
+        if not isinstance(num_copies, int | np.integer) or num_copies < 1:
+            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
+        if not supports(task):
+            raise ValueError(f"TorchArmDynamics implements the stop contact model (as envs."
+                             f"fastdyn does); got contact_model="
+                             f"{getattr(task, 'contact_model', None)!r}")
+        device = torch.device(device)
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"device {str(device)!r}: torch sees no CUDA device here")
+        cast = _dtype(dtype)
+        self.task, self.num_copies, self.device, self.dtype = task, int(num_copies), device, cast
+        B, h, n = self.num_copies, task.sim_dt, task.n_joints
+        model = ur5kin.load_model()
+        chain = fastdyn.ChainModel.from_pinocchio(model)
+        # time-scaled units (envs.dynamics): gravity and torques * h^2, velocities w = h v
+        self._chain = TorchChain.from_chain(
+            dataclasses_replace(chain, gravity=chain.gravity * h * h), device, cast)
+        self._plane = TorchPlane.from_plane(fastdyn.ur5_plane("float64"), device, cast)
+        tool = model.frames[model.getFrameId(ur5kin.TOOL_FRAME)]
+        if tool.parentJoint != NJ:
+            raise ValueError(f"{ur5kin.TOOL_FRAME} hangs on joint {tool.parentJoint}; the torch "
+                             f"path expects joint {NJ}")
+
+        def t(x: Any) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(x, dtype=np.float64)).to(device=device, dtype=cast)
+
+        self._tool_pos = t(tool.placement.translation)
+        kp, kd = np.asarray(task.kp) * h * h, np.asarray(task.kd) * h
+        kp_eff, kd_eff = kp.copy(), kd.copy()
+        if task.control_mode != "position":
+            kp_eff[:n] = 0.0
+        if task.control_mode == "torque":
+            kd_eff[:n] = 0.0
+        self._kp, self._kd = t(kp_eff), t(kd_eff)
+        # command -> constant torque part b: kp q_cmd, kd (h v_cmd) or h^2 tau_cmd
+        self._command_gain = t({"position": kp[:n], "velocity": kd[:n] * h,
+                                "torque": np.full(n, h * h)}[task.control_mode])
+        self._effort = t(ur5kin.effort_limits() * h * h)
+        self._w_max = t(ur5kin.velocity_limits() * h)
+        lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
+        self._q_mid, self._q_half = t(0.5 * (lo + hi)), t(0.5 * (hi - lo))
+        self._start_q = np.asarray(task.start_q, dtype=float)
+        self._bias = torch.zeros((B, NJ), device=device, dtype=cast)
+        self._bias[:, n:] = t(kp[n:] * self._start_q[n:])  # held joints: PD to the start
+        self._w_to_v, self._w_to_accel = 1.0 / h, 1.0 / (h * task.dt)
+        self._gravity_comp = bool(task.gravity_compensation)
+        self._base_height, self._margin = float(task.base_height), float(task.plane_margin)
+
+        self.q = t(self._start_q).repeat(B, 1)
+        self._w = torch.zeros((B, NJ), device=device, dtype=cast)
+        self.v = torch.zeros_like(self._w)
+        self.acceleration = torch.zeros_like(self._w)
+        self.contact = torch.zeros(B, dtype=torch.bool, device=device)
+        self.limit_stop = torch.zeros_like(self.contact)
+        self._tool = tool_position(placements(self.q, self._chain), self._chain, self._tool_pos,
+                                   self._base_height)
+        # the compiled unit is the substep: a graph of a few hundred operations (the whole
+        # step unrolls to substeps times as many, and compiles for as much longer)
+        self._substep_fn = (torch.compile(self._masked_substep, dynamic=False) if compile
+                            else self._masked_substep)
+
+    # ------------------------------------------------------------------ the step
+    def _substep(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One substep of every copy: the candidate ``(q', w')`` and its ``(B,)`` flags
+        (beyond a joint limit, a link below the plane margin)."""
+        chain = self._chain
+        X = motion_transforms(placements(q, chain), chain)
+        tau = bias - self._kp * q - self._kd * w
+        if self._gravity_comp:
+            tau = tau + gravity_torque(X, chain)
+        tau = torch.minimum(torch.maximum(tau, -self._effort), self._effort)
+        w1 = w + articulated_body(X, w, tau, chain)
+        w1 = torch.minimum(torch.maximum(w1, -self._w_max), self._w_max)
+        q1 = q + w1
+        beyond = ((q1 - self._q_mid).abs() > self._q_half).any(-1)
+        below = (plane_heights(q1, self._plane, self._base_height) < self._margin).any(-1)
+        return q1, w1, beyond, below
+
+    def _masked_substep(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor,
+                        running: torch.Tensor, contact: torch.Tensor, limit: torch.Tensor
+                        ) -> tuple[torch.Tensor, ...]:
+        """One substep with the stop model, for copies still ``running`` ((B,) bool).
+
+        A substep that leaves the joint limits or brings a link below the plane margin is not
+        taken: the copy stays where it is with ``w = 0`` (stopped dead) and stops running; the
+        substeps it has left are computed and discarded by the masks, as ArmDynamics computes
+        and discards them. Returns the new ``q, w, running, contact, limit``.
+        """
+        q1, w1, beyond, below = self._substep(q, w, bias)
+        beyond, below = beyond & running, below & running
+        running = running & ~(beyond | below)
+        keep = running.unsqueeze(-1)
+        return (torch.where(keep, q1, q),
+                torch.where(keep, w1, torch.zeros_like(w1)),  # a stopped copy's w is already 0
+                running, contact | below, limit | beyond)
+
+    def _control_step(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor
+                      ) -> tuple[torch.Tensor, ...]:
+        """``task.substeps`` masked substeps of every copy; pure (new tensors). Returns ``q,
+        w, contact, limit_stop, tool``."""
+        running = torch.ones(q.shape[0], dtype=torch.bool, device=q.device)
+        contact, limit = torch.zeros_like(running), torch.zeros_like(running)
+        for _ in range(self.task.substeps):
+            q, w, running, contact, limit = self._substep_fn(q, w, bias, running, contact, limit)
+        tool = tool_position(placements(q, self._chain), self._chain, self._tool_pos,
+                             self._base_height)
+        return q, w, contact, limit, tool
+
+    def step(self, command: Any) -> None:
+        """Advance every copy by one control step of ``task.substeps`` substeps.
+
+        Parameters
+        ----------
+        command : (B, n) float tensor or array
+            Per copy, the command of joints 1..n in the control mode's unit (rad, rad/s or
+            N m), already within :func:`envs.dynamics.command_bounds`. A tensor on ``device``
+            avoids a host-to-device copy.
+        """
+        n = self.task.n_joints
+        command = torch.as_tensor(command, device=self.device, dtype=self.dtype)
+        if command.shape != (self.num_copies, n):
+            raise ValueError(f"command must be ({self.num_copies}, {n}); got "
+                             f"{tuple(command.shape)}")
+        torch.mul(self._command_gain, command, out=self._bias[:, :n])
+        q, w, contact, limit, tool = self._control_step(self.q, self._w, self._bias)
+        torch.mul(w - self._w, self._w_to_accel, out=self.acceleration)
+        self.q.copy_(q)
+        self._w.copy_(w)
+        torch.mul(w, self._w_to_v, out=self.v)
+        self.contact.copy_(contact)
+        self.limit_stop.copy_(limit)
+        self._tool.copy_(tool)
+
+    def tool_positions(self, out: Any = None) -> Any:
+        """tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)), written into
+        ``out`` (a tensor, or a numpy array, which costs a device-to-host copy) when given."""
+        if out is None:
+            return self._tool.clone()
+        if isinstance(out, np.ndarray):
+            out[:] = self._tool.cpu().numpy()
+        else:
+            out.copy_(self._tool)
+        return out
+
+    def _link_heights(self, q: np.ndarray) -> np.ndarray:
+        """Exact lowest point ``(..., 6)`` (m, world z) of each moving link, on the host."""
+        return ur5kin.link_heights(q, self.task.base_height)[..., 1:]
+
+    def reset(self, q: Any, index: Any = None) -> None:
+        """Put copies at rest at configurations ``q`` (as :meth:`envs.dynamics.ArmDynamics.reset`).
+
+        Parameters
+        ----------
+        q : (6,) or (m, 6) float, rad
+            Configurations, clear of the plane and within the joint limits.
+        index : None, int, slice, (m,) int or (B,) bool
+            Which copies (all when None).
+
+        Raises
+        ------
+        ValueError
+            When a configuration is not clear of the plane by the task's margin (checked on
+            the host: a reset synchronises).
+        """
+        q = np.asarray(q.cpu() if isinstance(q, torch.Tensor) else q, dtype=float)
+        heights = self._link_heights(q)
+        if np.any(heights < self.task.plane_margin):
+            raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
+                             f"{heights.min():.4f} m, below the plane margin "
+                             f"{self.task.plane_margin} m")
+        sel = slice(None) if index is None else index
+        if isinstance(sel, np.ndarray):
+            sel = torch.as_tensor(sel, device=self.device)
+        self.q[sel] = torch.as_tensor(q, device=self.device, dtype=self.dtype)
+        for state in (self.v, self._w, self.acceleration):
+            state[sel] = 0.0
+        self.contact[sel] = False
+        self.limit_stop[sel] = False
+        self._tool.copy_(tool_position(placements(self.q, self._chain), self._chain,
+                                       self._tool_pos, self._base_height))

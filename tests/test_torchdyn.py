@@ -1,0 +1,219 @@
+"""The vectorised torch dynamics (envs.torchdyn), checked against Pinocchio and the numba path.
+
+Two paths everywhere: the batched ABA and gravity against ``pin.aba`` /
+``pin.computeGeneralizedGravity`` row by row, the plane check against ur5kin.link_heights, the
+tool position against ur5kin.fk, and whole control steps (plane contacts and joint-limit stops
+included) against envs.fastdyn.FastArmDynamics. Every test runs on the CPU, and again on CUDA
+where torch sees a GPU.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from stepping import record
+
+import ur5kin
+from envs import fastdyn
+from envs.dynamics import command_bounds
+from envs.spec import TaskSpec
+
+torch = pytest.importorskip("torch")
+torchdyn = pytest.importorskip("envs.torchdyn")
+pytest.importorskip("numba")  # the reference of the whole steps is the numba path
+
+DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="torch sees no CUDA device"))]
+
+F32_ACCEL_RTOL = 1e-4
+"""Bound of float32 accelerations: ``|a32 - a| <= F32_ACCEL_RTOL (1 + |a|_max)`` rad/s^2 per
+batch, ``|a|_max`` the batch's largest float64 acceleration (the numba path's bound; measured
+2e-4 rad/s^2 at |a|_max = 1,900, i.e. 1e-7 relative)."""
+
+F32_STEP_ATOL = 1e-4
+"""Bound (rad) of float32 joint angles against float64 ones after 5 free control steps (the
+numba path's bound)."""
+
+STEP_KEYS = ("q", "v", "acceleration", "contact", "limit_stop", "tool")
+
+
+def random_states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-np.pi, np.pi, (n, 6))
+    v = rng.uniform(-3.0, 3.0, (n, 6))  # rad/s, the URDF's velocity limits
+    tau = rng.uniform(-1.0, 1.0, (n, 6)) * ur5kin.effort_limits()
+    return q, v, tau
+
+
+def pinocchio_rows(func, *arrays: np.ndarray) -> np.ndarray:
+    model = ur5kin.load_model()
+    data = model.createData()
+    return np.array([func(model, data, *row).copy() for row in zip(*arrays, strict=True)])
+
+
+def host(x) -> np.ndarray:
+    return x.detach().cpu().numpy()
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_aba_is_pinocchios_in_float64(device):
+    q, v, tau = random_states(200, seed=0)
+    reference = pinocchio_rows(pin.aba, q, v, tau)
+    a = torchdyn.aba(q, v, tau, device=device)
+    assert a.dtype == torch.float64 and a.device.type == device
+    np.testing.assert_allclose(host(a), reference, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_aba_in_float32_within_the_stated_bound(device):
+    q, v, tau = random_states(200, seed=1)
+    reference = pinocchio_rows(pin.aba, q, v, tau)
+    a32 = torchdyn.aba(q, v, tau, device=device, dtype="float32")
+    assert a32.dtype == torch.float32
+    assert np.abs(host(a32) - reference).max() <= F32_ACCEL_RTOL * (1.0 + np.abs(reference).max())
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_gravity_torque_is_pinocchios(device):
+    q, _, _ = random_states(200, seed=2)
+    reference = pinocchio_rows(pin.computeGeneralizedGravity, q)
+    np.testing.assert_allclose(host(torchdyn.generalized_gravity(q, device=device)), reference,
+                               rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_plane_heights_and_tool_are_ur5kins(device):
+    q = np.random.default_rng(3).uniform(-np.pi, np.pi, (300, 6))
+    heights = torchdyn.link_heights(q, 0.5, device=device)
+    np.testing.assert_allclose(host(heights), ur5kin.link_heights(q, 0.5)[:, 1:], atol=1e-12)
+    chain, _ = torchdyn._ur5_models(device, torch.float64)
+    R = torchdyn.placements(torch.as_tensor(q, device=device), chain)
+    model = ur5kin.load_model()
+    tool = model.frames[model.getFrameId(ur5kin.TOOL_FRAME)].placement.translation
+    world = torchdyn.tool_position(R, chain, torch.as_tensor(tool, device=device), 0.5)
+    np.testing.assert_allclose(host(world), ur5kin.to_world(ur5kin.fk(q), 0.5), atol=1e-12)
+
+
+def test_bad_inputs_are_refused():
+    with pytest.raises(ValueError, match=r"\(B, 6\)"):
+        torchdyn.aba(np.zeros((2, 5)), np.zeros((2, 5)), np.zeros((2, 5)))
+    with pytest.raises(ValueError, match="dtype"):
+        torchdyn.aba(np.zeros((2, 6)), np.zeros((2, 6)), np.zeros((2, 6)), dtype="float16")
+    with pytest.raises(ValueError, match="num_copies"):
+        torchdyn.TorchArmDynamics(TaskSpec(), 0)
+    with pytest.raises(ValueError, match="stop contact model"):
+        torchdyn.TorchArmDynamics(TaskSpec(contact_model="compliant"), 2)
+    dyn = torchdyn.TorchArmDynamics(TaskSpec(n_joints=3), 2)
+    with pytest.raises(ValueError, match=r"\(2, 3\)"):
+        dyn.step(np.zeros((2, 4)))
+    q = np.random.default_rng(8).uniform(-np.pi, np.pi, (50, 6))
+    low = q[ur5kin.link_heights(q, dyn.task.base_height).min(axis=1) < dyn.task.plane_margin]
+    with pytest.raises(ValueError, match="below the plane margin"):
+        dyn.reset(low[0])
+
+
+# ------------------------------------------------------------------ whole control steps
+def run_both(task: TaskSpec, commands: np.ndarray, start: np.ndarray | None = None,
+             device: str = "cpu", dtype: str = "float64") -> tuple[dict, dict]:
+    """Step FastArmDynamics (float64) and TorchArmDynamics through ``commands (T, B, n)``."""
+    B = commands.shape[1]
+    fast = fastdyn.FastArmDynamics(task, B)
+    dyn = torchdyn.TorchArmDynamics(task, B, device=device, dtype=dtype)
+    logs = []
+    for d, to_host in ((fast, np.asarray), (dyn, host)):
+        if start is not None:
+            d.reset(start)
+        view = _Recorded(d, to_host)
+        logs.append(record(view, commands, STEP_KEYS))
+    return logs[0], logs[1]
+
+
+class _Recorded:
+    """A dynamics object seen through numpy: its state arrays and the tool position."""
+
+    def __init__(self, dyn, to_host) -> None:
+        self.dyn, self.to_host = dyn, to_host
+
+    def step(self, command: np.ndarray) -> None:
+        self.dyn.step(command)
+
+    def __getattr__(self, name: str):
+        if name == "tool":
+            out = np.zeros((self.dyn.num_copies, 3))
+            if isinstance(self.dyn, fastdyn.FastArmDynamics):
+                return self.dyn.tool_positions(out)
+            return self.to_host(self.dyn.tool_positions())
+        return np.array(self.to_host(getattr(self.dyn, name)))
+
+
+def assert_same_steps(ref: dict, got: dict, atol: float) -> None:
+    np.testing.assert_array_equal(got["contact"], ref["contact"])
+    np.testing.assert_array_equal(got["limit_stop"], ref["limit_stop"])
+    np.testing.assert_allclose(got["q"], ref["q"], atol=atol)
+    np.testing.assert_allclose(got["v"], ref["v"], atol=atol / 1e-3)  # v = w / h
+    np.testing.assert_allclose(got["acceleration"], ref["acceleration"], atol=atol / 2e-5)
+    np.testing.assert_allclose(got["tool"], ref["tool"], atol=atol)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize(("mode", "n_joints", "gravity_compensation"),
+                         [("position", 3, True), ("velocity", 6, True), ("torque", 2, True),
+                          ("torque", 3, False), ("position", 5, True)])
+def test_control_steps_are_fastdyns(mode, n_joints, gravity_compensation, device):
+    task = TaskSpec(region="unconstrained", n_joints=n_joints, control_mode=mode,
+                    gravity_compensation=gravity_compensation)
+    low, high = command_bounds(task)
+    commands = np.random.default_rng(4).uniform(low, high, (40, 16, n_joints))
+    ref, got = run_both(task, commands, device=device)
+    assert ref["contact"].any()  # random commands drive the arm into the plane
+    assert_same_steps(ref, got, atol=1e-9)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_joint_limit_stops_are_fastdyns(device):
+    task = TaskSpec(region="unconstrained", n_joints=3, control_mode="velocity")
+    low, high = command_bounds(task)
+    model = ur5kin.load_model()
+    start = np.tile(np.asarray(task.start_q), (8, 1))
+    start[:, 0] = np.linspace(-1.0, 1.0, 8) * (model.upperPositionLimit[0] - 0.05)
+    commands = np.zeros((10, 8, 3))
+    commands[:, :, 0] = np.where(start[:, 0] > 0, high[0], low[0])[None]  # into the end stop
+    ref, got = run_both(task, commands, start=start, device=device)
+    assert ref["limit_stop"].any() and not ref["limit_stop"].all()
+    assert_same_steps(ref, got, atol=1e-9)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_float32_steps_within_the_stated_bound(device):
+    task = TaskSpec(region="unconstrained", n_joints=3, control_mode="torque")
+    commands = np.zeros((5, 4, 3))  # the arm held by gravity compensation, free of contacts
+    commands[:, :, 0] = 20.0
+    ref, got = run_both(task, commands, device=device, dtype="float32")
+    assert not ref["contact"].any()
+    assert np.abs(got["q"] - ref["q"]).max() <= F32_STEP_ATOL
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_reset_of_some_copies_is_fastdyns(device):
+    task = TaskSpec(region="unconstrained", n_joints=3)
+    low, high = command_bounds(task)
+    commands = np.random.default_rng(7).uniform(low, high, (6, 5, 3))
+    pose = np.asarray(task.start_q) + np.array([0.3, -0.2, 0.1, 0.0, 0.0, 0.0])
+    pair = (fastdyn.FastArmDynamics(task, 5),
+            torchdyn.TorchArmDynamics(task, 5, device=device))
+    mask = np.array([True, False, True, False, False])
+    for d in pair:
+        for command in commands[:3]:
+            d.step(command)
+        d.reset(pose, mask)
+        d.reset(np.asarray(task.start_q), 3)
+    assert not host(pair[1].v)[mask].any() and not host(pair[1].contact)[mask].any()
+    np.testing.assert_allclose(host(pair[1].q), pair[0].q, atol=1e-12)
+    np.testing.assert_allclose(host(pair[1].tool_positions()),
+                               pair[0].tool_positions(np.zeros((5, 3))), atol=1e-12)
+    for d in pair:
+        for command in commands[3:]:
+            d.step(command)
+    np.testing.assert_allclose(host(pair[1].q), pair[0].q, atol=1e-9)
+    np.testing.assert_allclose(host(pair[1].v), pair[0].v, atol=1e-6)
