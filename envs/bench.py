@@ -10,9 +10,16 @@ The table gives each env's median over the rounds, the median over rounds of its
 single env's steps/s in the same round, and its ratio to the peer's median. Vector rows count
 copy-steps (N per call).
 
+With ``--device``, two more rows time the batched dynamics alone (no env around them), on the
+same protocol (uniform random commands of the control mode drawn before the clock, every copy
+restarted at the start pose each ``max_episode_steps`` steps): the vectorised torch path of
+:mod:`envs.torchdyn` on that device, and the numba kernel of :mod:`envs.fastdyn` on the CPU
+beside it. On CUDA the clock is read after ``torch.cuda.synchronize()``.
+
     python -m envs.bench                 # the table
     python -m envs.bench --json          # machine-readable
     python -m envs.bench --num-envs 4096 --peer none --sync 0   # a large batch
+    python -m envs.bench --device cpu --steps 200 --rounds 3 --sync 0 --reference 0 --peer none
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ import gymnasium
 import numpy as np
 
 import envs
+from envs.dynamics import command_bounds
 from envs.spec import TaskSpec
 
 
@@ -47,11 +55,16 @@ class BenchConfig:
     """Interleaved rounds; the table reports each env's median over them."""
     num_envs: int = 64
     """Copies N of the batched and sync-vector rows (0 skips both)."""
-    device: str = "cpu"
-    """Where the batched dynamics run. Only ``cpu`` exists today (numba kernel); ``cuda`` is
-    refused with the reason (results/batched_env/README.md has the plan)."""
+    device: str | None = None
+    """Where to also time the torch dynamics (:mod:`envs.torchdyn`): ``cpu`` or ``cuda``, next
+    to the numba dynamics on the CPU; None: neither dynamics row."""
+    torch_dtype: str = "float64"
+    """Arithmetic of the torch dynamics: float64 (the env's) or float32."""
+    compile: str = "none"
+    """``torch.compile`` mode of the torch dynamics' substep (compiled before the clock):
+    none (eager), default, reduce-overhead (CUDA graphs on a GPU) or max-autotune."""
     threads: int = 1
-    """CPU threads of the batched env's fast dynamics."""
+    """CPU threads of the batched env's fast dynamics (and of torch on the CPU)."""
     reference: bool = True
     """Also measure the batched env on the reference Pinocchio dynamics."""
     sync: bool = True
@@ -72,11 +85,17 @@ class BenchConfig:
     """Print JSON instead of the table."""
 
 
-def _rate(step: Callable[[], Any], count: int) -> float:
-    """Calls of ``step`` per second over ``count`` calls."""
+def _rate(step: Callable[[], Any], count: int, synchronize: Callable[[], Any] | None = None
+          ) -> float:
+    """Calls of ``step`` per second over ``count`` calls; ``synchronize`` (a device's) runs
+    before each reading of the clock, so that queued work is counted."""
+    if synchronize is not None:
+        synchronize()
     start = time.perf_counter()
     for _ in range(count):
         step()
+    if synchronize is not None:
+        synchronize()
     return count / (time.perf_counter() - start)
 
 
@@ -121,6 +140,42 @@ def vector_runner(env: gymnasium.vector.VectorEnv, copy_steps: int, seed: int
     return lambda: _rate(step, calls) * env.num_envs
 
 
+def dynamics_runner(dyn: Any, task: TaskSpec, copy_steps: int, seed: int,
+                    device: str | None = None) -> Callable[[], float]:
+    """A round of random control steps of a batched dynamics (``envs.fastdyn`` or
+    ``envs.torchdyn``); returns copy-steps/s.
+
+    Commands are uniform in :func:`envs.dynamics.command_bounds`, drawn before the clock (on
+    ``device`` for the torch path, as a trainer on that device would hand them over); every
+    copy goes back to the start pose each ``task.max_episode_steps`` steps, as the env's
+    episodes end at the latest. With ``device`` "cuda" the clock waits for the GPU.
+    """
+    calls = max(1, copy_steps // dyn.num_copies)
+    low, high = command_bounds(task)
+    commands: Any = np.random.default_rng(seed).uniform(low, high,
+                                                        (calls, dyn.num_copies, len(low)))
+    synchronize = None
+    if device is not None:
+        import torch
+
+        commands = torch.as_tensor(commands, device=device, dtype=dyn.dtype)
+        if torch.device(device).type == "cuda":
+            synchronize = torch.cuda.synchronize
+    start = np.asarray(task.start_q, dtype=float)
+    dyn.step(commands[0])  # off the clock: kernels load or compile on the first call
+    dyn.reset(start)
+    state = {"i": 0}
+
+    def step() -> None:
+        i = state["i"]
+        if i and i % task.max_episode_steps == 0:
+            dyn.reset(start)
+        dyn.step(commands[i % calls])
+        state["i"] = i + 1
+
+    return lambda: _rate(step, calls, synchronize) * dyn.num_copies
+
+
 def make_peer(env_id: str) -> gymnasium.Env | str:
     """The peer env, or a sentence saying why it is unavailable."""
     try:
@@ -136,6 +191,30 @@ def make_peer(env_id: str) -> gymnasium.Env | str:
 
         return (f"{env_id} failed to build under mujoco {mujoco.__version__} "
                 f"({type(err).__name__}: {err}); FetchReach-v4 needs mujoco < 3.12")
+
+
+def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int
+                  ) -> dict[str, Callable[[], float]]:
+    """The rows of ``--device``: the torch dynamics on the device, the numba one on the CPU."""
+    import torch
+
+    from envs import fastdyn, torchdyn
+
+    N = config.num_envs
+    if config.device == "cpu":
+        torch.set_num_threads(config.threads)
+    rows = {}
+    compiled = config.compile != "none"
+    dyn = torchdyn.TorchArmDynamics(task, N, device=config.device, dtype=config.torch_dtype,
+                                    compile=config.compile if compiled else False)
+    name = (f"TorchArmDynamics (N={N}, {config.device}, {config.torch_dtype}"
+            f"{', ' + config.compile if compiled else ''})")
+    rows[name] = dynamics_runner(dyn, task, copy_steps, config.seed, config.device)
+    if fastdyn.available():
+        fast = fastdyn.FastArmDynamics(task, N, threads=config.threads)
+        rows[f"FastArmDynamics (N={N}, numba, cpu)"] = dynamics_runner(fast, task, copy_steps,
+                                                                       config.seed)
+    return rows
 
 
 def run(config: BenchConfig) -> dict[str, Any]:
@@ -157,6 +236,8 @@ def run(config: BenchConfig) -> dict[str, Any]:
             reference = envs.BatchedReach(config.num_envs, task, dynamics="pinocchio")
             rows[f"BatchedReach (N={config.num_envs}, pinocchio)"] = vector_runner(
                 reference, copy_steps, config.seed)
+        if config.device is not None:
+            rows.update(dynamics_rows(config, task, copy_steps))
         if config.sync:
             sync = gymnasium.make_vec("UR5Reach-v0", num_envs=config.num_envs,
                                       vectorization_mode="sync", spec=task)
@@ -198,6 +279,10 @@ def run(config: BenchConfig) -> dict[str, Any]:
     }
 
 
+NAME_WIDTH = 60
+"""Characters of the table's first column (the longest row name, a compiled torch row)."""
+
+
 def format_table(result: dict[str, Any]) -> str:
     """The result as a text table."""
     cfg, peer = result["config"], result["peer"]
@@ -207,12 +292,12 @@ def format_table(result: dict[str, Any]) -> str:
         f"{cfg['rounds']} rounds (median, min-max); the arm touched the plane in "
         f"{100 * result['contact_fraction']:.0f} % of the single env's steps",
         "",
-        f"{'env':<34} {'steps/s':>10} {'min':>10} {'max':>10} {'x single':>9} "
+        f"{'env':<{NAME_WIDTH}} {'steps/s':>10} {'min':>10} {'max':>10} {'x single':>9} "
         f"{'x ' + (peer or 'peer'):>16}",
     ]
     for row in result["results"]:
         ratio = f"{row['ratio_to_peer']:.2f}" if row["ratio_to_peer"] is not None else "-"
-        lines.append(f"{row['env']:<34} {row['steps_per_s']:>10.0f} {row['min']:>10.0f} "
+        lines.append(f"{row['env']:<{NAME_WIDTH}} {row['steps_per_s']:>10.0f} {row['min']:>10.0f} "
                      f"{row['max']:>10.0f} {row['ratio_to_single']:>9.2f} {ratio:>16}")
     measured = {row["env"] for row in result["results"]}
     for name, note in result["notes"].items():
@@ -234,10 +319,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--num-envs", type=int, default=d.num_envs,
                         help="copies N of the batched and sync-vector rows (0 skips them)")
     parser.add_argument("--device", default=d.device, choices=("cpu", "cuda"),
-                        help="where the batched dynamics run (cuda: not implemented yet, "
-                        "refused with the reason)")
+                        help="also time the torch dynamics (envs.torchdyn) on this device, "
+                        "next to the numba dynamics on the CPU, in copy-steps/s (default: "
+                        "neither)")
+    parser.add_argument("--torch-dtype", default=d.torch_dtype, choices=("float64", "float32"),
+                        help="arithmetic of the torch dynamics (with --device)")
+    parser.add_argument("--compile", default=d.compile,
+                        choices=("none", "default", "reduce-overhead", "max-autotune"),
+                        help="torch.compile mode of the torch dynamics' substep, with --device "
+                        "(none: eager; compiled before the clock; reduce-overhead adds CUDA "
+                        "graphs)")
     parser.add_argument("--threads", type=int, default=d.threads,
-                        help="CPU threads of the batched env's compiled dynamics")
+                        help="CPU threads (>= 1) of the batched env's compiled dynamics, and of "
+                        "torch with --device cpu")
     parser.add_argument("--reference", type=int, default=int(d.reference), choices=(0, 1),
                         help="0..1; 1: also time the batched env on the reference Pinocchio "
                              "dynamics (default: %(default)s)")
@@ -263,11 +357,17 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.steps < 1 or args.rounds < 1 or args.num_envs < 0:
         raise SystemExit("--steps and --rounds must be >= 1 and --num-envs >= 0")
+    if args.device is not None and args.num_envs < 1:
+        raise SystemExit("--device times the batched dynamics: give --num-envs >= 1")
     if args.device == "cuda":
-        raise SystemExit("--device cuda: the batched dynamics have no CUDA kernel yet (envs."
-                         "fastdyn is a numba CPU kernel); see results/batched_env/README.md")
+        import torch
+
+        if not torch.cuda.is_available():
+            raise SystemExit(f"--device cuda: torch {torch.__version__} sees no CUDA device "
+                             "on this machine")
     config = BenchConfig(steps=args.steps, rounds=args.rounds, num_envs=args.num_envs,
-                         device=args.device, threads=args.threads,
+                         device=args.device, torch_dtype=args.torch_dtype,
+                         compile=args.compile, threads=args.threads,
                          reference=bool(args.reference),
                          sync=bool(args.sync), region=args.region, n_joints=args.n_joints,
                          control_mode=args.control_mode, peer=args.peer, seed=args.seed,

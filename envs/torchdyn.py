@@ -48,6 +48,10 @@ DTYPES = {"float64": torch.float64, "float32": torch.float32}
 """Floating-point types of the tensors."""
 
 
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
+"""``torch.compile`` modes :class:`TorchArmDynamics` accepts for its ``compile`` option."""
+
+
 def supports(task: TaskSpec) -> bool:
     """Whether :class:`TorchArmDynamics` implements ``task``'s physics: the numba path's set
     (:func:`envs.fastdyn.supports`, the stop contact model)."""
@@ -394,10 +398,12 @@ class TorchArmDynamics:
     dtype : {"float64", "float32"}
         The arithmetic and the state's type. float32 drifts from float64 like the numba path's
         (the bounds are in the tests).
-    compile : bool
-        Run the step through ``torch.compile`` (compiled on the first step; on the CPU it needs
-        a C++ compiler). The plain step is what the tests check; the compiled one is checked
-        against it where it is used.
+    compile : bool or str
+        Run each substep through ``torch.compile`` (compiled on the first step): True for its
+        default mode, or a mode name from :data:`COMPILE_MODES` (``"reduce-overhead"`` adds CUDA
+        graphs on a GPU). On the CPU it needs a C++ compiler and was measured at 114 s for the
+        first step and 1.65x the eager steps/s at B = 1,024 (results/batched_env/README.md);
+        a slow test checks it against the eager step.
 
     Attributes
     ----------
@@ -417,7 +423,7 @@ class TorchArmDynamics:
     """
 
     def __init__(self, task: TaskSpec, num_copies: int = 1, device: Any = "cpu",
-                 dtype: Any = "float64", compile: bool = False) -> None:
+                 dtype: Any = "float64", compile: bool | str = False) -> None:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
         if not supports(task):
@@ -425,6 +431,9 @@ class TorchArmDynamics:
                              f"fastdyn does); got contact_model="
                              f"{getattr(task, 'contact_model', None)!r}")
         device = torch.device(device)
+        if compile is not False and compile is not True and compile not in COMPILE_MODES:
+            raise ValueError(f"compile must be a bool or one of {list(COMPILE_MODES)}; got "
+                             f"{compile!r}")
         if device.type == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"device {str(device)!r}: torch sees no CUDA device here")
         cast = _dtype(dtype)
@@ -476,8 +485,10 @@ class TorchArmDynamics:
                                    self._base_height)
         # the compiled unit is the substep: a graph of a few hundred operations (the whole
         # step unrolls to substeps times as many, and compiles for as much longer)
-        self._substep_fn = (torch.compile(self._masked_substep, dynamic=False) if compile
-                            else self._masked_substep)
+        self._substep_fn = self._masked_substep
+        if compile:
+            mode = None if compile is True else compile
+            self._substep_fn = torch.compile(self._masked_substep, dynamic=False, mode=mode)
 
     # ------------------------------------------------------------------ the step
     def _substep(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor
