@@ -65,6 +65,9 @@ class BenchConfig:
     none (eager), default, reduce-overhead (CUDA graphs on a GPU) or max-autotune."""
     threads: int = 1
     """CPU threads of the batched env's fast dynamics (and of torch on the CPU)."""
+    batched: bool = True
+    """Measure the batched env (its fast dynamics; Pinocchio's where numba is missing, as on
+    the GPU machine, where it is too slow at large N to time)."""
     reference: bool = True
     """Also measure the batched env on the reference Pinocchio dynamics."""
     sync: bool = True
@@ -193,9 +196,10 @@ def make_peer(env_id: str) -> gymnasium.Env | str:
                 f"({type(err).__name__}: {err}); FetchReach-v4 needs mujoco < 3.12")
 
 
-def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int
+def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int, notes: dict[str, str]
                   ) -> dict[str, Callable[[], float]]:
-    """The rows of ``--device``: the torch dynamics on the device, the numba one on the CPU."""
+    """The rows of ``--device``: the torch dynamics on the device, the numba one on the CPU
+    (a note in ``notes`` where numba is missing)."""
     import torch
 
     from envs import fastdyn, torchdyn
@@ -210,10 +214,12 @@ def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int
     name = (f"TorchArmDynamics (N={N}, {config.device}, {config.torch_dtype}"
             f"{', ' + config.compile if compiled else ''})")
     rows[name] = dynamics_runner(dyn, task, copy_steps, config.seed, config.device)
+    numba_row = f"FastArmDynamics (N={N}, numba, cpu)"
     if fastdyn.available():
         fast = fastdyn.FastArmDynamics(task, N, threads=config.threads)
-        rows[f"FastArmDynamics (N={N}, numba, cpu)"] = dynamics_runner(fast, task, copy_steps,
-                                                                       config.seed)
+        rows[numba_row] = dynamics_runner(fast, task, copy_steps, config.seed)
+    else:
+        notes[numba_row] = "numba is not installed"
     return rows
 
 
@@ -227,17 +233,18 @@ def run(config: BenchConfig) -> dict[str, Any]:
     rows["UR5Reach-v0"] = single_runner(single, config.steps, config.seed)
     copy_steps = config.steps * max(config.num_envs, 1) // 8
     if config.num_envs > 0:
-        batched = envs.BatchedReach(config.num_envs, task, threads=config.threads)
-        dynamics = type(batched._core.dynamics).__name__
-        notes[f"BatchedReach (N={config.num_envs})"] = f"dynamics: {dynamics}"
-        rows[f"BatchedReach (N={config.num_envs})"] = vector_runner(batched, copy_steps,
-                                                                    config.seed)
+        if config.batched:
+            batched = envs.BatchedReach(config.num_envs, task, threads=config.threads)
+            dynamics = type(batched._core.dynamics).__name__
+            notes[f"BatchedReach (N={config.num_envs})"] = f"dynamics: {dynamics}"
+            rows[f"BatchedReach (N={config.num_envs})"] = vector_runner(batched, copy_steps,
+                                                                        config.seed)
         if config.reference:
             reference = envs.BatchedReach(config.num_envs, task, dynamics="pinocchio")
             rows[f"BatchedReach (N={config.num_envs}, pinocchio)"] = vector_runner(
                 reference, copy_steps, config.seed)
         if config.device is not None:
-            rows.update(dynamics_rows(config, task, copy_steps))
+            rows.update(dynamics_rows(config, task, copy_steps, notes))
         if config.sync:
             sync = gymnasium.make_vec("UR5Reach-v0", num_envs=config.num_envs,
                                       vectorization_mode="sync", spec=task)
@@ -332,6 +339,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=int, default=d.threads,
                         help="CPU threads (>= 1) of the batched env's compiled dynamics, and of "
                         "torch with --device cpu")
+    parser.add_argument("--batched", type=int, default=int(d.batched), choices=(0, 1),
+                        help="0..1; 1: time BatchedReach (N) (default: %(default)s)")
     parser.add_argument("--reference", type=int, default=int(d.reference), choices=(0, 1),
                         help="0..1; 1: also time the batched env on the reference Pinocchio "
                              "dynamics (default: %(default)s)")
@@ -368,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     config = BenchConfig(steps=args.steps, rounds=args.rounds, num_envs=args.num_envs,
                          device=args.device, torch_dtype=args.torch_dtype,
                          compile=args.compile, threads=args.threads,
-                         reference=bool(args.reference),
+                         batched=bool(args.batched), reference=bool(args.reference),
                          sync=bool(args.sync), region=args.region, n_joints=args.n_joints,
                          control_mode=args.control_mode, peer=args.peer, seed=args.seed,
                          json=args.json)

@@ -3,8 +3,9 @@
 Two paths everywhere: the batched ABA and gravity against ``pin.aba`` /
 ``pin.computeGeneralizedGravity`` row by row, the plane check against ur5kin.link_heights, the
 tool position against ur5kin.fk, and whole control steps (plane contacts and joint-limit stops
-included) against envs.fastdyn.FastArmDynamics. Every test runs on the CPU, and again on CUDA
-where torch sees a GPU.
+included) against envs.fastdyn.FastArmDynamics, or against ArmDynamics (the Pinocchio reference
+that FastArmDynamics is tested against) where numba is missing, as on the GPU machine. Every
+test runs on the CPU, and again on CUDA where torch sees a GPU.
 """
 
 from __future__ import annotations
@@ -16,12 +17,11 @@ from stepping import record
 
 import ur5kin
 from envs import fastdyn
-from envs.dynamics import command_bounds
+from envs.dynamics import ArmDynamics, command_bounds
 from envs.spec import TaskSpec
 
 torch = pytest.importorskip("torch")
 torchdyn = pytest.importorskip("envs.torchdyn")
-pytest.importorskip("numba")  # the reference of the whole steps is the numba path
 
 DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not torch.cuda.is_available(), reason="torch sees no CUDA device"))]
@@ -114,37 +114,47 @@ def test_bad_inputs_are_refused():
 
 
 # ------------------------------------------------------------------ whole control steps
-def run_both(task: TaskSpec, commands: np.ndarray, start: np.ndarray | None = None,
-             device: str = "cpu", dtype: str = "float64") -> tuple[dict, dict]:
-    """Step FastArmDynamics (float64) and TorchArmDynamics through ``commands (T, B, n)``."""
-    B = commands.shape[1]
-    fast = fastdyn.FastArmDynamics(task, B)
-    dyn = torchdyn.TorchArmDynamics(task, B, device=device, dtype=dtype)
-    logs = []
-    for d, to_host in ((fast, np.asarray), (dyn, host)):
-        if start is not None:
-            d.reset(start)
-        view = _Recorded(d, to_host)
-        logs.append(record(view, commands, STEP_KEYS))
-    return logs[0], logs[1]
+def reference(task: TaskSpec, num_copies: int):
+    """The numba path (float64) where numba is installed, else ArmDynamics."""
+    if fastdyn.available():
+        return fastdyn.FastArmDynamics(task, num_copies)
+    return ArmDynamics(task, num_copies)
 
 
-class _Recorded:
-    """A dynamics object seen through numpy: its state arrays and the tool position."""
+class OnHost:
+    """A dynamics object seen through numpy (``record`` reads its arrays and ``tool``)."""
 
-    def __init__(self, dyn, to_host) -> None:
-        self.dyn, self.to_host = dyn, to_host
+    def __init__(self, dyn) -> None:
+        self.dyn = dyn
 
     def step(self, command: np.ndarray) -> None:
         self.dyn.step(command)
 
-    def __getattr__(self, name: str):
+    def __getattr__(self, name: str) -> np.ndarray:
         if name == "tool":
-            out = np.zeros((self.dyn.num_copies, 3))
-            if isinstance(self.dyn, fastdyn.FastArmDynamics):
-                return self.dyn.tool_positions(out)
-            return self.to_host(self.dyn.tool_positions())
-        return np.array(self.to_host(getattr(self.dyn, name)))
+            return tool_of(self.dyn)
+        value = getattr(self.dyn, name)
+        return host(value) if isinstance(value, torch.Tensor) else np.array(value)
+
+
+def tool_of(dyn) -> np.ndarray:
+    """tool0's world positions ``(B, 3)`` m of any of the dynamics, as numpy."""
+    if isinstance(dyn, torchdyn.TorchArmDynamics):
+        return host(dyn.tool_positions())
+    return dyn.tool_positions(np.zeros((dyn.num_copies, 3)))
+
+
+def run_both(task: TaskSpec, commands: np.ndarray, start: np.ndarray | None = None,
+             device: str = "cpu", dtype: str = "float64") -> tuple[dict, dict]:
+    """Step the reference and TorchArmDynamics through ``commands (T, B, n)``; both logs."""
+    B = commands.shape[1]
+    logs = []
+    for dyn in (reference(task, B), torchdyn.TorchArmDynamics(task, B, device=device,
+                                                              dtype=dtype)):
+        if start is not None:
+            dyn.reset(start)
+        logs.append(record(OnHost(dyn), commands, STEP_KEYS))
+    return logs[0], logs[1]
 
 
 def assert_same_steps(ref: dict, got: dict, atol: float) -> None:
@@ -200,8 +210,7 @@ def test_reset_of_some_copies_is_fastdyns(device):
     low, high = command_bounds(task)
     commands = np.random.default_rng(7).uniform(low, high, (6, 5, 3))
     pose = np.asarray(task.start_q) + np.array([0.3, -0.2, 0.1, 0.0, 0.0, 0.0])
-    pair = (fastdyn.FastArmDynamics(task, 5),
-            torchdyn.TorchArmDynamics(task, 5, device=device))
+    pair = (reference(task, 5), torchdyn.TorchArmDynamics(task, 5, device=device))
     mask = np.array([True, False, True, False, False])
     for d in pair:
         for command in commands[:3]:
@@ -210,10 +219,29 @@ def test_reset_of_some_copies_is_fastdyns(device):
         d.reset(np.asarray(task.start_q), 3)
     assert not host(pair[1].v)[mask].any() and not host(pair[1].contact)[mask].any()
     np.testing.assert_allclose(host(pair[1].q), pair[0].q, atol=1e-12)
-    np.testing.assert_allclose(host(pair[1].tool_positions()),
-                               pair[0].tool_positions(np.zeros((5, 3))), atol=1e-12)
+    np.testing.assert_allclose(tool_of(pair[1]), tool_of(pair[0]), atol=1e-12)
     for d in pair:
         for command in commands[3:]:
             d.step(command)
     np.testing.assert_allclose(host(pair[1].q), pair[0].q, atol=1e-9)
     np.testing.assert_allclose(host(pair[1].v), pair[0].v, atol=1e-6)
+
+
+def test_compile_modes_are_checked():
+    with pytest.raises(ValueError, match="compile must be"):
+        torchdyn.TorchArmDynamics(TaskSpec(), 2, compile="fastest")
+
+
+@pytest.mark.slow  # torch.compile of the substep: ~2 min on a loaded two-core CPU
+@pytest.mark.parametrize("device", DEVICES)
+def test_compiled_steps_are_the_eager_ones(device):
+    task = TaskSpec(region="unconstrained", n_joints=3)
+    low, high = command_bounds(task)
+    commands = np.random.default_rng(9).uniform(low, high, (4, 8, 3))
+    eager = torchdyn.TorchArmDynamics(task, 8, device=device)
+    compiled = torchdyn.TorchArmDynamics(task, 8, device=device, compile=True)
+    for command in commands:
+        eager.step(command)
+        compiled.step(command)
+        np.testing.assert_allclose(host(compiled.q), host(eager.q), atol=1e-12)
+        np.testing.assert_array_equal(host(compiled.contact), host(eager.contact))
