@@ -35,6 +35,9 @@ F32_STEP_ATOL = 1e-4
 """Bound (rad) of float32 joint angles against float64 ones after 5 free control steps (the
 numba path's bound)."""
 
+HELD_START = (0.0, -np.pi / 4, np.pi / 2, 0.4, -0.6, 0.8)
+"""A start pose (rad) whose held joints are not at zero, so that holding them is tested."""
+
 STEP_KEYS = ("q", "v", "acceleration", "contact", "limit_stop", "tool")
 
 
@@ -79,6 +82,27 @@ def test_gravity_torque_is_pinocchios(device):
     q, _, _ = random_states(200, seed=2)
     reference = pinocchio_rows(pin.computeGeneralizedGravity, q)
     np.testing.assert_allclose(host(torchdyn.generalized_gravity(q, device=device)), reference,
+                               rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_changed_pinocchio_model_is_followed(device):
+    """The chain is read from Pinocchio: a heavier link and rotor inertia (the UR5's armature
+    is zero, so the default model cannot tell a dropped armature term) show in the ABA."""
+    model = ur5kin.load_model()
+    changed = pin.Model(model)
+    changed.inertias[3] = pin.Inertia(2.0 * model.inertias[3].mass, model.inertias[3].lever,
+                                      2.0 * model.inertias[3].inertia)
+    changed.armature = np.linspace(0.05, 0.3, 6)
+    chain = torchdyn.TorchChain.from_chain(fastdyn.ChainModel.from_pinocchio(changed), device,
+                                           torch.float64)
+    q, v, tau = random_states(50, seed=10)
+    data = changed.createData()
+    reference = np.array([pin.aba(changed, data, *row).copy() for row in zip(q, v, tau,
+                                                                           strict=True)])
+    q_t, v_t, tau_t = (torch.as_tensor(x, device=device) for x in (q, v, tau))
+    X = torchdyn.motion_transforms(torchdyn.placements(q_t, chain), chain)
+    np.testing.assert_allclose(host(torchdyn.articulated_body(X, v_t, tau_t, chain)), reference,
                                rtol=1e-9, atol=1e-9)
 
 
@@ -167,12 +191,13 @@ def assert_same_steps(ref: dict, got: dict, atol: float) -> None:
 
 
 @pytest.mark.parametrize("device", DEVICES)
-@pytest.mark.parametrize(("mode", "n_joints", "gravity_compensation"),
-                         [("position", 3, True), ("velocity", 6, True), ("torque", 2, True),
-                          ("torque", 3, False), ("position", 5, True)])
-def test_control_steps_are_fastdyns(mode, n_joints, gravity_compensation, device):
+@pytest.mark.parametrize(("mode", "n_joints", "gravity_compensation", "start_q"),
+                         [("position", 3, True, None), ("velocity", 6, True, None),
+                          ("torque", 2, True, None), ("torque", 3, False, None),
+                          ("position", 5, True, None), ("position", 2, True, HELD_START)])
+def test_control_steps_are_fastdyns(mode, n_joints, gravity_compensation, start_q, device):
     task = TaskSpec(region="unconstrained", n_joints=n_joints, control_mode=mode,
-                    gravity_compensation=gravity_compensation)
+                    gravity_compensation=gravity_compensation, start_q=start_q)
     low, high = command_bounds(task)
     commands = np.random.default_rng(4).uniform(low, high, (40, 16, n_joints))
     ref, got = run_both(task, commands, device=device)
