@@ -18,12 +18,14 @@ from envs.reach import RENDER_MODES, make_task, real_actions
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
 from envs.task import INFO_KEYS
 
-DYNAMICS = ("auto", "fast", "pinocchio")
+DYNAMICS = ("auto", "fast", "pinocchio", "torch", "torch-cuda")
 """Values of BatchedReach's ``dynamics`` option: ``fast`` is :class:`envs.fastdyn.
 FastArmDynamics` (one compiled call per step), ``pinocchio`` the reference
 :class:`envs.dynamics.ArmDynamics` (Pinocchio's ``abaInParallel`` in a Python substep loop),
-``auto`` the fast path for N > 1 where it is available and implements the task, else
-pinocchio."""
+``torch`` / ``torch-cuda`` :class:`envs.torchdyn.TorchArmDynamics` on the CPU / the GPU (its
+state copied to the host every step, :class:`envs.torchdyn.HostArrays`; never chosen by
+``auto``: on the CPU it is far slower than ``fast``), ``auto`` the fast path for N > 1 where it
+is available and implements the task, else pinocchio."""
 
 
 def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto", threads: int = 1
@@ -36,10 +38,16 @@ def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto", threa
     ------
     ValueError
         When ``dynamics`` is not one of :data:`DYNAMICS`, or is ``"fast"`` where the fast path
-        is unavailable (numba missing) or does not implement the task (its contact model).
+        is unavailable (numba missing) or does not implement the task (its contact model), or
+        a torch choice where TorchArmDynamics does not implement it or there is no GPU.
     """
     if dynamics not in DYNAMICS:
         raise ValueError(f"dynamics must be one of {list(DYNAMICS)}; got {dynamics!r}")
+    if dynamics.startswith("torch"):
+        from envs import torchdyn  # torch is loaded only for these choices
+
+        device = "cuda" if dynamics == "torch-cuda" else "cpu"
+        return torchdyn.HostArrays(torchdyn.TorchArmDynamics(task, num_copies, device=device))
     fast_ok = fastdyn.available() and fastdyn.supports(task)
     if dynamics == "fast" and not fast_ok:
         raise ValueError("dynamics='fast' needs numba and the stop contact model; use "
@@ -87,7 +95,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         - ``disabled``: never reset automatically; call ``reset(options={"reset_mask": done})``.
     render_mode : {"rgb_array", "human"}, optional
         ``render()`` draws every copy (one frame each).
-    dynamics : {"auto", "fast", "pinocchio"}
+    dynamics : {"auto", "fast", "pinocchio", "torch", "torch-cuda"}
         Which implementation advances the arms (:data:`DYNAMICS`); the same physics to
         floating-point rounding. ``auto`` (default) takes the compiled fast path for N > 1.
     threads : int

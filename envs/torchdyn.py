@@ -610,3 +610,51 @@ class TorchArmDynamics:
         self.limit_stop[sel] = False
         self._tool.copy_(tool_position(placements(self.q, self._chain), self._chain,
                                        self._tool_pos, self._base_height))
+
+
+class HostArrays:
+    """A :class:`TorchArmDynamics` behind FastArmDynamics' numpy interface, for the env.
+
+    :class:`envs.core.ReachCore` reads ``q``, ``v``, ``acceleration``, ``contact`` and
+    ``limit_stop`` as numpy arrays and has ``tool_positions`` write into one; this view copies
+    the state to float64 host arrays after every step and reset (on CUDA a device-to-host copy,
+    hence a sync, per step: the price of a numpy env around GPU dynamics).
+
+    Parameters
+    ----------
+    dyn : TorchArmDynamics
+        The dynamics; stepped through this view.
+    """
+
+    def __init__(self, dyn: TorchArmDynamics) -> None:
+        self.dyn, self.task, self.num_copies = dyn, dyn.task, dyn.num_copies
+        B = dyn.num_copies
+        self.q, self.v, self.acceleration = np.zeros((B, NJ)), np.zeros((B, NJ)), np.zeros((B, NJ))
+        self.contact, self.limit_stop = np.zeros(B, dtype=bool), np.zeros(B, dtype=bool)
+        self._tool = np.zeros((B, 3))
+        self._pull()
+
+    def _pull(self) -> None:
+        d = self.dyn
+        for host, tensor in ((self.q, d.q), (self.v, d.v), (self.acceleration, d.acceleration),
+                             (self.contact, d.contact), (self.limit_stop, d.limit_stop),
+                             (self._tool, d._tool)):
+            np.copyto(host, tensor.cpu().numpy())
+
+    def step(self, command: np.ndarray) -> None:
+        """:meth:`TorchArmDynamics.step`, then the state to the host."""
+        self.dyn.step(command)
+        self._pull()
+
+    def reset(self, q: Any, index: Any = None) -> None:
+        """:meth:`TorchArmDynamics.reset`, then the state to the host."""
+        self.dyn.reset(q, index)
+        self._pull()
+
+    def tool_positions(self, out: np.ndarray) -> np.ndarray:
+        """Write tool0's world position ``(B, 3)`` m into ``out``."""
+        out[:] = self._tool
+        return out
+
+    def _link_heights(self, q: np.ndarray) -> np.ndarray:
+        return self.dyn._link_heights(q)
