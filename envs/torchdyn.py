@@ -164,29 +164,31 @@ class TorchPlane:
 
     Attributes
     ----------
-    vertex_heights : (13, 6 K) float, m
-        Per feature, the height above base_link of the candidate lowest vertices, link by link
-        (columns ``k K .. (k + 1) K - 1`` belong to moving link k = 0..5); links with fewer
-        than K candidates repeat one of their own columns, which changes no minimum.
+    vertex_heights : (13, V) float, m
+        Per feature, the height above base_link of the candidate lowest vertices of the moving
+        links, link by link.
+    bounds : tuple of 7 int
+        Columns ``bounds[k]:bounds[k + 1]`` belong to moving link k = 0..5 (their sizes differ
+        sixfold: one slice each, where padding to the longest tripled the product).
     lift_offset, wrist_offset : float, rad
         Offsets of the pitches the features use.
     """
 
     vertex_heights: torch.Tensor
+    bounds: tuple[int, ...]
     lift_offset: float
     wrist_offset: float
 
     @classmethod
     def from_plane(cls, plane: fastdyn.PlaneModel, device: torch.device | str,
                    dtype: torch.dtype) -> TorchPlane:
-        """The padded tensor of ``plane`` (float64 there) on ``device`` as ``dtype``."""
-        vh, bounds = np.asarray(plane.vertex_heights, dtype=np.float64), plane.bounds
-        rows = [np.arange(bounds[k], bounds[k + 1]) for k in range(1, NJ + 1)]
-        width = max(len(r) for r in rows)
-        padded = np.concatenate([np.pad(r, (0, width - len(r)), mode="edge") for r in rows])
-        table = torch.as_tensor(np.ascontiguousarray(vh[padded].T))
-        return cls(table.to(device=device, dtype=dtype), float(plane.lift_offset),
-                   float(plane.wrist_offset))
+        """The table of ``plane`` (float64 there) without base_link's rows, on ``device`` as
+        ``dtype``."""
+        bounds = [int(b) for b in plane.bounds]
+        vh = np.asarray(plane.vertex_heights, dtype=np.float64)[bounds[1] :]
+        table = torch.as_tensor(np.ascontiguousarray(vh.T))
+        return cls(table.to(device=device, dtype=dtype), tuple(b - bounds[1] for b in bounds[1:]),
+                   float(plane.lift_offset), float(plane.wrist_offset))
 
 
 @functools.cache
@@ -305,8 +307,9 @@ def plane_heights(q: torch.Tensor, plane: TorchPlane, base_height: float) -> tor
     feat = torch.stack([torch.ones_like(a), torch.sin(a), torch.cos(a), torch.sin(b),
                         torch.cos(b), sc, cc, sc5, sc * s5, sc5 * c6, cc * s6, cc * c6,
                         sc5 * s6], -1)
-    heights = torch.matmul(feat, plane.vertex_heights)  # (B, 6 K)
-    return heights.view(q.shape[0], NJ, -1).amin(-1) + base_height
+    heights = torch.matmul(feat, plane.vertex_heights)  # (B, V)
+    b = plane.bounds
+    return torch.stack([heights[:, b[k] : b[k + 1]].amin(-1) for k in range(NJ)], -1) + base_height
 
 
 def tool_position(R: torch.Tensor, chain: TorchChain, tool: torch.Tensor, base_height: float
