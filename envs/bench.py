@@ -63,6 +63,8 @@ class BenchConfig:
     compile: str = "none"
     """``torch.compile`` mode of the torch dynamics' substep (compiled before the clock):
     none (eager), default, reduce-overhead (CUDA graphs on a GPU) or max-autotune."""
+    cuda_graph: bool = False
+    """Record the torch dynamics' control step as one CUDA graph (``--device cuda``, eager)."""
     threads: int = 1
     """CPU threads of the batched env's fast dynamics (and of torch on the CPU)."""
     batched: bool = True
@@ -210,9 +212,11 @@ def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int, notes: d
     rows = {}
     compiled = config.compile != "none"
     dyn = torchdyn.TorchArmDynamics(task, N, device=config.device, dtype=config.torch_dtype,
-                                    compile=config.compile if compiled else False)
+                                    compile=config.compile if compiled else False,
+                                    cuda_graph=config.cuda_graph)
     name = (f"TorchArmDynamics (N={N}, {config.device}, {config.torch_dtype}"
-            f"{', ' + config.compile if compiled else ''})")
+            f"{', ' + config.compile if compiled else ''}"
+            f"{', CUDA graph' if config.cuda_graph else ''})")
     rows[name] = dynamics_runner(dyn, task, copy_steps, config.seed, config.device)
     numba_row = f"FastArmDynamics (N={N}, numba, cpu)"
     if fastdyn.available():
@@ -336,6 +340,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="torch.compile mode of the torch dynamics' substep, with --device "
                         "(none: eager; compiled before the clock; reduce-overhead adds CUDA "
                         "graphs)")
+    parser.add_argument("--cuda-graph", type=int, default=int(d.cuda_graph), choices=(0, 1),
+                        help="0..1; 1: record the torch dynamics' control step as one CUDA graph "
+                        "and replay it (with --device cuda and --compile none) (default: "
+                        "%(default)s)")
     parser.add_argument("--threads", type=int, default=d.threads,
                         help="CPU threads (>= 1) of the batched env's compiled dynamics, and of "
                         "torch with --device cpu")
@@ -368,6 +376,8 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--steps and --rounds must be >= 1 and --num-envs >= 0")
     if args.device is not None and args.num_envs < 1:
         raise SystemExit("--device times the batched dynamics: give --num-envs >= 1")
+    if args.cuda_graph and (args.device != "cuda" or args.compile != "none"):
+        raise SystemExit("--cuda-graph 1 needs --device cuda and --compile none")
     if args.device == "cuda":
         import torch
 
@@ -376,7 +386,8 @@ def main(argv: list[str] | None = None) -> int:
                              "on this machine")
     config = BenchConfig(steps=args.steps, rounds=args.rounds, num_envs=args.num_envs,
                          device=args.device, torch_dtype=args.torch_dtype,
-                         compile=args.compile, threads=args.threads,
+                         compile=args.compile, cuda_graph=bool(args.cuda_graph),
+                         threads=args.threads,
                          batched=bool(args.batched), reference=bool(args.reference),
                          sync=bool(args.sync), region=args.region, n_joints=args.n_joints,
                          control_mode=args.control_mode, peer=args.peer, seed=args.seed,

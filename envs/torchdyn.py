@@ -48,6 +48,10 @@ DTYPES = {"float64": torch.float64, "float32": torch.float32}
 """Floating-point types of the tensors."""
 
 
+CUDA_GRAPH_WARMUP_STEPS = 3
+"""Eager control steps run on a side stream before a CUDA graph is recorded (PyTorch's recipe:
+lazy initialisations, cuBLAS workspaces, out of the recording)."""
+
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
 """``torch.compile`` modes :class:`TorchArmDynamics` accepts for its ``compile`` option."""
 
@@ -407,6 +411,11 @@ class TorchArmDynamics:
         graphs on a GPU). On the CPU it needs a C++ compiler and was measured at 114 s for the
         first step and 1.65x the eager steps/s at B = 1,024 (results/batched_env/README.md);
         a slow test checks it against the eager step.
+    cuda_graph : bool
+        Record the whole control step as one ``torch.cuda.CUDAGraph`` on the first step and
+        replay it after (CUDA only, not with ``compile``): the ~6,000 kernels of a step are
+        launched by one call. Written without a GPU at hand: the CUDA test checks it against
+        the eager step where one is.
 
     Attributes
     ----------
@@ -426,7 +435,8 @@ class TorchArmDynamics:
     """
 
     def __init__(self, task: TaskSpec, num_copies: int = 1, device: Any = "cpu",
-                 dtype: Any = "float64", compile: bool | str = False) -> None:
+                 dtype: Any = "float64", compile: bool | str = False,
+                 cuda_graph: bool = False) -> None:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
         if not supports(task):
@@ -439,6 +449,9 @@ class TorchArmDynamics:
                              f"{compile!r}")
         if device.type == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"device {str(device)!r}: torch sees no CUDA device here")
+        if cuda_graph and (device.type != "cuda" or compile):
+            raise ValueError(f"cuda_graph=True needs a CUDA device and compile=False; got "
+                             f"device {str(device)!r}, compile={compile!r}")
         cast = _dtype(dtype)
         self.task, self.num_copies, self.device, self.dtype = task, int(num_copies), device, cast
         B, h, n = self.num_copies, task.sim_dt, task.n_joints
@@ -492,6 +505,7 @@ class TorchArmDynamics:
         if compile:
             mode = None if compile is True else compile
             self._substep_fn = torch.compile(self._masked_substep, dynamic=False, mode=mode)
+        self._use_graph, self._graph = bool(cuda_graph), None
 
     # ------------------------------------------------------------------ the step
     def _substep(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor
@@ -557,6 +571,21 @@ class TorchArmDynamics:
             raise ValueError(f"command must be ({self.num_copies}, {n}); got "
                              f"{tuple(command.shape)}")
         torch.mul(self._command_gain, command, out=self._bias[:, :n])
+        if not self._use_graph:
+            self._advance()
+            return
+        if self._graph is None:
+            self._graph = self._capture()
+        self._graph.replay()
+
+    def _state(self) -> tuple[torch.Tensor, ...]:
+        """Every tensor a step writes."""
+        return (self.q, self._w, self.v, self.acceleration, self.contact, self.limit_stop,
+                self._tool)
+
+    def _advance(self) -> None:
+        """One control step from the state tensors into them, in place, with the command in
+        ``_bias``: the work a CUDA graph captures (it reads and writes fixed storage only)."""
         q, w, contact, limit, tool = self._control_step(self.q, self._w, self._bias)
         torch.mul(w - self._w, self._w_to_accel, out=self.acceleration)
         self.q.copy_(q)
@@ -565,6 +594,23 @@ class TorchArmDynamics:
         self.contact.copy_(contact)
         self.limit_stop.copy_(limit)
         self._tool.copy_(tool)
+
+    def _capture(self) -> Any:
+        """A ``torch.cuda.CUDAGraph`` of :meth:`_advance`, recorded after warm-up steps on a
+        side stream (PyTorch's recipe); the state the warm-up moves is put back."""
+        saved = [t.clone() for t in self._state()]
+        side = torch.cuda.Stream(self.device)
+        side.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(side):
+            for _ in range(CUDA_GRAPH_WARMUP_STEPS):
+                self._advance()
+        torch.cuda.current_stream(self.device).wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            self._advance()
+        for t, before in zip(self._state(), saved, strict=True):
+            t.copy_(before)
+        return graph
 
     def tool_positions(self, out: Any = None) -> Any:
         """tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)), written into

@@ -22,7 +22,7 @@ def test_bench_help_explains_every_flag():
     assert out.returncode == 0, out.stderr
     for flag in ("--steps", "--rounds", "--num-envs", "--region", "--n-joints",
                  "--control-mode", "--peer", "--seed", "--json", "--device", "--reference",
-                 "--sync", "--torch-dtype", "--compile"):
+                 "--sync", "--torch-dtype", "--compile", "--cuda-graph"):
         assert flag in out.stdout
 
 
