@@ -404,7 +404,9 @@ class TorchArmDynamics:
         Where the tensors live and the step runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``).
     dtype : {"float64", "float32"}
         The arithmetic and the state's type. float32 drifts from float64 like the numba path's
-        (the bounds are in the tests).
+        (the bounds are in the tests). On CUDA, float32 assumes full-precision matrix products
+        (torch's default): TF32 (``torch.set_float32_matmul_precision("high")``) would round
+        them to 10-bit mantissas, beyond those bounds.
     compile : bool or str
         Run each substep through ``torch.compile`` (compiled on the first step): True for its
         default mode, or a mode name from :data:`COMPILE_MODES` (``"reduce-overhead"`` adds CUDA
