@@ -56,21 +56,38 @@ def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
     path.write_text(json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
 
 
-def plan_outs(path: Path, cwd: Path) -> list[Path]:
-    """The ``--out`` folders (resolved against ``cwd``) of a plan's units; [] if unreadable.
-    For ``analysis.sweep``'s check of which units a running process trains."""
-    try:
-        units = read_plan(path if path.is_absolute() else cwd / path)
-    except ValueError:
-        return []
+def command_outs(argv: Sequence[str], cwd: Path) -> list[Path]:
+    """The ``--out`` folders (resolved against ``cwd``, ``{seed}`` left in) of the units of a
+    ``ddpg_her.train_many`` command line (its ``--unit`` strings and ``--plan`` files; an
+    unreadable plan gives none). For ``analysis.sweep``'s check of which units a running
+    process trains."""
+    own, common = split_passthrough(argv)
+    units: list[list[str]] = []
+    for flag, value in _flag_values(own, ("--unit", "--plan")):
+        if flag == "--unit":
+            units.append(shlex.split(value))
+            continue
+        try:
+            units += read_plan(Path(value) if Path(value).is_absolute() else cwd / value)
+        except ValueError:
+            continue
     outs = []
     for unit in units:
-        out = next((a.partition("=")[2] for a in unit if a.startswith("--out=")), None)
-        if out is None and "--out" in unit[:-1]:
-            out = unit[unit.index("--out") + 1]
-        if out is not None:
+        for _, out in _flag_values([*unit, *common], ("--out",))[-1:]:
             outs.append((Path(out) if Path(out).is_absolute() else cwd / out).resolve())
     return outs
+
+
+def _flag_values(argv: Sequence[str], flags: Sequence[str]) -> list[tuple[str, str]]:
+    """(flag, value) of every ``--flag VALUE`` or ``--flag=VALUE`` of ``flags`` in ``argv``."""
+    found = []
+    for i, arg in enumerate(argv):
+        name, eq, value = arg.partition("=")
+        if name in flags and eq:
+            found.append((name, value))
+        elif arg in flags and i + 1 < len(argv):
+            found.append((arg, argv[i + 1]))
+    return found
 
 
 def make_parser() -> argparse.ArgumentParser:
