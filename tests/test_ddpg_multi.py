@@ -150,8 +150,9 @@ def test_train_many_trains_resumes_and_dry_runs_like_separate_commands(tmp_path)
 
 
 def test_train_many_refuses_process_flags_in_a_unit_and_bad_plans(tmp_path):
-    proc = _train_many("--unit=--region box --resume", "--", *TOY, cwd=tmp_path,
-                       check=False)
+    # a budget of 2 episodes, so that a check that lets the flag through fails fast
+    proc = _train_many("--unit=--region box --resume", "--", *TOY, "--episodes", "2",
+                       cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "process flag(s) --resume" in proc.stderr
     bad = tmp_path / "plan.json"
     bad.write_text('{"units": ["--region box"]}')
