@@ -3,14 +3,17 @@ choices it leaves unstated.
 
     python -m analysis.sensitivity [--readings NAME...] [--setting REGION:JOINTS]...
                                    [--episodes N] [--out ROOT] [--workers W | --ray-address A]
-                                   [--device cpu|cuda] [--dry-run] [-- TRAIN_ARGS...]
+                                   [--device cpu|cuda] [--one-process] [--dry-run]
+                                   [-- TRAIN_ARGS...]
     python -m analysis.sensitivity --collect DEST          # finished units' spec.json, eval.csv
     python -m analysis.sensitivity report ROOT [--out DIR] # curves, verdicts, report.md
     python -m analysis.sensitivity --readings actor_penalty --setting zheight:3 --dry-run
 
 A *reading* is a named set of extra ``ddpg_her.train`` arguments (`READINGS`, or your own with
 ``--reading NAME=ARGS`` or ``--readings-file``); a *setting* a (region, joints) pair. A unit is
-one reading x one setting x all seeds in one training process, into
+one reading x one setting x all seeds in one training process (with ``--one-process``, the
+default with ``--device cuda``, all units in one ``ddpg_her.train_many`` process: readings of
+one joint count and agent configuration share one stacked agent), into
 ``ROOT/<reading>/<region>-j<joints>/s<seed>``: normal run folders, resumed when unfinished and
 skipped when every seed's eval.csv reaches the budget (units started by hand with that layout
 count as the study's own). The report judges each of the paper's claims
@@ -43,6 +46,7 @@ from analysis.sweep import (
     add_execution_arguments,
     check_execution_arguments,
     execute,
+    one_process,
     parse_setting,
     print_dry_run,
     split_passthrough,
@@ -797,7 +801,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             readings.append(known[name])
     units = units_for(readings, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device)
+        print_dry_run(units, threads, extra, args.device, one_process(args))
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)

@@ -2,13 +2,17 @@
 
     python -m analysis.sweep --grid paper [--episodes N] [--seeds K] [--out ROOT]
                              [--workers W | --ray-address ADDR] [--device cpu|cuda]
-                             [--dry-run]
+                             [--one-process | --no-one-process] [--dry-run]
+    python -m analysis.sweep --grid paper --device cuda --dry-run   # all 55 runs in one process
 
 One training process per setting trains all its seeds at once (``ddpg_her.train --seeds``), into
-``ROOT/<region>-j<joints>/s<seed>``. Finished runs are skipped and unfinished ones resumed from
+``ROOT/<region>-j<joints>/s<seed>``; with ``--one-process`` (the default with ``--device cuda``)
+one ``ddpg_her.train_many`` process trains every unfinished setting, the settings of one joint
+count stacked into one agent batch. Finished runs are skipped and unfinished ones resumed from
 their last checkpoint, so an interrupted sweep continues where it stopped when run again; a
-setting another ``ddpg_her.train`` process is training (same ``--out``) is left to it. Each
-process's output goes to ``ROOT/logs/<region>-j<joints>.log``. Arguments after ``--`` pass to
+setting another ``ddpg_her.train`` or ``ddpg_her.train_many`` process is training (same
+``--out``) is left to it. Each process's output goes to ``ROOT/logs/<region>-j<joints>.log``
+(one process: ``ROOT/logs/one-process.log``). Arguments after ``--`` pass to
 ``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
 """
 
@@ -106,13 +110,18 @@ class Unit:
         return str(self.root / RUN_DIR).replace("{region}", self.region).replace(
             "{joints}", str(self.joints))
 
+    def run_args(self, extra: Sequence[str] = ()) -> list[str]:
+        """The unit's ``ddpg_her.train`` arguments without the process flags: its setting,
+        seeds, budget, own ``train_args`` and folder, then ``extra``."""
+        return ["--region", self.region, "--joints", str(self.joints),
+                "--seeds", *map(str, self.seeds), "--episodes", str(self.episodes),
+                *self.train_args, "--out", self.out, *extra]
+
     def command(self, threads: int, extra: Sequence[str], device: str = "cpu") -> list[str]:
         """The ``ddpg_her.train`` command line: the unit's own ``train_args``, then ``extra``."""
-        out = self.out
-        return [sys.executable, "-m", "ddpg_her.train", "--region", self.region,
-                "--joints", str(self.joints), "--seeds", *map(str, self.seeds),
-                "--episodes", str(self.episodes), *self.train_args, "--out", out, "--resume",
-                "--no-progress", "--threads", str(threads), "--device", device, *extra]
+        own = self.run_args()
+        return [sys.executable, "-m", "ddpg_her.train", *own, "--resume", "--no-progress",
+                "--threads", str(threads), "--device", device, *extra]
 
     @property
     def log_path(self) -> Path:
@@ -120,13 +129,16 @@ class Unit:
 
 
 def training_outs() -> set[Path]:
-    """The ``--out`` folders (resolved, ``{seed}`` left in) of every ``ddpg_her.train`` process
-    running on this machine, read from /proc; empty where there is no /proc.
+    """The ``--out`` folders (resolved, ``{seed}`` left in) of every ``ddpg_her.train`` and
+    ``ddpg_her.train_many`` process running on this machine, read from /proc; empty where
+    there is no /proc.
 
     A unit whose folder is among them is being trained by another process (an earlier sweep,
     or a command started by hand with the same layout): starting it again would make two
     processes write the same run folders.
     """
+    from ddpg_her.train_many import command_outs
+
     outs: set[Path] = set()
     proc = Path("/proc")
     if not proc.is_dir():
@@ -136,6 +148,10 @@ def training_outs() -> set[Path]:
             continue
         try:
             argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
+            if "ddpg_her.train_many" in argv:
+                cwd = (entry / "cwd").resolve()
+                outs.update(command_outs(argv[argv.index("ddpg_her.train_many") + 1:], cwd))
+                continue
             if "ddpg_her.train" not in argv or "--out" not in argv:
                 continue
             out = Path(argv[argv.index("--out") + 1])
@@ -356,6 +372,13 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
+    parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=None,
+                        help="train every unfinished unit in one process (python -m "
+                             "ddpg_her.train_many: units of one joint count and agent "
+                             "configuration share one stacked agent), its output in "
+                             "ROOT/logs/one-process.log; --no-one-process: one process per "
+                             "unit (default: one process with --device cuda off Ray, else one "
+                             "per unit)")
     parser.add_argument("--dry-run", action="store_true",
                         help="print one line per run (status, folder, command) and exit")
 
@@ -366,7 +389,65 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
         value = getattr(args, flag)
         if value is not None and value < 1:
             parser.error(f"--{flag} must be >= 1; got {value}")
+    if args.one_process and args.ray_address:
+        parser.error("--one-process runs here, not on Ray; drop --ray-address or add "
+                     "--no-one-process")
+    if args.one_process and args.workers > 1:
+        parser.error(f"--one-process runs one process; --workers {args.workers} contradicts it")
     return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+
+
+def one_process(args: argparse.Namespace) -> bool:
+    """Whether the units train in one process: --one-process as given, else with --device cuda
+    off Ray (where one process per unit wastes the GPU on K = 5 products)."""
+    if args.one_process is not None:
+        return bool(args.one_process)
+    return args.device == "cuda" and not args.ray_address
+
+
+ONE_PROCESS_LOG = "logs/one-process.log"
+"""Below the root: the output of the one-process trainings, appended run after run."""
+
+
+def one_process_command(plan: Path | str, threads: int, device: str) -> list[str]:
+    """The ``ddpg_her.train_many`` command line that trains a plan's units in one process."""
+    return [sys.executable, "-m", "ddpg_her.train_many", "--plan", str(plan), "--resume",
+            "--no-progress", "--threads", str(threads), "--device", device]
+
+
+def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequence[str],
+                    device: str = "cpu") -> int:
+    """Train the units in one ``ddpg_her.train_many`` process, whose plan (every unit's
+    ``ddpg_her.train`` arguments) goes to ``root/logs/one-process-<time>.json``; 1 when the
+    process failed, else 0."""
+    from ddpg_her.train_many import write_plan
+
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    plan = root / "logs" / f"one-process-{stamp}.json"
+    write_plan(plan, [u.run_args(extra) for u in units])
+    proc, log = start_unit(one_process_command(plan, threads, device), root / ONE_PROCESS_LOG,
+                           threads)
+    bar = EpisodeBar(units, "training (one process)")
+    try:
+        while proc.poll() is None:
+            bar.refresh()
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        proc.terminate()
+        proc.wait()
+        bar.write("interrupted; run the same command again to resume")
+        raise
+    finally:
+        log.close()
+        if proc.returncode == 0:
+            for unit in units:
+                bar.end(unit)
+        bar.close()
+    if proc.returncode != 0:
+        print(f"the training process failed (exit {proc.returncode}); see "
+              f"{root / ONE_PROCESS_LOG}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def busy(unit: Unit, outs: set[Path]) -> bool:
@@ -376,20 +457,27 @@ def busy(unit: Unit, outs: set[Path]) -> bool:
 
 
 def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
-                  device: str = "cpu") -> None:
+                  device: str = "cpu", one: bool = False) -> None:
     """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
-    trains its unit), tag, setting, seed, folder and the unit's command."""
+    trains its unit), tag, setting, seed, folder and the unit's command (with ``one``: its
+    arguments in the one ``ddpg_her.train_many`` process)."""
     outs = training_outs()
     for unit in units:
-        cmd = " ".join(unit.command(threads, extra, device)[1:])
+        cmd = "one process, unit " + " ".join(unit.run_args(extra)) if one else \
+            "python " + " ".join(unit.command(threads, extra, device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
             status = "busy" if busy(unit, outs) and unit.status(seed) != "done" \
                 else unit.status(seed)
             print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
-                  f"seed={seed} {unit.run_dir(seed)}  <- python {cmd}")
-    print(f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units (one process each)",
-          file=sys.stderr)
+                  f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
+    runs = f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
+    if one:
+        command = one_process_command("ROOT/logs/one-process-TIME.json", threads, device)
+        print(f"{runs}, the unfinished ones in one process: python "
+              f"{' '.join(command[1:])}", file=sys.stderr)
+    else:
+        print(f"{runs} (one process each)", file=sys.stderr)
 
 
 def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
@@ -405,6 +493,8 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
         todo.remove(unit)
     if not todo:
         return 0
+    if one_process(args):
+        return run_one_process(todo, args.out, threads, extra, args.device)
     if args.ray_address:
         failed = run_ray(todo, args.ray_address, threads, extra, args.device)
     else:
@@ -430,7 +520,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = args.setting or GRIDS[args.grid]
     units = units_for(settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device)
+        print_dry_run(units, threads, extra, args.device, one_process(args))
         return 0
     return execute(units, args, threads, extra)
 

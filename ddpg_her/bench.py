@@ -17,7 +17,11 @@ machine's load cancel):
   ``torch.utils.flop_counter``, backward included) per second;
 - ``speedup_vs_sb3``, ``speedup_vs_plain``: agent_updates_per_s over the peer's, round by
   round;
-- ``matmul_peak_gflops``: the best float32 matrix-product rate of this machine;
+- ``matmul_peak_gflops``: the best rate of large float32 matrix products on the device the
+  update ran on (the GPU with ``--device cuda``), and ``peak_fraction``, the update's
+  ``update_gflops`` over it;
+- ``stack_*`` (with ``--stack K``): the same update for one stack of K agents, e.g. the 55 of
+  the paper's grid in one ``ddpg_her.train_many`` process (without peers, fewer rounds);
 - ``machine``: the CPU, its logical cores and the torch build, so a recorded result says where
   it was measured.
 """
@@ -37,19 +41,46 @@ from typing import Any
 
 from ddpg_her.config import AgentConfig
 
+PEAK_SIZES = {"cpu": (1024, 2048), "cuda": (4096, 8192)}
+"""Square matrix sizes n of the peak measurement per device: large enough that the product
+runs at the library's full rate (a 512 x 512 product on a GPU mostly measures the launch)."""
 
-def matmul_peak_gflops(sizes: Sequence[int] = (512, 1024, 2048), repeats: int = 5) -> float:
-    """The best float32 ``n x n`` matrix-product rate over ``sizes``, GFLOP/s."""
+
+def matmul_flops(n: int) -> int:
+    """Floating-point operations of one ``n x n`` by ``n x n`` product: n^2 outputs, each n
+    multiplications and n additions (``torch.utils.flop_counter``'s count, tested)."""
+    return 2 * n**3
+
+
+def matmul_peak_gflops(device: str = "cpu", sizes: Sequence[int] | None = None,
+                       repeats: int = 5, dtype: Any = None) -> float:
+    """The best rate of large square float32 matrix products on ``device``, GFLOP/s.
+
+    For each n of ``sizes`` (default `PEAK_SIZES`): one warm-up product, then ``repeats``
+    timed ones; on CUDA each timing waits for the GPU (``torch.cuda.synchronize``), so it counts
+    the product and not its launch. Returns the best rate: the machine's attainable peak for
+    the kind of work the update does (torch's float32 matrix products with this process's
+    settings, e.g. TF32 off by default), which the update's own rate is a fraction of.
+    """
     import torch
 
+    dtype = torch.float32 if dtype is None else dtype
+    dev = torch.device(device)
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    gen = torch.Generator(device=dev).manual_seed(0)
     best = 0.0
-    for n in sizes:
-        a, b = torch.randn(n, n), torch.randn(n, n)
-        a @ b
+    for n in sizes or PEAK_SIZES[dev.type]:
+        a = torch.randn(n, n, generator=gen, device=dev, dtype=dtype)
+        b = torch.randn(n, n, generator=gen, device=dev, dtype=dtype)
+        c = torch.empty(n, n, device=dev, dtype=dtype)
+        torch.mm(a, b, out=c)
+        sync()
         for _ in range(repeats):
             t = time.perf_counter()
-            a @ b
-            best = max(best, 2 * n**3 / (time.perf_counter() - t) / 1e9)
+            torch.mm(a, b, out=c)
+            sync()
+            best = max(best, matmul_flops(n) / (time.perf_counter() - t) / 1e9)
+        del a, b, c
     return best
 
 
@@ -237,6 +268,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
                         help="device of our agents and of SB3's (default: cpu)")
+    parser.add_argument("--stack", type=int, default=0, metavar="K",
+                        help="also time one stack of K agents (count, >= 0; 55 is "
+                             "the paper's grid in one process; 0: skip)")
     parser.add_argument("--no-sb3", action="store_true", help="skip the SB3 measurement")
     parser.add_argument("--no-plain", action="store_true",
                         help="skip the plain-PyTorch (nn.Linear + autograd) measurement")
@@ -245,6 +279,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if min(args.seeds, args.updates, args.rounds, args.fill_episodes) < 1:
         parser.error("--seeds, --updates, --rounds and --fill-episodes must be >= 1, got "
                      f"{args.seeds}, {args.updates}, {args.rounds}, {args.fill_episodes}")
+    if args.stack < 0:
+        parser.error(f"--stack must be >= 0, got {args.stack}")
     if not 2 <= args.joints <= 6:
         parser.error(f"--joints must be in 2..6, got {args.joints}")
 
@@ -267,8 +303,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                               not args.no_plain))
     except ValueError as e:
         parser.error(str(e))
-    result["matmul_peak_gflops"] = matmul_peak_gflops()
+    if args.stack:
+        stack = measure(args.stack, env_id, env_kwargs, config, args.updates,
+                        max(1, args.rounds // 6), args.fill_episodes, args.device,
+                        with_sb3=False, with_plain=False)
+        result.update({"stack_agents": args.stack,
+                       "stack_agent_updates_per_s": stack["agent_updates_per_s"],
+                       "stack_update_gflops": stack["update_gflops"]})
+    result["matmul_peak_gflops"] = matmul_peak_gflops(args.device)
     result["peak_fraction"] = result["update_gflops"] / result["matmul_peak_gflops"]
+    if args.stack:
+        result["stack_peak_fraction"] = (result["stack_update_gflops"]
+                                         / result["matmul_peak_gflops"])
     result["machine"] = machine()
     if args.json:
         print(json.dumps(result))

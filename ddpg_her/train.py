@@ -170,29 +170,58 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     return dirs
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = make_parser()
-    args = parser.parse_args(argv)
-    try:
-        env_kwargs = task_fields(args.region, args.joints, args.task)
-    except ValueError as e:
-        parser.error(str(e))
+@dataclasses.dataclass(frozen=True)
+class Request:
+    """What one ``ddpg_her.train`` command line asks to train (its task, agent, seeds and run
+    folders), checked but not started."""
+
+    env_id: str
+    env_kwargs: dict[str, Any]
+    config: AgentConfig
+    seeds: tuple[int, ...]
+    run_dirs: tuple[str, ...]
+
+
+PROCESS_FLAGS = ("resume", "device", "threads", "no_progress", "no_tensorboard")
+"""Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
+
+
+def request(args: argparse.Namespace) -> Request:
+    """The runs a parsed command line asks for.
+
+    Raises
+    ------
+    ValueError
+        When a task field is given twice, n_joints is out of range, seeds repeat, or the agent
+        configuration is invalid; the message names the flag and the expected values.
+    """
+    env_kwargs = task_fields(args.region, args.joints, args.task)
     joints = env_kwargs["n_joints"]
     from envs.spec import N_JOINTS_RANGE
 
     lo, hi = N_JOINTS_RANGE
     if not isinstance(joints, int) or not lo <= joints <= hi:
-        parser.error(f"--task n_joints must be an integer in {lo}..{hi}, got {joints!r}")
+        raise ValueError(f"--task n_joints must be an integer in {lo}..{hi}, got {joints!r}")
     seeds = args.seeds if args.seeds is not None else [args.seed]
     if len(set(seeds)) != len(seeds):
-        parser.error(f"--seeds must be distinct, got {seeds}")
+        raise ValueError(f"--seeds must be distinct, got {seeds}")
+    config = AgentConfig(**{f.name: getattr(args, f.name)
+                            for f in dataclasses.fields(AgentConfig)})
+    dirs = run_dirs(args.out, args.region, joints, seeds)
+    return Request(args.env_id, env_kwargs, config, tuple(seeds), tuple(dirs))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = make_parser()
+    args = parser.parse_args(argv)
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
     try:
-        config = AgentConfig(**{f.name: getattr(args, f.name)
-                                for f in dataclasses.fields(AgentConfig)})
+        req = request(args)
     except ValueError as e:
         parser.error(str(e))
+    env_kwargs, config, seeds, dirs = req.env_kwargs, req.config, list(req.seeds), \
+        list(req.run_dirs)
 
     import gymnasium
     import torch
@@ -212,7 +241,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--env-id {args.env_id}: cannot import the module that registers it "
                      f"({type(e).__name__}: {e})")
     try:
-        dirs = run_dirs(args.out, args.region, joints, seeds)
         trainer = Trainer(args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume,
                           device=args.device, progress=not args.no_progress,
                           tensorboard=not args.no_tensorboard,

@@ -5,13 +5,17 @@ stores it and its HER copies in its own buffer, then all agents make ``updates_p
 batched updates. Every ``eval_every`` episodes each agent runs ``eval_episodes`` test episodes of
 its deterministic policy, and every run folder gets its eval row and a checkpoint.
 
+The K agents may pursue different tasks of one observation and action layout (``env_kwargs``
+per agent: regions, reward readings, contact models); they share the agent configuration.
 Agent k's randomness comes from its seed alone (env episodes, initial weights, exploration, HER
 goals, minibatches), so K = 1 and K > 1 train agent k alike, and a resumed run continues exactly.
+`ddpg_her.multi` runs several such trainers (other layouts or configurations) in turn.
 """
 
 from __future__ import annotations
 
 import datetime
+import functools
 import json
 import math
 import sys
@@ -44,30 +48,41 @@ def stream_seed(seed: int, *key: int) -> int:
 class Trainer:
     """Trains one agent per seed, writing one run folder per seed (see `ddpg_her.run`).
 
-    env_id, env_kwargs : ``gymnasium.make(env_id, **env_kwargs)`` makes the task; seeds : (K,)
-    ints; run_dirs : K folders; resume : continue the runs in ``run_dirs`` from their last common
-    checkpoint (runs absent there start afresh) instead of refusing existing folders.
+    env_id, env_kwargs : ``gymnasium.make(env_id, **env_kwargs)`` makes the task: one dict for
+    all agents, or K dicts, agent k's task made with ``env_kwargs[k]`` (all of one layout);
+    seeds : (K,) ints, distinct among agents of one task; run_dirs : K distinct folders;
+    resume : continue the runs in ``run_dirs`` from their last common checkpoint (runs absent
+    there start afresh) instead of refusing existing folders.
     """
 
-    def __init__(self, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig,
-                 seeds: Sequence[int], run_dirs: Sequence[str | Path], *, resume: bool = False,
-                 device: str = "cpu", dtype: torch.dtype = torch.float32,
+    def __init__(self, env_id: str, env_kwargs: dict[str, Any] | Sequence[dict[str, Any]],
+                 config: AgentConfig, seeds: Sequence[int], run_dirs: Sequence[str | Path], *,
+                 resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
                  command: Sequence[str] | None = None):
         seeds = [int(s) for s in seeds]
-        if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
-            raise ValueError(f"need one or more distinct seeds >= 0, got {seeds}")
+        per_agent = [dict(env_kwargs)] * len(seeds) if isinstance(env_kwargs, dict) else \
+            [dict(kw) for kw in env_kwargs]
+        if len(per_agent) != len(seeds):
+            raise ValueError(f"need one env_kwargs dict per seed: {len(seeds)} seeds, "
+                             f"{len(per_agent)} dicts")
+        runs = [json.dumps([kw, s], sort_keys=True) for kw, s in zip(per_agent, seeds,
+                                                                     strict=True)]
+        if not seeds or len(set(runs)) != len(runs) or min(seeds) < 0:
+            raise ValueError(f"need one or more seeds >= 0, distinct among the agents of one "
+                             f"task, got {seeds}")
         if len(run_dirs) != len(seeds):
             raise ValueError(f"need one run folder per seed: {len(seeds)} seeds, "
                              f"{len(run_dirs)} folders")
+        if len({Path(d).resolve() for d in run_dirs}) != len(run_dirs):
+            raise ValueError(f"need a distinct run folder per agent, got {list(run_dirs)}")
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.device = torch.device(device)
-        if self.device.type == "cpu":  # process-wide, as torch has it (see AgentConfig)
-            torch.set_flush_denormal(config.flush_denormals)
+        self._flush_denormals()
         self.progress, self.tensorboard = progress, tensorboard
-        self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
-        self.envs = GoalVecEnv(env_id, self.k, 1, **self.env_kwargs)
-        self.eval_envs = GoalVecEnv(env_id, self.k, config.eval_episodes, **self.env_kwargs)
+        self.env_id, self.env_kwargs = env_id, per_agent
+        self.envs = GoalVecEnv(env_id, per_agent, 1)
+        self.eval_envs = GoalVecEnv(env_id, per_agent, config.eval_episodes)
         envs = self.envs
         self.scale = envs.scale
         self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)
@@ -89,23 +104,28 @@ class Trainer:
         self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
         self._saved_total = np.zeros(self.k, dtype=np.int64)
         self._kept_totals: list[np.ndarray] = []
-        self.specs = [self._spec(s, command) for s in seeds]
+        self.specs = [self._spec(k, command) for k in range(self.k)]
         self._open(resume)
+        self._log: _Interval | None = None
+        self._tick = 0.0
+
+    def _flush_denormals(self) -> None:
+        """Set the CPU's subnormal flush to this trainer's config: process-wide in torch, so
+        set again before each step where trainers of several configurations share a process."""
+        if self.device.type == "cpu":
+            torch.set_flush_denormal(self.config.flush_denormals)
 
     # --- run folders ----------------------------------------------------------------------------
-    def _spec(self, seed: int, command: Sequence[str] | None) -> dict[str, Any]:
-        envs = self.envs
+    def _spec(self, k: int, command: Sequence[str] | None) -> dict[str, Any]:
+        """Agent k's ``spec.json``: the same whether it trains alone or beside others."""
         return {
             "format": FORMAT,
             "env_id": self.env_id,
-            "env_kwargs": self.env_kwargs,
-            "task": envs.task,
-            "seed": seed,
+            "env_kwargs": self.env_kwargs[k],
+            "task": self.envs.task_of(k),
+            "seed": self.seeds[k],
             "agent": self.config.to_dict(),
-            "dims": {"obs_dim": envs.obs_dim, "goal_dim": envs.goal_dim,
-                     "act_dim": envs.scale.dim, "action_low": envs.scale.low.tolist(),
-                     "action_high": envs.scale.high.tolist(),
-                     "max_episode_steps": envs.max_steps},
+            "dims": self.envs.dims,
             "versions": versions(),
             "git": git_revision(),
             "command": list(command) if command is not None else sys.argv,
@@ -283,7 +303,8 @@ class Trainer:
         for k, ep in enumerate(episodes):
             goals = her_goal_steps(self.config.her_strategy, len(ep), self.config.her_k,
                                    self.rngs[k])
-            copies = [relabel(ep, int(j), self.envs.reward_fn, self.envs.terminated_fn)
+            copies = [relabel(ep, int(j), functools.partial(self.envs.reward_fn, group=k),
+                              functools.partial(self.envs.terminated_fn, group=k))
                       for j in goals]
             rows = np.concatenate([pack(e, self.scale) for e in [ep, *copies]])
             self.buffer.add(k, rows)
@@ -330,44 +351,71 @@ class Trainer:
             })
         return rows
 
+    @property
+    def done(self) -> bool:
+        """Whether the agents have trained ``config.episodes`` episodes."""
+        return self.episode >= self.config.episodes
+
+    def start(self) -> None:
+        """Open the TensorBoard logs and start the clock; before the first `step`."""
+        self._log = _Interval(self.k, self.device,
+                              [_tb_writer(f.path, self.episode) if self.tensorboard else None
+                               for f in self.folders])
+        self._tick = time.perf_counter()
+
+    def step(self) -> None:
+        """One training episode and its updates; then, every ``eval_every`` episodes, a test
+        session and a checkpoint (and one at the last episode).
+
+        ``wall_s`` counts the clock since `start`, including the time that other trainers of
+        the process (`ddpg_her.multi`) spend between two steps of this one.
+        """
+        cfg, log = self.config, self._log
+        if log is None:
+            raise RuntimeError("call start() before step()")
+        self._flush_denormals()
+        log.successes += self.train_episode()
+        if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
+            log.losses += self.learn(cfg.updates_per_episode)
+            log.updates += cfg.updates_per_episode
+            log.learning += 1
+        self.episode += 1
+        log.episodes += 1
+        if self.episode % cfg.eval_every == 0:
+            new_rows = self.evaluate()
+            now = time.perf_counter()
+            self.wall_s += now - self._tick
+            self._tick = now
+            for rows, row in zip(self.rows, new_rows, strict=True):
+                rows.append({**row, "wall_s": round(self.wall_s, 2)})
+            log.write(self.rows, self.episode)
+            self._save()
+        elif self.episode == cfg.episodes:
+            self._save()
+        now = time.perf_counter()
+        self.wall_s += now - self._tick
+        self._tick = now
+
+    def finish(self) -> None:
+        """Close the TensorBoard logs; after the last `step`."""
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
     def run(self) -> list[list[dict[str, Any]]]:
         """Train to ``config.episodes``; returns every agent's eval rows."""
-        cfg = self.config
-        bar = _progress(self.progress, cfg.episodes, self.episode, self.k)
-        log = _Interval(self.k, self.device,
-                        [_tb_writer(f.path, self.episode) if self.tensorboard else None
-                         for f in self.folders])
-        tick = time.perf_counter()
+        bar = _progress(self.progress, self.config.episodes, self.episode, self.k)
+        self.start()
         try:
-            while self.episode < cfg.episodes:
-                log.successes += self.train_episode()
-                if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
-                    log.losses += self.learn(cfg.updates_per_episode)
-                    log.updates += cfg.updates_per_episode
-                    log.learning += 1
-                self.episode += 1
-                log.episodes += 1
-                if self.episode % cfg.eval_every == 0:
-                    new_rows = self.evaluate()
-                    now = time.perf_counter()
-                    self.wall_s += now - tick
-                    tick = now
-                    for rows, row in zip(self.rows, new_rows, strict=True):
-                        rows.append({**row, "wall_s": round(self.wall_s, 2)})
-                    log.write(self.rows, self.episode)
-                    self._save()
-                elif self.episode == cfg.episodes:
-                    self._save()
-                now = time.perf_counter()
-                self.wall_s += now - tick
-                tick = now
+            while not self.done:
+                self.step()
                 if bar is not None:
                     bar.set_postfix_str(_postfix(bar, self.rows), refresh=False)
                     bar.update(1)
         finally:
             if bar is not None:
                 bar.close()
-            log.close()
+            self.finish()
         return self.rows
 
     def close(self) -> None:

@@ -95,6 +95,15 @@ class _Vector:
         self.env.close()
 
 
+def _dims(group: _Singles | _Vector) -> dict[str, Any]:
+    low, high = group.action_space.low, group.action_space.high
+    return {"obs_dim": int(group.observation_space["observation"].shape[0]),
+            "goal_dim": int(group.observation_space["desired_goal"].shape[0]),
+            "act_dim": int(low.shape[0]), "action_low": low.tolist(),
+            "action_high": high.tolist(),
+            "max_episode_steps": None if group.max_steps is None else int(group.max_steps)}
+
+
 def _task_dict(goal_env: Any) -> dict[str, Any]:
     task = getattr(goal_env, "task", None)
     return task.to_dict() if task is not None and hasattr(task, "to_dict") else {}
@@ -103,18 +112,25 @@ def _task_dict(goal_env: Any) -> dict[str, Any]:
 class GoalVecEnv:
     """``groups`` groups of ``copies`` copies of ``gymnasium.make(env_id, **kwargs)``.
 
-    Copy m of group k sits at flat index ``k * copies + m``. Each copy is reseeded at every
-    reset from the seed given for it, so an episode depends only on its own seed: nothing about
-    the env needs saving in a checkpoint.
+    ``groups`` is a count (every group the same task) or one dict per group, whose keys
+    override ``kwargs`` for that group (K agents of different tasks, e.g. regions or reward
+    readings, in one lockstep batch). Every group must then have the same observation and
+    action layout (`dims`). Copy m of group k sits at flat index ``k * copies + m``. Each copy
+    is reseeded at every reset from the seed given for it, so an episode depends only on its
+    own seed and its group's task: nothing about the env needs saving in a checkpoint.
     """
 
-    def __init__(self, env_id: str, groups: int, copies: int = 1, **kwargs: Any):
-        if groups < 1 or copies < 1:
+    def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
+                 **kwargs: Any):
+        per_group = [dict(kwargs)] * groups if isinstance(groups, int) else \
+            [{**kwargs, **g} for g in groups]
+        if not per_group or copies < 1:
             raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
         env_id = register_env(env_id)
         vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
         make = _Vector if vector else _Singles
-        self.groups = [make(env_id, copies, kwargs) for _ in range(groups)]
+        self.kwargs = per_group
+        self.groups = [make(env_id, copies, kw) for kw in per_group]
         g = self.groups[0]
         space = g.observation_space
         if not isinstance(space, gymnasium.spaces.Dict) or set(KEYS) - set(space.spaces):
@@ -124,12 +140,27 @@ class GoalVecEnv:
             raise ValueError(f"{env_id}: need a Box action space, got {g.action_space}")
         if g.max_steps is None:
             raise ValueError(f"{env_id} has no time limit (max_episode_steps)")
-        self.copies, self.num_envs = copies, groups * copies
+        self.copies, self.num_envs = copies, len(self.groups) * copies
         self.max_steps: int = int(g.max_steps)
         self.obs_dim = space["observation"].shape[0]
         self.goal_dim = space["desired_goal"].shape[0]
         self.scale = ActionScale(g.action_space.low, g.action_space.high)
         self.goal_env = g.goal_env
+        for i, other in enumerate(self.groups[1:], start=1):
+            if _dims(other) != _dims(g):
+                raise ValueError(
+                    f"{env_id}: group {i} ({per_group[i]}) has the layout {_dims(other)}, "
+                    f"group 0 ({per_group[0]}) {_dims(g)}; one batch needs one layout")
+
+    @property
+    def dims(self) -> dict[str, Any]:
+        """The layout every group shares, as a run's ``spec.json`` records it: obs_dim,
+        goal_dim, act_dim, action_low, action_high (env units), max_episode_steps."""
+        return _dims(self.groups[0])
+
+    def task_of(self, group: int) -> dict[str, Any]:
+        """Group ``group``'s task specification (``task.to_dict()`` of its env), or {}."""
+        return _task_dict(self.groups[group].goal_env)
 
     @property
     def task(self) -> dict[str, Any]:
@@ -181,18 +212,20 @@ class GoalVecEnv:
         return obs, reward, flags[0], flags[1], flags[2]
 
     def reward_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
-                  action: np.ndarray) -> np.ndarray:
-        """The env's reward for L transitions:
+                  action: np.ndarray, group: int = 0) -> np.ndarray:
+        """Group ``group``'s reward for L transitions:
         (L, goal_dim), (L, goal_dim), (L, act_dim) -> (L,)."""
-        return np.asarray(self.goal_env.compute_reward(achieved_goal, desired_goal,
-                                                       {"action": action}), dtype=np.float64)
+        env = self.groups[group].goal_env
+        return np.asarray(env.compute_reward(achieved_goal, desired_goal, {"action": action}),
+                          dtype=np.float64)
 
     def terminated_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
-                      action: np.ndarray) -> np.ndarray:
-        """The env's ``compute_terminated`` for L transitions, (L,) bool: whether each ends the
-        episode (a success, when the task ends episodes at success)."""
-        return np.asarray(self.goal_env.compute_terminated(achieved_goal, desired_goal,
-                                                           {"action": action}), dtype=bool)
+                      action: np.ndarray, group: int = 0) -> np.ndarray:
+        """Group ``group``'s ``compute_terminated`` for L transitions, (L,) bool: whether each
+        ends the episode (a success, when the task ends episodes at success)."""
+        env = self.groups[group].goal_env
+        return np.asarray(env.compute_terminated(achieved_goal, desired_goal,
+                                                 {"action": action}), dtype=bool)
 
     def close(self) -> None:
         for g in self.groups:

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import csv
+import io
 import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -160,6 +164,70 @@ def test_sweep_runs_skips_finished_and_resumes(tmp_path: Path) -> None:
     _module(*args(6))
     run = runs.read_run(tmp_path / "box-j2" / "s0")
     assert run.finished and run.episode.tolist() == [2, 4, 6]  # resumed: no row lost or repeated
+
+
+def _eval_without_wall(folder: Path) -> list[list[str]]:
+    with open(folder / "eval.csv", newline="") as f:
+        return [row[:-1] for row in csv.reader(f)]
+
+
+def test_sweep_in_one_process_writes_the_runs_one_process_per_setting_writes(tmp_path: Path
+                                                                             ) -> None:
+    """Two joint counts (two stacks) in one ddpg_her.train_many process, resumed, against the
+    same sweep run one process per setting: every eval.csv the same but for wall_s."""
+    def args(root: Path, episodes: int, *mode: str) -> list[str]:
+        return ["analysis.sweep", "--setting", "box:2", "--setting", "box:3", "--seeds", "2",
+                "--episodes", str(episodes), "--out", str(root), *mode, "--", *TOY]
+
+    one, per = tmp_path / "one", tmp_path / "per"
+    dry = _module(*args(one, 2, "--one-process", "--dry-run"))
+    assert all("<- one process, unit --region box" in ln for ln in dry.stdout.splitlines())
+    assert "ddpg_her.train_many --plan" in dry.stderr
+    _module(*args(one, 2, "--one-process"))
+    assert runs.read_run(one / "box-j3" / "s1").finished
+    _module(*args(one, 4, "--one-process"))
+    _module(*args(per, 4, "--no-one-process"))
+    for setting in ("box-j2", "box-j3"):
+        for seed in (0, 1):
+            table = _eval_without_wall(one / setting / f"s{seed}")
+            assert [row[0] for row in table[1:]] == ["2", "4"]  # resumed: nothing lost
+            assert table == _eval_without_wall(per / setting / f"s{seed}")
+    log = (one / "logs" / "one-process.log").read_text()
+    assert log.count("ddpg_her.train_many --plan") == 2 and "4 agents" in log
+    again = _module(*args(one, 4, "--one-process")).stderr
+    assert "2 of 2 settings already finished" in again
+
+
+def test_a_unit_in_a_running_train_many_process_is_busy(tmp_path: Path) -> None:
+    from ddpg_her.train_many import write_plan
+
+    unit = sweep.Unit("box", 2, (0, 1), tmp_path, 10)
+    plan = tmp_path / "plan.json"
+    write_plan(plan, [unit.run_args()])
+    # a stand-in with train_many's command line (python -c ... ddpg_her.train_many --plan P)
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)",
+                             "ddpg_her.train_many", "--plan", str(plan)])
+    try:
+        deadline = time.monotonic() + 10
+        while not sweep.busy(unit, sweep.training_outs()) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert sweep.busy(unit, sweep.training_outs())
+        assert not sweep.busy(sweep.Unit("box", 3, (0,), tmp_path, 10), sweep.training_outs())
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_one_process_is_the_default_on_cuda_and_contradicts_ray_and_workers() -> None:
+    parser = argparse.ArgumentParser()
+    sweep.add_execution_arguments(parser, Path("runs"))
+    assert sweep.one_process(parser.parse_args(["--device", "cuda"]))
+    assert not sweep.one_process(parser.parse_args([]))
+    assert not sweep.one_process(parser.parse_args(["--device", "cuda", "--no-one-process"]))
+    assert not sweep.one_process(parser.parse_args(["--device", "cuda", "--ray-address", "a"]))
+    for bad in (["--one-process", "--ray-address", "auto"], ["--one-process", "--workers", "2"]):
+        with pytest.raises(SystemExit), contextlib.redirect_stderr(io.StringIO()):
+            sweep.check_execution_arguments(parser, parser.parse_args(bad))
 
 
 @pytest.mark.slow

@@ -1,0 +1,180 @@
+"""Many settings in one process: settings grouped into stacked agents, the groups trained in turn.
+
+A `Setting` is one task (env id and kwargs: region, joints, reward reading, ...) with its agent
+configuration, seeds and run folders. Settings that share the env id, the observation and action
+layout (`GoalVecEnv.dims`), the whole `AgentConfig` and the checkpoint they resume from share one
+stacked agent: one `Trainer` whose K is the sum of their seeds, agent k with its own task. The
+others form further groups, each its own `Trainer`; every round, each unfinished group trains one
+episode (updates, test session and checkpoint included) in turn.
+
+Why these keys, and why no padding: a stack's update runs every agent in lockstep with one Adam
+step count, one warm-up, one batch size and one learning rate, so agents of different agent
+configurations (a reading's exploration rate or warm-up) or resume points cannot share one
+exactly; layouts (joint counts) differ in the weights' shapes. Groups keep all of it exact at the
+cost of a few more, smaller stacks. Nothing is shared between groups, and within a group agent k
+depends on its seed and its task alone, so every run folder is the one the run gets alone: the
+same ``spec.json`` (but for the command and the clock), bitwise the same ``eval.csv`` (but for
+``wall_s``) and checkpoints where a single run is bitwise repeatable (the tests' small networks),
+and the same to rounding of the batched products at large networks in float32 (README, "Training
+many seeds fast").
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ddpg_her.config import AgentConfig
+from ddpg_her.runfolder import RunFolder, RunFolderError, read_run
+from ddpg_her.trainer import Trainer
+from ddpg_her.vecenv import GoalVecEnv
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One task's runs: ``gymnasium.make(env_id, **env_kwargs)``, agent ``config``, one run
+    folder per seed (``run_dirs[i]`` for ``seeds[i]``)."""
+
+    env_id: str
+    env_kwargs: dict[str, Any]
+    config: AgentConfig
+    seeds: tuple[int, ...]
+    run_dirs: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        if not self.seeds or len(self.seeds) != len(self.run_dirs):
+            raise ValueError(f"need one or more seeds and one run folder per seed, got seeds "
+                             f"{list(self.seeds)} and folders {list(self.run_dirs)}")
+
+    @property
+    def name(self) -> str:
+        """The task in a few words, for messages: its env kwargs."""
+        return ", ".join(f"{k}={v}" for k, v in self.env_kwargs.items())
+
+
+def resume_point(run_dirs: Sequence[str | Path]) -> int | None:
+    """The latest checkpoint episode common to the folders; None when none has a checkpoint,
+    -1 when they have checkpoints but none in common (their Trainer will say so)."""
+    have = [set(RunFolder(d).checkpoints()) for d in run_dirs]
+    if not any(have):
+        return None
+    common = set.intersection(*have)
+    return max(common) if common else -1
+
+
+def run_status(folder: str | Path, episodes: int) -> str:
+    """'done' (eval.csv reaches ``episodes``), 'resume' (a run folder, unfinished) or 'new'."""
+    f = RunFolder(folder)
+    if not f.exists():
+        return "new"
+    try:
+        run = read_run(folder)
+    except RunFolderError:
+        return "resume"
+    return "done" if len(run.episode) and int(run.episode[-1]) >= episodes else "resume"
+
+
+def layout(env_id: str, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The observation and action layout of the task (`GoalVecEnv.dims`), from one env copy."""
+    envs = GoalVecEnv(env_id, 1, 1, **env_kwargs)
+    try:
+        return envs.dims
+    finally:
+        envs.close()
+
+
+def group_settings(settings: Sequence[Setting], resume: bool) -> list[list[Setting]]:
+    """The settings grouped into stacks: equal env id, layout, agent configuration and (with
+    ``resume``) resume point; groups in the order of their first setting."""
+    groups: dict[str, list[Setting]] = {}
+    for s in settings:
+        key = json.dumps([s.env_id, layout(s.env_id, s.env_kwargs), s.config.to_dict(),
+                          resume_point(s.run_dirs) if resume else None], sort_keys=True)
+        groups.setdefault(key, []).append(s)
+    return list(groups.values())
+
+
+class MultiTrainer:
+    """Trains every setting of ``settings`` in this process, one `Trainer` per group of
+    `group_settings`; the keyword arguments are `Trainer`'s."""
+
+    def __init__(self, settings: Sequence[Setting], *, resume: bool = False,
+                 device: str = "cpu", dtype: torch.dtype = torch.float32, progress: bool = True,
+                 tensorboard: bool = True, command: Sequence[str] | None = None):
+        if not settings:
+            raise ValueError("need one or more settings")
+        dirs = [Path(d).resolve() for s in settings for d in s.run_dirs]
+        if len(set(dirs)) != len(dirs):
+            raise ValueError("two settings share a run folder: "
+                             f"{sorted({str(d) for d in dirs if dirs.count(d) > 1})}")
+        self.groups = group_settings(settings, resume)
+        self.progress = progress
+        self.trainers: list[Trainer] = []
+        try:
+            for group in self.groups:
+                self.trainers.append(Trainer(
+                    group[0].env_id, [s.env_kwargs for s in group for _ in s.seeds],
+                    group[0].config, [seed for s in group for seed in s.seeds],
+                    [d for s in group for d in s.run_dirs], resume=resume, device=device,
+                    dtype=dtype, progress=False, tensorboard=tensorboard, command=command))
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def agents(self) -> int:
+        return sum(t.k for t in self.trainers)
+
+    def run(self) -> list[list[list[dict[str, Any]]]]:
+        """Train every group to its budget; returns each setting's runs' eval rows, in the order
+        of the settings within `groups` (``rows[g][i]``: setting i of group g)."""
+        bar = _progress(self.progress, self.trainers)
+        for t in self.trainers:
+            t.start()
+        try:
+            while not all(t.done for t in self.trainers):
+                for t in self.trainers:
+                    if not t.done:
+                        t.step()
+                        if bar is not None:
+                            bar.update(t.k)
+        finally:
+            if bar is not None:
+                bar.close()
+            for t in self.trainers:
+                t.finish()
+        out = []
+        for group, t in zip(self.groups, self.trainers, strict=True):
+            rows, i = [], 0
+            for s in group:
+                rows.append(t.rows[i:i + len(s.seeds)])
+                i += len(s.seeds)
+            out.append(rows)
+        return out
+
+    def close(self) -> None:
+        for t in self.trainers:
+            t.close()
+
+
+def _progress(enabled: bool, trainers: Sequence[Trainer]):
+    """One bar over the agent-episodes of every group (a group's episode counts K)."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    total = sum(t.k * t.config.episodes for t in trainers)
+    done = sum(t.k * t.episode for t in trainers)
+    agents = sum(t.k for t in trainers)
+    bar = tqdm(total=total, initial=done, unit="agent-ep", dynamic_ncols=True,
+               desc=f"train {agents} agents in {len(trainers)} group"
+                    f"{'s' if len(trainers) > 1 else ''}")
+    start = datetime.datetime.now()
+    bar.set_postfix_str(f"started {start:%a %H:%M}", refresh=False)
+    return bar

@@ -1,0 +1,257 @@
+"""``python -m ddpg_her.train_many``: many ``ddpg_her.train`` units in one process, stacked.
+
+Each unit is the arguments of one ``ddpg_her.train`` command (task, seeds, agent flags, --out);
+the process flags (--device, --threads, --resume, progress, TensorBoard) are given once, here.
+Units of one layout and agent configuration share one stacked agent; the others train beside
+them as further stacks, in turn (see `ddpg_her.multi`). Every run folder is the one the unit's
+own ``ddpg_her.train`` command would write, and ``--resume`` continues them.
+
+Examples::
+
+    python -m ddpg_her.train_many --unit="--region farbox --seeds 0 1" --unit="--region zheight"
+    python -m ddpg_her.train_many --unit="--region farbox --seeds 0 1" -- --episodes 1000
+    python -m ddpg_her.train_many --plan runs/sweep/logs/plan.json --device cuda --resume
+    python -m ddpg_her.train_many --unit="--region farbox --joints 6 --seeds 0 1 2" --dry-run
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from ddpg_her import train
+
+PLAN_KEY = "units"
+"""A plan file is a JSON object ``{"units": [[ARG, ...], ...]}``: each unit's ddpg_her.train
+arguments as a list of strings."""
+
+
+def read_plan(path: Path) -> list[list[str]]:
+    """The units of a plan file (see `PLAN_KEY`).
+
+    Raises
+    ------
+    ValueError
+        When the file is not JSON of that shape; the message names the file.
+    """
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path} cannot be read as a plan ({err})") from err
+    units = data.get(PLAN_KEY) if isinstance(data, dict) else None
+    if not isinstance(units, list) or not all(
+            isinstance(u, list) and all(isinstance(a, str) for a in u) for u in units):
+        raise ValueError(f"{path}: expected {{\"{PLAN_KEY}\": [[ARG, ...], ...]}}, each unit a "
+                         "list of ddpg_her.train arguments")
+    return units
+
+
+def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
+    """Write a plan file that `read_plan` reads back as ``units``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
+
+
+def command_outs(argv: Sequence[str], cwd: Path) -> list[Path]:
+    """The ``--out`` folders (resolved against ``cwd``, ``{seed}`` left in) of the units of a
+    ``ddpg_her.train_many`` command line (its ``--unit`` strings and ``--plan`` files; an
+    unreadable plan gives none). For ``analysis.sweep``'s check of which units a running
+    process trains."""
+    own, common = split_passthrough(argv)
+    units: list[list[str]] = []
+    for flag, value in _flag_values(own, ("--unit", "--plan")):
+        if flag == "--unit":
+            units.append(shlex.split(value))
+            continue
+        try:
+            units += read_plan(Path(value) if Path(value).is_absolute() else cwd / value)
+        except ValueError:
+            continue
+    outs = []
+    for unit in units:
+        for _, out in _flag_values([*unit, *common], ("--out",))[-1:]:
+            outs.append((Path(out) if Path(out).is_absolute() else cwd / out).resolve())
+    return outs
+
+
+def _flag_values(argv: Sequence[str], flags: Sequence[str]) -> list[tuple[str, str]]:
+    """(flag, value) of every ``--flag VALUE`` or ``--flag=VALUE`` of ``flags`` in ``argv``."""
+    found = []
+    for i, arg in enumerate(argv):
+        name, eq, value = arg.partition("=")
+        if name in flags and eq:
+            found.append((name, value))
+        elif arg in flags and i + 1 < len(argv):
+            found.append((arg, argv[i + 1]))
+    return found
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m ddpg_her.train_many",
+        description="Train several ddpg_her.train units (settings x seeds) in one process: "
+                    "units of one observation/action layout and agent configuration share one "
+                    "stacked agent, the others form further stacks trained in turn. Each run "
+                    "folder is the one the unit's own ddpg_her.train command writes.",
+        epilog="Arguments after -- are appended to every unit (e.g. -- --episodes 1000). A "
+               "unit's own --device, --threads, --resume, --no-progress or --no-tensorboard is "
+               "an error: give them once, to this command.")
+    parser.add_argument("--unit", action="append", default=[], metavar="ARGS",
+                        help="one ddpg_her.train command line without 'python -m "
+                             "ddpg_her.train', shell-quoted, e.g. --unit='--region farbox "
+                             "--seeds 0 1'; repeatable")
+    parser.add_argument("--plan", type=Path, action="append", default=[],
+                        help="a JSON file {\"units\": [[ARG, ...], ...]} of units (as "
+                             "analysis.sweep writes it); repeatable, adds to --unit")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the units' runs from their last checkpoints; finished "
+                             "units are skipped (a folder that does not exist starts afresh)")
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
+                        help="torch device of every stack's networks and replay buffers "
+                             "(default: cpu)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch CPU threads (count, >= 1; default: torch's choice)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-tensorboard", action="store_true",
+                        help="no TensorBoard logs even when tensorboard is installed")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="print one line per run (status, stack, folder) and each stack's "
+                             "agents, and exit without training")
+    return parser
+
+
+def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Split a command line at the first ``--``: (own arguments, arguments for every unit)."""
+    argv = list(argv)
+    if "--" in argv:
+        cut = argv.index("--")
+        return argv[:cut], argv[cut + 1:]
+    return argv, []
+
+
+def settings_of(units: Sequence[Sequence[str]]):
+    """The `ddpg_her.multi.Setting` of each unit, parsed by ddpg_her.train's parser.
+
+    Raises
+    ------
+    ValueError
+        When a unit does not parse, sets a process flag, or asks for an invalid run; the
+        message names the unit.
+    """
+    from ddpg_her.multi import Setting
+
+    unit_parser = train.make_parser()
+    defaults = {dest: unit_parser.get_default(dest) for dest in train.PROCESS_FLAGS}
+    out = []
+    for i, unit in enumerate(units, start=1):
+        where = f"unit {i} ({shlex.join(unit)})"
+        try:
+            args = unit_parser.parse_args(list(unit))
+        except SystemExit:
+            raise ValueError(f"{where} is not a ddpg_her.train command line (see above)"
+                             ) from None
+        process = [d for d, v in defaults.items() if getattr(args, d) != v]
+        if process:
+            raise ValueError(f"{where} sets the process flag(s) "
+                             f"{', '.join('--' + d.replace('_', '-') for d in process)}; give "
+                             "them once, to ddpg_her.train_many")
+        try:
+            req = train.request(args)
+        except ValueError as err:
+            raise ValueError(f"{where}: {err}") from None
+        out.append(Setting(req.env_id, req.env_kwargs, req.config, req.seeds, req.run_dirs))
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    own, common = split_passthrough(sys.argv[1:] if argv is None else argv)
+    parser = make_parser()
+    args = parser.parse_args(own)
+    if args.threads is not None and args.threads < 1:
+        parser.error(f"--threads must be >= 1, got {args.threads}")
+    units = [shlex.split(u) for u in args.unit]
+    for path in args.plan:
+        try:
+            units += read_plan(path)
+        except ValueError as err:
+            parser.error(str(err))
+    if not units:
+        parser.error("give one or more --unit or --plan")
+    try:
+        settings = settings_of([[*u, *common] for u in units])
+    except ValueError as err:
+        parser.error(str(err))
+
+    import gymnasium
+    import torch
+
+    from ddpg_her.multi import MultiTrainer, group_settings, run_status
+    from ddpg_her.vecenv import register_env
+
+    for env_id in sorted({s.env_id for s in settings}):
+        try:
+            register_env(env_id)
+        except ImportError as e:
+            parser.error(f"--env-id {env_id}: cannot import the module that registers it "
+                         f"({type(e).__name__}: {e})")
+    status = [[run_status(d, s.config.episodes) for d in s.run_dirs] for s in settings]
+    pending = [not args.resume or any(st != "done" for st in sts) for sts in status]
+    todo = [s for s, p in zip(settings, pending, strict=True) if p]
+    if args.dry_run:
+        try:
+            groups = group_settings(todo, args.resume)
+        except (ValueError, TypeError, gymnasium.error.Error) as e:
+            parser.error(f"{type(e).__name__}: {e}")
+        stack = {id(s): g for g, group in enumerate(groups, start=1) for s in group}
+        for s, sts in zip(settings, status, strict=True):
+            where = f"stack={stack[id(s)]}" if id(s) in stack else "skipped"
+            for seed, d, st in zip(s.seeds, s.run_dirs, sts, strict=True):
+                print(f"{st:<6} {where} {s.name} seed={seed} {d}")
+        print(f"{sum(len(s.seeds) for s in settings)} runs in {len(settings)} units; "
+              f"{sum(len(s.seeds) for s in todo)} to train in one process as "
+              f"{len(groups)} stack(s) of "
+              f"{', '.join(str(sum(len(s.seeds) for s in g)) for g in groups) or 'no'} agents",
+              file=sys.stderr)
+        return 0
+    for s, p in zip(settings, pending, strict=True):
+        if not p:
+            print(f"{s.name}: finished, skipped", file=sys.stderr)
+    if not todo:
+        return 0
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: no CUDA device is available to torch")
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
+    command = ["python", "-m", "ddpg_her.train_many",
+               *(argv if argv is not None else sys.argv[1:])]
+    try:
+        trainer = MultiTrainer(todo, resume=args.resume, device=args.device,
+                               progress=not args.no_progress,
+                               tensorboard=not args.no_tensorboard, command=command)
+    except (ValueError, TypeError, gymnasium.error.Error) as e:
+        parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
+    print(f"{trainer.agents} agents of {len(todo)} units in {len(trainer.groups)} stack(s): "
+          + ", ".join(f"{t.k}" for t in trainer.trainers), file=sys.stderr)
+    try:
+        rows = trainer.run()
+    except KeyboardInterrupt:
+        print("interrupted; continue with the same command and --resume", file=sys.stderr)
+        return 130
+    finally:
+        trainer.close()
+    for group, group_rows in zip(trainer.groups, rows, strict=True):
+        for s, setting_rows in zip(group, group_rows, strict=True):
+            for seed, d, r in zip(s.seeds, s.run_dirs, setting_rows, strict=True):
+                last = f"{r[-1]['successes']}/{r[-1]['tests']} at episode {r[-1]['episode']}" \
+                    if r else "no test session yet"
+                print(f"{s.name} seed {seed}: {last} -> {d}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
