@@ -11,9 +11,9 @@ choices it leaves unstated.
 
 A *reading* is a named set of extra ``ddpg_her.train`` arguments (`READINGS`, or your own with
 ``--reading NAME=ARGS`` or ``--readings-file``); a *setting* a (region, joints) pair. A unit is
-one reading x one setting x all seeds in one training process (with ``--one-process``, the
-default with ``--device cuda``, all units in one ``ddpg_her.train_many`` process: readings of
-one joint count and agent configuration share one stacked agent), into
+one reading x one setting x all seeds in one training process (with ``--one-process``, all
+units in one ``ddpg_her.train_many`` process: readings of one joint count and agent
+configuration share one stacked agent), into
 ``ROOT/<reading>/<region>-j<joints>/s<seed>``: normal run folders, resumed when unfinished and
 skipped when every seed's eval.csv reaches the budget (units started by hand with that layout
 count as the study's own). The report judges each of the paper's claims

@@ -3,17 +3,16 @@
     python -m analysis.sweep --grid paper [--episodes N] [--seeds K] [--out ROOT]
                              [--workers W | --ray-address ADDR] [--device cpu|cuda]
                              [--one-process | --no-one-process] [--dry-run]
-    python -m analysis.sweep --grid paper --device cuda --dry-run   # all 55 runs in one process
+    python -m analysis.sweep --grid paper --device cuda --one-process --dry-run  # 1 process
 
 One training process per setting trains all its seeds at once (``ddpg_her.train --seeds``), into
-``ROOT/<region>-j<joints>/s<seed>``; with ``--one-process`` (the default with ``--device cuda``)
-one ``ddpg_her.train_many`` process trains every unfinished setting, the settings of one joint
-count stacked into one agent batch. Finished runs are skipped and unfinished ones resumed from
-their last checkpoint, so an interrupted sweep continues where it stopped when run again; a
-setting another ``ddpg_her.train`` or ``ddpg_her.train_many`` process is training (same
-``--out``) is left to it. Each process's output goes to ``ROOT/logs/<region>-j<joints>.log``
-(one process: ``ROOT/logs/one-process.log``). Arguments after ``--`` pass to
-``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
+``ROOT/<region>-j<joints>/s<seed>``; with ``--one-process`` one ``ddpg_her.train_many`` process
+trains every unfinished setting, the settings of one joint count stacked into one agent batch.
+Finished runs are skipped and unfinished ones resumed from their last checkpoint, so an interrupted
+sweep continues where it stopped when run again; a setting another ``ddpg_her.train`` or
+``ddpg_her.train_many`` process is training (same ``--out``) is left to it. Each process's output
+goes to ``ROOT/logs/<region>-j<joints>.log`` (one process: ``ROOT/logs/one-process.log``). Arguments
+after ``--`` pass to ``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
 """
 
 from __future__ import annotations
@@ -376,9 +375,9 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
                              "configuration share one stacked agent), its output in "
-                             "ROOT/logs/one-process.log; --no-one-process: one process per "
-                             "unit (default: one process with --device cuda off Ray, else one "
-                             "per unit)")
+                             "ROOT/logs/one-process.log (default: one process per unit; its "
+                             "envs step on one core, so it is opt-in until a GPU run measures "
+                             "it against one process per unit)")
     parser.add_argument("--dry-run", action="store_true",
                         help="print one line per run (status, folder, command) and exit")
 
@@ -398,11 +397,13 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
 
 
 def one_process(args: argparse.Namespace) -> bool:
-    """Whether the units train in one process: --one-process as given, else with --device cuda
-    off Ray (where one process per unit wastes the GPU on K = 5 products)."""
-    if args.one_process is not None:
-        return bool(args.one_process)
-    return args.device == "cuda" and not args.ray_address
+    """Whether the units train in one process: only with --one-process.
+
+    Not the default on cuda although one stack wastes the GPU less than K = 5 products per
+    process: the one process steps every unit's envs on one CPU core (the GPU machine has no
+    numba, so on Pinocchio's substep loop), where one process per unit spreads them over the
+    cores; which wins there is unmeasured (results/batched_env/README.md)."""
+    return bool(args.one_process)
 
 
 ONE_PROCESS_LOG = "logs/one-process.log"

@@ -218,11 +218,13 @@ def test_a_unit_in_a_running_train_many_process_is_busy(tmp_path: Path) -> None:
         proc.wait()
 
 
-def test_one_process_is_the_default_on_cuda_and_contradicts_ray_and_workers() -> None:
+def test_one_process_is_opt_in_and_contradicts_ray_and_workers() -> None:
+    """Opt-in on every device until a GPU run measures it (see sweep.one_process)."""
     parser = argparse.ArgumentParser()
     sweep.add_execution_arguments(parser, Path("runs"))
-    assert sweep.one_process(parser.parse_args(["--device", "cuda"]))
+    assert not sweep.one_process(parser.parse_args(["--device", "cuda"]))
     assert not sweep.one_process(parser.parse_args([]))
+    assert sweep.one_process(parser.parse_args(["--device", "cuda", "--one-process"]))
     assert not sweep.one_process(parser.parse_args(["--device", "cuda", "--no-one-process"]))
     assert not sweep.one_process(parser.parse_args(["--device", "cuda", "--ray-address", "a"]))
     for bad in (["--one-process", "--ray-address", "auto"], ["--one-process", "--workers", "2"]):

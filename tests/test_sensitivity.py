@@ -94,9 +94,10 @@ def test_dry_run_lists_every_reading_and_setting_with_its_command(tmp_path: Path
     assert not (tmp_path / "ours").exists()  # a dry run writes nothing
 
 
-def test_a_cuda_dry_run_puts_every_unit_in_one_train_many_process(tmp_path: Path) -> None:
-    proc = _module("analysis.sensitivity", "--dry-run", "--device", "cuda", "--out",
-                   str(tmp_path), "--readings", "ours", "actor_penalty", "--setting", "zheight:3")
+def test_a_one_process_dry_run_puts_every_unit_in_one_train_many_process(tmp_path: Path) -> None:
+    proc = _module("analysis.sensitivity", "--dry-run", "--device", "cuda", "--one-process",
+                   "--out", str(tmp_path), "--readings", "ours", "actor_penalty",
+                   "--setting", "zheight:3")
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 10
     assert all("<- one process, unit --region zheight --joints 3" in ln for ln in lines)
