@@ -65,3 +65,30 @@ def task_fields(args: Sequence[str]) -> dict[str, Any]:
     """The TaskSpec fields that ``ddpg_her.train`` arguments set (their ``--task`` pairs)."""
     return dict(task_option(value) for flag, value in itertools.pairwise(args)
                 if flag == "--task")
+
+
+CHOICES: tuple[tuple[str, str, str, str], ...] = (
+    ("action penalty's unit", "task", "action_penalty_unit", "command"),
+    ("action penalty's weight", "task", "action_weight", "1.0"),
+    ("ground contact", "task", "contact_model", "stop"),
+    ("exploration", "agent", "exploration", "gaussian"),
+    ("exploration rate (actor units)", "agent", "exploration_rate", "0.01"),
+    ("warm-up episodes", "agent", "warmup_episodes", "100"),
+)
+"""The paper's unstated choices a run's ``spec.json`` records: (name, spec section, field, value
+of runs written before the field existed). The last is what such runs did: the penalty in rad^2
+and the stop contact were the only behaviour before `action_penalty_unit` and `contact_model`
+were fields (docs/design.md, open points 3-6)."""
+
+
+def run_choices(spec: dict[str, Any]) -> dict[str, str]:
+    """The unstated choices one run was trained under, as text: name -> value.
+
+    spec : a run's ``spec.json`` content (its ``task`` and ``agent`` sections); a field missing
+    from an older run reads as the behaviour it had then (`CHOICES`).
+    """
+    out = {}
+    for name, section, field, before in CHOICES:
+        value = spec.get(section, {}).get(field)
+        out[name] = before if value is None else str(value)
+    return out

@@ -25,6 +25,7 @@ from analysis.paper import (
     PAPER_RESULTS,
     PAPER_SEEDS,
 )
+from analysis.readings import run_choices
 from analysis.runs import (
     CONFIDENCE,
     PERCENT,
@@ -35,6 +36,11 @@ from analysis.runs import (
     settings_from_args,
 )
 from regions.registry import paper_order
+
+READING_NOTE = (
+    "Defaults and why: docs/design.md, open points 3-6; what the other readings do to each "
+    "claim: results/sensitivity (python -m analysis.sensitivity).")
+"""Where the report sends a reader for the reading's reasons and the other readings."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,9 @@ class SettingSummary:
     """Each seed's best evaluation: mean, CI low, CI high."""
     first_high: tuple[int | None, ...]
     """Per seed, the first evaluation episode with >= HIGH_SUCCESS successes (None: never)."""
+    choices: tuple[dict[str, str], ...] = ()
+    """Per seed, the paper's unstated choices it was trained under (`analysis.readings.
+    run_choices`)."""
 
 
 def summarise(runs: Sequence[Run], level: float = CONFIDENCE) -> SettingSummary:
@@ -66,7 +75,38 @@ def summarise(runs: Sequence[Run], level: float = CONFIDENCE) -> SettingSummary:
         first.append(int(run.episode[hit[0]]) if len(hit) else None)
     as_tuple = lambda t: tuple(float(x) for x in t)  # noqa: E731
     return SettingSummary(runs[0].region, runs[0].joints, len(runs), int(episode[-1]),
-                          as_tuple(final), as_tuple(best), tuple(first))
+                          as_tuple(final), as_tuple(best), tuple(first),
+                          tuple(run_choices(r.spec) for r in runs))
+
+
+def reading_lines(summaries: dict[tuple[str, int], SettingSummary]) -> list[str]:
+    """Markdown: the unstated choices the runs were trained under, one row per choice.
+
+    A choice whose value differs between runs lists each value with its settings, and the
+    section warns that the claims then compare settings trained under different readings.
+    """
+    rows, mixed = [], False
+    names = [n for s in summaries.values() for c in s.choices for n in c]
+    for name in dict.fromkeys(names):
+        where: dict[str, list[str]] = {}
+        for key in sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1])):
+            for value in dict.fromkeys(c[name] for c in summaries[key].choices):
+                where.setdefault(value, []).append(f"{key[0]} {key[1]}")
+        if len(where) == 1:
+            rows.append(f"| {name} | {next(iter(where))} |")
+        else:
+            mixed = True
+            rows.append(f"| {name} | " + "; ".join(f"**{v}** ({', '.join(s)})"
+                                                   for v, s in where.items()) + " |")
+    if not rows:
+        return []
+    lines = ["## The reading of the paper's unstated choices", "",
+             "What these runs chose where the paper is silent (their `spec.json`). "
+             + READING_NOTE, "", "| choice | value |", "|---|---|", *rows]
+    if mixed:
+        lines += ["", "**These runs mix readings**: a claim below may compare settings trained "
+                      "under different choices."]
+    return [*lines, ""]
 
 
 def _fmt(stat: tuple[float, float, float]) -> str:
@@ -210,7 +250,7 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
         lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | {_fmt(s.final)} | "
                      f"{_fmt(s.best)} | {_first_high(s.first_high)} | "
                      f"{paper.text if paper else 'not in the paper'} |")
-    lines += ["", "## The paper's orderings", "",
+    lines += ["", *reading_lines(summaries), "## The paper's orderings", "",
               "Judged on the final successes' confidence intervals: *yes* when they lie apart in "
               "the claimed order (and as far apart as the claim says), ***no*** when they lie "
               "apart the other way or can't be as far apart as claimed, *within noise* when "

@@ -37,12 +37,16 @@ def _module(*args: str, check: bool = True, timeout: float = 300) -> subprocess.
 
 
 def _fake_run(folder: Path, region: str, joints: int, seed: int, successes: list[int],
-              episodes: int = 10_000) -> None:
-    """A run folder as ddpg_her.train writes it (spec.json, eval.csv), with chosen successes."""
+              episodes: int = 10_000, task: dict | None = None, agent: dict | None = None
+              ) -> None:
+    """A run folder as ddpg_her.train writes it (spec.json, eval.csv), with chosen successes;
+    ``task`` / ``agent``: fields of those spec sections (absent: a run from before them)."""
     folder.mkdir(parents=True)
     spec = {"format": "ddpg_her-run-1", "env_id": "UR5Reach-v0",
             "env_kwargs": {"region": region, "n_joints": joints}, "seed": seed,
-            "agent": {"episodes": episodes}}
+            "agent": {"episodes": episodes, **(agent or {})}}
+    if task is not None:
+        spec["task"] = task
     (folder / "spec.json").write_text(json.dumps(spec))
     with open(folder / "eval.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -86,6 +90,28 @@ def test_report_summarises_and_checks_the_papers_orderings(tmp_path: Path) -> No
     assert "Budget: 300 training episodes per run (1.5% of the paper's 20,000), 2 seeds" in out
     assert "4 of the paper's 11 settings." in out
     assert (tmp_path / "r.md").read_text() == out
+
+
+def test_report_states_the_reading_of_the_unstated_choices(tmp_path: Path) -> None:
+    """Each choice as the runs' spec.json has it; a field missing from an older run reads as
+    what such runs did (rad^2, stop); mixed readings are named and flagged."""
+    _fake_run(tmp_path / "a", "farbox", 3, 0, [90], task={"action_penalty_unit": "actor",
+              "contact_model": "stop"}, agent={"exploration_rate": 0.2, "warmup_episodes": 0})
+    _fake_run(tmp_path / "b", "unconstrained", 3, 0, [40])
+    summaries = {k: report.summarise(v)
+                 for k, v in runs.group_by_setting(runs.find_runs([tmp_path])).items()}
+    old = summaries[("unconstrained", 3)].choices[0]
+    assert old["action penalty's unit"] == "command" and old["ground contact"] == "stop"
+    assert old["warm-up episodes"] == "100"
+    text = "\n".join(report.reading_lines(summaries))
+    assert "| action penalty's unit | **command** (unconstrained 3); **actor** (farbox 3) |" in text
+    assert "| ground contact | stop |" in text
+    assert "| warm-up episodes | **100** (unconstrained 3); **0** (farbox 3) |" in text
+    assert "These runs mix readings" in text
+    same = {("farbox", 3): summaries[("farbox", 3)]}
+    text = "\n".join(report.reading_lines(same))
+    assert "| action penalty's unit | actor |" in text and "mix readings" not in text
+    assert "## The reading of the paper's unstated choices" in report.render(same, 0.65)
 
 
 def test_report_says_no_when_an_ordering_fails(tmp_path: Path) -> None:
