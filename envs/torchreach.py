@@ -115,7 +115,6 @@ class GoalPool:
         self.pool = torch.zeros((self.num_copies, self.depth, GOAL_DIM), device=device,
                                 dtype=dtype)
         self.cursor = torch.zeros(self.num_copies, dtype=torch.long, device=device)
-        self._rows = torch.arange(self.num_copies, device=device)
         self._rngs: list[np.random.Generator] = []
         self._left = 0  # goals every copy surely has left
 
@@ -161,7 +160,7 @@ class GoalPool:
         if self._left == 0:
             self._top_up()
         self._left -= 1
-        nxt = self.pool[self._rows, self.cursor]
+        nxt = self.pool.gather(1, self.cursor.view(-1, 1, 1).expand(-1, 1, GOAL_DIM))[:, 0]
         goal.copy_(torch.where(mask.unsqueeze(-1), nxt, goal))
         self.cursor.add_(mask.to(torch.long))
 
