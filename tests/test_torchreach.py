@@ -35,8 +35,9 @@ SPECS = {
     "paper": dict(max_episode_steps=7),
     # a wide success ball: terminations happen; the actor's penalty unit
     "wide": dict(max_episode_steps=9, success_radius=0.6, action_penalty_unit="actor"),
+    # successes that do not end the episode
     "velocity-sparse": dict(max_episode_steps=6, control_mode="velocity", reward_type="sparse",
-                            success_radius=0.6),
+                            success_radius=0.6, terminate_on_success=False),
 }
 """Tasks of the rollout test (short episodes, so that autoresets happen often)."""
 
@@ -125,11 +126,12 @@ def test_a_rollout_equals_batched_reach_step_for_step(name, mode):
     n_obs, _ = nenv.reset(seed=5)
     for key, value in n_obs.items():
         assert_close(t_obs[key], value, key)
-    seen = dict(contact=False, terminated=False, truncated=False)
+    seen = dict(contact=False, success=False, terminated=False, truncated=False)
     for a in random_actions(tenv.task, steps, num, seed=6):
         t_out, n_out = tenv.step(torch.as_tensor(a)), nenv.step(a)
         _compare_step(t_out, n_out, mode)
         seen["contact"] |= bool(n_out[4]["contact"].any())
+        seen["success"] |= bool(n_out[4]["is_success"].any())
         seen["terminated"] |= bool(n_out[2].any())
         seen["truncated"] |= bool(n_out[3].any())
         if mode == "disabled":
@@ -140,7 +142,8 @@ def test_a_rollout_equals_batched_reach_step_for_step(name, mode):
                 assert_close(t_obs[key], value, key)
     assert seen["contact"] and seen["truncated"], seen  # what the rollout was meant to test
     if name != "paper":
-        assert seen["terminated"], seen
+        assert seen["success"], seen
+        assert seen["terminated"] == TaskSpec(**SPECS[name]).terminate_on_success, seen
 
 
 # ---------------------------------------------------------------------------- goals and seeds
