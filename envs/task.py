@@ -77,7 +77,8 @@ class ReachTask:
 
         Goal j is drawn from ``rngs[j]`` alone, so a copy's goals depend on its own seed only.
         """
-        return np.array([self.sampler.sample(1, rng).goals[0] for rng in rngs])
+        goals = [self.sampler.sample(1, rng).goals[0] for rng in rngs]
+        return np.array(goals).reshape(len(goals), 3)  # (0, 3) for no generator, not (0,)
 
     # ------------------------------------------------------------------ step kernels
     def distance(self, achieved: np.ndarray, desired: np.ndarray,

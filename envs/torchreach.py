@@ -1,0 +1,404 @@
+"""B copies of the Reacher whose whole state lives in torch tensors on one device (issue 14).
+
+:class:`TorchReach` is :class:`envs.batched.BatchedReach` with torch in and out: the arm is
+:class:`envs.torchdyn.TorchArmDynamics`, and goals, observations, reward, episode ends and
+autoreset are tensor operations on the same device, so that on a GPU a training step moves no
+data between host and device. Goals come from :class:`GoalPool`, a device-resident stock of
+goals drawn on the host by the task's own sampler (:func:`envs.task.task_sampler`) and topped up
+only when it may run dry. The reward is :func:`envs.reward.reach_reward` (eq. 2) written for
+tensors (:func:`reach_reward`), and :meth:`TorchReach.compute_reward` relabels HER goals with it.
+
+Where the host is touched (each a device-to-host read, i.e. a synchronisation on CUDA):
+``reset`` with a seed or for the first time (it fills the pool and checks the start pose), and
+the goal pool's top-up, at most once every ``goal_pool`` calls of ``step`` or masked ``reset``.
+Nothing else: ``step`` checks only shapes (host metadata), never values (a finiteness check
+reads the device); its actions must be finite.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode
+
+from envs import torchdyn
+from envs.batched import _autoreset_mode
+from envs.checks import validate
+from envs.dynamics import command_bounds
+from envs.reach import make_task
+from envs.reward import ACTION_KEY, GOAL_DIM, action_penalty_scale
+from envs.spec import TaskSpec
+from envs.task import INFO_KEYS, task_sampler
+
+GOAL_SOURCES = ("batched", "per_copy")
+"""How :class:`GoalPool` draws goals on the host: ``batched`` from one generator in one
+vectorised sampler call (cheap); ``per_copy`` from one generator per copy, one sampler call per
+goal, exactly as :class:`envs.batched.BatchedReach` does (copy i seeded ``seed + i`` gets the
+same goals; about 0.6 ms a goal on the 2-core machine)."""
+
+DEFAULT_POOL_DEPTH = 64
+"""Goals stocked per copy; also the ``step`` calls between two top-ups at most."""
+
+
+# ---------------------------------------------------------------------------- the reward
+def goal_distance(achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> torch.Tensor:
+    """Euclidean distance ``(...)`` m of goals ``(..., 3)`` m, world frame (broadcast)."""
+    return torch.sqrt(torch.square(achieved_goal - desired_goal).sum(-1))
+
+
+def reach_reward(distance: torch.Tensor, action: torch.Tensor | None, task: TaskSpec,
+                 scale: torch.Tensor | None = None) -> torch.Tensor:
+    """The task's reward (:func:`envs.reward.reach_reward`, eq. 2) on tensors, unchecked.
+
+    Parameters
+    ----------
+    distance : (...) tensor, m
+    action : (..., n) tensor or None
+        The actions as applied, in the command's unit (ignored, may be None, if sparse).
+    task : TaskSpec
+    scale : (n,) tensor, optional
+        :func:`envs.reward.action_penalty_scale` on the action's device (built when None).
+    """
+    bonus = task.success_reward * (distance <= task.success_radius).to(distance.dtype)
+    if task.reward_type == "sparse":
+        return bonus
+    if task.action_penalty_unit != "command":
+        if scale is None:
+            scale = torch.as_tensor(action_penalty_scale(task), dtype=action.dtype,
+                                    device=action.device)
+        action = action / scale
+    return bonus - task.distance_weight * distance - task.action_weight * torch.square(
+        action).sum(-1)
+
+
+# ---------------------------------------------------------------------------- the goals
+class GoalPool:
+    """Goals for B copies, stocked on the device and drawn there without synchronisation.
+
+    Copy i holds ``depth`` goals ``pool[i, cursor[i]:]``; :meth:`draw` hands the next one to
+    every copy of a mask and advances its cursor, on the device. The host keeps a lower bound
+    of the goals every copy has left (each draw takes at most one per copy) and tops the pool
+    up before a draw could find it empty: it then reads the cursors (one synchronisation) and
+    draws as many goals as were used, by the task's sampler.
+
+    Exactness: every goal is a draw of the task's sampler (:func:`envs.task.task_sampler`), the
+    same code and distribution as the numpy env's; ``per_copy`` also reproduces its sequence.
+
+    Parameters
+    ----------
+    task : TaskSpec
+    num_copies : int
+        B.
+    depth : int
+        Goals stocked per copy (>= 1).
+    source : {"batched", "per_copy"}
+        :data:`GOAL_SOURCES`.
+    device, dtype
+        Of the pool.
+    """
+
+    def __init__(self, task: TaskSpec, num_copies: int, depth: int, source: str,
+                 device: torch.device, dtype: torch.dtype) -> None:
+        if not isinstance(depth, int | np.integer) or depth < 1:
+            raise ValueError(f"goal_pool must be an integer >= 1 (goals per copy); got {depth!r}")
+        if source not in GOAL_SOURCES:
+            raise ValueError(f"goal_source must be one of {list(GOAL_SOURCES)}; got {source!r}")
+        self.sampler = task_sampler(task)
+        self.num_copies, self.depth, self.source = int(num_copies), int(depth), source
+        self.device, self.dtype = device, dtype
+        self._host = np.zeros((self.num_copies, self.depth, GOAL_DIM))
+        self.pool = torch.zeros((self.num_copies, self.depth, GOAL_DIM), device=device,
+                                dtype=dtype)
+        self.cursor = torch.zeros(self.num_copies, dtype=torch.long, device=device)
+        self._rngs: list[np.random.Generator] = []
+        self._left = 0  # goals every copy surely has left
+
+    def seed(self, seed: int | None) -> None:
+        """New generators (``per_copy``: copy i from ``seed + i``; ``batched``: one from
+        ``seed``; None: fresh entropy) and a full pool drawn from them."""
+        if self.source == "per_copy":
+            self._rngs = [seeding.np_random(None if seed is None else seed + i)[0]
+                          for i in range(self.num_copies)]
+        else:
+            self._rngs = [seeding.np_random(seed)[0]]
+        self._host[:] = self._goals(np.full(self.num_copies, self.depth)).reshape(
+            self._host.shape)
+        self._upload()
+
+    def _goals(self, counts: np.ndarray) -> np.ndarray:
+        """``counts[i]`` new goals of copy i, stacked copy by copy, ``(sum, 3)`` m."""
+        if self.source == "batched":
+            return self.sampler.sample(int(counts.sum()), self._rngs[0]).goals
+        rows = [self.sampler.sample(1, rng).goals[0] for rng, k in zip(self._rngs, counts,
+                                                                        strict=True)
+                for _ in range(k)]
+        return np.array(rows).reshape(-1, GOAL_DIM)
+
+    def _upload(self) -> None:
+        self.pool.copy_(torch.as_tensor(self._host).to(dtype=self.dtype))
+        self.cursor.zero_()
+        self._left = self.depth
+
+    def _top_up(self) -> None:
+        """Replace the goals used since the last fill (reads the cursors: a sync on CUDA)."""
+        used = self.cursor.cpu().numpy()
+        fresh = iter(np.split(self._goals(used), np.cumsum(used)[:-1]))
+        for i, k in enumerate(used):
+            self._host[i] = np.concatenate([self._host[i, k:], next(fresh)])
+        self._upload()
+
+    def draw(self, mask: torch.Tensor, goal: torch.Tensor) -> None:
+        """Write the next goal of every copy where ``mask (B,) bool`` into ``goal (B, 3)``, in
+        place, and advance those cursors (on the device, unless a top-up is due)."""
+        if not self._rngs:
+            raise RuntimeError("GoalPool.draw before seed()")
+        if self._left == 0:
+            self._top_up()
+        self._left -= 1
+        nxt = self.pool.gather(1, self.cursor.view(-1, 1, 1).expand(-1, 1, GOAL_DIM))[:, 0]
+        goal.copy_(torch.where(mask.unsqueeze(-1), nxt, goal))
+        self.cursor.add_(mask.to(torch.long))
+
+
+# ---------------------------------------------------------------------------- the env
+class TorchReach:
+    """N copies of ``UR5Reach-v0`` as tensors on one device: BatchedReach with torch in and out.
+
+    Given the same goals and actions, every step equals :class:`envs.batched.BatchedReach`'s
+    (``dynamics="fast"``) to floating-point rounding (tested to 1e-9 in float64); with
+    ``goal_source="per_copy"`` the same seed gives the same goals too.
+
+    Action Space
+    ------------
+    ``(N, n)`` tensor, the commands of joints 1..n in the control mode's unit (rad, rad/s or
+    N m; :func:`envs.dynamics.command_bounds`), clipped to that box. Must be finite (unchecked).
+
+    Observation Space
+    -----------------
+    A dict of tensors, BatchedReach's layout:
+
+    ===============  =========  ==========================================================
+    key              shape      meaning (unit)
+    ===============  =========  ==========================================================
+    observation      (N, 3n)    joint angles (rad), velocities (rad/s), accelerations
+                                (rad/s^2) of joints 1..n
+    achieved_goal    (N, 3)     tool0 position (m, world frame)
+    desired_goal     (N, 3)     goal (m, world frame)
+    ===============  =========  ==========================================================
+
+    Rewards
+    -------
+    :func:`reach_reward` of the distance and the action as applied (eq. 2 dense, or the
+    success bonus alone if sparse); ``compute_reward`` recomputes it for relabelled goals.
+
+    Starting State
+    --------------
+    The arm at rest at ``task.start_q``; the goal from :class:`GoalPool`.
+
+    Episode End
+    -----------
+    Terminated on success (``distance <= success_radius`` m) when ``terminate_on_success``;
+    truncated after ``max_episode_steps`` steps. Autoreset as BatchedReach's ``next_step``
+    (default), ``same_step`` (the ended episodes' last observation and info in
+    ``info["final_obs"]`` / ``info["final_info"]`` as dicts of (N, ...) tensors, masks
+    ``info["_final_obs"]`` / ``info["_final_info"]``) or ``disabled`` (call
+    ``reset(options={"reset_mask": done})``).
+
+    Parameters
+    ----------
+    num_envs : int
+        N.
+    spec : TaskSpec or its dict form, optional
+        The task; ``**overrides`` change fields. Only the stop contact model.
+    device : str or torch.device
+        Where everything lives (``"cpu"``, ``"cuda"``).
+    dtype : {"float64", "float32"}
+    autoreset_mode : gymnasium.vector.AutoresetMode or str
+    goal_source : {"batched", "per_copy"}
+        :data:`GOAL_SOURCES`.
+    goal_pool : int
+        Goals stocked per copy (:class:`GoalPool`): a top-up (one sync) every this many steps
+        at most.
+    cuda_graph : bool
+        Passed to :class:`envs.torchdyn.TorchArmDynamics`.
+
+    ``info`` holds :data:`envs.task.INFO_KEYS` as (N, ...) tensors (``clearance`` from the
+    plane check's exact heights), each with an all-True ``_key`` mask.
+    """
+
+    def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
+                 device: Any = "cpu", dtype: Any = "float64",
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 goal_source: str = "batched", goal_pool: int = DEFAULT_POOL_DEPTH,
+                 cuda_graph: bool = False, **overrides: Any) -> None:
+        if not isinstance(num_envs, int | np.integer) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
+        self.task = validate(make_task(spec, overrides))
+        if not torchdyn.supports(self.task):
+            raise ValueError(f"TorchReach implements the stop contact model only (as "
+                             f"TorchArmDynamics); got contact_model={self.task.contact_model!r}")
+        self.num_envs, self.autoreset_mode = int(num_envs), _autoreset_mode(autoreset_mode)
+        self.dynamics = torchdyn.TorchArmDynamics(self.task, self.num_envs, device=device,
+                                                  dtype=dtype, cuda_graph=cuda_graph)
+        self.device, self.dtype = self.dynamics.device, self.dynamics.dtype
+        B, n, dev = self.num_envs, self.task.n_joints, self.device
+        self.goals = GoalPool(self.task, B, goal_pool, goal_source, dev, self.dtype)
+        self.dynamics.reset(self.task.start_q)  # checks the start pose once, on the host
+
+        def t(x: Any) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(x, dtype=np.float64)).to(device=dev,
+                                                                      dtype=self.dtype)
+
+        low, high = command_bounds(self.task)
+        self.action_low, self.action_high = t(low), t(high)
+        self._penalty_scale = t(action_penalty_scale(self.task))
+        self._start_q = t(self.task.start_q)
+        self.goal = torch.zeros((B, GOAL_DIM), device=dev, dtype=self.dtype)
+        self.action = torch.zeros((B, n), device=dev, dtype=self.dtype)
+        self.elapsed = torch.zeros(B, dtype=torch.long, device=dev)
+        self._ended = torch.zeros(B, dtype=torch.bool, device=dev)
+        self._all = torch.ones(B, dtype=torch.bool, device=dev)
+        self._started = False
+
+    @property
+    def dt(self) -> float:
+        """Duration of one step (s)."""
+        return self.task.dt
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+        """Reset copies: all of them, or ``options["reset_mask"]`` ((N,) bool tensor).
+
+        ``seed``: an int reseeds the goal source (:meth:`GoalPool.seed`, whatever the mask) and
+        refills the pool; None keeps it (fresh entropy on the first reset).
+        ``options["goal"]``: ``(N, 3)`` m, goals for the copies reset (other rows ignored)
+        instead of drawing them. The first reset must be of all copies.
+        """
+        options = dict(options or {})
+        unknown = sorted(set(options) - {"reset_mask", "goal"})
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {unknown}; known: 'reset_mask', 'goal'")
+        mask = self._all
+        if "reset_mask" in options:
+            mask = torch.as_tensor(options["reset_mask"], device=self.device)
+            if mask.shape != (self.num_envs,) or mask.dtype != torch.bool:
+                raise ValueError(f"options['reset_mask'] must be ({self.num_envs},) bool; got "
+                                 f"{tuple(mask.shape)} {mask.dtype}")
+            if not self._started:
+                raise ValueError("the first reset must reset every copy (no reset_mask)")
+        if seed is not None and not isinstance(seed, int | np.integer):
+            raise ValueError(f"seed must be an int or None; got {seed!r}")
+        if seed is not None or not self._started:
+            self.goals.seed(None if seed is None else int(seed))
+        self._reset_where(mask)
+        if "goal" in options:
+            goal = torch.as_tensor(options["goal"], device=self.device, dtype=self.dtype)
+            if goal.shape != (self.num_envs, GOAL_DIM):
+                raise ValueError(f"options['goal'] must be ({self.num_envs}, 3) goals (m, world "
+                                 f"frame); got shape {tuple(goal.shape)}")
+            self.goal.copy_(torch.where(mask.unsqueeze(-1), goal, self.goal))
+        self._started = True
+        self._ended.masked_fill_(mask, False)
+        return self._observation(), self._info(self._distance())
+
+    def step(self, actions: Any) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor,
+                                          torch.Tensor, dict[str, torch.Tensor]]:
+        """Step every copy with ``actions (N, n)``; see the class docstring for episode ends.
+
+        Returns observations (dict of (N, ...) tensors), rewards (N,), terminations (N,),
+        truncations (N,) and infos (dict of (N, ...) tensors with ``_key`` masks), all on the
+        device.
+
+        Raises
+        ------
+        ValueError
+            When ``actions`` is not ``(N, n)``.
+        gymnasium.error.ResetNeeded
+            Before the first reset.
+        """
+        if not self._started:
+            raise gymnasium.error.ResetNeeded("step() before reset(): call reset() first")
+        n = self.task.n_joints
+        a = torch.as_tensor(actions, device=self.device)
+        if a.shape != (self.num_envs, n) or a.is_complex():
+            raise ValueError(f"actions must be a real ({self.num_envs}, {n}) tensor (the "
+                             f"{self.task.control_mode} commands of joints 1..{n}); got shape "
+                             f"{tuple(a.shape)}")
+        torch.clamp(a.to(self.dtype), self.action_low, self.action_high, out=self.action)
+        self.dynamics.step(self.action)
+        self.elapsed.add_(1)
+        distance = self._distance()
+        reward = reach_reward(distance, self.action, self.task, self._penalty_scale)
+        terminated = (distance <= self.task.success_radius) & self.task.terminate_on_success
+        truncated = self.elapsed >= self.task.max_episode_steps
+        mode = self.autoreset_mode
+        if mode == AutoresetMode.NEXT_STEP:
+            ended = self._ended
+            self._reset_where(ended)  # always, masked: asking whether any ended would sync
+            keep = ~ended
+            reward = torch.where(keep, reward, torch.zeros_like(reward))
+            terminated, truncated = terminated & keep, truncated & keep
+            distance = self._distance()
+            self._ended = terminated | truncated
+            return self._observation(), reward, terminated, truncated, self._info(distance)
+        info = self._info(distance)
+        if mode == AutoresetMode.SAME_STEP:
+            done = terminated | truncated
+            info.update(final_obs=self._observation(), _final_obs=done,
+                        final_info={key: info[key] for key in INFO_KEYS}, _final_info=done)
+            self._reset_where(done)
+        return self._observation(), reward, terminated, truncated, info
+
+    def compute_reward(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
+                       info: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """The reward ``(...)`` of transitions (HER relabelling), on the goals' device.
+
+        ``achieved_goal``, ``desired_goal``: ``(..., 3)`` m, world frame (broadcast);
+        ``info["action"]``: ``(..., n)`` the actions as applied (unused if sparse). Equals
+        :func:`envs.reward.compute_reward`; checks shapes only (a value check would sync).
+        """
+        for name, g in (("achieved_goal", achieved_goal), ("desired_goal", desired_goal)):
+            if not isinstance(g, torch.Tensor) or g.ndim == 0 or g.shape[-1] != GOAL_DIM:
+                raise ValueError(f"{name} must be a (..., 3) tensor (m, world frame); got "
+                                 f"{getattr(g, 'shape', type(g).__name__)}")
+        distance = goal_distance(achieved_goal, desired_goal)
+        if self.task.reward_type == "sparse":
+            return reach_reward(distance, None, self.task)
+        action = info.get(ACTION_KEY) if isinstance(info, Mapping) else None
+        n = self.task.n_joints
+        if not isinstance(action, torch.Tensor) or action.ndim == 0 or action.shape[-1] != n:
+            raise ValueError(f"the dense reward needs info[{ACTION_KEY!r}], a (..., {n}) tensor "
+                             f"of the actions as applied; got "
+                             f"{getattr(action, 'shape', type(action).__name__)}")
+        scale = self._penalty_scale.to(device=action.device, dtype=action.dtype)
+        return reach_reward(distance, action, self.task, scale)
+
+    # ------------------------------------------------------------------ internals
+    def _reset_where(self, mask: torch.Tensor) -> None:
+        """Start new episodes where ``mask``: arm at rest at the start pose, next goal."""
+        self.dynamics.reset_where(mask, self._start_q)
+        self.goals.draw(mask, self.goal)
+        self.elapsed.masked_fill_(mask, 0)
+        self.action.masked_fill_(mask.unsqueeze(-1), 0.0)
+
+    def _distance(self) -> torch.Tensor:
+        return goal_distance(self.dynamics._tool, self.goal)
+
+    def _observation(self) -> dict[str, torch.Tensor]:
+        d, n = self.dynamics, self.task.n_joints
+        return {"observation": torch.cat([d.q[:, :n], d.v[:, :n], d.acceleration[:, :n]], -1),
+                "achieved_goal": d.tool_positions(), "desired_goal": self.goal.clone()}
+
+    def _info(self, distance: torch.Tensor) -> dict[str, torch.Tensor]:
+        d = self.dynamics
+        values = (self.action.clone(), distance, distance <= self.task.success_radius,
+                  d.contact.clone(), d.limit_stop.clone(), d.clearance())
+        info = dict(zip(INFO_KEYS, values, strict=True))
+        info.update({f"_{key}": self._all for key in INFO_KEYS})
+        return info
