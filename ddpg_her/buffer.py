@@ -43,6 +43,37 @@ class Episode:
         return len(self.action)
 
 
+@dataclass
+class TensorEpisodes:
+    """N episodes of at most T steps as float64 tensors on one device, padded to T.
+
+    observation : (N, T + 1, obs_dim), achieved_goal : (N, T + 1, goal_dim),
+    desired_goal : (N, goal_dim), action : (N, T, act_dim), reward : (N, T), terminated :
+    (N, T) bool, length : (N,) long (episode i is the first ``length[i]`` steps; the rest is
+    padding), success : (N,) bool. Everything in env units, as `Episode`.
+    """
+
+    observation: torch.Tensor
+    achieved_goal: torch.Tensor
+    desired_goal: torch.Tensor
+    action: torch.Tensor
+    reward: torch.Tensor
+    terminated: torch.Tensor
+    length: torch.Tensor
+    success: torch.Tensor
+
+    def episode(self, i: int, length: int) -> Episode:
+        """Episode i (of ``length`` steps) as numpy arrays (reads the device: for tests)."""
+        def host(x: torch.Tensor) -> np.ndarray:
+            return x.cpu().numpy()
+        return Episode(observation=host(self.observation[i, :length + 1]),
+                       achieved_goal=host(self.achieved_goal[i, :length + 1]),
+                       desired_goal=host(self.desired_goal[i]),
+                       action=host(self.action[i, :length]),
+                       reward=host(self.reward[i, :length]),
+                       terminated=host(self.terminated[i, :length]))
+
+
 def her_goal_steps(strategy: HERStrategy, length: int, her_k: int,
                    rng: np.random.Generator) -> np.ndarray:
     """Which achieved goals the relabelled copies pursue: indices into ``achieved_goal``, 1..L.
@@ -116,6 +147,50 @@ def pack(ep: Episode, scale: ActionScale) -> np.ndarray:
     ).astype(np.float32)
 
 
+def pack_tensors(observation: torch.Tensor, achieved_goal: torch.Tensor,
+                 desired_goal: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
+                 terminated: torch.Tensor, scale: ActionScale) -> torch.Tensor:
+    """`pack` on tensors, with the same float64 operations and rounding to float32.
+
+    observation : (..., L + 1, obs_dim), achieved_goal : (..., L + 1, goal_dim), desired_goal
+    : (..., goal_dim), action : (..., L, act_dim) env units, reward : (..., L), terminated :
+    (..., L) bool -> (..., L, width) float32 rows on their device.
+    """
+    dg = desired_goal.unsqueeze(-2).expand_as(achieved_goal)
+    x = torch.cat([observation, dg - achieved_goal, dg], -1).to(torch.float32)
+    low, high = (torch.as_tensor(v, device=action.device) for v in (scale.low, scale.high))
+    u = (action.to(torch.float64) - low) / (0.5 * (high - low)) - 1.0
+    return torch.cat([x[..., :-1, :], u.to(torch.float32), reward.unsqueeze(-1).to(torch.float32),
+                      x[..., 1:, :], terminated.unsqueeze(-1).to(torch.float32)], -1)
+
+
+def her_tensors(eps: TensorEpisodes, copies: np.ndarray, goal_steps: np.ndarray,
+                reward_fn: GoalFn, terminated_fn: GoalFn
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`relabel` of many episodes at once, on their device: copy c of episode ``copies[c]``
+    pursues its achieved goal at ``goal_steps[c]`` (1..length).
+
+    ``reward_fn`` and ``terminated_fn`` take tensors (..., goal_dim), (..., goal_dim),
+    (..., act_dim) -> (...). Returns the copies' goals (C, goal_dim), rewards (C, T) and
+    terminations (C, T), and their lengths (C,) long (cut at the first termination, else the
+    episode's length), all on the device; rows past a copy's length are padding.
+    """
+    dev = eps.action.device
+    idx = torch.as_tensor(copies, dtype=torch.long, device=dev)
+    step = torch.as_tensor(goal_steps, dtype=torch.long, device=dev)
+    ag = eps.achieved_goal[idx]
+    goal = ag[torch.arange(len(idx), device=dev), step]
+    goals = goal.unsqueeze(1).expand_as(ag[:, 1:])
+    action = eps.action[idx]
+    t = torch.arange(action.shape[1], device=dev)
+    inside = t < eps.length[idx].unsqueeze(-1)
+    terminated = torch.as_tensor(terminated_fn(ag[:, 1:], goals, action), device=dev) & inside
+    first = torch.where(terminated, t, action.shape[1]).amin(-1) + 1
+    length = torch.minimum(first, eps.length[idx])
+    reward = reward_fn(ag[:, 1:], goals, action)
+    return goal, reward, terminated & (t < length.unsqueeze(-1)), length
+
+
 class ReplayBuffer:
     """K ring buffers of packed transitions, one per agent, preallocated on the device.
 
@@ -141,6 +216,15 @@ class ReplayBuffer:
         pos = (start + np.arange(len(rows))) % self.capacity
         self.rows[k, torch.from_numpy(pos).to(self.rows.device)] = torch.from_numpy(
             np.asarray(rows)).to(self.rows)
+        self.total[k] = max(self.total[k], start + len(rows))
+
+    def put_tensor(self, k: int, start: int, rows: torch.Tensor) -> None:
+        """`put` of rows already on the buffer's device; the positions are computed there."""
+        if len(rows) > self.capacity:
+            start += len(rows) - self.capacity
+            rows = rows[-self.capacity:]
+        pos = (start + torch.arange(len(rows), device=self.rows.device)) % self.capacity
+        self.rows[k, pos] = rows.to(self.rows)
         self.total[k] = max(self.total[k], start + len(rows))
 
     def add(self, k: int, rows: np.ndarray) -> None:

@@ -24,12 +24,20 @@ class RunningNormalizer:
         self.mean = torch.zeros(k, 1, dim, dtype=dtype, device=device)
         self.std = torch.ones(k, 1, dim, dtype=dtype, device=device)
 
-    def update(self, k: int, x: np.ndarray) -> None:
-        """Add rows ``x : (L, dim)`` to agent k's statistics."""
-        x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
-        self.count[k] += len(x)
-        self.sum[k] += x.sum(axis=0)
-        self.sumsq[k] += (x**2).sum(axis=0)
+    def update(self, k: int, x: np.ndarray | torch.Tensor) -> None:
+        """Add rows ``x : (L, dim)`` to agent k's statistics. For a tensor, the sums are taken
+        on its device and only they are read back (2 dim numbers)."""
+        if isinstance(x, torch.Tensor):
+            x = x.to(torch.float64).reshape(-1, self.dim)
+            sums = torch.stack([x.sum(0), (x**2).sum(0)]).cpu().numpy()
+            self.count[k] += len(x)
+            self.sum[k] += sums[0]
+            self.sumsq[k] += sums[1]
+        else:
+            x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
+            self.count[k] += len(x)
+            self.sum[k] += x.sum(axis=0)
+            self.sumsq[k] += (x**2).sum(axis=0)
         if self.enabled and self.count[k] > 0:
             n = self.count[k]
             mean = self.sum[k] / n

@@ -147,6 +147,13 @@ def make_parser() -> argparse.ArgumentParser:
     run.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
                      help="torch device of networks and replay buffers (default: cpu); "
                           "runs are bitwise repeatable on the CPU")
+    run.add_argument("--env-backend", choices=["numpy", "torch"], default="numpy",
+                     help="where the envs live (default: numpy): 'numpy', Gymnasium's envs on "
+                          "the host; 'torch', the env's tensor twin (UR5TorchReach-v0, "
+                          "UR5Reach-v0 only, the stop contact model only) on --device, so "
+                          "rollout, HER and replay stay on the device. Its exploration noise "
+                          "comes from torch generators: the same seed explores otherwise than "
+                          "under 'numpy'")
     run.add_argument("--threads", type=int, default=None,
                      help="torch CPU threads (default: torch's choice)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -182,7 +189,7 @@ class Request:
     run_dirs: tuple[str, ...]
 
 
-PROCESS_FLAGS = ("resume", "device", "threads", "no_progress", "no_tensorboard")
+PROCESS_FLAGS = ("resume", "device", "env_backend", "threads", "no_progress", "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
 
 
@@ -242,7 +249,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"({type(e).__name__}: {e})")
     try:
         trainer = Trainer(args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume,
-                          device=args.device, progress=not args.no_progress,
+                          device=args.device, env_backend=args.env_backend,
+                          progress=not args.no_progress,
                           tensorboard=not args.no_tensorboard,
                           command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])])
     except (ValueError, TypeError, gymnasium.error.Error) as e:

@@ -29,15 +29,29 @@ import numpy as np
 import torch
 
 from ddpg_her.agent import DDPG
-from ddpg_her.buffer import Layout, ReplayBuffer, her_goal_steps, pack, relabel
+from ddpg_her.buffer import (
+    Layout,
+    ReplayBuffer,
+    TensorEpisodes,
+    her_goal_steps,
+    her_tensors,
+    pack,
+    pack_tensors,
+    relabel,
+)
 from ddpg_her.config import AgentConfig
-from ddpg_her.exploration import Explorer
+from ddpg_her.exploration import Explorer, TorchExplorer
 from ddpg_her.runfolder import FORMAT, RunFolder, RunFolderError, git_revision, versions
 from ddpg_her.spaces import goal_input
-from ddpg_her.vecenv import GoalVecEnv, rollout
+from ddpg_her.vecenv import GoalVecEnv, TorchGoalVecEnv, rollout, torch_rollout
 
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
 _INIT, _EXPLORE, _SAMPLE, _TRAIN_ENV, _EVAL_ENV = range(5)
+
+ENV_BACKENDS = ("numpy", "torch")
+"""``numpy``: the envs are Gymnasium's (numpy arrays on the host). ``torch``: the env id's
+tensor twin (``vecenv.TORCH_TWINS``, e.g. ``envs.TorchReach``) on the trainer's device, so
+rollout, HER and the buffer stay on the device (stop contact model only)."""
 
 
 def stream_seed(seed: int, *key: int) -> int:
@@ -52,14 +66,21 @@ class Trainer:
     all agents, or K dicts, agent k's task made with ``env_kwargs[k]`` (all of one layout);
     seeds : (K,) ints, distinct among agents of one task; run_dirs : K distinct folders;
     resume : continue the runs in ``run_dirs`` from their last common checkpoint (runs absent
-    there start afresh) instead of refusing existing folders.
+    there start afresh) instead of refusing existing folders; env_backend : one of
+    `ENV_BACKENDS`. With ``torch``, exploration draws from torch generators on the device
+    (`TorchExplorer`), so the same seed explores otherwise than with ``numpy``; with no
+    exploration draws (no warm-up, rate 0) the two backends train alike to rounding (tested).
     """
 
     def __init__(self, env_id: str, env_kwargs: dict[str, Any] | Sequence[dict[str, Any]],
                  config: AgentConfig, seeds: Sequence[int], run_dirs: Sequence[str | Path], *,
                  resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
-                 command: Sequence[str] | None = None):
+                 command: Sequence[str] | None = None, env_backend: str = "numpy"):
+        if env_backend not in ENV_BACKENDS:
+            raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
+                             f"{env_backend!r}")
+        self.env_backend = env_backend
         seeds = [int(s) for s in seeds]
         per_agent = [dict(env_kwargs)] * len(seeds) if isinstance(env_kwargs, dict) else \
             [dict(kw) for kw in env_kwargs]
@@ -81,8 +102,14 @@ class Trainer:
         self._flush_denormals()
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
-        self.envs = GoalVecEnv(env_id, per_agent, 1)
-        self.eval_envs = GoalVecEnv(env_id, per_agent, config.eval_episodes)
+        if env_backend == "torch":
+            self.envs: GoalVecEnv | TorchGoalVecEnv = TorchGoalVecEnv(
+                env_id, per_agent, 1, device=self.device)
+            self.eval_envs: GoalVecEnv | TorchGoalVecEnv = TorchGoalVecEnv(
+                env_id, per_agent, config.eval_episodes, device=self.device)
+        else:
+            self.envs = GoalVecEnv(env_id, per_agent, 1)
+            self.eval_envs = GoalVecEnv(env_id, per_agent, config.eval_episodes)
         envs = self.envs
         self.scale = envs.scale
         self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)
@@ -97,6 +124,10 @@ class Trainer:
         self.sample_generators = [
             torch.Generator(self.device).manual_seed(stream_seed(s, _SAMPLE)) for s in seeds]
         self.explorer = Explorer(config, self.rngs, envs.scale.dim)
+        self.explore_generators = [
+            torch.Generator(self.device).manual_seed(stream_seed(s, _EXPLORE)) for s in seeds]
+        self.torch_explorer = TorchExplorer(config, self.explore_generators, envs.scale.dim,
+                                            self.device)
 
         self.episode = 0
         self.env_steps = np.zeros(self.k, dtype=np.int64)
@@ -118,7 +149,8 @@ class Trainer:
     # --- run folders ----------------------------------------------------------------------------
     def _spec(self, k: int, command: Sequence[str] | None) -> dict[str, Any]:
         """Agent k's ``spec.json``: the same whether it trains alone or beside others."""
-        return {
+        backend = {} if self.env_backend == "numpy" else {"env_backend": self.env_backend}
+        return {**backend,
             "format": FORMAT,
             "env_id": self.env_id,
             "env_kwargs": self.env_kwargs[k],
@@ -139,7 +171,8 @@ class Trainer:
     @classmethod
     def _differences(cls, old: dict[str, Any], new: dict[str, Any]) -> list[str]:
         """Keys that make two specs different tasks or agents."""
-        diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims")
+        diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims",
+                                 "env_backend")
                  if not json_equal(old.get(key), new.get(key))]
         old_agent = {k: v for k, v in old.get("agent", {}).items()
                      if k not in cls.RESUMABLE_CHANGES}
@@ -148,7 +181,8 @@ class Trainer:
                   if not json_equal(old_agent.get(k), new_agent.get(k))]
         return diffs
 
-    CONFIG_KEYS = ("format", "env_id", "env_kwargs", "task", "seed", "agent", "dims")
+    CONFIG_KEYS = ("format", "env_id", "env_kwargs", "task", "seed", "agent", "dims",
+                   "env_backend")
     """Keys of the spec that each checkpoint carries as its ``config``: what it was trained
     with, compared with the command's on resume."""
 
@@ -246,6 +280,8 @@ class Trainer:
         for k, (f, s) in enumerate(zip(self.folders, states, strict=True)):
             self.rngs[k].bit_generator.state = s["rng"]["explore"]
             self.sample_generators[k].set_state(s["rng"]["sample"])
+            if "explore_torch" in s["rng"]:
+                self.explore_generators[k].set_state(s["rng"]["explore_torch"])
             for start, rows in chunks[k]:
                 self.buffer.put(k, start, rows)
             if self.buffer.total[k] != s["buffer_total"]:
@@ -268,14 +304,17 @@ class Trainer:
             f.save_chunk(self.episode, start, rows)
             f.save_checkpoint(self.episode, {
                 "episode": self.episode,
-                "config": {key: self.specs[k][key] for key in self.CONFIG_KEYS},
+                "config": {key: self.specs[k][key] for key in self.CONFIG_KEYS
+                           if key in self.specs[k]},
                 "env_steps": int(self.env_steps[k]),
                 "wall_s": self.wall_s,
                 "rows": self.rows[k],
                 "buffer_total": int(self.buffer.total[k]),
                 "agent": self.agent.agent_state(k),
                 "rng": {"explore": self.rngs[k].bit_generator.state,
-                        "sample": self.sample_generators[k].get_state()},
+                        "sample": self.sample_generators[k].get_state(),
+                        **({"explore_torch": self.explore_generators[k].get_state()}
+                           if self.env_backend == "torch" else {})},
             })
             f.write_eval(self.rows[k])
             oldest = int(self._kept_totals[0][k]) - self.config.buffer_size
@@ -288,8 +327,73 @@ class Trainer:
         x = goal_input(obs["observation"], obs["achieved_goal"], obs["desired_goal"])
         return torch.from_numpy(x.reshape(self.k, m, -1)).to(self.device, self.buffer.rows.dtype)
 
+    def _tensor_inputs(self, obs: dict[str, torch.Tensor], m: int) -> torch.Tensor:
+        """`_inputs` of device tensors, rounded through float32 as `goal_input` rounds."""
+        ag, dg = obs["achieved_goal"], obs["desired_goal"]
+        x = torch.cat([obs["observation"], dg - ag, dg], -1).to(torch.float32)
+        return x.reshape(self.k, m, -1).to(self.buffer.rows.dtype)
+
+    def _to_env(self, u: torch.Tensor) -> torch.Tensor:
+        """`ActionScale.to_env` on float64 tensors (the same operations)."""
+        low, high = (torch.as_tensor(v, device=u.device) for v in (self.scale.low,
+                                                                   self.scale.high))
+        return low + (u + 1.0) * 0.5 * (high - low)
+
+    def _train_episode_torch(self) -> np.ndarray:
+        """`train_episode` of the torch env backend. The host reads, per episode, the K
+        episode lengths and successes (logged), the lengths of the HER copies and the
+        normalizer's sums; transitions never leave the device."""
+        warm = self.episode < self.config.warmup_episodes
+        explorer = self.torch_explorer
+        explorer.reset()
+
+        def policy(obs):
+            u = torch.zeros((self.k, self.scale.dim), dtype=torch.float64,
+                            device=self.device) if warm else \
+                self.agent.act(self._tensor_inputs(obs, 1))[:, 0].double()
+            return self._to_env(explorer(u, uniform=warm))
+
+        seeds = [stream_seed(s, _TRAIN_ENV, self.episode) for s in self.seeds]
+        eps = torch_rollout(self.envs, policy, seeds)
+        flags = torch.stack([eps.length, eps.success.long()]).cpu().numpy()
+        length, success = flags[0], flags[1].astype(bool)
+        steps = [her_goal_steps(self.config.her_strategy, int(length[k]), self.config.her_k,
+                                self.rngs[k]) for k in range(self.k)]
+        owner = np.concatenate([np.full(len(g), k) for k, g in enumerate(steps)]).astype(int)
+        rows = [pack_tensors(eps.observation[k], eps.achieved_goal[k], eps.desired_goal[k],
+                             eps.action[k], eps.reward[k], eps.terminated[k],
+                             self.scale)[:length[k]] for k in range(self.k)]
+        copies: list[list[torch.Tensor]] = [[] for _ in range(self.k)]
+        if len(owner):
+            # one relabelling call per group, its reward being the group's task
+            goal_steps = np.concatenate(steps)
+            her_len = torch.zeros(len(owner), dtype=torch.long, device=self.device)
+            her = []
+            for k in range(self.k):
+                sel = np.flatnonzero(owner == k)
+                if len(sel):
+                    out = her_tensors(eps, owner[sel], goal_steps[sel],
+                                      functools.partial(self.envs.reward_fn, group=k),
+                                      functools.partial(self.envs.terminated_fn, group=k))
+                    her_len[torch.as_tensor(sel, device=self.device)] = out[3]
+                    her.append((k, sel, out))
+            her_len_host = her_len.cpu().numpy()
+            for k, sel, (goal, reward, terminated, _) in her:
+                idx = torch.as_tensor(owner[sel], device=self.device)
+                packed = pack_tensors(eps.observation[idx], eps.achieved_goal[idx], goal,
+                                      eps.action[idx], reward, terminated, self.scale)
+                copies[k] += [p[:her_len_host[c]] for p, c in zip(packed, sel, strict=True)]
+        for k in range(self.k):
+            all_rows = torch.cat([rows[k], *copies[k]])
+            self.buffer.put_tensor(k, int(self.buffer.total[k]), all_rows)
+            self.agent.normalizer.update(k, all_rows[:, :self.layout.in_dim])
+            self.env_steps[k] += int(length[k])
+        return success
+
     def train_episode(self) -> np.ndarray:
         """One exploring episode per agent, stored with its HER copies; returns successes (K,)."""
+        if self.env_backend == "torch":
+            return self._train_episode_torch()
         warm = self.episode < self.config.warmup_episodes
         self.explorer.reset()
 
@@ -330,6 +434,8 @@ class Trainer:
         """
         m = self.config.eval_episodes
         session = self.episode // self.config.eval_every
+        if self.env_backend == "torch":
+            return self._evaluate_torch(m, session)
 
         def policy(obs, active):
             u = self.agent.act(self._inputs(obs, m)).reshape(self.k * m, -1)
@@ -347,6 +453,32 @@ class Trainer:
                 "mean_return": round(float(np.mean([e.reward.sum() for e in eps])), 6),
                 "mean_final_distance_m": round(float(np.mean(
                     [np.linalg.norm(e.achieved_goal[-1] - e.desired_goal) for e in eps])), 6),
+                "env_steps": int(self.env_steps[k]),
+            })
+        return rows
+
+    def _evaluate_torch(self, m: int, session: int) -> list[dict[str, Any]]:
+        """`evaluate` of the torch env backend; reads back only the logged numbers."""
+        def policy(obs):
+            u = self.agent.act(self._tensor_inputs(obs, m)).reshape(self.k * m, -1)
+            return self._to_env(u.double())
+
+        seeds = [stream_seed(s, _EVAL_ENV, session, i) for s in self.seeds for i in range(m)]
+        eps: TensorEpisodes = torch_rollout(self.eval_envs, policy, seeds)
+        n = torch.arange(len(eps.length), device=self.device)
+        final = eps.achieved_goal[n, eps.length]
+        logged = torch.stack([eps.success.double(), eps.reward.sum(-1),
+                              torch.linalg.vector_norm(final - eps.desired_goal, dim=-1)])
+        success, returns, distance = logged.cpu().numpy()
+        rows = []
+        for k in range(self.k):
+            sl = slice(k * m, (k + 1) * m)
+            rows.append({
+                "episode": self.episode,
+                "successes": int(success[sl].sum()),
+                "tests": m,
+                "mean_return": round(float(np.mean(returns[sl])), 6),
+                "mean_final_distance_m": round(float(np.mean(distance[sl])), 6),
                 "env_steps": int(self.env_steps[k]),
             })
         return rows

@@ -16,17 +16,22 @@ from typing import Any
 
 import gymnasium
 import numpy as np
+import torch
 from gymnasium.vector import AutoresetMode
 
-from ddpg_her.buffer import Episode
+from ddpg_her.buffer import Episode, TensorEpisodes
 from ddpg_her.spaces import ActionScale
 
 KEYS = ("observation", "achieved_goal", "desired_goal")
 
 Step = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
-_REGISTERED_BY = {"UR5Reach-v0": "envs"}
+_REGISTERED_BY = {"UR5Reach-v0": "envs", "UR5TorchReach-v0": "envs"}
 """This project's env ids and the module whose import registers each."""
+
+TORCH_TWINS = {"UR5Reach-v0": "UR5TorchReach-v0"}
+"""Env ids that have a tensor twin (torch in and out, state on one device), used by the
+``torch`` env backend: the twin's ``vector_entry_point`` makes it (``envs.TorchReach``)."""
 
 
 def register_env(env_id: str) -> str:
@@ -275,3 +280,146 @@ def rollout(envs: GoalVecEnv, policy: ActionFn,
         for i in range(n)
     ]
     return episodes, success
+
+
+# ------------------------------------------------------------------ the torch env backend
+class _TorchGroup:
+    """M copies of an env id's tensor twin on one device, never reset automatically."""
+
+    def __init__(self, env_id: str, m: int, kwargs: dict[str, Any], device: torch.device):
+        # one goal per copy and reset, each copy reseeded at every reset: BatchedReach's goals
+        self.env = gymnasium.make_vec(
+            env_id, num_envs=m, vectorization_mode="vector_entry_point",
+            autoreset_mode=AutoresetMode.DISABLED, device=device, dtype="float64",
+            goal_source="per_copy", goal_pool=1, **kwargs)
+        self.observation_space = self.env.single_observation_space
+        self.action_space = self.env.single_action_space
+        self.goal_env = self.env.unwrapped
+        self.max_steps = _task_dict(self.goal_env).get("max_episode_steps")
+
+
+class TorchGoalVecEnv:
+    """`GoalVecEnv` of tensors: ``groups`` groups of ``copies`` copies of ``env_id``'s tensor
+    twin (`TORCH_TWINS`), everything float64 on ``device``.
+
+    The same layout, seeding and reward functions as `GoalVecEnv`, with torch tensors in and
+    out. Resetting with seeds uploads each copy's one goal (drawn on the host by the task's
+    sampler, as `GoalVecEnv`'s envs draw it); ``step`` moves nothing between host and device.
+    """
+
+    def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1, *,
+                 device: str | torch.device = "cpu", **kwargs: Any):
+        per_group = [dict(kwargs)] * groups if isinstance(groups, int) else \
+            [{**kwargs, **g} for g in groups]
+        if not per_group or copies < 1:
+            raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
+        name = register_env(env_id)
+        twin = TORCH_TWINS.get(name)
+        if twin is None:
+            raise ValueError(f"{env_id} has no tensor twin for the torch env backend; ids that "
+                             f"have one: {sorted(TORCH_TWINS)}")
+        register_env(twin)
+        self.device = torch.device(device)
+        self.kwargs = per_group
+        self.groups = [_TorchGroup(twin, copies, kw, self.device) for kw in per_group]
+        g = self.groups[0]
+        self.copies, self.num_envs = copies, len(self.groups) * copies
+        self.max_steps: int = int(g.max_steps)
+        self.obs_dim = g.observation_space["observation"].shape[0]
+        self.goal_dim = g.observation_space["desired_goal"].shape[0]
+        self.scale = ActionScale(g.action_space.low, g.action_space.high)
+        self.goal_env = g.goal_env
+        for i, other in enumerate(self.groups[1:], start=1):
+            if _dims(other) != _dims(g):
+                raise ValueError(
+                    f"{env_id}: group {i} ({per_group[i]}) has the layout {_dims(other)}, "
+                    f"group 0 ({per_group[0]}) {_dims(g)}; one batch needs one layout")
+
+    @property
+    def dims(self) -> dict[str, Any]:
+        """As `GoalVecEnv.dims` (the same for an env and its twin)."""
+        return _dims(self.groups[0])
+
+    def task_of(self, group: int) -> dict[str, Any]:
+        """Group ``group``'s task specification, or {}."""
+        return _task_dict(self.groups[group].goal_env)
+
+    def reset(self, seeds: Sequence[int]) -> dict[str, torch.Tensor]:
+        """Reset every copy n with ``seeds[n]``; the observation tensors are (N, ...)."""
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        c = self.copies
+        parts = [g.env.reset(seed=[int(s) for s in seeds[i * c:(i + 1) * c]])[0]
+                 for i, g in enumerate(self.groups)]
+        return {key: torch.cat([p[key] for p in parts]) for key in KEYS}
+
+    def step(self, action: torch.Tensor, active: torch.Tensor,
+             obs: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor,
+                                                    torch.Tensor, torch.Tensor, torch.Tensor]:
+        """`GoalVecEnv.step` on tensors: action (N, act_dim) env units, active (N,) bool; the
+        copies not active keep their observation and get 0 / False."""
+        c, out = self.copies, []
+        for i, g in enumerate(self.groups):
+            o, r, term, trunc, info = g.env.step(action[i * c:(i + 1) * c])
+            out.append((o, r, term, trunc, info["is_success"]))
+        o = {key: torch.cat([x[0][key] for x in out]) for key in KEYS}
+        on = active.unsqueeze(-1)
+        obs = {key: torch.where(on, o[key], obs[key]) for key in KEYS}
+        flags = [torch.cat([x[j] for x in out]) & active for j in (2, 3, 4)]
+        reward = torch.where(active, torch.cat([x[1] for x in out]), 0.0)
+        return obs, reward, flags[0], flags[1], flags[2]
+
+    def reward_fn(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
+                  action: torch.Tensor, group: int = 0) -> torch.Tensor:
+        """Group ``group``'s ``compute_reward`` of transitions (..., goal_dim), (..., goal_dim),
+        (..., act_dim) env units -> (...), on the device."""
+        return self.groups[group].goal_env.compute_reward(achieved_goal, desired_goal,
+                                                          {"action": action})
+
+    def terminated_fn(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
+                      action: torch.Tensor, group: int = 0) -> torch.Tensor:
+        """Group ``group``'s ``compute_terminated`` of transitions, (...) bool, on the device."""
+        return self.groups[group].goal_env.compute_terminated(achieved_goal, desired_goal,
+                                                              {"action": action})
+
+    def close(self) -> None:
+        for g in self.groups:
+            g.env.close()
+
+
+TensorActionFn = Callable[[dict[str, torch.Tensor]], torch.Tensor]
+"""``policy(obs) -> action``: obs tensors (N, ...) -> (N, act_dim) float64 action in env units
+(rows of copies whose episode ended are ignored)."""
+
+
+def torch_rollout(envs: TorchGoalVecEnv, policy: TensorActionFn,
+                  seeds: Sequence[int]) -> TensorEpisodes:
+    """`rollout` on the device: one episode in each of the N copies, in lockstep.
+
+    All ``max_steps`` steps run (copies whose episode ended are stepped and ignored), since
+    asking whether any copy still runs would read the device. Nothing is read back.
+    """
+    n, t_max, dev = envs.num_envs, envs.max_steps, envs.device
+    obs = envs.reset(seeds)
+    f64 = {"dtype": torch.float64, "device": dev}
+    o = torch.zeros((n, t_max + 1, envs.obs_dim), **f64)
+    ag = torch.zeros((n, t_max + 1, envs.goal_dim), **f64)
+    a = torch.zeros((n, t_max, envs.scale.dim), **f64)
+    r = torch.zeros((n, t_max), **f64)
+    term = torch.zeros((n, t_max), dtype=torch.bool, device=dev)
+    length = torch.zeros(n, dtype=torch.long, device=dev)
+    success = torch.zeros(n, dtype=torch.bool, device=dev)
+    o[:, 0], ag[:, 0] = obs["observation"], obs["achieved_goal"]
+    goal = obs["desired_goal"].clone()
+    active = torch.ones(n, dtype=torch.bool, device=dev)
+    for t in range(t_max):
+        action = policy(obs).to(torch.float64)
+        obs, reward, terminated, truncated, succ = envs.step(action, active, obs)
+        o[:, t + 1], ag[:, t + 1] = obs["observation"], obs["achieved_goal"]
+        a[:, t] = torch.where(active.unsqueeze(-1), action, 0.0)
+        r[:, t], term[:, t] = reward, terminated
+        length += active
+        success = torch.where(active, succ, success)
+        active = active & ~(terminated | truncated)
+    return TensorEpisodes(observation=o, achieved_goal=ag, desired_goal=goal, action=a,
+                          reward=r, terminated=term, length=length, success=success)

@@ -32,6 +32,17 @@ for _env_id in ENV_IDS:
             max_episode_steps=DEFAULT_EPISODE_STEPS,
         )
 
+TORCH_ENV_IDS: tuple[str, ...] = ("UR5TorchReach-v0",)
+"""Ids of the tensor envs registered on import: ``gymnasium.make_vec(id, num_envs=N,
+vectorization_mode="vector_entry_point", **kwargs)`` makes an `envs.torchreach.TorchReach`
+(torch in and out, stop contact model only); there is no single-env entry point."""
+
+for _env_id in TORCH_ENV_IDS:
+    if _env_id not in gymnasium.registry:
+        gymnasium.register(_env_id, entry_point=None,
+                           vector_entry_point="envs.torchreach:TorchReach",
+                           max_episode_steps=DEFAULT_EPISODE_STEPS)
+
 _LAZY: dict[str, str] = {
     "BatchedReach": "envs.batched",
     "FlatObservation": "envs.wrappers",
@@ -40,7 +51,7 @@ _LAZY: dict[str, str] = {
 }
 """Public names that load their module (and with it Pinocchio) on first use."""
 
-__all__ = ["ENV_IDS", "BatchedReach", "FlatObservation", "TaskSpec", "UR5ReachEnv",
+__all__ = ["ENV_IDS", "TORCH_ENV_IDS", "BatchedReach", "FlatObservation", "TaskSpec", "UR5ReachEnv",
            "compute_reward", "validate"]
 
 

@@ -138,24 +138,8 @@ class ReachCore:
         self.rules.is_success(self.distance, out=self.success)
 
     def single_spaces(self) -> tuple[gymnasium.spaces.Dict, gymnasium.spaces.Box]:
-        """Observation and action space of one copy.
-
-        The observation is a goal-env Dict: ``observation (3n,)`` bounded by the URDF joint
-        position and velocity limits (the dynamics enforce both; the acceleration is
-        unbounded), ``achieved_goal`` and ``desired_goal`` ``(3,)`` unbounded; the action box is
-        :func:`envs.dynamics.command_bounds`. All float64.
-        """
-        model, n = ur5kin.load_model(), self.task.n_joints
-        vel = ur5kin.velocity_limits()[:n]
-        low = np.concatenate([model.lowerPositionLimit[:n], -vel, np.full(n, -np.inf)])
-        high = np.concatenate([model.upperPositionLimit[:n], vel, np.full(n, np.inf)])
-        box = gymnasium.spaces.Box
-        observation = gymnasium.spaces.Dict({
-            "observation": box(low, high, dtype=np.float64),
-            "achieved_goal": box(-np.inf, np.inf, (3,), np.float64),
-            "desired_goal": box(-np.inf, np.inf, (3,), np.float64),
-        })
-        return observation, box(self.action_low, self.action_high, dtype=np.float64)
+        """Observation and action space of one copy (:func:`single_spaces` of the task)."""
+        return single_spaces(self.task)
 
     def clearance(self) -> np.ndarray:
         """Lowest point of the moving links (shoulder to wrist 3 with the tool flange) now,
@@ -171,3 +155,26 @@ class ReachCore:
         return self.rules.info(action=self.action, distance=self.distance, success=self.success,
                                contact=dyn.contact, joint_limit=dyn.limit_stop,
                                clearance=self.clearance())
+
+
+def single_spaces(task: TaskSpec) -> tuple[gymnasium.spaces.Dict, gymnasium.spaces.Box]:
+    """Observation and action space of one copy of ``task``.
+
+    The observation is a goal-env Dict: ``observation (3n,)`` bounded by the URDF joint
+    position and velocity limits (the dynamics enforce both; the acceleration is
+    unbounded), ``achieved_goal`` and ``desired_goal`` ``(3,)`` unbounded; the action box is
+    :func:`envs.dynamics.command_bounds`. All float64.
+    """
+    model, n = ur5kin.load_model(), task.n_joints
+    vel = ur5kin.velocity_limits()[:n]
+    low = np.concatenate([model.lowerPositionLimit[:n], -vel, np.full(n, -np.inf)])
+    high = np.concatenate([model.upperPositionLimit[:n], vel, np.full(n, np.inf)])
+    box = gymnasium.spaces.Box
+    observation = gymnasium.spaces.Dict({
+        "observation": box(low, high, dtype=np.float64),
+        "achieved_goal": box(-np.inf, np.inf, (3,), np.float64),
+        "desired_goal": box(-np.inf, np.inf, (3,), np.float64),
+    })
+    action_low, action_high = command_bounds(task)
+    return observation, box(np.asarray(action_low, dtype=np.float64),
+                            np.asarray(action_high, dtype=np.float64), dtype=np.float64)

@@ -17,7 +17,7 @@ reads the device); its actions must be finite.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium
@@ -29,6 +29,7 @@ from gymnasium.vector import AutoresetMode
 from envs import torchdyn
 from envs.batched import _autoreset_mode
 from envs.checks import validate
+from envs.core import single_spaces
 from envs.dynamics import command_bounds
 from envs.reach import make_task
 from envs.reward import ACTION_KEY, GOAL_DIM, action_penalty_scale
@@ -118,10 +119,16 @@ class GoalPool:
         self._rngs: list[np.random.Generator] = []
         self._left = 0  # goals every copy surely has left
 
-    def seed(self, seed: int | None) -> None:
-        """New generators (``per_copy``: copy i from ``seed + i``; ``batched``: one from
+    def seed(self, seed: int | Sequence[int] | None) -> None:
+        """New generators (``per_copy``: copy i from ``seed + i``, or from ``seed[i]`` given one
+        seed per copy, as :meth:`envs.batched.BatchedReach.reset`; ``batched``: one from
         ``seed``; None: fresh entropy) and a full pool drawn from them."""
-        if self.source == "per_copy":
+        if not isinstance(seed, int | np.integer | None):
+            if self.source != "per_copy" or len(seed) != self.num_copies:
+                raise ValueError(f"one seed per copy ({self.num_copies}) needs goal_source="
+                                 f"'per_copy'; got {len(seed)} seeds with {self.source!r}")
+            self._rngs = [seeding.np_random(int(s))[0] for s in seed]
+        elif self.source == "per_copy":
             self._rngs = [seeding.np_random(None if seed is None else seed + i)[0]
                           for i in range(self.num_copies)]
         else:
@@ -243,6 +250,10 @@ class TorchReach:
             raise ValueError(f"TorchReach implements the stop contact model only (as "
                              f"TorchArmDynamics); got contact_model={self.task.contact_model!r}")
         self.num_envs, self.autoreset_mode = int(num_envs), _autoreset_mode(autoreset_mode)
+        self.metadata = {"autoreset_mode": self.autoreset_mode}
+        self.spec: Any = None  # set by gymnasium.make_vec
+        # host-side metadata (numpy boxes, as BatchedReach's); values stay tensors
+        self.single_observation_space, self.single_action_space = single_spaces(self.task)
         self.dynamics = torchdyn.TorchArmDynamics(self.task, self.num_envs, device=device,
                                                   dtype=dtype, cuda_graph=cuda_graph)
         self.device, self.dtype = self.dynamics.device, self.dynamics.dtype
@@ -275,8 +286,9 @@ class TorchReach:
               ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Reset copies: all of them, or ``options["reset_mask"]`` ((N,) bool tensor).
 
-        ``seed``: an int reseeds the goal source (:meth:`GoalPool.seed`, whatever the mask) and
-        refills the pool; None keeps it (fresh entropy on the first reset).
+        ``seed``: an int, or with ``goal_source="per_copy"`` one int per copy, reseeds the goal
+        source (:meth:`GoalPool.seed`, whatever the mask) and refills the pool; None keeps it
+        (fresh entropy on the first reset).
         ``options["goal"]``: ``(N, 3)`` m, goals for the copies reset (other rows ignored)
         instead of drawing them. The first reset must be of all copies.
         """
@@ -292,10 +304,14 @@ class TorchReach:
                                  f"{tuple(mask.shape)} {mask.dtype}")
             if not self._started:
                 raise ValueError("the first reset must reset every copy (no reset_mask)")
-        if seed is not None and not isinstance(seed, int | np.integer):
-            raise ValueError(f"seed must be an int or None; got {seed!r}")
+        if isinstance(seed, Sequence):
+            seed = [int(s) for s in seed]
+        elif seed is not None and not isinstance(seed, int | np.integer):
+            raise ValueError(f"seed must be an int, a sequence of ints or None; got {seed!r}")
+        elif seed is not None:
+            seed = int(seed)
         if seed is not None or not self._started:
-            self.goals.seed(None if seed is None else int(seed))
+            self.goals.seed(seed)
         self._reset_where(mask)
         if "goal" in options:
             goal = torch.as_tensor(options["goal"], device=self.device, dtype=self.dtype)
@@ -378,6 +394,22 @@ class TorchReach:
                              f"{getattr(action, 'shape', type(action).__name__)}")
         scale = self._penalty_scale.to(device=action.device, dtype=action.dtype)
         return reach_reward(distance, action, self.task, scale)
+
+    def compute_terminated(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
+                           info: Mapping[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Whether transitions ``(...)`` end their episode: a success (``distance <=
+        success_radius``) when ``terminate_on_success``, as
+        :meth:`envs.UR5ReachEnv.compute_terminated`; goals ``(..., 3)`` m, world frame."""
+        success = goal_distance(achieved_goal, desired_goal) <= self.task.success_radius
+        return success & self.task.terminate_on_success
+
+    @property
+    def unwrapped(self) -> TorchReach:
+        """Itself (the Gymnasium convention, so ``gymnasium.make_vec`` can set ``spec``)."""
+        return self
+
+    def close(self) -> None:
+        """Nothing to release (the tensors go with the object)."""
 
     # ------------------------------------------------------------------ internals
     def _reset_where(self, mask: torch.Tensor) -> None:
