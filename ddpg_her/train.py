@@ -100,6 +100,26 @@ def _task_fields_help() -> str:
             "docs/design.md.")
 
 
+def add_process_flags(group: Any, what: str) -> None:
+    """The flags of the training process (`PROCESS_FLAGS` but --resume), shared by
+    ``ddpg_her.train`` and ``ddpg_her.train_many``; ``what`` says what --device holds."""
+    group.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
+                       help=f"torch device of {what} (default: cpu); runs are bitwise "
+                            "repeatable on the CPU")
+    group.add_argument("--env-backend", choices=["numpy", "torch"], default="numpy",
+                       help="where the envs live (default: numpy): 'numpy', Gymnasium's envs "
+                            "on the host; 'torch', the env's tensor twin (UR5TorchReach-v0, "
+                            "UR5Reach-v0 only, the stop contact model only) on --device, so "
+                            "rollout, HER and replay stay on the device. Its exploration "
+                            "noise comes from torch generators: the same seed explores "
+                            "otherwise than under 'numpy'")
+    group.add_argument("--threads", type=int, default=None,
+                       help="torch CPU threads (count, >= 1; default: torch's choice)")
+    group.add_argument("--no-progress", action="store_true", help="no progress bar")
+    group.add_argument("--no-tensorboard", action="store_true",
+                       help="no TensorBoard logs even when tensorboard is installed")
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m ddpg_her.train",
@@ -144,21 +164,7 @@ def make_parser() -> argparse.ArgumentParser:
                      help="continue the run(s) in the run folder(s) from the last checkpoint "
                           "(a folder that does not exist yet starts afresh); the task and agent "
                           "flags must match the run's, except --episodes, which may grow")
-    run.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
-                     help="torch device of networks and replay buffers (default: cpu); "
-                          "runs are bitwise repeatable on the CPU")
-    run.add_argument("--env-backend", choices=["numpy", "torch"], default="numpy",
-                     help="where the envs live (default: numpy): 'numpy', Gymnasium's envs on "
-                          "the host; 'torch', the env's tensor twin (UR5TorchReach-v0, "
-                          "UR5Reach-v0 only, the stop contact model only) on --device, so "
-                          "rollout, HER and replay stay on the device. Its exploration noise "
-                          "comes from torch generators: the same seed explores otherwise than "
-                          "under 'numpy'")
-    run.add_argument("--threads", type=int, default=None,
-                     help="torch CPU threads (default: torch's choice)")
-    run.add_argument("--no-progress", action="store_true", help="no progress bar")
-    run.add_argument("--no-tensorboard", action="store_true",
-                     help="no TensorBoard logs even when tensorboard is installed")
+    add_process_flags(run, what="networks and replay buffers")
 
     _add_config_flags(parser.add_argument_group(
         "agent (Table I of the paper, and our choices where it is silent)"))

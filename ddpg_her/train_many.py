@@ -98,8 +98,8 @@ def make_parser() -> argparse.ArgumentParser:
                     "stacked agent, the others form further stacks trained in turn. Each run "
                     "folder is the one the unit's own ddpg_her.train command writes.",
         epilog="Arguments after -- are appended to every unit (e.g. -- --episodes 1000). A "
-               "unit's own --device, --threads, --resume, --no-progress or --no-tensorboard is "
-               "an error: give them once, to this command.")
+               "unit's own --device, --env-backend, --threads, --resume, --no-progress or "
+               "--no-tensorboard is an error: give them once, to this command.")
     parser.add_argument("--unit", action="append", default=[], metavar="ARGS",
                         help="one ddpg_her.train command line without 'python -m "
                              "ddpg_her.train', shell-quoted, e.g. --unit='--region farbox "
@@ -110,14 +110,7 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--resume", action="store_true",
                         help="continue the units' runs from their last checkpoints; finished "
                              "units are skipped (a folder that does not exist starts afresh)")
-    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
-                        help="torch device of every stack's networks and replay buffers "
-                             "(default: cpu)")
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch CPU threads (count, >= 1; default: torch's choice)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--no-tensorboard", action="store_true",
-                        help="no TensorBoard logs even when tensorboard is installed")
+    train.add_process_flags(parser, what="every stack's networks and replay buffers")
     parser.add_argument("--dry-run", action="store_true",
                         help="print one line per run (status, stack, folder) and each stack's "
                              "agents, and exit without training")
@@ -231,7 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                *(argv if argv is not None else sys.argv[1:])]
     try:
         trainer = MultiTrainer(todo, resume=args.resume, device=args.device,
-                               progress=not args.no_progress,
+                               env_backend=args.env_backend, progress=not args.no_progress,
                                tensorboard=not args.no_tensorboard, command=command)
     except (ValueError, TypeError, gymnasium.error.Error) as e:
         parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))

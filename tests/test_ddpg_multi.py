@@ -160,6 +160,16 @@ def test_train_many_refuses_process_flags_in_a_unit_and_bad_plans(tmp_path):
     assert proc.returncode == 2 and "each unit a list" in proc.stderr
 
 
+def test_every_process_flag_a_unit_refuses_is_a_flag_of_train_many():
+    """A unit's process flag is refused with "give them to train_many": it must take them."""
+    from ddpg_her import train, train_many
+
+    dests = {a.dest for a in train_many.make_parser()._actions}
+    assert set(train.PROCESS_FLAGS) <= dests
+    args = train_many.make_parser().parse_args(["--env-backend", "torch", "--device", "cuda"])
+    assert (args.env_backend, args.device) == ("torch", "cuda")
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_a_multi_setting_stack_on_cuda_matches_the_runs_alone_to_rounding(tmp_path):
     """On the GPU the batched products may round differently with K; float64 keeps it tight."""
