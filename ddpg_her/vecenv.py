@@ -114,7 +114,50 @@ def _task_dict(goal_env: Any) -> dict[str, Any]:
     return task.to_dict() if task is not None and hasattr(task, "to_dict") else {}
 
 
-class GoalVecEnv:
+def _per_group(groups: int | Sequence[dict[str, Any]], copies: int,
+               kwargs: dict[str, Any]) -> list[dict[str, Any]]:
+    """Each group's make kwargs: ``kwargs``, overridden per group when ``groups`` is a list."""
+    per_group = [dict(kwargs)] * groups if isinstance(groups, int) else \
+        [{**kwargs, **g} for g in groups]
+    if not per_group or copies < 1:
+        raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
+    return per_group
+
+
+class _Layout:
+    """What `GoalVecEnv` and `TorchGoalVecEnv` share: groups of copies of one layout."""
+
+    groups: list[Any]
+    kwargs: list[dict[str, Any]]
+
+    def _take_layout(self, env_id: str, copies: int) -> None:
+        """Set the layout attributes from group 0; every group must have the same layout."""
+        g = self.groups[0]
+        self.copies, self.num_envs = copies, len(self.groups) * copies
+        self.max_steps: int = int(g.max_steps)
+        self.obs_dim = g.observation_space["observation"].shape[0]
+        self.goal_dim = g.observation_space["desired_goal"].shape[0]
+        self.scale = ActionScale(g.action_space.low, g.action_space.high)
+        self.goal_env = g.goal_env
+        for i, other in enumerate(self.groups[1:], start=1):
+            if _dims(other) != _dims(g):
+                raise ValueError(
+                    f"{env_id}: group {i} ({self.kwargs[i]}) has the layout {_dims(other)}, "
+                    f"group 0 ({self.kwargs[0]}) {_dims(g)}; one batch needs one layout")
+
+    @property
+    def dims(self) -> dict[str, Any]:
+        """The layout every group shares, as a run's ``spec.json`` records it: obs_dim,
+        goal_dim, act_dim, action_low, action_high (env units), max_episode_steps (the same
+        for an env and its tensor twin)."""
+        return _dims(self.groups[0])
+
+    def task_of(self, group: int) -> dict[str, Any]:
+        """Group ``group``'s task specification (``task.to_dict()`` of its env), or {}."""
+        return _task_dict(self.groups[group].goal_env)
+
+
+class GoalVecEnv(_Layout):
     """``groups`` groups of ``copies`` copies of ``gymnasium.make(env_id, **kwargs)``.
 
     ``groups`` is a count (every group the same task) or one dict per group, whose keys
@@ -127,10 +170,7 @@ class GoalVecEnv:
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
                  **kwargs: Any):
-        per_group = [dict(kwargs)] * groups if isinstance(groups, int) else \
-            [{**kwargs, **g} for g in groups]
-        if not per_group or copies < 1:
-            raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
+        per_group = _per_group(groups, copies, kwargs)
         env_id = register_env(env_id)
         vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
         make = _Vector if vector else _Singles
@@ -145,27 +185,7 @@ class GoalVecEnv:
             raise ValueError(f"{env_id}: need a Box action space, got {g.action_space}")
         if g.max_steps is None:
             raise ValueError(f"{env_id} has no time limit (max_episode_steps)")
-        self.copies, self.num_envs = copies, len(self.groups) * copies
-        self.max_steps: int = int(g.max_steps)
-        self.obs_dim = space["observation"].shape[0]
-        self.goal_dim = space["desired_goal"].shape[0]
-        self.scale = ActionScale(g.action_space.low, g.action_space.high)
-        self.goal_env = g.goal_env
-        for i, other in enumerate(self.groups[1:], start=1):
-            if _dims(other) != _dims(g):
-                raise ValueError(
-                    f"{env_id}: group {i} ({per_group[i]}) has the layout {_dims(other)}, "
-                    f"group 0 ({per_group[0]}) {_dims(g)}; one batch needs one layout")
-
-    @property
-    def dims(self) -> dict[str, Any]:
-        """The layout every group shares, as a run's ``spec.json`` records it: obs_dim,
-        goal_dim, act_dim, action_low, action_high (env units), max_episode_steps."""
-        return _dims(self.groups[0])
-
-    def task_of(self, group: int) -> dict[str, Any]:
-        """Group ``group``'s task specification (``task.to_dict()`` of its env), or {}."""
-        return _task_dict(self.groups[group].goal_env)
+        self._take_layout(env_id, copies)
 
     @property
     def task(self) -> dict[str, Any]:
@@ -298,7 +318,7 @@ class _TorchGroup:
         self.max_steps = _task_dict(self.goal_env).get("max_episode_steps")
 
 
-class TorchGoalVecEnv:
+class TorchGoalVecEnv(_Layout):
     """`GoalVecEnv` of tensors: ``groups`` groups of ``copies`` copies of ``env_id``'s tensor
     twin (`TORCH_TWINS`), everything float64 on ``device``.
 
@@ -309,10 +329,7 @@ class TorchGoalVecEnv:
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1, *,
                  device: str | torch.device = "cpu", **kwargs: Any):
-        per_group = [dict(kwargs)] * groups if isinstance(groups, int) else \
-            [{**kwargs, **g} for g in groups]
-        if not per_group or copies < 1:
-            raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
+        per_group = _per_group(groups, copies, kwargs)
         name = register_env(env_id)
         twin = TORCH_TWINS.get(name)
         if twin is None:
@@ -322,27 +339,7 @@ class TorchGoalVecEnv:
         self.device = torch.device(device)
         self.kwargs = per_group
         self.groups = [_TorchGroup(twin, copies, kw, self.device) for kw in per_group]
-        g = self.groups[0]
-        self.copies, self.num_envs = copies, len(self.groups) * copies
-        self.max_steps: int = int(g.max_steps)
-        self.obs_dim = g.observation_space["observation"].shape[0]
-        self.goal_dim = g.observation_space["desired_goal"].shape[0]
-        self.scale = ActionScale(g.action_space.low, g.action_space.high)
-        self.goal_env = g.goal_env
-        for i, other in enumerate(self.groups[1:], start=1):
-            if _dims(other) != _dims(g):
-                raise ValueError(
-                    f"{env_id}: group {i} ({per_group[i]}) has the layout {_dims(other)}, "
-                    f"group 0 ({per_group[0]}) {_dims(g)}; one batch needs one layout")
-
-    @property
-    def dims(self) -> dict[str, Any]:
-        """As `GoalVecEnv.dims` (the same for an env and its twin)."""
-        return _dims(self.groups[0])
-
-    def task_of(self, group: int) -> dict[str, Any]:
-        """Group ``group``'s task specification, or {}."""
-        return _task_dict(self.groups[group].goal_env)
+        self._take_layout(env_id, copies)
 
     def reset(self, seeds: Sequence[int]) -> dict[str, torch.Tensor]:
         """Reset every copy n with ``seeds[n]``; the observation tensors are (N, ...)."""
