@@ -20,3 +20,7 @@ def one_torch_thread() -> Iterator[None]:
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+    # A Trainer sets the CPU's subnormal flush process-wide (AgentConfig.flush_denormals) and
+    # torch cannot read it back: turn it off after every test, or a later test in the process
+    # computes with subnormals flushed (hypothesis then refuses to draw floats at all).
+    torch.set_flush_denormal(False)

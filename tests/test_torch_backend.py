@@ -30,8 +30,11 @@ def _train(tmp_path, backend: str, config: AgentConfig = QUIET, device: str = "c
                       env_backend=backend)
     rows = [[{k: v for k, v in r.items() if k != "wall_s"} for r in agent]
             for agent in trainer.run()]
-    stored = trainer.buffer.rows[:, :int(trainer.buffer.total.max())].cpu()
-    return rows, stored, trainer.buffer.total.copy()
+    total = trainer.buffer.total.copy()
+    stored = trainer.buffer.rows[:, :int(total.max())].cpu().clone()
+    for k, n in enumerate(total):  # rows past an agent's own count were never written
+        stored[k, int(n):] = 0.0
+    return rows, stored, total
 
 
 @pytest.mark.parametrize("device", DEVICES)
