@@ -16,7 +16,7 @@ import json
 import re
 import sys
 import typing
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from ddpg_her.config import VALID, AgentConfig, field_docs
@@ -224,6 +224,37 @@ def request(args: argparse.Namespace) -> Request:
     return Request(args.env_id, env_kwargs, config, tuple(seeds), tuple(dirs))
 
 
+def build_trainer(parser: argparse.ArgumentParser, make: Callable[[], Any]) -> Any:
+    """``make()`` a trainer; a setup it refuses (bad task, env id or run folders) becomes a
+    usage error through ``parser``."""
+    import gymnasium  # late, as in main: --help stays fast
+
+    try:
+        return make()
+    except (ValueError, TypeError, gymnasium.error.Error) as e:
+        parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
+
+
+def run_to_end(trainer: Any) -> Any:
+    """Train ``trainer`` to its budget and close it; its rows, or None when interrupted (what
+    is finished is on disk, and ``--resume`` continues)."""
+    try:
+        return trainer.run()
+    except KeyboardInterrupt:
+        print("interrupted; continue with the same command and --resume", file=sys.stderr)
+        return None
+    finally:
+        trainer.close()
+
+
+def last_session(rows: Sequence[dict[str, Any]]) -> str:
+    """One run's last test session as text (its eval rows, as ``Trainer.run`` returns them)."""
+    if not rows:
+        return "no test session yet"
+    r = rows[-1]
+    return f"{r['successes']}/{r['tests']} at episode {r['episode']}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = make_parser()
     args = parser.parse_args(argv)
@@ -236,7 +267,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     env_kwargs, config, seeds, dirs = req.env_kwargs, req.config, list(req.seeds), \
         list(req.run_dirs)
 
-    import gymnasium
     import torch
 
     if args.device == "cuda" and not torch.cuda.is_available():
@@ -253,25 +283,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ImportError as e:
         parser.error(f"--env-id {args.env_id}: cannot import the module that registers it "
                      f"({type(e).__name__}: {e})")
-    try:
-        trainer = Trainer(args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume,
-                          device=args.device, env_backend=args.env_backend,
-                          progress=not args.no_progress,
-                          tensorboard=not args.no_tensorboard,
-                          command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])])
-    except (ValueError, TypeError, gymnasium.error.Error) as e:
-        parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
-    try:
-        rows = trainer.run()
-    except KeyboardInterrupt:
-        print("interrupted; continue with the same command and --resume", file=sys.stderr)
+    trainer = build_trainer(parser, lambda: Trainer(
+        args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
+        env_backend=args.env_backend, progress=not args.no_progress,
+        tensorboard=not args.no_tensorboard,
+        command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
+    rows = run_to_end(trainer)
+    if rows is None:
         return 130
-    finally:
-        trainer.close()
     for d, seed, r in zip(dirs, seeds, rows, strict=True):
-        last = f"{r[-1]['successes']}/{r[-1]['tests']} at episode {r[-1]['episode']}" if r \
-            else "no test session yet"
-        print(f"seed {seed}: {last} -> {d}")
+        print(f"seed {seed}: {last_session(r)} -> {d}")
     return 0
 
 

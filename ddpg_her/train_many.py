@@ -222,27 +222,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
     command = ["python", "-m", "ddpg_her.train_many",
                *(argv if argv is not None else sys.argv[1:])]
-    try:
-        trainer = MultiTrainer(todo, resume=args.resume, device=args.device,
-                               env_backend=args.env_backend, progress=not args.no_progress,
-                               tensorboard=not args.no_tensorboard, command=command)
-    except (ValueError, TypeError, gymnasium.error.Error) as e:
-        parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
+    trainer = train.build_trainer(parser, lambda: MultiTrainer(
+        todo, resume=args.resume, device=args.device, env_backend=args.env_backend,
+        progress=not args.no_progress, tensorboard=not args.no_tensorboard, command=command))
     print(f"{trainer.agents} agents of {len(todo)} units in {len(trainer.groups)} stack(s): "
           + ", ".join(f"{t.k}" for t in trainer.trainers), file=sys.stderr)
-    try:
-        rows = trainer.run()
-    except KeyboardInterrupt:
-        print("interrupted; continue with the same command and --resume", file=sys.stderr)
+    rows = train.run_to_end(trainer)
+    if rows is None:
         return 130
-    finally:
-        trainer.close()
     for group, group_rows in zip(trainer.groups, rows, strict=True):
         for s, setting_rows in zip(group, group_rows, strict=True):
             for seed, d, r in zip(s.seeds, s.run_dirs, setting_rows, strict=True):
-                last = f"{r[-1]['successes']}/{r[-1]['tests']} at episode {r[-1]['episode']}" \
-                    if r else "no test session yet"
-                print(f"{s.name} seed {seed}: {last} -> {d}")
+                print(f"{s.name} seed {seed}: {train.last_session(r)} -> {d}")
     return 0
 
 
