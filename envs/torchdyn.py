@@ -327,9 +327,9 @@ def tool_position(R: torch.Tensor, chain: TorchChain, tool: torch.Tensor, base_h
         pos = pos + _mv(rot, chain.translation[i])
         rot = torch.matmul(rot, R[:, i])
     pos = pos + _mv(rot, tool)
-    lift = torch.zeros(3, dtype=pos.dtype, device=pos.device)
-    lift[2] = base_height
-    return pos + lift
+    # the height as a kernel's scalar argument: assigning it into a device tensor would copy
+    # a host scalar (a sync, and an error inside a CUDA graph's capture)
+    return torch.cat([pos[:, :2], pos[:, 2:] + base_height], dim=-1)
 
 
 def _batch(x: Any, name: str, device: Any, dtype: torch.dtype) -> torch.Tensor:

@@ -113,11 +113,17 @@ def test_a_layout_mismatch_within_one_stack_is_an_error_naming_the_groups():
         GoalVecEnv(ENV_ID, [BOX2, BOX3])
 
 
-def _train_many(*args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+def _child_env() -> dict[str, str]:
+    """This process's environment with the tests and the project first on PYTHONPATH, and
+    whatever PYTHONPATH already held kept after them (a GPU machine's carried packages)."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(
         [str(TESTS_DIR), str(TESTS_DIR.parent), os.environ.get("PYTHONPATH", "")])}
+
+
+def _train_many(*args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "ddpg_her.train_many", *args], cwd=cwd,
-                          env=env, capture_output=True, text=True, timeout=600, check=check)
+                          env=_child_env(), capture_output=True, text=True, timeout=600,
+                          check=check)
 
 
 TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--eval-every", "2", "--eval-episodes", "3",
@@ -141,8 +147,7 @@ def test_train_many_trains_resumes_and_dry_runs_like_separate_commands(tmp_path)
         args = unit.partition("=")[2].replace("many/", "single/").split()
         subprocess.run([sys.executable, "-m", "ddpg_her.train", *args, *TOY, "--episodes", "4",
                         "--no-progress"], cwd=tmp_path, check=True, capture_output=True,
-                       env={**os.environ, "PYTHONPATH": os.pathsep.join(
-                           [str(TESTS_DIR), str(TESTS_DIR.parent)])})
+                       env=_child_env())
     for name in ("a0", "a1", "b0"):
         same_run(tmp_path / "many" / name, tmp_path / "single" / name, 4)
     done = _train_many("--resume", *units, "--", *TOY, "--episodes", "4", cwd=tmp_path)

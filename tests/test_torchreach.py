@@ -204,6 +204,30 @@ def test_step_reads_nothing_back_from_the_device(monkeypatch):
         env.step(actions[-1])  # the top-up reads the cursors: the guard above can see a read
 
 
+def test_step_makes_no_tensor_from_host_data():
+    """On the CPU, the other direction: inside ``step`` no tensor is made from host values
+    (``aten.lift_fresh``: ``t[i] = 0.1``, ``torch.tensor(...)``). On a GPU each is a
+    host-to-device copy, a sync, and an error inside a CUDA graph's capture (it was: the tool's
+    base height, set into a device tensor, failed both CUDA tests on an H100)."""
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    class NoHostData(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            if func is torch.ops.aten.lift_fresh.default:
+                raise AssertionError("a tensor made from host data inside step()")
+            return func(*args, **(kwargs or {}))
+
+    depth = 8
+    env = TorchReach(4, SPECS["wide"], goal_pool=depth)
+    env.reset(seed=0)
+    actions = torch.as_tensor(random_actions(env.task, depth - 1, 4, seed=1))
+    with NoHostData():
+        for a in actions:  # autoresets included (the wide ball ends episodes)
+            env.step(a)
+    with pytest.raises(AssertionError, match="host data"), NoHostData():
+        torch.tensor([0.1])  # the guard sees what it forbids
+
+
 @CUDA
 def test_step_does_not_synchronise_on_cuda():
     depth = 16
