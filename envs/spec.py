@@ -51,13 +51,13 @@ REWARD_TYPES = ("dense", "sparse")
 
 ACTION_PENALTY_UNITS = ("command", "actor")
 """How eq. 2's ``|a|^2`` reads the action a (the paper gives no unit; docs/design.md open point 5).
-``command``: in the command's own unit, rad^2 in position mode (the literal reading, ours so far);
+``command``: in the command's own unit, rad^2 in position mode (the literal reading, the default);
 ``actor``: in the actor's unit, each joint divided by its command bound (``a / pi`` in position
 mode), so ``|a|^2 <= n``."""
 
 CONTACT_MODELS = ("stop", "compliant")
 """How the ground plane acts on the arm (docs/design.md open point 6; :mod:`envs.dynamics`).
-``stop``: any plane contact stops the whole arm dead for the rest of the control step (ours so far);
+``stop``: any plane contact stops the whole arm dead for the rest of the control step (the default);
 ``compliant``: a penalty contact (spring-damper with Coulomb friction) pushes each link out of the
 plane, so the arm can slide along it, as in Gazebo, where the paper ran."""
 
