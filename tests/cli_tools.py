@@ -13,7 +13,10 @@ import ast
 import contextlib
 import importlib
 import importlib.util
+import os
 import shlex
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
@@ -21,6 +24,23 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("ur5kin", "regions", "envs", "ddpg_her", "analysis")
+TESTS = Path(__file__).resolve().parent
+
+
+def child_env() -> dict[str, str]:
+    """This process's environment for a subprocess: the tests (toy envs) and the project first
+    on PYTHONPATH, whatever PYTHONPATH held kept after them (e.g. a GPU machine's carried
+    packages, which a child that dropped them could not import)."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(TESTS), str(ROOT), os.environ.get("PYTHONPATH", "")])}
+
+
+def run_module(*args: str, check: bool = True, timeout: float = 600,
+               cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """``python -m ARGS`` in a subprocess with :func:`child_env`, output captured as text; the
+    timeout (s) only guards against a hang."""
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
+                          env=child_env(), timeout=timeout, check=check, cwd=cwd)
 
 
 def package_modules(root: Path = ROOT) -> dict[str, Path]:

@@ -7,7 +7,6 @@ import contextlib
 import csv
 import io
 import json
-import os
 import subprocess
 import sys
 import time
@@ -15,25 +14,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_tools import run_module
 from scipy import stats
 
 from analysis import report, runs, sweep
 from analysis.paper import PAPER_GRID
 
-TESTS = Path(__file__).parent
 TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--eval-every", "2", "--eval-episodes", "4",
        "--hidden-sizes", "8", "8", "--updates-per-episode", "2"]
-
-
-def _env() -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(
-        [str(TESTS), str(TESTS.parent), os.environ.get("PYTHONPATH", "")])}
-
-
-def _module(*args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess:
-    """``python -m ARGS``; the timeout only guards against a hang."""
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
-                          env=_env(), timeout=timeout, check=check)
 
 
 def _fake_run(folder: Path, region: str, joints: int, seed: int, successes: list[int],
@@ -85,7 +73,7 @@ def test_report_summarises_and_checks_the_papers_orderings(tmp_path: Path) -> No
     assert checks["farbox far above unconstrained (3-6 joints)"] is report.Verdict.YES
     assert checks["unconstrained (3-6 joints) above zheight and closebox"] is report.Verdict.YES
     assert checks["2 joints high (unconstrained)"] is report.Verdict.YES
-    out = _module("analysis.report", str(tmp_path), "--out", str(tmp_path / "r.md")).stdout
+    out = run_module("analysis.report", str(tmp_path), "--out", str(tmp_path / "r.md")).stdout
     assert "| farbox | 3 | 2 | 300 | 97.5" in out and "nearly 100 %" in out
     assert "Budget: 300 training episodes per run (1.5% of the paper's 20,000), 2 seeds" in out
     assert "4 of the paper's 11 settings." in out
@@ -150,7 +138,7 @@ def test_report_verdicts_follow_the_confidence_intervals(tmp_path: Path, high, l
 def test_curves_writes_figure_and_the_plotted_numbers(tmp_path: Path) -> None:
     for seed, curve in enumerate([[10, 20], [30, 40], [20, 60]]):
         _fake_run(tmp_path / f"s{seed}", "farbox", 3, seed, curve)
-    _module("analysis.curves", str(tmp_path), "--out", str(tmp_path / "fig" / "c.png"))
+    run_module("analysis.curves", str(tmp_path), "--out", str(tmp_path / "fig" / "c.png"))
     assert (tmp_path / "fig" / "c.png").stat().st_size > 1000
     with open(tmp_path / "fig" / "c.csv") as f:
         rows = list(csv.DictReader(f))
@@ -161,14 +149,14 @@ def test_curves_writes_figure_and_the_plotted_numbers(tmp_path: Path) -> None:
 
 def test_commands_fail_clearly_without_runs(tmp_path: Path) -> None:
     for module in ("analysis.curves", "analysis.report"):
-        proc = _module(module, str(tmp_path / "missing"), check=False)
+        proc = run_module(module, str(tmp_path / "missing"), check=False)
         assert proc.returncode == 2 and "does not exist" in proc.stderr
-        proc = _module(module, str(tmp_path), check=False)
+        proc = run_module(module, str(tmp_path), check=False)
         assert proc.returncode == 2 and "no run with evaluations" in proc.stderr
 
 
 def test_sweep_dry_run_lists_the_papers_55_runs(tmp_path: Path) -> None:
-    proc = _module("analysis.sweep", "--grid", "paper", "--dry-run", "--out", str(tmp_path))
+    proc = run_module("analysis.sweep", "--grid", "paper", "--dry-run", "--out", str(tmp_path))
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 55 == len(PAPER_GRID) * 5
     assert sum("farbox " in line and "joints=6" in line for line in lines) == 5
@@ -180,14 +168,14 @@ def test_sweep_runs_skips_finished_and_resumes(tmp_path: Path) -> None:
         return ["analysis.sweep", "--setting", "box:2", "--seeds", "2", "--episodes",
                 str(episodes), "--out", str(tmp_path), "--workers", "1", "--", *TOY]
 
-    _module(*args(4))
+    run_module(*args(4))
     for seed in (0, 1):
         assert runs.read_run(tmp_path / "box-j2" / f"s{seed}").finished
     log = (tmp_path / "logs" / "box-j2.log").read_text()
-    again = _module(*args(4)).stderr
+    again = run_module(*args(4)).stderr
     assert "1 of 1 settings already finished" in again
     assert (tmp_path / "logs" / "box-j2.log").read_text() == log  # nothing re-ran
-    _module(*args(6))
+    run_module(*args(6))
     run = runs.read_run(tmp_path / "box-j2" / "s0")
     assert run.finished and run.episode.tolist() == [2, 4, 6]  # resumed: no row lost or repeated
 
@@ -206,13 +194,13 @@ def test_sweep_in_one_process_writes_the_runs_one_process_per_setting_writes(tmp
                 "--episodes", str(episodes), "--out", str(root), *mode, "--", *TOY]
 
     one, per = tmp_path / "one", tmp_path / "per"
-    dry = _module(*args(one, 2, "--one-process", "--dry-run"))
+    dry = run_module(*args(one, 2, "--one-process", "--dry-run"))
     assert all("<- one process, unit --region box" in ln for ln in dry.stdout.splitlines())
     assert "ddpg_her.train_many --plan" in dry.stderr
-    _module(*args(one, 2, "--one-process"))
+    run_module(*args(one, 2, "--one-process"))
     assert runs.read_run(one / "box-j3" / "s1").finished
-    _module(*args(one, 4, "--one-process"))
-    _module(*args(per, 4, "--no-one-process"))
+    run_module(*args(one, 4, "--one-process"))
+    run_module(*args(per, 4, "--no-one-process"))
     for setting in ("box-j2", "box-j3"):
         for seed in (0, 1):
             table = _eval_without_wall(one / setting / f"s{seed}")
@@ -220,7 +208,7 @@ def test_sweep_in_one_process_writes_the_runs_one_process_per_setting_writes(tmp
             assert table == _eval_without_wall(per / setting / f"s{seed}")
     log = (one / "logs" / "one-process.log").read_text()
     assert log.count("ddpg_her.train_many --plan") == 2 and "4 agents" in log
-    again = _module(*args(one, 4, "--one-process")).stderr
+    again = run_module(*args(one, 4, "--one-process")).stderr
     assert "2 of 2 settings already finished" in again
 
 
@@ -262,9 +250,9 @@ def test_one_process_is_opt_in_and_contradicts_ray_and_workers() -> None:
 def test_sweep_on_a_local_ray_instance(tmp_path: Path) -> None:
     """Slow: Ray's start-up alone takes 35 s on a quiet machine, 262 s on a loaded one."""
     pytest.importorskip("ray")
-    proc = _module("analysis.sweep", "--setting", "box:2", "--setting", "box:3", "--seeds", "1",
-                   "--episodes", "2", "--out", str(tmp_path), "--ray-address", "local",
-                   "--threads", "1", "--", *TOY, timeout=1200)
+    proc = run_module("analysis.sweep", "--setting", "box:2", "--setting", "box:3", "--seeds", "1",
+                      "--episodes", "2", "--out", str(tmp_path), "--ray-address", "local",
+                      "--threads", "1", "--", *TOY, timeout=1200)
     # 35 s on a quiet machine; 262 s with four trainers on its two cores (Ray's start-up)
     assert proc.returncode == 0, proc.stderr
     for joints in (2, 3):
@@ -304,12 +292,13 @@ def test_slice_goals_come_from_the_tasks_sampler_within_the_slice() -> None:
 
 
 def test_success_map_cli_on_a_tiny_run(tmp_path: Path) -> None:
-    _module("ddpg_her.train", "--region", "unconstrained", "--joints", "3", "--episodes", "2",
-            "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "8", "8",
-            "--out", str(tmp_path / "run"), "--no-progress", "--threads", "1")
+    run_module("ddpg_her.train", "--region", "unconstrained", "--joints", "3", "--episodes", "2",
+               "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "8", "8",
+               "--out", str(tmp_path / "run"), "--no-progress", "--threads", "1")
     out = tmp_path / "map.png"
-    _module("analysis.success_map", str(tmp_path / "run"), str(tmp_path / "run"), "--goals", "60",
-            "--batch", "30", "--out", str(out), "--no-progress")
+    run_module("analysis.success_map", str(tmp_path / "run"), str(tmp_path / "run"),
+               "--goals", "60",
+               "--batch", "30", "--out", str(out), "--no-progress")
     assert out.stat().st_size > 1000
     with open(out.with_suffix(".csv")) as f:
         rows = list(csv.DictReader(f))
@@ -318,5 +307,5 @@ def test_success_map_cli_on_a_tiny_run(tmp_path: Path) -> None:
     assert sum(int(r["goals"]) for r in rows) == 120
     first = [r["successes"] for r in rows[: len(rows) // 2]]
     assert first == [r["successes"] for r in rows[len(rows) // 2 :]]  # same goals, same policy
-    bad = _module("analysis.success_map", str(tmp_path / "nothing"), check=False)
+    bad = run_module("analysis.success_map", str(tmp_path / "nothing"), check=False)
     assert bad.returncode == 2 and "not a run folder" in bad.stderr

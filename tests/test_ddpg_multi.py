@@ -2,14 +2,13 @@
 on the toy goal env."""
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 import toy_goal_env  # noqa: F401  (registers ToyReach-v0)
+from cli_tools import run_module
 from toy_goal_env import ENV_ID
 
 from ddpg_her.config import AgentConfig
@@ -18,7 +17,6 @@ from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
 from ddpg_her.vecenv import GoalVecEnv
 
-TESTS_DIR = Path(__file__).parent
 TINY = AgentConfig(episodes=6, eval_every=3, eval_episodes=3, hidden_sizes=(16, 16),
                    updates_per_episode=3, buffer_size=60, batch_size=8, exploration_rate=0.3,
                    warmup_episodes=2)
@@ -113,17 +111,8 @@ def test_a_layout_mismatch_within_one_stack_is_an_error_naming_the_groups():
         GoalVecEnv(ENV_ID, [BOX2, BOX3])
 
 
-def _child_env() -> dict[str, str]:
-    """This process's environment with the tests and the project first on PYTHONPATH, and
-    whatever PYTHONPATH already held kept after them (a GPU machine's carried packages)."""
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(
-        [str(TESTS_DIR), str(TESTS_DIR.parent), os.environ.get("PYTHONPATH", "")])}
-
-
 def _train_many(*args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "ddpg_her.train_many", *args], cwd=cwd,
-                          env=_child_env(), capture_output=True, text=True, timeout=600,
-                          check=check)
+    return run_module("ddpg_her.train_many", *args, cwd=cwd, check=check)
 
 
 TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--eval-every", "2", "--eval-episodes", "3",
@@ -145,9 +134,8 @@ def test_train_many_trains_resumes_and_dry_runs_like_separate_commands(tmp_path)
     # the same runs by ddpg_her.train, one process per unit, uninterrupted
     for unit in units:
         args = unit.partition("=")[2].replace("many/", "single/").split()
-        subprocess.run([sys.executable, "-m", "ddpg_her.train", *args, *TOY, "--episodes", "4",
-                        "--no-progress"], cwd=tmp_path, check=True, capture_output=True,
-                       env=_child_env())
+        run_module("ddpg_her.train", *args, *TOY, "--episodes", "4", "--no-progress",
+                   cwd=tmp_path)
     for name in ("a0", "a1", "b0"):
         same_run(tmp_path / "many" / name, tmp_path / "single" / name, 4)
     done = _train_many("--resume", *units, "--", *TOY, "--episodes", "4", cwd=tmp_path)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 import toy_goal_env
+from cli_tools import run_module
 from toy_goal_env import ENV_ID
 
 import ddpg_her
@@ -24,7 +25,6 @@ TASK = {"region": "box", "n_joints": 2}
 TINY = AgentConfig(episodes=12, eval_every=3, eval_episodes=4, hidden_sizes=(16, 16),
                    updates_per_episode=4, buffer_size=70, batch_size=8, exploration_rate=0.3,
                    warmup_episodes=2)
-TESTS_DIR = Path(__file__).parent
 
 
 def train(dirs, seeds=(0,), config=TINY, **kwargs):
@@ -255,10 +255,7 @@ def test_learns_the_toy_task_in_seconds_and_her_is_what_makes_it_learn(tmp_path)
 
 # --- the command line -------------------------------------------------------------------------
 def cli(*args, cwd=None):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS_DIR), os.environ.get(
-        "PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, "-m", "ddpg_her.train", *args],
-                          capture_output=True, text=True, env=env, cwd=cwd, timeout=300)
+    return run_module("ddpg_her.train", *args, check=False, timeout=300, cwd=cwd)
 
 
 @pytest.mark.slow

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import csv
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import gymnasium
 import numpy as np
 import pytest
+from cli_tools import run_module
 
 import envs
 import regions
@@ -193,13 +191,9 @@ def test_bad_inputs_are_named(zheight: opt.Simulation) -> None:
 
 
 def test_cli_writes_csv_and_figure(tmp_path: Path) -> None:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT),
-                                                       os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run(
-        [sys.executable, "-m", "analysis.optimality", "--settings", "unconstrained:2",
-         "--readings", "ours", "actor_penalty", "compliant", "--goals", "4", "--grid", "3",
-         "--no-progress", "--out", str(tmp_path)],
-        capture_output=True, text=True, env=env, cwd=ROOT, timeout=300, check=True)
+    proc = run_module("analysis.optimality", "--settings", "unconstrained:2", "--readings",
+                      "ours", "actor_penalty", "compliant", "--goals", "4", "--grid", "3",
+                      "--no-progress", "--out", str(tmp_path), cwd=ROOT, timeout=300)
     with open(tmp_path / "optimality.csv") as f:
         rows = list(csv.DictReader(f))
     has_compliant = not opt.missing_fields(opt.READINGS["compliant"])

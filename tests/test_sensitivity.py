@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-import os
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_tools import run_module
 from scipy import stats
 
 from analysis import sensitivity as sens
@@ -22,20 +22,9 @@ from analysis.sweep import Unit, busy, training_outs
 from ddpg_her.run import RunFolder
 from envs.spec import TaskSpec
 
-TESTS = Path(__file__).parent
 BUDGET = 1000
 T65 = stats.t.ppf(0.825, 4)
 """Student-t quantile of a two-sided 65 % interval over 5 seeds."""
-
-
-def _env() -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": os.pathsep.join(
-        [str(TESTS), str(TESTS.parent), os.environ.get("PYTHONPATH", "")])}
-
-
-def _module(*args: str, check: bool = True, timeout: float = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
-                          env=_env(), timeout=timeout, check=check)
 
 
 def _write_run(folder: Path, region: str, joints: int, seed: int, final: float,
@@ -70,8 +59,8 @@ def _hand_t(values) -> tuple[float, float, float]:
 # --- units, commands and status -----------------------------------------------------------------
 
 def test_dry_run_lists_every_reading_and_setting_with_its_command(tmp_path: Path) -> None:
-    proc = _module("analysis.sensitivity", "--dry-run", "--out", str(tmp_path), "--threads", "1",
-                   "--reading", "tau01=--tau 0.01")
+    proc = run_module("analysis.sensitivity", "--dry-run", "--out", str(tmp_path), "--threads", "1",
+                      "--reading", "tau01=--tau 0.01")
     lines = proc.stdout.strip().splitlines()
     has_contact = "contact_model" in {f.name for f in dataclasses.fields(TaskSpec)}
     readings = ["ours", "actor_penalty", *(["compliant"] if has_contact else []),
@@ -95,9 +84,9 @@ def test_dry_run_lists_every_reading_and_setting_with_its_command(tmp_path: Path
 
 
 def test_a_one_process_dry_run_puts_every_unit_in_one_train_many_process(tmp_path: Path) -> None:
-    proc = _module("analysis.sensitivity", "--dry-run", "--device", "cuda", "--one-process",
-                   "--out", str(tmp_path), "--readings", "ours", "actor_penalty",
-                   "--setting", "zheight:3")
+    proc = run_module("analysis.sensitivity", "--dry-run", "--device", "cuda", "--one-process",
+                      "--out", str(tmp_path), "--readings", "ours", "actor_penalty",
+                      "--setting", "zheight:3")
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 10
     assert all("<- one process, unit --region zheight --joints 3" in ln for ln in lines)
@@ -136,9 +125,9 @@ def test_status_of_done_partial_and_new_units(tmp_path: Path) -> None:
     longer = sens.units_for([sens.READINGS["actor_penalty"]], [("zheight", 3)], 5, tmp_path,
                             1500)
     assert longer[0].status(0) == "resume"
-    out = _module("analysis.sensitivity", "--dry-run", "--out", str(tmp_path), "--readings",
-                  "actor_penalty", "--setting", "zheight:3", "--setting", "farbox:6",
-                  "--setting", "closebox:3").stdout.splitlines()
+    out = run_module("analysis.sensitivity", "--dry-run", "--out", str(tmp_path), "--readings",
+                     "actor_penalty", "--setting", "zheight:3", "--setting", "farbox:6",
+                     "--setting", "closebox:3").stdout.splitlines()
     assert [ln.split()[0] for ln in out] == ["done"] * 5 + ["resume"] + ["done"] * 4 + ["new"] * 5
 
 
@@ -171,9 +160,9 @@ def test_readings_from_the_command_line_and_a_file(tmp_path: Path) -> None:
     for bad in ("noequals", "bad/name=--tau 1"):
         with pytest.raises(Exception, match=r"NAME=ARGS|must match"):
             sens.parse_reading(bad)
-    proc = _module("analysis.sensitivity", "--dry-run", "--readings", "nope", check=False)
+    proc = run_module("analysis.sensitivity", "--dry-run", "--readings", "nope", check=False)
     assert proc.returncode == 2 and "unknown reading(s) ['nope']" in proc.stderr
-    proc = _module("analysis.sensitivity", "--dry-run", "--reading", "ours=--tau 1", check=False)
+    proc = run_module("analysis.sensitivity", "--dry-run", "--reading", "ours=--tau 1", check=False)
     assert proc.returncode == 2 and "built in with other arguments" in proc.stderr
     sens.write_reading(tmp_path, loaded)
     with pytest.raises(ValueError, match="records reading 'her_future'"):
@@ -193,9 +182,9 @@ def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path) -> 
         _write_run(root / "ours" / "farbox-j6" / f"s{seed}", "farbox", 6, seed, 40.0, upto=500)
     (root / "ours" / "logs").mkdir()
     (root / "ours" / "logs" / "zheight-j3.log").write_text("log")
-    proc = _module("analysis.sensitivity", "--collect", str(dest), "--out", str(root),
-                   "--seeds", "2", "--readings", "ours", "--setting", "zheight:3",
-                   "--setting", "farbox:6")
+    proc = run_module("analysis.sensitivity", "--collect", str(dest), "--out", str(root),
+                      "--seeds", "2", "--readings", "ours", "--setting", "zheight:3",
+                      "--setting", "farbox:6")
     assert "copied 1 finished unit(s)" in proc.stderr and "ours/farbox-j6" in proc.stderr
     copied = sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*") if p.is_file())
     # no reading.json at the source (units started by hand): written from the reading
@@ -349,10 +338,10 @@ def test_a_tiny_study_trains_resumes_collects_and_reports(tmp_path: Path) -> Non
            "--eval-every", "2", "--eval-episodes", "2", "--updates-per-episode", "2"]
 
     def study(*more: str) -> subprocess.CompletedProcess:
-        return _module("analysis.sensitivity", "--out", str(root), "--seeds", "2",
-                       "--episodes", "4", "--setting", "box:2", "--readings", "ours", "cheap",
-                       "--reading", "cheap=--task action_cost=0.01", "--threads", "1", *more,
-                       "--", *toy)
+        return run_module("analysis.sensitivity", "--out", str(root), "--seeds", "2",
+                          "--episodes", "4", "--setting", "box:2", "--readings", "ours", "cheap",
+                          "--reading", "cheap=--task action_cost=0.01", "--threads", "1", *more,
+                          "--", *toy)
 
     first = study()
     assert "0 of 2 units already finished" in first.stderr
@@ -369,9 +358,9 @@ def test_a_tiny_study_trains_resumes_collects_and_reports(tmp_path: Path) -> Non
 
     study("--collect", str(tmp_path / "dest"))
     assert len(list((tmp_path / "dest" / "runs").rglob("eval.csv"))) == 4
-    proc = _module("analysis.sensitivity", "report", str(tmp_path / "dest" / "runs"),
-                   "--out", str(tmp_path / "report"), "--episodes", "4", "--seeds", "2",
-                   "--reps", "200", "--worth-goals", "0")
+    proc = run_module("analysis.sensitivity", "report", str(tmp_path / "dest" / "runs"),
+                      "--out", str(tmp_path / "report"), "--episodes", "4", "--seeds", "2",
+                      "--reps", "200", "--worth-goals", "0")
     assert "| cheap | box 2 | 2 | 4 |" in proc.stdout
     for name in ("report.md", "verdicts.csv", "finals.csv", "curves.csv", "curves.png"):
         assert (tmp_path / "report" / name).exists(), name
