@@ -106,9 +106,14 @@ def add_process_flags(group: Any, what: str) -> None:
     group.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
                        help=f"torch device of {what} (default: cpu); runs are bitwise "
                             "repeatable on the CPU")
-    group.add_argument("--env-backend", choices=["numpy", "torch"], default="numpy",
+    group.add_argument("--env-backend", choices=["numpy", "batched", "torch"], default="numpy",
                        help="where the envs live (default: numpy): 'numpy', Gymnasium's envs "
-                            "on the host; 'torch', the env's tensor twin (UR5TorchReach-v0, "
+                            "on the host, one group per agent; 'batched', the same envs with "
+                            "the copies of all agents whose tasks differ only in their goals "
+                            "(region, sampler) in one vector env (UR5Reach-v0: one compiled "
+                            "call per step for all of them; the same goals and exploration as "
+                            "'numpy', trajectories equal to rounding); 'torch', the env's "
+                            "tensor twin (UR5TorchReach-v0, "
                             "UR5Reach-v0 only, the stop contact model only) on --device, so "
                             "rollout, HER and replay stay on the device. Its exploration "
                             "noise comes from torch generators: the same seed explores "

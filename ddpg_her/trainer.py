@@ -48,10 +48,14 @@ from ddpg_her.vecenv import GoalVecEnv, TorchGoalVecEnv, rollout, torch_rollout
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
 _INIT, _EXPLORE, _SAMPLE, _TRAIN_ENV, _EVAL_ENV = range(5)
 
-ENV_BACKENDS = ("numpy", "torch")
-"""``numpy``: the envs are Gymnasium's (numpy arrays on the host). ``torch``: the env id's
-tensor twin (``vecenv.TORCH_TWINS``, e.g. ``envs.TorchReach``) on the trainer's device, so
-rollout, HER and the buffer stay on the device (stop contact model only)."""
+ENV_BACKENDS = ("numpy", "batched", "torch")
+"""``numpy``: the envs are Gymnasium's (numpy arrays on the host), one group of copies per
+agent. ``batched``: the same envs, but the copies of all agents whose tasks differ only in their
+goals step in one vector env (``GoalVecEnv(merge=True)``; UR5Reach-v0: one call of the compiled
+kernel for all of them), with the same goals and exploration as ``numpy`` and trajectories
+equal to rounding. ``torch``: the env id's tensor twin (``vecenv.TORCH_TWINS``, e.g.
+``envs.TorchReach``) on the trainer's device, so rollout, HER and the buffer stay on the device
+(stop contact model only)."""
 
 
 def stream_seed(seed: int, *key: int) -> int:
@@ -108,8 +112,9 @@ class Trainer:
             self.eval_envs: GoalVecEnv | TorchGoalVecEnv = TorchGoalVecEnv(
                 env_id, per_agent, config.eval_episodes, device=self.device)
         else:
-            self.envs = GoalVecEnv(env_id, per_agent, 1)
-            self.eval_envs = GoalVecEnv(env_id, per_agent, config.eval_episodes)
+            merge = env_backend == "batched"
+            self.envs = GoalVecEnv(env_id, per_agent, 1, merge=merge)
+            self.eval_envs = GoalVecEnv(env_id, per_agent, config.eval_episodes, merge=merge)
         envs = self.envs
         self.scale = envs.scale
         self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)

@@ -4,13 +4,17 @@ The agent sees the env only through the Gymnasium goal-env API: a Dict observati
 ``observation``, ``achieved_goal`` and ``desired_goal``, a Box action, ``info["is_success"]``, and
 the vectorised ``compute_reward`` / ``compute_terminated`` of the env. A group of several copies
 uses the env's own batched implementation (its ``vector_entry_point``, e.g. ``envs.BatchedReach``)
-when it has one; a single copy is ``gymnasium.make``. Groups never share a batch, so what agent
-k's copies compute does not depend on how many agents train beside it.
+when it has one; a single copy is ``gymnasium.make``. By default groups never share a batch, so
+what agent k's copies compute does not depend on how many agents train beside it. With
+``merge=True`` (the trainer's ``batched`` env backend) the copies of every group whose tasks
+differ only in their goals step together in one vector env: one batched call per step for all
+of them, the goals still each group's own draws.
 """
 
 from __future__ import annotations
 
 import importlib
+import json
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -23,6 +27,10 @@ from ddpg_her.buffer import Episode, TensorEpisodes
 from ddpg_her.spaces import ActionScale
 
 KEYS = ("observation", "achieved_goal", "desired_goal")
+
+GOAL_FIELDS = ("region", "goal_sampler")
+"""Task fields that only say where goals are drawn: groups whose tasks differ in these alone
+(regions, samplers) step alike and may share a merged batch (``GoalVecEnv(merge=True)``)."""
 
 Step = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -157,6 +165,15 @@ class _Layout:
         return _task_dict(self.groups[group].goal_env)
 
 
+class _Batch:
+    """One vector env stepping the copies ``index`` (flat indices) of several groups."""
+
+    def __init__(self, env_id: str, n: int, kwargs: dict[str, Any], index: np.ndarray):
+        self.env = gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point",
+                                      autoreset_mode=AutoresetMode.DISABLED, **kwargs)
+        self.index = index
+
+
 class GoalVecEnv(_Layout):
     """``groups`` groups of ``copies`` copies of ``gymnasium.make(env_id, **kwargs)``.
 
@@ -166,10 +183,19 @@ class GoalVecEnv(_Layout):
     action layout (`dims`). Copy m of group k sits at flat index ``k * copies + m``. Each copy
     is reseeded at every reset from the seed given for it, so an episode depends only on its
     own seed and its group's task: nothing about the env needs saving in a checkpoint.
+
+    ``merge=True`` steps the copies of all groups whose tasks (``task_of``) are equal but for
+    `GOAL_FIELDS` in one vector env of the env id's ``vector_entry_point``, which must accept
+    ``reset(seed=[...], options={"goal": (m, goal_dim)})`` (as ``envs.BatchedReach`` does).
+    Each group still draws its copies' goals (its own env is reset with the copy's seed, and
+    the goal it draws is handed to the batch), so the goals are exactly those of
+    ``merge=False``; the trajectories are the batch's dynamics', equal to the groups' own to
+    floating-point rounding (UR5Reach-v0: the compiled kernel instead of Pinocchio's loop for
+    a single copy). Envs without a vector entry point or a task specification are not merged.
     """
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
-                 **kwargs: Any):
+                 *, merge: bool = False, **kwargs: Any):
         per_group = _per_group(groups, copies, kwargs)
         env_id = register_env(env_id)
         vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
@@ -186,6 +212,25 @@ class GoalVecEnv(_Layout):
         if g.max_steps is None:
             raise ValueError(f"{env_id} has no time limit (max_episode_steps)")
         self._take_layout(env_id, copies)
+        self.batches: list[_Batch] = self._merged(env_id) if merge else []
+
+    def _merged(self, env_id: str) -> list[_Batch]:
+        """One `_Batch` per set of groups whose tasks differ only in `GOAL_FIELDS`; none when
+        the env has no vector entry point or no task specification."""
+        if gymnasium.spec(env_id).vector_entry_point is None:
+            return []
+        members: dict[str, list[int]] = {}
+        for k in range(len(self.groups)):
+            task = self.task_of(k)
+            if not task:
+                return []
+            key = json.dumps({f: v for f, v in task.items() if f not in GOAL_FIELDS},
+                             sort_keys=True, default=str)
+            members.setdefault(key, []).append(k)
+        c = self.copies
+        return [_Batch(env_id, len(ks) * c, self.kwargs[ks[0]],
+                       np.concatenate([np.arange(k * c, (k + 1) * c) for k in ks]))
+                for ks in members.values()]
 
     @property
     def task(self) -> dict[str, Any]:
@@ -198,9 +243,15 @@ class GoalVecEnv(_Layout):
             raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
         c = self.copies
         parts = [g.reset(seeds[i * c:(i + 1) * c]) for i, g in enumerate(self.groups)]
-        return {key: np.concatenate([
+        obs = {key: np.concatenate([
             p[key] if isinstance(p, dict) else np.stack([o[key] for o in p]) for p in parts
         ]).astype(np.float64) for key in KEYS}
+        for b in self.batches:  # the groups drew the goals; the batch starts the episodes
+            o = b.env.reset(seed=[int(seeds[i]) for i in b.index],
+                            options={"goal": obs["desired_goal"][b.index]})[0]
+            for key in KEYS:
+                obs[key][b.index] = o[key]
+        return obs
 
     def step(self, action: np.ndarray, active: np.ndarray, obs: dict[str, np.ndarray]) -> Step:
         """Step the copies where ``active : (N,) bool``; the others keep their observation.
@@ -212,6 +263,18 @@ class GoalVecEnv(_Layout):
         obs = {key: v.copy() for key, v in obs.items()}
         reward = np.zeros(self.num_envs)
         flags = np.zeros((3, self.num_envs), dtype=bool)
+        for b in self.batches:
+            # the batch moves as one: copies whose episode ended are stepped and ignored
+            o, r, term, trunc, info = b.env.step(action[b.index])
+            on = active[b.index]
+            rows = b.index[on]
+            for key in KEYS:
+                obs[key][rows] = o[key][on]
+            reward[rows] = np.asarray(r)[on]
+            success = np.asarray(info.get("is_success", term), dtype=bool)
+            flags[0, rows], flags[1, rows], flags[2, rows] = term[on], trunc[on], success[on]
+        if self.batches:
+            return obs, reward, flags[0], flags[1], flags[2]
         c = self.copies
         for i, g in enumerate(self.groups):
             sl = slice(i * c, (i + 1) * c)
@@ -255,6 +318,8 @@ class GoalVecEnv(_Layout):
     def close(self) -> None:
         for g in self.groups:
             g.close()
+        for b in self.batches:
+            b.env.close()
 
 
 ActionFn = Callable[[dict[str, np.ndarray], np.ndarray], np.ndarray]
