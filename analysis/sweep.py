@@ -371,13 +371,20 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
+    parser.add_argument("--env-backend", choices=("numpy", "batched", "torch"), default="numpy",
+                        help="the training processes' env backend (ddpg_her.train "
+                             "--env-backend): 'batched' steps the envs of all agents of a "
+                             "process whose tasks differ only in their goals in one compiled "
+                             "call, the same goals, trajectories equal to rounding (default: "
+                             "numpy, one env per agent)")
     parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=None,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
                              "configuration share one stacked agent), its output in "
-                             "ROOT/logs/one-process.log (default: one process per unit; its "
-                             "envs step on one core, so it is opt-in until a GPU run measures "
-                             "it against one process per unit)")
+                             "ROOT/logs/one-process.log (default: one process per unit: on an "
+                             "H100 the paper's grid in one process ran 2.1 s per episode of "
+                             "its 55 agents with --env-backend numpy, no faster than one "
+                             "process per unit; pair it with --env-backend batched)")
     parser.add_argument("--dry-run", action="store_true",
                         help="print one line per run (status, folder, command) and exit")
 
@@ -400,8 +407,10 @@ def one_process(args: argparse.Namespace) -> bool:
     """Whether the units train in one process: only with --one-process.
 
     Not the default on cuda although one stack wastes the GPU less than K = 5 products per
-    process: the one process steps every unit's envs on one CPU core (the GPU machine has no
-    numba, so on Pinocchio's substep loop), where one process per unit spreads them over the
+    process: the one process steps every unit's envs on one CPU core (with the numpy env
+    backend, each agent's on Pinocchio's substep loop: 2.1 s per episode of the paper grid's 55
+    agents on an H100 machine, as slow as one process per unit), where one process per unit
+    spreads them over the
     cores; which wins there is unmeasured (results/batched_env/README.md)."""
     return bool(args.one_process)
 
@@ -410,14 +419,21 @@ ONE_PROCESS_LOG = "logs/one-process.log"
 """Below the root: the output of the one-process trainings, appended run after run."""
 
 
-def one_process_command(plan: Path | str, threads: int, device: str) -> list[str]:
+def one_process_command(plan: Path | str, threads: int, device: str,
+                        env_backend: str = "numpy") -> list[str]:
     """The ``ddpg_her.train_many`` command line that trains a plan's units in one process."""
     return [sys.executable, "-m", "ddpg_her.train_many", "--plan", str(plan), "--resume",
-            "--no-progress", "--threads", str(threads), "--device", device]
+            "--no-progress", "--threads", str(threads), "--device", device,
+            *(["--env-backend", env_backend] if env_backend != "numpy" else [])]
+
+
+def backend_args(env_backend: str) -> list[str]:
+    """The ``ddpg_her.train`` arguments of one process per unit for ``--env-backend``."""
+    return ["--env-backend", env_backend] if env_backend != "numpy" else []
 
 
 def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequence[str],
-                    device: str = "cpu") -> int:
+                    device: str = "cpu", env_backend: str = "numpy") -> int:
     """Train the units in one ``ddpg_her.train_many`` process, whose plan (every unit's
     ``ddpg_her.train`` arguments) goes to ``root/logs/one-process-<time>.json``; 1 when the
     process failed, else 0."""
@@ -426,8 +442,8 @@ def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequ
     stamp = time.strftime("%Y%m%d-%H%M%S")
     plan = root / "logs" / f"one-process-{stamp}.json"
     write_plan(plan, [u.run_args(extra) for u in units])
-    proc, log = start_unit(one_process_command(plan, threads, device), root / ONE_PROCESS_LOG,
-                           threads)
+    proc, log = start_unit(one_process_command(plan, threads, device, env_backend),
+                           root / ONE_PROCESS_LOG, threads)
     bar = EpisodeBar(units, "training (one process)")
     try:
         while proc.poll() is None:
@@ -458,14 +474,15 @@ def busy(unit: Unit, outs: set[Path]) -> bool:
 
 
 def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
-                  device: str = "cpu", one: bool = False) -> None:
+                  device: str = "cpu", one: bool = False, env_backend: str = "numpy") -> None:
     """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
     trains its unit), tag, setting, seed, folder and the unit's command (with ``one``: its
     arguments in the one ``ddpg_her.train_many`` process)."""
     outs = training_outs()
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if one else \
-            "python " + " ".join(unit.command(threads, extra, device)[1:])
+            "python " + " ".join(unit.command(threads, [*extra, *backend_args(env_backend)],
+                                              device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
             status = "busy" if busy(unit, outs) and unit.status(seed) != "done" \
@@ -474,7 +491,8 @@ def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
                   f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
     runs = f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
     if one:
-        command = one_process_command("ROOT/logs/one-process-TIME.json", threads, device)
+        command = one_process_command("ROOT/logs/one-process-TIME.json", threads, device,
+                                      env_backend)
         print(f"{runs}, the unfinished ones in one process: python "
               f"{' '.join(command[1:])}", file=sys.stderr)
     else:
@@ -495,7 +513,8 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     if not todo:
         return 0
     if one_process(args):
-        return run_one_process(todo, args.out, threads, extra, args.device)
+        return run_one_process(todo, args.out, threads, extra, args.device, args.env_backend)
+    extra = [*extra, *backend_args(args.env_backend)]
     if args.ray_address:
         failed = run_ray(todo, args.ray_address, threads, extra, args.device)
     else:
@@ -521,7 +540,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = args.setting or GRIDS[args.grid]
     units = units_for(settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, one_process(args))
+        print_dry_run(units, threads, extra, args.device, one_process(args), args.env_backend)
         return 0
     return execute(units, args, threads, extra)
 

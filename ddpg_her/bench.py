@@ -22,6 +22,11 @@ machine's load cancel):
   ``update_gflops`` over it;
 - ``stack_*`` (with ``--stack K``): the same update for one stack of K agents, e.g. the 55 of
   the paper's grid in one ``ddpg_her.train_many`` process (without peers, fewer rounds);
+- ``rollout_*`` (with ``--rollout K``): one training episode (random actions) of K agents
+  whose regions cycle through the paper's four, through the trainer's ``numpy`` env backend
+  (one env per agent) and its ``batched`` one (the agents' copies merged into one vector env
+  per start pose), in alternating rounds: seconds per episode of all K agents, and the
+  speed-up, the median of each round's ratio;
 - ``machine``: the CPU, its logical cores and the torch build, so a recorded result says where
   it was measured.
 """
@@ -245,6 +250,44 @@ def measure(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig
     return result
 
 
+ROLLOUT_REGIONS = ("unconstrained", "zheight", "closebox", "farbox")
+"""The regions of the paper's grid, which agent k of ``--rollout`` cycles through."""
+
+
+def measure_rollouts(k: int, joints: int, rounds: int) -> dict[str, float]:
+    """Seconds per training episode of ``k`` agents (random actions, one copy each) under the
+    ``numpy`` and ``batched`` env backends, alternating rounds; medians, and the median of the
+    rounds' ratios as ``rollout_speedup``."""
+    import numpy as np
+
+    from ddpg_her.vecenv import GoalVecEnv, rollout
+
+    groups = [{"region": ROLLOUT_REGIONS[i % len(ROLLOUT_REGIONS)], "n_joints": joints}
+              for i in range(k)]
+    envs = {name: GoalVecEnv("UR5Reach-v0", groups, 1, merge=name == "batched")
+            for name in ("numpy", "batched")}
+    scale = envs["numpy"].scale
+    rng = np.random.default_rng(0)
+
+    def policy(obs: dict, active: np.ndarray) -> np.ndarray:
+        return rng.uniform(scale.low, scale.high, (k, scale.dim))
+
+    times: dict[str, list[float]] = {name: [] for name in envs}
+    for r in range(rounds + 1):  # round 0 warms up (the compiled kernel's first call)
+        for name, env in envs.items():
+            start = time.perf_counter()
+            rollout(env, policy, list(range(r * k, (r + 1) * k)))
+            if r:
+                times[name].append(time.perf_counter() - start)
+    for env in envs.values():
+        env.close()
+    return {"rollout_agents": k,
+            "rollout_numpy_s": statistics.median(times["numpy"]),
+            "rollout_batched_s": statistics.median(times["batched"]),
+            "rollout_speedup": statistics.median(
+                a / b for a, b in zip(times["numpy"], times["batched"], strict=True))}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m ddpg_her.bench",
@@ -271,6 +314,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--stack", type=int, default=0, metavar="K",
                         help="also time one stack of K agents (count, >= 0; 55 is "
                              "the paper's grid in one process; 0: skip)")
+    parser.add_argument("--rollout", type=int, default=0, metavar="K",
+                        help="also time one training episode of K agents under the numpy and "
+                             "the batched env backends (count, >= 0; 20 is the paper grid's "
+                             "3-joint agents; 0: skip)")
     parser.add_argument("--no-sb3", action="store_true", help="skip the SB3 measurement")
     parser.add_argument("--no-plain", action="store_true",
                         help="skip the plain-PyTorch (nn.Linear + autograd) measurement")
@@ -279,8 +326,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if min(args.seeds, args.updates, args.rounds, args.fill_episodes) < 1:
         parser.error("--seeds, --updates, --rounds and --fill-episodes must be >= 1, got "
                      f"{args.seeds}, {args.updates}, {args.rounds}, {args.fill_episodes}")
-    if args.stack < 0:
-        parser.error(f"--stack must be >= 0, got {args.stack}")
+    if args.stack < 0 or args.rollout < 0:
+        parser.error(f"--stack and --rollout must be >= 0, got {args.stack}, {args.rollout}")
     if not 2 <= args.joints <= 6:
         parser.error(f"--joints must be in 2..6, got {args.joints}")
 
@@ -310,6 +357,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         result.update({"stack_agents": args.stack,
                        "stack_agent_updates_per_s": stack["agent_updates_per_s"],
                        "stack_update_gflops": stack["update_gflops"]})
+    if args.rollout:
+        result.update(measure_rollouts(args.rollout, args.joints, max(3, args.rounds // 6)))
     result["matmul_peak_gflops"] = matmul_peak_gflops(args.device)
     result["peak_fraction"] = result["update_gflops"] / result["matmul_peak_gflops"]
     if args.stack:

@@ -161,6 +161,13 @@ def test_sweep_dry_run_lists_the_papers_55_runs(tmp_path: Path) -> None:
     assert len(lines) == 55 == len(PAPER_GRID) * 5
     assert sum("farbox " in line and "joints=6" in line for line in lines) == 5
     assert all(line.startswith("new") for line in lines)
+    # the env backend reaches every training process: each unit's command, or the one process
+    per = run_module("analysis.sweep", "--setting", "farbox:3", "--env-backend", "batched",
+                     "--dry-run", "--out", str(tmp_path)).stdout.splitlines()
+    assert len(per) == 5 and all(line.endswith("--env-backend batched") for line in per)
+    one = run_module("analysis.sweep", "--grid", "paper", "--one-process", "--env-backend",
+                     "batched", "--dry-run", "--out", str(tmp_path)).stderr
+    assert "ddpg_her.train_many --plan" in one and one.rstrip().endswith("--env-backend batched")
 
 
 def test_sweep_runs_skips_finished_and_resumes(tmp_path: Path) -> None:

@@ -1,5 +1,5 @@
-"""ddpg_her.bench's machine peak: its FLOP count, its rate on the CPU, and (with a GPU) that it
-measures the device the update runs on."""
+"""ddpg_her.bench: the machine peak (its FLOP count, its rate on the CPU, and with a GPU that it
+measures the device the update runs on), and the rollout timing of the two host env backends."""
 
 import pytest
 import torch
@@ -31,3 +31,14 @@ def test_the_cuda_peak_is_the_gpus_and_bounds_the_updates_rate():
     cpu = bench.matmul_peak_gflops("cpu", sizes=(1024,), repeats=2)
     cuda = bench.matmul_peak_gflops("cuda")
     assert cuda > 5 * cpu
+
+
+def test_rollout_timing_runs_both_backends_and_refuses_a_negative_count(capsys):
+    result = bench.measure_rollouts(3, 3, rounds=1)
+    assert result["rollout_agents"] == 3
+    assert result["rollout_numpy_s"] > 0 and result["rollout_batched_s"] > 0
+    assert result["rollout_speedup"] == pytest.approx(
+        result["rollout_numpy_s"] / result["rollout_batched_s"])  # one round: its own ratio
+    with pytest.raises(SystemExit):
+        bench.main(["--rollout", "-1"])
+    assert "--rollout must be >= 0, got 0, -1" in capsys.readouterr().err
