@@ -407,11 +407,11 @@ def one_process(args: argparse.Namespace) -> bool:
     """Whether the units train in one process: only with --one-process.
 
     Not the default on cuda although one stack wastes the GPU less than K = 5 products per
-    process: the one process steps every unit's envs on one CPU core (with the numpy env
-    backend, each agent's on Pinocchio's substep loop: 2.1 s per episode of the paper grid's 55
-    agents on an H100 machine, as slow as one process per unit), where one process per unit
-    spreads them over the
-    cores; which wins there is unmeasured (results/batched_env/README.md)."""
+    process: the one process steps every unit's envs on one CPU core. Measured on an H100
+    machine with the numpy env backend (each agent's env on Pinocchio's substep loop), the paper
+    grid's 55 agents took 2.1 s per warm-up episode, slower than one process per unit
+    (results/batched_env/README.md); the batched env backend steps them in 7 compiled calls,
+    and that pairing is not yet measured on a GPU."""
     return bool(args.one_process)
 
 
@@ -424,11 +424,11 @@ def one_process_command(plan: Path | str, threads: int, device: str,
     """The ``ddpg_her.train_many`` command line that trains a plan's units in one process."""
     return [sys.executable, "-m", "ddpg_her.train_many", "--plan", str(plan), "--resume",
             "--no-progress", "--threads", str(threads), "--device", device,
-            *(["--env-backend", env_backend] if env_backend != "numpy" else [])]
+            *backend_args(env_backend)]
 
 
 def backend_args(env_backend: str) -> list[str]:
-    """The ``ddpg_her.train`` arguments of one process per unit for ``--env-backend``."""
+    """The training command's arguments for ``--env-backend`` (none for the default)."""
     return ["--env-backend", env_backend] if env_backend != "numpy" else []
 
 
