@@ -193,6 +193,8 @@ class Trainer:
 
     def _mismatch(self, where: Any, old: dict[str, Any], new: dict[str, Any]) -> None:
         """Raise ValueError if ``new`` may not continue the run ``old`` (a spec or config)."""
+        # a spec records env_backend only when it is not the default; name the default too
+        old, new = ({"env_backend": ENV_BACKENDS[0], **x} for x in (old, new))
         diffs = self._differences(old, new)
         if diffs:
             raise ValueError(

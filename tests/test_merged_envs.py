@@ -96,3 +96,14 @@ def test_batched_backend_trains_as_the_numpy_backend(tmp_path):
     assert [[r["successes"] for r in a] for a in rows_b] == \
         [[r["successes"] for r in a] for a in rows]
     assert batched.specs[0]["env_backend"] == "batched" and "env_backend" not in numpy_run.specs[0]
+
+
+def test_a_run_resumes_only_under_its_own_backend(tmp_path):
+    config = AgentConfig(**{**QUIET.to_dict(), "episodes": 1, "eval_every": 1})
+    run = Trainer("UR5Reach-v0", TASKS[0], config, [0], [tmp_path / "run"], progress=False,
+                  tensorboard=False)
+    run.run()
+    run.close()
+    with pytest.raises(ValueError, match=r"differing: env_backend \(was 'numpy', now 'batched'\)"):
+        Trainer("UR5Reach-v0", TASKS[0], config, [0], [tmp_path / "run"], resume=True,
+                progress=False, tensorboard=False, env_backend="batched")
