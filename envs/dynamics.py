@@ -164,9 +164,13 @@ class PlaneContact:
         ``base_height`` and ``sim_hz``.
     model : pinocchio.Model
         The arm's model (kinematics only are used).
+    reduced : pinocchio.Model or None
+        The model of the joints that move when the held joints are locked (``buildReducedModel``
+        at the start pose), whose ABA gives the response; None when all six move.
     """
 
-    def __init__(self, task: TaskSpec, model: pin.Model) -> None:
+    def __init__(self, task: TaskSpec, model: pin.Model, reduced: pin.Model | None = None
+                 ) -> None:
         h = task.sim_dt
         self.level = task.plane_margin - task.base_height
         """The plane z = plane_margin, as a height (m) above ``base_link``."""
@@ -177,10 +181,13 @@ class PlaneContact:
         self.hulls = link_hulls()
         self._columns = [np.ascontiguousarray(hull.T) for hull in self.hulls]  # (3, n_k)
         self._wrench = np.zeros(6)
-        self._free = pin.Model(model)  # no gravity: its ABA at rest is M(q)^-1 tau
+        # no gravity: its ABA at rest is M(q)^-1 tau (of the moving joints' block when locked)
+        self._free = pin.Model(model if reduced is None else reduced)
         self._free.gravity = pin.Motion.Zero()
         self._free_data = self._free.createData()
-        self._rest = np.zeros(model.nv)
+        self._moving = self._free.nv
+        self._rest = np.zeros(self._moving)
+        self._response = np.zeros(model.nv)  # locked columns stay 0
         self._w_max = ur5kin.velocity_limits() * h
 
     def response(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -188,8 +195,13 @@ class PlaneContact:
         contact torque ``tau (6,)`` makes in one substep: Pinocchio's ABA on the model without
         gravity, at rest. Added after the velocity clip: the URDF velocity limits are the
         motors', and the ground's reaction is not bound by them (clipping it lets a joint
-        at its limit drive a link through the plane)."""
-        return pin.aba(self._free, self._free_data, q, self._rest, tau)
+        at its limit drive a link through the plane). Locked joints take the reaction in their
+        weld: their response is 0, the moving ones' ``M_ff^-1 tau_f``."""
+        m = self._moving
+        if m == len(tau):
+            return pin.aba(self._free, self._free_data, q, self._rest, tau)
+        self._response[:m] = pin.aba(self._free, self._free_data, q[:m], self._rest, tau[:m])
+        return self._response
 
     def governor(self, w: np.ndarray) -> None:
         """Scale ``w (6,)`` in place, all joints alike, into the URDF velocity limits.
@@ -284,6 +296,22 @@ def command_bounds(task: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
     return -high, high.copy()
 
 
+def moving_joints(task: TaskSpec) -> int:
+    """Joints 1..m that are in the dynamics: n (the controlled ones) when the held joints are
+    ``locked``, all 6 when the PD holds them (``task.held_joints``)."""
+    return task.n_joints if task.held_joints == "locked" else 6
+
+
+def check_held(task: TaskSpec, q: np.ndarray) -> None:
+    """Refuse configurations ``q (..., 6)`` rad whose locked joints are not at their start
+    angles (the locked dynamics weld them there; ``pd`` accepts any)."""
+    n = moving_joints(task)
+    if n < 6 and np.any(np.asarray(q)[..., n:] != np.asarray(task.start_q)[n:]):
+        raise ValueError(f"joints {n + 1}..6 are locked at their start angles "
+                         f"{list(task.start_q[n:])} rad (held_joints='locked'); got "
+                         f"configuration(s) {np.asarray(q).tolist()} rad")
+
+
 def put_at_rest(dyn: Any, q: Any, index: Any) -> Any:
     """The reset every dynamics shares: copies ``index`` of ``dyn`` at rest at ``q``.
 
@@ -293,10 +321,12 @@ def put_at_rest(dyn: Any, q: Any, index: Any) -> Any:
     Raises
     ------
     ValueError
-        When a configuration is not clear of the plane by the task's margin.
+        When a configuration is not clear of the plane by the task's margin, or moves a
+        locked joint from its start angle (:func:`check_held`).
     """
     sel = slice(None) if index is None else index
     q = np.asarray(q, dtype=float)
+    check_held(dyn.task, q)
     heights = dyn._link_heights(q)
     if np.any(heights < dyn.task.plane_margin):
         raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
@@ -361,6 +391,13 @@ class ArmDynamics:
         self.data = self.model.createData()
         self._pool = pin.ModelPool(self.model, 1) if B > 1 else None
         self._tool = self.model.getFrameId(ur5kin.TOOL_FRAME)
+        # locked held joints: Pinocchio's reduced model, joints free+1..6 welded at the start
+        self._free = moving_joints(task)
+        self._reduced = None
+        if self._free < 6:
+            self._reduced = pin.buildReducedModel(
+                self.model, list(range(self._free + 1, 7)), np.asarray(task.start_q, float))
+            self._reduced.gravity = self.model.gravity
 
         kp, kd = np.asarray(task.kp) * h * h, np.asarray(task.kd) * h
         self._kp_eff, self._kd_eff = kp.copy(), kd.copy()
@@ -385,8 +422,8 @@ class ArmDynamics:
         self._limit_flags = np.zeros(6, dtype=bool)
         # the compliant contact (None: the stop model); a substep is deeper than allowed, and
         # stops, below _stop_level
-        self._contact = (PlaneContact(task, self.model) if task.contact_model == "compliant"
-                         else None)
+        self._contact = (PlaneContact(task, self.model, self._reduced)
+                         if task.contact_model == "compliant" else None)
         self._stop_level = task.plane_margin - (0.0 if self._contact is None
                                                 else task.contact_max_depth)
         self._touched = np.zeros(B, dtype=bool)  # a contact force acted in this step
@@ -439,8 +476,10 @@ class ArmDynamics:
         """
         model, data = self.model, self.data
         if self._pool is None:
-            return (functools.partial(pin.computeGeneralizedGravity, model, data),
-                    functools.partial(pin.aba, model, data))
+            gravity = functools.partial(pin.computeGeneralizedGravity, model, data)
+            if self._reduced is None:
+                return gravity, functools.partial(pin.aba, model, data)
+            return gravity, self._locked_accel()
         pool, g_out, a_out, zeros = self._pool, self._gravity_out, self._accel_out, self._zeros
 
         def gravity(q: np.ndarray) -> np.ndarray:
@@ -451,7 +490,35 @@ class ArmDynamics:
             pin.abaInParallel(1, pool, q.T, w.T, tau.T, a_out.T)
             return a_out
 
-        return gravity, accel
+        return gravity, (accel if self._reduced is None else self._locked_accel())
+
+    def _locked_accel(self) -> Any:
+        """``accel(q, w, tau) -> h^2 a`` with the held joints locked: the reduced model's ABA
+        for joints 1..free (its gravity is the whole arm's in the held pose, the generalized
+        gravity of joints 1..free equals the full model's) and 0 for the locked joints, so
+        their ``w`` stays 0 and they never move."""
+        m, reduced = self._free, self._reduced
+        if self._pool is None:
+            data, out = reduced.createData(), np.zeros(6)
+
+            def accel_one(q: np.ndarray, w: np.ndarray, tau: np.ndarray) -> np.ndarray:
+                out[:m] = pin.aba(reduced, data, q[:m], w[:m], tau[:m])
+                return out
+
+            return accel_one
+        B = self.num_copies
+        pool, out = pin.ModelPool(reduced, 1), np.zeros((B, 6))
+        qf, wf, tf, af = (np.zeros((B, m)) for _ in range(4))
+
+        def accel_many(q: np.ndarray, w: np.ndarray, tau: np.ndarray) -> np.ndarray:
+            np.copyto(qf, q[:, :m])
+            np.copyto(wf, w[:, :m])
+            np.copyto(tf, tau[:, :m])
+            pin.abaInParallel(1, pool, qf.T, wf.T, tf.T, af.T)
+            out[:, :m] = af
+            return out
+
+        return accel_many
 
     def _link_heights(self, q: np.ndarray) -> np.ndarray:
         """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""

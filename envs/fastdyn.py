@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
-from envs.dynamics import height_lipschitz, put_at_rest
+from envs.dynamics import height_lipschitz, moving_joints, put_at_rest
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -302,9 +302,15 @@ def _shift_into(p, Y, S, parent):  # pragma: no cover - compiled
 
 @_njit
 def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u, X, Y, acc,
-         qdd):  # pragma: no cover - compiled
+         qdd, free):  # pragma: no cover - compiled
     """Featherstone's articulated-body algorithm (Pinocchio's ``aba``): ``qdd`` for the
     placements ``R`` (of ``q``), velocities ``qd`` and torques ``tau``.
+
+    Joints ``free .. 5`` are locked (``free = 6``: none): welded at their angles in ``R``, with
+    ``qd = 0`` there (the caller's invariant), they carry their child's articulated inertia and
+    bias force to the parent whole, get ``qdd = 0`` and ignore ``tau``: the dynamics of the
+    chain whose last body is the rigid composite of the locked joints' bodies (Pinocchio's
+    ``buildReducedModel``; tested against it and against the full model's ``M`` and ``h``).
 
     Scratch: ``vel, acc (7, 6)`` (row i + 1 is body i, row 0 the fixed base), ``cb, pA, U (6,
     6)``, ``IA (6, 6, 6)``, ``X, Y (6, 6)``, ``D, u (6,)``.
@@ -343,6 +349,16 @@ def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u,
         pA[i, 5] = w0 * h4 - w1 * h3 + vi[0] * h1 - vi[1] * h0
     # pass 2: articulated inertias and bias forces, tip to base
     for i in range(5, -1, -1):
+        if i >= free:  # locked: the body rides on its parent, pa = pA + IA c, Ia = IA
+            for r in range(6):
+                s = pA[i, r]
+                for k in range(6):
+                    s += IA[i, r, k] * cb[i, k]
+                Y[1, r] = s
+            _force_act(R[i], p[i], Y[1], pA[i - 1])
+            _rotate_blocks(R[i], IA[i], X, Y)
+            _shift_into(p[i], Y, X, IA[i - 1])
+            continue
         ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
         for r in range(6):
             U[i, r] = IA[i, r, 3] * ax + IA[i, r, 4] * ay + IA[i, r, 5] * az
@@ -376,6 +392,9 @@ def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u,
         _motion_inv(R[i], p[i], acc[i], ai)
         for k in range(6):
             ai[k] += cb[i, k]
+        if i >= free:
+            qdd[i] = 0.0
+            continue
         s = u[i]
         for k in range(6):
             s -= U[i, k] * ai[k]
@@ -386,9 +405,10 @@ def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u,
 
 
 @_njit
-def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torque, out
+def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torque, out, free
                ):  # pragma: no cover - compiled
-    """``out[b] = aba(q[b], qd[b], tau[b])`` (plus ``g(q[b])`` in tau when gravity_torque)."""
+    """``out[b] = aba(q[b], qd[b], tau[b])`` (plus ``g(q[b])`` in tau when gravity_torque),
+    joints ``free ..`` locked (:func:`_aba`)."""
     dt = q.dtype
     R = np.empty((6, 3, 3), dt)
     vel, acc = np.empty((7, 6), dt), np.empty((7, 6), dt)
@@ -406,7 +426,7 @@ def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torqu
             for k in range(6):
                 t[k] += g[k]
         _aba(R, p, axis, inertia, armature, grav, qd[b], t, vel, cb, IA, pA, U, D, u, X, Y,
-             acc, out[b])
+             acc, out[b], free)
 
 
 @_njit
@@ -435,31 +455,48 @@ def _dtype_name(dtype: Any) -> str:
     return name
 
 
-def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64) -> np.ndarray:
+def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np.ndarray:
     """Joint accelerations of B copies of the UR5 (Pinocchio's ``aba`` for each row), batched.
 
     Parameters
     ----------
     q : (B, 6) float, rad
     v : (B, 6) float, rad/s
+        Zero in the locked joints' columns.
     tau : (B, 6) float, N m
     dtype : float64 or float32
         The arithmetic of the kernel (and of the result).
+    free : int, 1..6
+        Joints 1..free move; joints free+1..6 are locked at their angles in ``q``
+        (``TaskSpec.held_joints == "locked"``; 6: none locked).
 
     Returns
     -------
     a : (B, 6) float, rad/s^2
-        ``M(q)^-1 (tau - C(q, v) v - g(q))`` under the model's gravity.
+        ``M(q)^-1 (tau - C(q, v) v - g(q))`` under the model's gravity; with locked joints,
+        ``M_ff^-1 (tau_f - h_f(q, v))`` in the free columns (``M_ff`` the free joints' block)
+        and 0 in the locked ones.
+
+    Raises
+    ------
+    ValueError
+        For arrays of another shape, non-finite values, a ``free`` outside 1..6, or a nonzero
+        velocity of a locked joint.
     """
+    if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
+        raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
     name = _dtype_name(dtype)
     chain, cast = ur5_chain(name), DTYPES[name]
     q, v, tau = _batch(q, "q", cast), _batch(v, "v", cast), _batch(tau, "tau", cast)
     if not q.shape == v.shape == tau.shape:
         raise ValueError(f"q, v and tau must have one shape; got {q.shape}, {v.shape}, "
                          f"{tau.shape}")
+    if np.any(v[:, free:] != 0.0):
+        raise ValueError(f"locked joints {free + 1}..{NJ} must have zero velocity; got "
+                         f"{v[:, free:].tolist()}")
     out = np.empty_like(q)
     _aba_batch(q, v, tau, chain.rotation, chain.translation, chain.axis, chain.inertia,
-               chain.armature, chain.gravity, False, out)
+               chain.armature, chain.gravity, False, out, int(free))
     return out
 
 
@@ -539,12 +576,13 @@ def _tool_position(R, p, tool_pos, base_height, out):  # pragma: no cover - comp
 def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
-                  tool, first, stop):  # pragma: no cover - compiled
+                  tool, free, first, stop):  # pragma: no cover - compiled
     """One control step of copies ``first .. stop - 1``, in the time-scaled units of
     ArmDynamics.
 
     Per copy b: ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
-    ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'``; a substep that leaves the
+    ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'`` (joints ``free ..`` locked:
+    their ``aba`` is 0 and their ``w`` stays 0, so they never move); a substep that leaves the
     joint limits ``|q - q_mid| > q_half`` or brings a moving link below ``margin`` (m, world
     z) is not taken: the copy stays at the last valid substep with ``w = 0`` and the rest of
     the step is skipped (ArmDynamics computes and discards it: the same answer).
@@ -584,7 +622,7 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
             for k in range(6):
                 tau[k] = min(max(tau[k], -effort[k]), effort[k])
             _aba(R, p, axis, inertia, armature, grav, w, tau, vel, cb, IA, pA, U, D, u, X, Y,
-                 acc, a)
+                 acc, a, free)
             for k in range(6):
                 w1[k] = min(max(w[k] + a[k], -w_max[k]), w_max[k])
                 q1[k] = q[k] + w1[k]
@@ -629,14 +667,14 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
 def _parallel_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                    vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
                    rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
-                   tool, chunks):  # pragma: no cover - compiled
+                   tool, free, chunks):  # pragma: no cover - compiled
     """:func:`_control_step` over ``chunks`` blocks of copies, on numba's thread pool."""
     size = (Q.shape[0] + chunks - 1) // chunks
     for c in numba.prange(chunks):
         _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid,
                       q_half, vh, bounds, lift, wrist, lipschitz, base_height, margin,
                       clearance, rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact,
-                      limit_stop, tool, c * size, min(Q.shape[0], (c + 1) * size))
+                      limit_stop, tool, free, c * size, min(Q.shape[0], (c + 1) * size))
 
 
 if numba is not None:
@@ -734,7 +772,8 @@ class FastArmDynamics:
         self._q_mid, self._q_half = (0.5 * (lo + hi)).astype(cast), (0.5 * (hi - lo)).astype(cast)
         self._start_q = np.asarray(task.start_q, dtype=float)
         self._bias = np.zeros((B, NJ), dtype=cast)
-        self._bias[:, n:] = kp[n:] * self._start_q[n:]  # held joints: PD to the start
+        self._bias[:, n:] = kp[n:] * self._start_q[n:]  # held joints: PD to the start (pd)
+        self._free = moving_joints(task)  # locked held joints: out of the dynamics
         self._w_to_v, self._w_to_accel = 1.0 / h, 1.0 / (h * task.dt)
 
         self.q = np.tile(self._start_q, (B, 1)).astype(cast)
@@ -779,7 +818,7 @@ class FastArmDynamics:
                 pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
                 float(task.base_height), float(task.plane_margin), self._clearance, c.rotation,
                 c.translation, c.axis, c.inertia, c.armature, c.gravity, self._tool_pos,
-                self._dw, self.contact, self.limit_stop, self._tool)
+                self._dw, self.contact, self.limit_stop, self._tool, self._free)
         if self.threads == 1:
             _control_step(*args, 0, self.num_copies)
         else:

@@ -59,7 +59,20 @@ CONTACT_MODELS = ("stop", "compliant")
 """How the ground plane acts on the arm (docs/design.md open point 6; :mod:`envs.dynamics`).
 ``stop``: any plane contact stops the whole arm dead for the rest of the control step (the default);
 ``compliant``: a penalty contact (spring-damper with Coulomb friction) pushes each link out of the
-plane, so the arm can slide along it, as in Gazebo, where the paper ran."""
+plane, so the arm can slide along it, as in Gazebo (ROS's usual simulator; the paper names ROS,
+not the simulator)."""
+
+HELD_JOINTS = ("locked", "pd")
+"""What holds the joints the agent does not control (n+1..6) at their start angles.
+``locked``: they are not in the dynamics at all, as if welded at the start angles (the arm's
+inertia and gravity are those of the whole arm in that pose; :mod:`envs.dynamics`), so they
+never move; ``pd``: the joint PD controller holds them, and they give way under load (the
+behaviour of runs recorded before this field existed)."""
+
+RECORD_DEFAULTS: dict[str, Any] = {"held_joints": "pd"}
+"""Fields added after runs began to be recorded whose default changed the behaviour: a recorded
+task (a run's ``spec.json``, a checkpoint) that lacks one was made when the behaviour was this
+value (:meth:`TaskSpec.from_record`)."""
 
 GOAL_SAMPLERS = ("joint", "cartesian")
 """``joint``: the paper's sampler (uniform in joint space, kept in the region;
@@ -94,7 +107,19 @@ class TaskSpec:
     string that rebuilds the region exactly."""
 
     n_joints: int = 3
-    """Controlled joints n (2-6): joints 1..n move; joints n+1..6 are held at ``start_q``."""
+    """Controlled joints n (2-6): joints 1..n move; joints n+1..6 are held at ``start_q``
+    (how: :attr:`held_joints`)."""
+
+    held_joints: str = "locked"
+    """What holds joints n+1..6 at their start angles: one of :data:`HELD_JOINTS`. The paper's
+    "number of joints controlled" and its goal sampler ("the reachable space effected by the
+    joints being controlled") both mean that the other joints stay where they start, so
+    ``locked`` (the default) takes them out of the dynamics: the controlled joints move the
+    whole arm (its inertia and gravity in the held pose) and the held ones never move.
+    ``pd``: the PD controller holds them, as before this field existed; the URDF wrists' 28 N m
+    cannot hold their 0.6 m inertias during fast shoulder moves, and with 3 controlled joints
+    they swing by a median 0.3-0.8 rad per episode (issue 22), which moves tool0 by more than
+    the success radius in about a fifth of episodes."""
 
     start_q: tuple[float, ...] | None = None
     """Start configuration (6 angles, rad) of every episode. ``None`` resolves at construction:
@@ -174,9 +199,10 @@ class TaskSpec:
     """Clearance (m) every moving link keeps above the ground plane; less counts as contact."""
 
     contact_model: str = "stop"
-    """How the ground plane acts on the arm: one of :data:`CONTACT_MODELS`. The paper ran in
-    Gazebo ("simulated in Gazebo", section IV) and states no contact model; Gazebo's contact is
-    compliant, the arm is pushed out and slides. ``stop`` (the default, as before): any contact
+    """How the ground plane acts on the arm: one of :data:`CONTACT_MODELS`. The paper says its
+    simulation ran under ROS and states no contact model; if it was Gazebo (ROS's usual
+    simulator, our assumption, not the paper's words), that contact is compliant: the arm is
+    pushed out and slides. ``stop`` (the default, as before): any contact
     stops the whole arm dead for the rest of the control step. ``compliant``: a penalty force
     ``f_n = max(0, k d - c dz/dt)`` at each link's deepest point ``d`` m below
     ``z = plane_margin`` with Coulomb friction (the ``contact_*`` fields; :mod:`envs.dynamics`).
@@ -218,7 +244,8 @@ class TaskSpec:
         for name, choices in (("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),
                               ("reward_type", REWARD_TYPES),
                               ("action_penalty_unit", ACTION_PENALTY_UNITS),
-                              ("contact_model", CONTACT_MODELS)):
+                              ("contact_model", CONTACT_MODELS),
+                              ("held_joints", HELD_JOINTS)):
             value = getattr(self, name)
             if value not in choices:
                 raise ValueError(f"{name} must be one of {list(choices)}; got {value!r}")
@@ -280,6 +307,21 @@ class TaskSpec:
         """The fields as plain JSON types (tuples become lists); :meth:`from_dict` inverts it."""
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
                 for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_record(cls, data: Mapping[str, Any]) -> TaskSpec:
+        """Rebuild a *recorded* task (a run's ``spec.json`` ``task``, a checkpoint's): like
+        :meth:`from_dict`, but a field of :data:`RECORD_DEFAULTS` that the record lacks takes
+        the value it had when the record was written, not today's default.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`from_dict`.
+        """
+        if not isinstance(data, Mapping):
+            raise ValueError(f"a task description must be a mapping of fields; got {data!r:.200}")
+        return cls.from_dict({**RECORD_DEFAULTS, **data})
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> TaskSpec:

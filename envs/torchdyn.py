@@ -37,6 +37,7 @@ import torch
 
 import ur5kin
 from envs import fastdyn
+from envs.dynamics import check_held, moving_joints
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -241,8 +242,8 @@ def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.linalg.cross(a, b, dim=-1)
 
 
-def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain: TorchChain
-                     ) -> torch.Tensor:
+def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain: TorchChain,
+                     free: int = NJ) -> torch.Tensor:
     """Featherstone's articulated-body algorithm (Pinocchio's ``aba``), batched over copies.
 
     Parameters
@@ -253,11 +254,16 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
         Joint velocities (rad/s, or rad per substep in the time-scaled units).
     tau : (B, 6) float
         Joint torques, in the units of the chain's gravity times inertia.
+    free : int, 1..6
+        Joints 1..free move; free+1..6 are locked (welded at their angles, zero ``qd``): as
+        :func:`envs.fastdyn._aba`, they carry their articulated inertia to the parent whole
+        and get ``qdd = 0``.
 
     Returns
     -------
     qdd : (B, 6) float
-        ``M(q)^-1 (tau - C(q, qd) qd - g(q))``.
+        ``M(q)^-1 (tau - C(q, qd) qd - g(q))`` (with locked joints, that of the free joints'
+        block, and 0 for the locked).
     """
     S, inertia = chain.subspace, chain.inertia
     # pass 1, base to tip: velocities v, bias accelerations c = v x_m (S qd), bias forces
@@ -276,6 +282,11 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
     # pass 2, tip to base: articulated inertias IA and bias forces pA
     U, D, u = [torch.empty(0)] * NJ, [torch.empty(0)] * NJ, [torch.empty(0)] * NJ
     for i in range(NJ - 1, -1, -1):
+        if i >= free:  # locked: rides on its parent whole
+            Xt = X[:, i].transpose(-1, -2)
+            IA[i - 1] = IA[i - 1] + torch.matmul(torch.matmul(Xt, IA[i]), X[:, i])
+            pA[i - 1] = pA[i - 1] + _mv(Xt, pA[i] + _mv(IA[i], bias_acc[i]))
+            continue
         U[i] = torch.matmul(IA[i], S[i])  # (B, 6)
         D[i] = torch.matmul(U[i], S[i]) + chain.armature[i]  # (B,)
         u[i] = tau[:, i] - torch.matmul(pA[i], S[i])
@@ -292,6 +303,9 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
     qdd = []
     for i in range(NJ):
         acc = _mv(X[:, i], acc) + bias_acc[i]
+        if i >= free:
+            qdd.append(torch.zeros_like(qd[:, i]))
+            continue
         a = (u[i] - (U[i] * acc).sum(-1)) / D[i]
         acc = acc + a.unsqueeze(-1) * S[i]
         qdd.append(a)
@@ -340,7 +354,8 @@ def _batch(x: Any, name: str, device: Any, dtype: torch.dtype) -> torch.Tensor:
     return t
 
 
-def aba(q: Any, v: Any, tau: Any, device: Any = "cpu", dtype: Any = "float64") -> torch.Tensor:
+def aba(q: Any, v: Any, tau: Any, device: Any = "cpu", dtype: Any = "float64",
+        free: int = NJ) -> torch.Tensor:
     """Joint accelerations of B copies of the UR5 (Pinocchio's ``aba`` for each row), batched.
 
     Parameters
@@ -350,19 +365,29 @@ def aba(q: Any, v: Any, tau: Any, device: Any = "cpu", dtype: Any = "float64") -
     tau : (B, 6) float, N m
     device : str or torch.device
     dtype : float64 or float32
+    free : int, 1..6
+        Joints 1..free move, the others are locked (as :func:`envs.fastdyn.aba`; their
+        velocities must be zero).
 
     Returns
     -------
     a : (B, 6) tensor, rad/s^2
-        ``M(q)^-1 (tau - C(q, v) v - g(q))`` under the model's gravity.
+        ``M(q)^-1 (tau - C(q, v) v - g(q))`` under the model's gravity (with locked joints,
+        the free block's, 0 in the locked columns).
     """
+    if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
+        raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
     cast = _dtype(dtype)
     chain, _ = _ur5_models(str(torch.device(device)), cast)
     q, v, tau = (_batch(x, n, device, cast) for x, n in ((q, "q"), (v, "v"), (tau, "tau")))
     if not q.shape == v.shape == tau.shape:
         raise ValueError(f"q, v and tau must have one shape; got {tuple(q.shape)}, "
                          f"{tuple(v.shape)}, {tuple(tau.shape)}")
-    return articulated_body(motion_transforms(placements(q, chain), chain), v, tau, chain)
+    if bool((v[:, free:] != 0).any()):
+        raise ValueError(f"locked joints {free + 1}..{NJ} must have zero velocity; got "
+                         f"{v[:, free:].tolist()}")
+    return articulated_body(motion_transforms(placements(q, chain), chain), v, tau, chain,
+                            int(free))
 
 
 def generalized_gravity(q: Any, device: Any = "cpu", dtype: Any = "float64") -> torch.Tensor:
@@ -488,7 +513,8 @@ class TorchArmDynamics:
         self._q_mid, self._q_half = t(0.5 * (lo + hi)), t(0.5 * (hi - lo))
         self._start_q = np.asarray(task.start_q, dtype=float)
         self._bias = torch.zeros((B, NJ), device=device, dtype=cast)
-        self._bias[:, n:] = t(kp[n:] * self._start_q[n:])  # held joints: PD to the start
+        self._bias[:, n:] = t(kp[n:] * self._start_q[n:])  # held joints: PD to the start (pd)
+        self._free = moving_joints(task)  # locked held joints: out of the dynamics
         self._w_to_v, self._w_to_accel = 1.0 / h, 1.0 / (h * task.dt)
         self._gravity_comp = bool(task.gravity_compensation)
         self._base_height, self._margin = float(task.base_height), float(task.plane_margin)
@@ -520,7 +546,7 @@ class TorchArmDynamics:
         if self._gravity_comp:
             tau = tau + gravity_torque(X, chain)
         tau = torch.minimum(torch.maximum(tau, -self._effort), self._effort)
-        w1 = w + articulated_body(X, w, tau, chain)
+        w1 = w + articulated_body(X, w, tau, chain, self._free)
         w1 = torch.minimum(torch.maximum(w1, -self._w_max), self._w_max)
         q1 = q + w1
         beyond = ((q1 - self._q_mid).abs() > self._q_half).any(-1)
@@ -646,6 +672,7 @@ class TorchArmDynamics:
             the host: a reset synchronises).
         """
         q = np.asarray(q.cpu() if isinstance(q, torch.Tensor) else q, dtype=float)
+        check_held(self.task, q)
         heights = self._link_heights(q)
         if np.any(heights < self.task.plane_margin):
             raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "

@@ -238,7 +238,8 @@ def test_the_compliant_arm_slides_along_the_plane_where_the_stop_sticks():
     assert log["q"][-1, 0, 0] > 1.45  # rad: it got to the commanded pan angle ...
     assert stuck_log["q"][-1, 0, 0] < 0.5  # ... which the stop model is far from
     sliding = log["contact"][:, 0]
-    assert np.linalg.norm(np.diff(tool[sliding][:, :2], axis=0), axis=1).sum() > 0.5  # m
+    # m: measured 0.40 with the wrists locked (0.55 when the PD holds them and they swing)
+    assert np.linalg.norm(np.diff(tool[sliding][:, :2], axis=0), axis=1).sum() > 0.3
     assert np.all(tool[sliding][:, 2] < 0.05)  # m: along the plane, not lifted over it
 
 
@@ -250,7 +251,8 @@ def test_batched_copies_match_single_copies_in_contact(mode):
     low, high = command_bounds(task)
     commands = np.random.default_rng(6).uniform(low, high, (100, 4, 3))
     batch = run(ArmDynamics(task, 4), commands)
-    assert batch["contact"].mean() > 0.02  # measured 0.04 (torque) to 0.3 (position)
+    # measured 0.015 (torque) to 0.4 (position) with the wrists locked; 0.04 to 0.4 under pd
+    assert batch["contact"].mean() > 0.01
     for i in range(4):
         one = run(ArmDynamics(task), commands[:, i : i + 1])
         np.testing.assert_array_equal(one["contact"][:, 0], batch["contact"][:, i])

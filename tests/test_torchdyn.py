@@ -132,9 +132,12 @@ def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match=r"\(2, 3\)"):
         dyn.step(np.zeros((2, 4)))
     q = np.random.default_rng(8).uniform(-np.pi, np.pi, (50, 6))
+    q[:, 3:] = dyn.task.start_q[3:]  # joints 4-6 are locked at their start angles
     low = q[ur5kin.link_heights(q, dyn.task.base_height).min(axis=1) < dyn.task.plane_margin]
     with pytest.raises(ValueError, match="below the plane margin"):
         dyn.reset(low[0])
+    with pytest.raises(ValueError, match=r"locked at their start angles"):
+        dyn.reset(np.full(6, 0.1))
 
 
 # ------------------------------------------------------------------ whole control steps
