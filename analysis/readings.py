@@ -41,7 +41,8 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
                   "warm-up stated; contact with the plane not described (ROS/Gazebo)",
             ours="the defaults: |a|^2 in rad^2 with weight 1; Gaussian noise of std 0.01 in "
                  "actor units (0.031 rad); 100 warm-up episodes of random actions; any plane "
-                 "contact stops the arm for the rest of the control step"),
+                 "contact stops the arm for the rest of the control step; the joints not "
+                 "controlled locked at their start angles"),
     Reading("actor_penalty", ("--task", "action_penalty_unit=actor"),
             paper="eq. 2's -|a|^2 with a the absolute joint angles; no unit or scale given",
             ours="|a|^2 in the actor's units, (a / pi)^2 per joint (a tenth of the rad^2 "
@@ -71,14 +72,15 @@ CHOICES: tuple[tuple[str, str, str, str], ...] = (
     ("action penalty's unit", "task", "action_penalty_unit", "command"),
     ("action penalty's weight", "task", "action_weight", "1.0"),
     ("ground contact", "task", "contact_model", "stop"),
+    ("held joints", "task", "held_joints", "pd"),
     ("exploration", "agent", "exploration", "gaussian"),
     ("exploration rate (actor units)", "agent", "exploration_rate", "0.01"),
     ("warm-up episodes", "agent", "warmup_episodes", "100"),
 )
 """The paper's unstated choices a run's ``spec.json`` records: (name, spec section, field, value
-of runs written before the field existed). The last is what such runs did: the penalty in rad^2
-and the stop contact were the only behaviour before `action_penalty_unit` and `contact_model`
-were fields (docs/design.md, open points 3-6)."""
+of runs written before the field existed). The last is what such runs did: the penalty in rad^2,
+the stop contact and the PD-held joints were the only behaviour before `action_penalty_unit`,
+`contact_model` and `held_joints` were fields (docs/design.md, open points 3-6 and Dynamics)."""
 
 
 def run_choices(spec: dict[str, Any]) -> dict[str, str]:

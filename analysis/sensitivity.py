@@ -342,7 +342,7 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
         key = json.dumps([spec.get("task"), gamma], sort_keys=True)
         if key not in cache:
             try:
-                task = TaskSpec.from_dict(spec["task"])
+                task = TaskSpec.from_record(spec["task"])
                 cache[key] = _share(optimality.worth_reaching(task, goals=goals, gamma=gamma,
                                                                  seed=seed))
             except (KeyError, TypeError, ValueError) as err:

@@ -180,7 +180,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             policies.append(ddpg_her.load(run, episode=args.episode))
         except (FileNotFoundError, ValueError) as err:
             parser.error(str(err))
-    tasks = [TaskSpec.from_dict(p.spec["task"]) for p in policies]
+    tasks = [TaskSpec.from_record(p.spec["task"]) for p in policies]
     if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
         parser.error("the runs have different tasks (region, joints, start, sampler); maps of "
                      "one figure must share their goals")

@@ -43,13 +43,19 @@ class TrainedPolicy:
 
     def make_env(self, **kwargs: Any) -> Any:
         """A fresh copy of the env the policy was trained on (``gymnasium.make`` with the run's
-        env id and arguments; ``kwargs`` go to ``gymnasium.make`` too, e.g. ``render_mode``)."""
+        env id and arguments; ``kwargs`` go to ``gymnasium.make`` too, e.g. ``render_mode``).
+
+        Where the run recorded its env's whole task (``spec.json``'s ``task``), the env gets
+        that record as ``spec=``: the arguments alone would take today's defaults for fields
+        that a run of an older version did not name (the env reads a record as of its time)."""
         import gymnasium
 
         from ddpg_her.vecenv import register_env
 
-        return gymnasium.make(register_env(self.spec["env_id"]), **self.spec["env_kwargs"],
-                              **kwargs)
+        env_kwargs = dict(self.spec["env_kwargs"])
+        if self.spec.get("task") and "spec" not in env_kwargs:
+            env_kwargs["spec"] = self.spec["task"]
+        return gymnasium.make(register_env(self.spec["env_id"]), **env_kwargs, **kwargs)
 
     @torch.no_grad()
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -10,7 +10,12 @@ One job: advance B copies of the 6-joint arm by one control step. Per substep of
 
 ``g(q)`` is the gravity torque (gravity compensation, optional); the effort and velocity limits
 are the URDF's. The controlled joints 1..n follow the command, whose meaning depends on the
-control mode; joints n+1..6 are held at their start angles by the same PD:
+control mode. Joints n+1..6 stay at their start angles (``task.held_joints``). ``locked`` (the
+default) takes them out of the dynamics: ABA runs on Pinocchio's reduced model
+(``buildReducedModel``, joints n+1..6 welded at the start pose, so the last moving body is the
+rigid composite of the links beyond it and the arm's inertia and gravity are the whole arm's in
+that pose); their velocity and acceleration are zero and they never move. ``pd`` holds them
+by the same PD, as in this table, and they give way under load:
 
 ============  ====================================  ===========================================
 mode          controlled joints 1..n                held joints n+1..6
@@ -30,7 +35,8 @@ of the control step, the way an arm hitting a rigid table or an end stop with no
 (``task.contact_model``, the default).
 
 The ``compliant`` contact model (:class:`PlaneContact`) replaces the plane stop by a penalty
-contact, as in Gazebo, where the paper ran: the arm is pushed out of the plane and slides on it.
+contact, as in Gazebo (ROS's usual simulator; the paper says it simulated "using ROS"): the
+arm is pushed out of the plane and slides on it.
 At every substep, for each moving link l whose lowest collision point (its URDF collision
 geometry's convex hull, the same geometry as the clearance check) lies ``d_l > 0`` m below
 ``z = plane_margin`` (world frame), a force acts at that deepest point ``p_l``::

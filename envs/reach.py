@@ -44,8 +44,8 @@ def make_task(spec: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str,
     """
     if spec is None:
         return TaskSpec.from_dict(dict(overrides))
-    if isinstance(spec, Mapping):
-        spec = TaskSpec.from_dict(spec)
+    if isinstance(spec, Mapping):  # a to_dict() form: a record, perhaps of an older version
+        spec = TaskSpec.from_record(spec)
     elif not isinstance(spec, TaskSpec):
         raise ValueError(f"spec must be a TaskSpec, its to_dict() form or None; got "
                          f"{type(spec).__name__}")
@@ -75,8 +75,10 @@ class UR5ReachEnv(gymnasium.Env):
     | i   | ``torque``: torque on joint i+1, plus g(q)  | -150 (wrists -28)   | 150 (28)   | N m   |
 
     A joint PD controller with gravity compensation makes the torques (``kp``, ``kd``: poles at
-    30 rad/s), saturated at the URDF effort limits (150, 150, 150, 28, 28, 28 N m); joints
-    n+1..6 are held at their start angles by the same PD. Pinocchio's ABA integrates the whole
+    30 rad/s), saturated at the URDF effort limits (150, 150, 150, 28, 28, 28 N m). Joints
+    n+1..6 stay at their start angles: ``held_joints`` = ``locked`` (default) welds them there
+    (out of the dynamics; the arm's inertia and gravity are the whole arm's in that pose), ``pd``
+    holds them by the same PD. Pinocchio's ABA integrates the
     arm at ``sim_hz`` = 1000 Hz (20 substeps a step, semi-implicit Euler), velocities saturated
     at the URDF limits. The URDF joint limits stop the arm dead (inelastic). The ground plane
     acts by ``contact_model``: ``stop`` (default) stops the whole arm dead for the rest of the
@@ -86,11 +88,11 @@ class UR5ReachEnv(gymnasium.Env):
     in Gazebo; about 1 mm deep under the arm's weight). No link ends a step more than
     ``contact_max_depth`` = 0.02 m below the plane in either model; see :mod:`envs.dynamics`.
 
-    Held joints give way under load: this URDF gives each wrist link the inertia of a cylinder
-    of radius 0.6 m (izz = 0.219 kg m^2 for 1.219 kg), and the wrists' 28 N m cannot hold them
-    rigidly while the shoulder and elbow accelerate at full torque. With random actions a held
-    wrist swings by up to about 1 rad during fast moves and settles back at rest.
-    ``env.unwrapped.joint_angles`` gives all six angles.
+    Under ``held_joints="pd"`` the held joints give way under load: this URDF gives each wrist
+    link the inertia of a cylinder of radius 0.6 m (izz = 0.219 kg m^2 for 1.219 kg), and the
+    wrists' 28 N m cannot hold them rigidly while the shoulder and elbow accelerate at full
+    torque; with random actions a held wrist swings by up to about 1.2 rad. Under ``locked``
+    they never move. ``env.unwrapped.joint_angles`` gives all six angles.
 
     ## Observation Space
 
@@ -202,7 +204,8 @@ class UR5ReachEnv(gymnasium.Env):
     @property
     def joint_angles(self) -> np.ndarray:
         """All six joint angles now, ``(6,) float, rad`` (a copy): the observation holds only
-        joints 1..n, and the held joints n+1..6 give way under load (see Action Space)."""
+        joints 1..n (the held joints n+1..6 stay at their start angles under
+        ``held_joints="locked"`` and give way under load under ``"pd"``; see Action Space)."""
         return self._core.dynamics.q[0].copy()
 
     # ------------------------------------------------------------------ Gymnasium API
