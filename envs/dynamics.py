@@ -102,6 +102,7 @@ import numpy as np
 import pinocchio as pin
 
 import ur5kin
+from envs.arm import arm_model, moving_joints
 from envs.checks import validate
 
 if TYPE_CHECKING:
@@ -302,12 +303,6 @@ def command_bounds(task: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
     return -high, high.copy()
 
 
-def moving_joints(task: TaskSpec) -> int:
-    """Joints 1..m that are in the dynamics: n (the controlled ones) when the held joints are
-    ``locked``, all 6 when the PD holds them (``task.held_joints``)."""
-    return task.n_joints if task.held_joints == "locked" else 6
-
-
 def check_held(task: TaskSpec, q: np.ndarray) -> None:
     """Refuse configurations ``q (..., 6)`` rad whose locked joints are not at their start
     angles (the locked dynamics weld them there; ``pd`` accepts any)."""
@@ -398,27 +393,18 @@ class ArmDynamics:
         self._pool = pin.ModelPool(self.model, 1) if B > 1 else None
         self._tool = self.model.getFrameId(ur5kin.TOOL_FRAME)
         # locked held joints: Pinocchio's reduced model, joints free+1..6 welded at the start
-        self._free = moving_joints(task)
+        self._free = arm_model(task).free
         self._reduced = None
         if self._free < 6:
             self._reduced = pin.buildReducedModel(
                 self.model, list(range(self._free + 1, 7)), np.asarray(task.start_q, float))
             self._reduced.gravity = self.model.gravity
 
-        kp, kd = np.asarray(task.kp) * h * h, np.asarray(task.kd) * h
-        self._kp_eff, self._kd_eff = kp.copy(), kd.copy()
-        if task.control_mode != "position":
-            self._kp_eff[:n] = 0.0
-        if task.control_mode == "torque":
-            self._kd_eff[:n] = 0.0
-        # command -> b: kp q_cmd (position), kd (h v_cmd) (velocity), h^2 tau_cmd (torque)
-        self._command_gain = {"position": kp[:n], "velocity": kd[:n] * h,
-                              "torque": np.full(n, h * h)}[task.control_mode]
-        self._effort = ur5kin.effort_limits() * h * h
-        self._w_max = ur5kin.velocity_limits() * h
-        lo, hi = np.asarray(base.lowerPositionLimit), np.asarray(base.upperPositionLimit)
-        self._q_mid, self._q_half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        self._start_q = np.asarray(task.start_q, dtype=float)
+        arm = self.arm = arm_model(task)
+        self._command_gain = arm.command_gain
+        self._effort, self._w_max = arm.effort, arm.w_max
+        self._q_mid, self._q_half = arm.q_mid, arm.q_half
+        self._start_q = arm.start_q
         self._lipschitz = height_lipschitz()
         # no point of link k falls more than S w_max . R[:, k] within one step (after substep
         # s, |q_s - q_0| <= s w_max): links with more clearance than that skip the exact check
@@ -434,8 +420,7 @@ class ArmDynamics:
                                                 else task.contact_max_depth)
         self._touched = np.zeros(B, dtype=bool)  # a contact force acted in this step
         self._contact_tau = np.zeros(6)
-        self._w_to_v = 1.0 / h
-        self._w_to_accel = 1.0 / (h * task.dt)
+        self._w_to_v, self._w_to_accel = arm.w_to_v, arm.w_to_accel
 
         # Substep history of the rows x = [q, w, b] (w = h v; b the constant part of the
         # scaled torque within a step: kp q_ref of position control, the torque command, ...).
@@ -443,11 +428,11 @@ class ArmDynamics:
         # tau = x @ gains = b - kp_e q - kd_e w.
         self._X = np.zeros((S + 1, B, 18))
         self._Q, self._W = self._X[..., :6], self._X[..., 6:12]
-        self._X[..., 12 + n : 18] = kp[n:] * self._start_q[n:]  # held joints: PD to the start
+        self._X[..., 12 + n : 18] = arm.held_bias  # held joints: PD to the start (pd)
         self._command_bias = self._X[..., 12 : 12 + n]
         gains = np.zeros((18, 6))
-        gains[:6] = -np.diag(self._kp_eff)
-        gains[6:12] = -np.diag(self._kd_eff)
+        gains[:6] = -np.diag(arm.kp_eff)
+        gains[6:12] = -np.diag(arm.kd_eff)
         gains[12:] = np.eye(6)
         self._gains = gains
         self._tau = np.zeros((B, 6))

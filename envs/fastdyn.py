@@ -33,7 +33,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
-from envs.dynamics import height_lipschitz, moving_joints, put_at_rest
+from envs.arm import arm_model
+from envs.dynamics import height_lipschitz, put_at_rest
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -756,25 +757,16 @@ class FastArmDynamics:
                              f"path expects joint {NJ}")
         self._tool_pos = np.ascontiguousarray(tool.placement.translation, dtype=cast)
 
-        kp, kd = np.asarray(task.kp) * h * h, np.asarray(task.kd) * h
-        kp_eff, kd_eff = kp.copy(), kd.copy()
-        if task.control_mode != "position":
-            kp_eff[:n] = 0.0
-        if task.control_mode == "torque":
-            kd_eff[:n] = 0.0
-        self._kp, self._kd = kp_eff.astype(cast), kd_eff.astype(cast)
-        # command -> constant torque part b: kp q_cmd, kd (h v_cmd) or h^2 tau_cmd
-        self._command_gain = {"position": kp[:n], "velocity": kd[:n] * h,
-                              "torque": np.full(n, h * h)}[task.control_mode].astype(cast)
-        self._effort = (ur5kin.effort_limits() * h * h).astype(cast)
-        self._w_max = (ur5kin.velocity_limits() * h).astype(cast)
-        lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
-        self._q_mid, self._q_half = (0.5 * (lo + hi)).astype(cast), (0.5 * (hi - lo)).astype(cast)
-        self._start_q = np.asarray(task.start_q, dtype=float)
+        arm = self.arm = arm_model(task)
+        self._kp, self._kd = arm.kp_eff.astype(cast), arm.kd_eff.astype(cast)
+        self._command_gain = arm.command_gain.astype(cast)
+        self._effort, self._w_max = arm.effort.astype(cast), arm.w_max.astype(cast)
+        self._q_mid, self._q_half = arm.q_mid.astype(cast), arm.q_half.astype(cast)
+        self._start_q = arm.start_q
         self._bias = np.zeros((B, NJ), dtype=cast)
-        self._bias[:, n:] = kp[n:] * self._start_q[n:]  # held joints: PD to the start (pd)
-        self._free = moving_joints(task)  # locked held joints: out of the dynamics
-        self._w_to_v, self._w_to_accel = 1.0 / h, 1.0 / (h * task.dt)
+        self._bias[:, n:] = arm.held_bias  # held joints: PD to the start (pd)
+        self._free = arm.free  # locked held joints: out of the dynamics
+        self._w_to_v, self._w_to_accel = arm.w_to_v, arm.w_to_accel
 
         self.q = np.tile(self._start_q, (B, 1)).astype(cast)
         self._w = np.zeros((B, NJ), dtype=cast)

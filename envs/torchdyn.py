@@ -37,7 +37,8 @@ import torch
 
 import ur5kin
 from envs import fastdyn
-from envs.dynamics import check_held, moving_joints
+from envs.arm import arm_model
+from envs.dynamics import check_held
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -494,28 +495,19 @@ class TorchArmDynamics:
                              f"path expects joint {NJ}")
 
         def t(x: Any) -> torch.Tensor:
-            return torch.as_tensor(np.asarray(x, dtype=np.float64)).to(device=device, dtype=cast)
+            return torch.as_tensor(np.array(x, dtype=np.float64)).to(device=device, dtype=cast)
 
         self._tool_pos = t(tool.placement.translation)
-        kp, kd = np.asarray(task.kp) * h * h, np.asarray(task.kd) * h
-        kp_eff, kd_eff = kp.copy(), kd.copy()
-        if task.control_mode != "position":
-            kp_eff[:n] = 0.0
-        if task.control_mode == "torque":
-            kd_eff[:n] = 0.0
-        self._kp, self._kd = t(kp_eff), t(kd_eff)
-        # command -> constant torque part b: kp q_cmd, kd (h v_cmd) or h^2 tau_cmd
-        self._command_gain = t({"position": kp[:n], "velocity": kd[:n] * h,
-                                "torque": np.full(n, h * h)}[task.control_mode])
-        self._effort = t(ur5kin.effort_limits() * h * h)
-        self._w_max = t(ur5kin.velocity_limits() * h)
-        lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
-        self._q_mid, self._q_half = t(0.5 * (lo + hi)), t(0.5 * (hi - lo))
-        self._start_q = np.asarray(task.start_q, dtype=float)
+        arm = self.arm = arm_model(task)
+        self._kp, self._kd = t(arm.kp_eff), t(arm.kd_eff)
+        self._command_gain = t(arm.command_gain)
+        self._effort, self._w_max = t(arm.effort), t(arm.w_max)
+        self._q_mid, self._q_half = t(arm.q_mid), t(arm.q_half)
+        self._start_q = arm.start_q
         self._bias = torch.zeros((B, NJ), device=device, dtype=cast)
-        self._bias[:, n:] = t(kp[n:] * self._start_q[n:])  # held joints: PD to the start (pd)
-        self._free = moving_joints(task)  # locked held joints: out of the dynamics
-        self._w_to_v, self._w_to_accel = 1.0 / h, 1.0 / (h * task.dt)
+        self._bias[:, n:] = t(arm.held_bias)  # held joints: PD to the start (pd)
+        self._free = arm.free  # locked held joints: out of the dynamics
+        self._w_to_v, self._w_to_accel = arm.w_to_v, arm.w_to_accel
         self._gravity_comp = bool(task.gravity_compensation)
         self._base_height, self._margin = float(task.base_height), float(task.plane_margin)
 
