@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -22,6 +22,41 @@ import ur5kin
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
+
+
+class Dynamics(Protocol):
+    """What every dynamics backend of B arm copies offers the env (:class:`envs.core.ReachCore`):
+    :class:`envs.dynamics.ArmDynamics` (Pinocchio, the reference), :class:`envs.fastdyn.
+    FastArmDynamics` (numba) and :class:`envs.torchdyn.HostArrays` (torch behind numpy arrays).
+
+    ``q, v, acceleration : (B, 6) float`` (rad, rad/s, rad/s^2; the mean realised acceleration
+    of the last step), ``contact, limit_stop : (B,) bool`` (the last step stopped on the plane,
+    at a joint limit); owned by the backend and overwritten by every step.
+    """
+
+    task: TaskSpec
+    num_copies: int
+    q: Any
+    v: Any
+    acceleration: Any
+    contact: Any
+    limit_stop: Any
+
+    def reset(self, q: Any, index: Any = None) -> None:
+        """Put copies ``index`` (all when None) at rest at ``q (6,)`` or ``(m, 6)`` rad."""
+
+    def step(self, command: np.ndarray) -> None:
+        """One control step; ``command (B, n)`` in the control mode's unit, within its box."""
+
+    def tool_positions(self, out: np.ndarray) -> np.ndarray:
+        """Write tool0's world position ``(B, 3)`` m into ``out`` and return it."""
+
+
+def moving_link_heights(q: Any, base_height: float) -> np.ndarray:
+    """Exact lowest point ``(..., 6)`` (m, world z) of each moving link (shoulder_link ..
+    wrist_3_link) for configurations ``q (..., 6)`` rad: :func:`ur5kin.link_heights` without
+    the fixed base link."""
+    return ur5kin.link_heights(q, base_height)[..., 1:]
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,6 +15,7 @@ import gymnasium
 import numpy as np
 
 import ur5kin
+from envs.arm import Dynamics, moving_link_heights
 from envs.checks import validate
 from envs.dynamics import ArmDynamics, clip, command_bounds
 from envs.spec import TaskSpec
@@ -29,9 +30,9 @@ class ReachCore:
     task : TaskSpec
     num_copies : int
         B.
-    dynamics : object, optional
-        The arm's dynamics for the B copies: an :class:`envs.dynamics.ArmDynamics` (built when
-        None) or anything with its attributes and methods (:class:`envs.fastdyn.FastArmDynamics`).
+    dynamics : Dynamics, optional
+        The arm's dynamics for the B copies: any backend of the :class:`envs.arm.Dynamics`
+        protocol (an :class:`envs.dynamics.ArmDynamics` is built when None).
 
     Attributes
     ----------
@@ -56,7 +57,8 @@ class ReachCore:
     Arrays are overwritten in place by every call; copy what you keep.
     """
 
-    def __init__(self, task: TaskSpec, num_copies: int, dynamics: Any = None) -> None:
+    def __init__(self, task: TaskSpec, num_copies: int, dynamics: Dynamics | None = None
+                 ) -> None:
         self.task = validate(task)
         n, B = task.n_joints, num_copies
         self.rules = ReachTask(task)
@@ -147,7 +149,7 @@ class ReachCore:
 
         Exact (one link-height evaluation per copy), not the dynamics' conservative bound.
         """
-        return self.dynamics._link_heights(self.dynamics.q).min(axis=-1)
+        return moving_link_heights(self.dynamics.q, self.task.base_height).min(axis=-1)
 
     def info_arrays(self) -> dict[str, Any]:
         """Per-copy step information now, :meth:`envs.task.ReachTask.info` of the B copies."""

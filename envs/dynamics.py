@@ -102,7 +102,7 @@ import numpy as np
 import pinocchio as pin
 
 import ur5kin
-from envs.arm import arm_model, moving_joints
+from envs.arm import arm_model, moving_joints, moving_link_heights
 from envs.checks import validate
 
 if TYPE_CHECKING:
@@ -317,7 +317,8 @@ def put_at_rest(dyn: Any, q: Any, index: Any) -> Any:
     """The reset every dynamics shares: copies ``index`` of ``dyn`` at rest at ``q``.
 
     ``dyn`` is :class:`ArmDynamics` or :class:`envs.fastdyn.FastArmDynamics` (the same state
-    arrays). Returns the selection, so the caller can reset its own state too.
+    arrays, ``_w`` and ``_clearance`` included: this function is their shared reset).
+    Returns the selection, so the caller can reset its own state too.
 
     Raises
     ------
@@ -328,7 +329,7 @@ def put_at_rest(dyn: Any, q: Any, index: Any) -> Any:
     sel = slice(None) if index is None else index
     q = np.asarray(q, dtype=float)
     check_held(dyn.task, q)
-    heights = dyn._link_heights(q)
+    heights = moving_link_heights(q, dyn.task.base_height)
     if np.any(heights < dyn.task.plane_margin):
         raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
                          f"{heights.min():.4f} m, below the plane margin "
@@ -449,7 +450,8 @@ class ArmDynamics:
         self.contact = np.zeros(B, dtype=bool)
         self.limit_stop = np.zeros(B, dtype=bool)
         self.depth_stop = np.zeros(B, dtype=bool)
-        self._clearance = np.tile(self._link_heights(self._start_q), (B, 1))  # (B, 6) lower bounds
+        self._clearance = np.tile(moving_link_heights(self._start_q, task.base_height),
+                                  (B, 1))  # (B, 6) lower bounds
 
         X = self._X[:, 0] if B == 1 else self._X  # 1-D rows for Pinocchio's single calls
         self._rows = [(X[s], X[s, ..., :6], X[s, ..., 6:12], X[s + 1, ..., :6],
@@ -510,10 +512,6 @@ class ArmDynamics:
             return out
 
         return accel_many
-
-    def _link_heights(self, q: np.ndarray) -> np.ndarray:
-        """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""
-        return ur5kin.link_heights(q, self.task.base_height)[..., 1:]
 
     # ------------------------------------------------------------------ public API
     def reset(self, q: Any, index: Any = None) -> None:
@@ -682,7 +680,7 @@ class ArmDynamics:
                 stop_limit = int(np.argmax(beyond)) - 1
         heights = None
         if (self._clearance[0] < self._plane_screen).any():
-            heights = self._link_heights(Q)  # (S+1, 6): one call for all substeps
+            heights = moving_link_heights(Q, self.task.base_height)  # (S+1, 6): one call
             below = heights.min(axis=-1) < level
             below[0] = False  # the step's start state is clear by construction
             if below.any():
@@ -710,7 +708,8 @@ class ArmDynamics:
         if risky.any():
             idx = np.flatnonzero(risky)
             per_call = max(1, CLEARANCE_BATCH // (S + 1))  # copies per link_heights call
-            heights = np.concatenate([self._link_heights(Q[:, idx[i : i + per_call]])
+            heights = np.concatenate([moving_link_heights(Q[:, idx[i : i + per_call]],
+                                                          self.task.base_height)
                                       for i in range(0, len(idx), per_call)], axis=1)
             below = heights.min(axis=-1) < self._stop_level
             below[0] = False  # the step's start state is clear by construction

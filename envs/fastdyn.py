@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
-from envs.arm import arm_model
+from envs.arm import arm_model, moving_link_heights
 from envs.dynamics import height_lipschitz, put_at_rest
 
 if TYPE_CHECKING:
@@ -775,13 +775,10 @@ class FastArmDynamics:
         self.acceleration = np.zeros((B, NJ), dtype=cast)
         self.contact = np.zeros(B, dtype=bool)
         self.limit_stop = np.zeros(B, dtype=bool)
-        self._clearance = np.tile(self._link_heights(self._start_q), (B, 1)).astype(cast)
+        self._clearance = np.tile(moving_link_heights(self._start_q, task.base_height),
+                                  (B, 1)).astype(cast)
         self._tool = np.zeros((B, 3), dtype=cast)
         self._update_tools(np.arange(B))
-
-    def _link_heights(self, q: np.ndarray) -> np.ndarray:
-        """Exact lowest point ``(..., 6)`` (m, world z) of each moving link for ``q (..., 6)``."""
-        return ur5kin.link_heights(q, self.task.base_height)[..., 1:]
 
     def _update_tools(self, rows: np.ndarray) -> None:
         c = self._chain

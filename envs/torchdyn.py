@@ -37,7 +37,7 @@ import torch
 
 import ur5kin
 from envs import fastdyn
-from envs.arm import arm_model
+from envs.arm import arm_model, moving_link_heights
 from envs.dynamics import check_held
 
 if TYPE_CHECKING:
@@ -643,10 +643,6 @@ class TorchArmDynamics:
             out.copy_(self._tool)
         return out
 
-    def _link_heights(self, q: np.ndarray) -> np.ndarray:
-        """Exact lowest point ``(..., 6)`` (m, world z) of each moving link, on the host."""
-        return ur5kin.link_heights(q, self.task.base_height)[..., 1:]
-
     def reset(self, q: Any, index: Any = None) -> None:
         """Put copies at rest at configurations ``q`` (as :meth:`envs.dynamics.ArmDynamics.reset`).
 
@@ -665,7 +661,7 @@ class TorchArmDynamics:
         """
         q = np.asarray(q.cpu() if isinstance(q, torch.Tensor) else q, dtype=float)
         check_held(self.task, q)
-        heights = self._link_heights(q)
+        heights = moving_link_heights(q, self.task.base_height)  # on the host
         if np.any(heights < self.task.plane_margin):
             raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
                              f"{heights.min():.4f} m, below the plane margin "
@@ -752,6 +748,3 @@ class HostArrays:
         """Write tool0's world position ``(B, 3)`` m into ``out``."""
         out[:] = self._tool
         return out
-
-    def _link_heights(self, q: np.ndarray) -> np.ndarray:
-        return self.dyn._link_heights(q)
