@@ -12,47 +12,65 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from envs import fastdyn
+from envs.arm import Dynamics
 from envs.core import ReachCore
 from envs.dynamics import ArmDynamics
 from envs.reach import RENDER_MODES, make_task, real_actions
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
 from envs.task import INFO_KEYS
 
-DYNAMICS = ("auto", "fast", "pinocchio", "torch", "torch-cuda")
-"""Values of BatchedReach's ``dynamics`` option: ``fast`` is :class:`envs.fastdyn.
-FastArmDynamics` (one compiled call per step), ``pinocchio`` the reference
-:class:`envs.dynamics.ArmDynamics` (Pinocchio's ``abaInParallel`` in a Python substep loop),
-``torch`` / ``torch-cuda`` :class:`envs.torchdyn.TorchArmDynamics` on the CPU / the GPU (its
-state copied to the host every step, :class:`envs.torchdyn.HostArrays`; never chosen by
-``auto``: on the CPU it is far slower than ``fast``), ``auto`` the fast path for N > 1 where it
-is available and implements the task, else pinocchio."""
+DYNAMICS = ("auto", "pinocchio", "numba", "torch")
+"""Dynamics backends, named for their tool (BatchedReach's ``dynamics`` option; the device is
+its own option): ``pinocchio`` the reference :class:`envs.dynamics.ArmDynamics` (Pinocchio's
+``abaInParallel`` in a Python substep loop), ``numba`` :class:`envs.fastdyn.FastArmDynamics`
+(one compiled call per step), ``torch`` :class:`envs.torchdyn.TorchArmDynamics` on ``device``
+(its state copied to the host every step, :class:`envs.torchdyn.HostArrays`; never chosen by
+``auto``: on the CPU it is far slower than ``numba``), ``auto`` numba for N > 1 where it is
+available and implements the task, else pinocchio."""
+
+RENAMED_DYNAMICS = {"fast": "numba", "torch-cuda": "torch"}
+"""Former backend names, for the message that gives the new spelling."""
 
 
-def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto", threads: int = 1
-                  ) -> Any:
-    """The arm dynamics of ``num_copies`` copies of ``task`` for a ``dynamics`` choice.
+def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto",
+                  device: str = "cpu", threads: int = 1) -> Dynamics:
+    """The arm dynamics of ``num_copies`` copies of ``task``: the one place a backend is chosen.
 
-    ``threads`` goes to :class:`envs.fastdyn.FastArmDynamics` (the Pinocchio path uses one).
+    Parameters
+    ----------
+    dynamics : one of :data:`DYNAMICS`
+        The backend, named for its tool.
+    device : str
+        Where the ``torch`` backend runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``); the others run
+        on the CPU and accept ``"cpu"`` only.
+    threads : int
+        CPU threads of the numba backend (the Pinocchio loop uses one).
 
     Raises
     ------
     ValueError
-        When ``dynamics`` is not one of :data:`DYNAMICS`, or is ``"fast"`` where the fast path
-        is unavailable (numba missing) or does not implement the task (its contact model), or
-        a torch choice where TorchArmDynamics does not implement it or there is no GPU.
+        When ``dynamics`` is not one of :data:`DYNAMICS` (a former name gets its new one), a
+        CPU backend is given another device, or the backend cannot run the task here (numba
+        missing, a contact model it does not implement, no GPU).
     """
+    if dynamics in RENAMED_DYNAMICS:
+        raise ValueError(f"dynamics={dynamics!r} is now dynamics="
+                         f"{RENAMED_DYNAMICS[dynamics]!r}" + (", device='cuda'"
+                                                              if dynamics == "torch-cuda" else ""))
     if dynamics not in DYNAMICS:
         raise ValueError(f"dynamics must be one of {list(DYNAMICS)}; got {dynamics!r}")
-    if dynamics.startswith("torch"):
-        from envs import torchdyn  # torch is loaded only for these choices
+    if dynamics == "torch":
+        from envs import torchdyn  # torch is loaded only for this choice
 
-        device = "cuda" if dynamics == "torch-cuda" else "cpu"
         return torchdyn.HostArrays(torchdyn.TorchArmDynamics(task, num_copies, device=device))
+    if str(device) != "cpu":
+        raise ValueError(f"dynamics={dynamics!r} runs on the CPU only; got device={device!r} "
+                         "(dynamics='torch' runs on other devices)")
     fast_ok = fastdyn.available() and fastdyn.supports(task)
-    if dynamics == "fast" and not fast_ok:
-        raise ValueError("dynamics='fast' needs numba and the stop contact model; use "
+    if dynamics == "numba" and not fast_ok:
+        raise ValueError("dynamics='numba' needs numba and the stop contact model; use "
                          "'pinocchio' (or 'auto')")
-    if dynamics == "fast" or (dynamics == "auto" and fast_ok and num_copies > 1):
+    if dynamics == "numba" or (dynamics == "auto" and fast_ok and num_copies > 1):
         return fastdyn.FastArmDynamics(task, num_copies, threads=threads)
     return ArmDynamics(task, num_copies)
 
@@ -95,9 +113,11 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         - ``disabled``: never reset automatically; call ``reset(options={"reset_mask": done})``.
     render_mode : {"rgb_array", "human"}, optional
         ``render()`` draws every copy (one frame each).
-    dynamics : {"auto", "fast", "pinocchio", "torch", "torch-cuda"}
-        Which implementation advances the arms (:data:`DYNAMICS`); the same physics to
-        floating-point rounding. ``auto`` (default) takes the compiled fast path for N > 1.
+    dynamics : {"auto", "pinocchio", "numba", "torch"}
+        Which backend advances the arms (:data:`DYNAMICS`); the same physics to
+        floating-point rounding. ``auto`` (default) takes the compiled numba path for N > 1.
+    device : str
+        Where the ``torch`` backend runs (default ``"cpu"``; ``"cuda"`` for a GPU).
     threads : int
         CPU threads of the fast path (default 1: the two-core machines this runs on share
         their cores with the learner; more pay on many-core hosts at large N).
@@ -108,8 +128,8 @@ class BatchedReach(gymnasium.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, dynamics: str = "auto", threads: int = 1,
-                 **overrides: Any) -> None:
+                 render_mode: str | None = None, dynamics: str = "auto", device: str = "cpu",
+                 threads: int = 1, **overrides: Any) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
         mode = _autoreset_mode(autoreset_mode)
@@ -126,7 +146,8 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
                          "render_fps": self.task.control_hz}
         self._core = ReachCore(self.task, self.num_envs,
-                               make_dynamics(self.task, self.num_envs, dynamics, threads))
+                               make_dynamics(self.task, self.num_envs, dynamics, device,
+                                             threads))
         self.single_observation_space, self.single_action_space = self._core.single_spaces()
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)

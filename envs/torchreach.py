@@ -177,7 +177,7 @@ class TorchReach:
     """N copies of ``UR5Reach-v0`` as tensors on one device: BatchedReach with torch in and out.
 
     Given the same goals and actions, every step equals :class:`envs.batched.BatchedReach`'s
-    (``dynamics="fast"``) to floating-point rounding (tested to 1e-9 in float64); with
+    (``dynamics="numba"``) to floating-point rounding (tested to 1e-9 in float64); with
     ``goal_source="per_copy"`` the same seed gives the same goals too.
 
     Action Space

@@ -97,6 +97,12 @@ def test_bad_inputs_are_refused():
         fastdyn.FastArmDynamics(TaskSpec(), 0)
     with pytest.raises(ValueError, match="dynamics must be one of"):
         make_dynamics(TaskSpec(), 2, "mujoco")
+    with pytest.raises(ValueError, match="dynamics='fast' is now dynamics='numba'"):
+        make_dynamics(TaskSpec(), 2, "fast")
+    with pytest.raises(ValueError, match="runs on the CPU only"):
+        make_dynamics(TaskSpec(), 2, "numba", device="cuda")
+    assert isinstance(make_dynamics(TaskSpec(), 2, "numba"), fastdyn.FastArmDynamics)
+    assert isinstance(make_dynamics(TaskSpec(), 2, "pinocchio"), ArmDynamics)
 
 
 # ------------------------------------------------------------------ whole control steps

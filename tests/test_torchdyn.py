@@ -318,8 +318,7 @@ def test_batched_env_on_the_torch_path_is_the_default_one(device):
     import envs
 
     task = TaskSpec(region="unconstrained", n_joints=3)
-    choice = "torch" if device == "cpu" else "torch-cuda"
-    env = envs.BatchedReach(8, task, dynamics=choice)
+    env = envs.BatchedReach(8, task, dynamics="torch", device=device)
     assert isinstance(env._core.dynamics, torchdyn.HostArrays)
     assert env._core.dynamics.dyn.device.type == device
     default = rollout(envs.BatchedReach(8, task), 30, seed=5)

@@ -2,7 +2,7 @@
 
 Two paths: the tensor reward against envs.reward.compute_reward on random values, and whole
 rollouts (autoresets, plane contacts, successes, goal-pool top-ups) step for step against
-BatchedReach(dynamics="fast") with the same goals and actions. The goals are the task sampler's
+BatchedReach(dynamics="numba") with the same goals and actions. The goals are the task sampler's
 own draws (same generator, same goals), a seed fixes everything, and ``step`` reads nothing back
 from the device (checked on the CPU by forbidding the reads, and on CUDA by torch's sync debug
 mode where a GPU is present).
@@ -121,7 +121,7 @@ def test_a_rollout_equals_batched_reach_step_for_step(name, mode):
     num, steps = 4, 30
     kwargs = dict(autoreset_mode=mode, **SPECS[name])
     tenv = TorchReach(num, goal_source="per_copy", goal_pool=2, **kwargs)
-    nenv = BatchedReach(num, dynamics="fast", **kwargs)
+    nenv = BatchedReach(num, dynamics="numba", **kwargs)
     t_obs, _ = tenv.reset(seed=5)
     n_obs, _ = nenv.reset(seed=5)
     for key, value in n_obs.items():
