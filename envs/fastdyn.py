@@ -349,31 +349,26 @@ def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u,
         pA[i, 4] = w2 * h3 - w0 * h5 + vi[2] * h0 - vi[0] * h2
         pA[i, 5] = w0 * h4 - w1 * h3 + vi[0] * h1 - vi[1] * h0
     # pass 2: articulated inertias and bias forces, tip to base
+    inv_d = 0.0
     for i in range(5, -1, -1):
-        if i >= free:  # locked: the body rides on its parent, pa = pA + IA c, Ia = IA
+        moving = i < free  # a locked body rides on its parent whole: Ia = IA, pa = pA + IA c
+        if moving:
+            ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
             for r in range(6):
-                s = pA[i, r]
+                U[i, r] = IA[i, r, 3] * ax + IA[i, r, 4] * ay + IA[i, r, 5] * az
+            D[i] = U[i, 3] * ax + U[i, 4] * ay + U[i, 5] * az + armature[i]
+            u[i] = tau[i] - (pA[i, 3] * ax + pA[i, 4] * ay + pA[i, 5] * az)
+            if i == 0:
+                break
+            inv_d = 1.0 / D[i]
+            for r in range(6):
                 for k in range(6):
-                    s += IA[i, r, k] * cb[i, k]
-                Y[1, r] = s
-            _force_act(R[i], p[i], Y[1], pA[i - 1])
-            _rotate_blocks(R[i], IA[i], X, Y)
-            _shift_into(p[i], Y, X, IA[i - 1])
-            continue
-        ax, ay, az = axis[i, 0], axis[i, 1], axis[i, 2]
+                    IA[i, r, k] -= U[i, r] * U[i, k] * inv_d
+        # Ia = IA - U U^T / D (above); pa = pA + Ia c + U u / D, carried to the parent
         for r in range(6):
-            U[i, r] = IA[i, r, 3] * ax + IA[i, r, 4] * ay + IA[i, r, 5] * az
-        D[i] = U[i, 3] * ax + U[i, 4] * ay + U[i, 5] * az + armature[i]
-        u[i] = tau[i] - (pA[i, 3] * ax + pA[i, 4] * ay + pA[i, 5] * az)
-        if i == 0:
-            break
-        inv_d = 1.0 / D[i]
-        # Ia = IA - U U^T / D; pa = pA + Ia c + U u / D, carried to the parent
-        for r in range(6):
-            for k in range(6):
-                IA[i, r, k] -= U[i, r] * U[i, k] * inv_d
-        for r in range(6):
-            s = pA[i, r] + U[i, r] * u[i] * inv_d
+            s = pA[i, r]
+            if moving:
+                s += U[i, r] * u[i] * inv_d
             for k in range(6):
                 s += IA[i, r, k] * cb[i, k]
             Y[1, r] = s
