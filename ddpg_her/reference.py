@@ -2,7 +2,8 @@
 
 It is the second code path for the stacked agent of `ddpg_her.agent`, which writes its gradients
 by hand: ``tests/test_ddpg_agent.py`` checks K stacked agents against K of these to 1e-10 in
-float64, and ``python -m ddpg_her.bench`` times it as the plain-PyTorch peer of our update.
+float64, and ``python -m benchmarks.agent_updates`` times it as the plain-PyTorch peer of our
+update.
 The update is the same algorithm: critic first, then the actor ascends the updated critic, then
 the soft target update.
 """

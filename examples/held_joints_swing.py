@@ -41,12 +41,16 @@ def swing(region: str, held: str, joints: int, episodes: int, seed: int
     return dev, shift
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--episodes", type=int, default=20, help="episodes per region and hold")
-    parser.add_argument("--joints", type=int, default=3, help="controlled joints n, 2..5")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode")
-    args = parser.parse_args()
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python examples/held_joints_swing.py",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--episodes", type=int, default=20,
+                        help="episodes per region and hold, >= 1 (default: %(default)s)")
+    parser.add_argument("--joints", type=int, default=3,
+                        help="controlled joints n, 2..5 (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the first episode, >= 0 (default: %(default)s)")
+    args = parser.parse_args(argv)
     if not 2 <= args.joints <= 5 or args.episodes < 1:
         parser.error("--joints must be 2..5 (6 holds no joint) and --episodes >= 1")
     print(f"{'region':14s} {'held':7s} {'median dev':>10s} {'max dev':>8s} "

@@ -65,8 +65,12 @@ def _is_script(path: Path) -> bool:
 
 
 def cli_modules(root: Path = ROOT) -> list[str]:
-    """``python -m`` entry points of the five packages, e.g. ``"ddpg_her.train"``."""
-    return [name for name, path in package_modules(root).items() if _is_script(path)]
+    """``python -m`` entry points of the five packages and of ``benchmarks/``, e.g.
+    ``"ddpg_her.train"``, ``"benchmarks.env_steps"``."""
+    benches = {f"benchmarks.{p.stem}": p for p in sorted((root / "benchmarks").glob("*.py"))
+               if p.stem != "__init__"}
+    return [name for name, path in {**package_modules(root), **benches}.items()
+            if _is_script(path)]
 
 
 def example_scripts(root: Path = ROOT) -> list[str]:

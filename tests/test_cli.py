@@ -71,8 +71,9 @@ def test_every_flag_has_help_and_numbers_have_a_unit_or_range(target):
 
 def test_the_command_lines_are_all_found():
     """The discovery finds the known entry points (so the parametrised tests are not empty)."""
-    assert {"ddpg_her.train", "analysis.sweep", "analysis.region_volumes", "envs.bench",
-            "ur5kin.bench", "regions.bench", "examples/animate_episode.py"} <= set(CLIS)
+    assert {"ddpg_her.train", "analysis.sweep", "analysis.region_volumes", "benchmarks.env_steps",
+            "benchmarks.fk_paths", "benchmarks.goal_sampling", "benchmarks.agent_updates",
+            "examples/animate_episode.py", "examples/ur5kin_tour.py"} <= set(CLIS)
 
 
 # --- examples -------------------------------------------------------------------------------

@@ -1,11 +1,12 @@
-"""ddpg_her.bench: the machine peak (its FLOP count, its rate on the CPU, and with a GPU that it
-measures the device the update runs on), and the rollout timing of the two host env backends."""
+"""benchmarks.agent_updates: the machine peak (its FLOP count, its rate on the CPU, and with a GPU
+that it measures the device the update runs on), and the rollout timing of the two host env
+backends."""
 
 import pytest
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from ddpg_her import bench
+from benchmarks import agent_updates as bench
 
 
 @pytest.mark.parametrize("n", [3, 64, 200])

@@ -260,9 +260,10 @@ def cli(*args, cwd=None):
 
 @pytest.mark.slow
 def test_bench_prints_every_figure_as_json():
-    """A smoke run of python -m ddpg_her.bench (slow: SB3 and the matmul peak, about 15 s)."""
+    """A smoke run of python -m benchmarks.agent_updates (slow: SB3 and the matmul peak, about
+    15 s)."""
     out = subprocess.run(
-        [sys.executable, "-m", "ddpg_her.bench", "--seeds", "2", "--updates", "3",
+        [sys.executable, "-m", "benchmarks.agent_updates", "--seeds", "2", "--updates", "3",
          "--rounds", "2", "--fill-episodes", "1", "--threads", "1", "--json"],
         capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr

@@ -18,7 +18,7 @@ def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 
 
 def test_bench_help_explains_every_flag():
-    out = run("-m", "envs.bench", "--help")
+    out = run("-m", "benchmarks.env_steps", "--help")
     assert out.returncode == 0, out.stderr
     for flag in ("--steps", "--rounds", "--num-envs", "--region", "--n-joints",
                  "--control-mode", "--peer", "--seed", "--json", "--device", "--reference",
@@ -27,7 +27,7 @@ def test_bench_help_explains_every_flag():
 
 
 def test_bench_runs_and_prints_json():
-    out = run("-m", "envs.bench", "--steps", "40", "--rounds", "1", "--num-envs", "2",
+    out = run("-m", "benchmarks.env_steps", "--steps", "40", "--rounds", "1", "--num-envs", "2",
               "--peer", "none", "--json")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
@@ -66,7 +66,7 @@ def test_contact_study_runs_and_prints_json():
 
 
 def test_bench_times_the_torch_dynamics_beside_the_numba_ones():
-    out = run("-m", "envs.bench", "--steps", "16", "--rounds", "1", "--num-envs", "4",
+    out = run("-m", "benchmarks.env_steps", "--steps", "16", "--rounds", "1", "--num-envs", "4",
               "--device", "cpu", "--sync", "0", "--reference", "0", "--peer", "none", "--json")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
@@ -82,5 +82,5 @@ def test_bench_refuses_cuda_without_a_gpu_with_the_reason():
 
     if torch.cuda.is_available():
         pytest.skip("torch sees a GPU: nothing to refuse")
-    out = run("-m", "envs.bench", "--device", "cuda", "--peer", "none")
+    out = run("-m", "benchmarks.env_steps", "--device", "cuda", "--peer", "none")
     assert out.returncode != 0 and "sees no CUDA device" in out.stderr

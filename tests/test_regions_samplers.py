@@ -104,7 +104,7 @@ def test_cartesian_goals_are_uniform_in_a_reachable_box() -> None:
 
 @pytest.mark.parametrize("cls", [JointSpaceSampler, CartesianSampler])
 def test_unreachable_region_fails_at_construction(cls) -> None:
-    # How fast it fails is measured by python -m regions.bench, not asserted here.
+    # How fast it fails is measured by python -m benchmarks.goal_sampling, not asserted here.
     with pytest.raises(UnreachableRegionError, match=r"no goals reachable|outside the box"):
         cls(regions.parse("box:-0.2,0.2,-0.2,0.2,5,6"), 3, CONSTRAINED_START)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -315,13 +316,18 @@ def test_geometry_rejects_a_model_of_another_layout() -> None:
         ur5kin.UR5Geometry.from_model(model)
 
 
+ROOT = Path(__file__).resolve().parents[1]
+
+
 def _run_module(*args: str) -> subprocess.CompletedProcess:
+    """``python -m`` from the repository root (benchmarks/ is not an installed package)."""
     return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
-                          timeout=120, check=True)
+                          timeout=120, check=True, cwd=ROOT)
 
 
 def test_bench_cli_reports_every_path_against_the_loop() -> None:
-    out = json.loads(_run_module("ur5kin.bench", "--n", "3000", "--rounds", "1", "--json").stdout)
+    out = json.loads(_run_module("benchmarks.fk_paths", "--n", "3000", "--rounds", "1",
+                                 "--json").stdout)
     paths = {p["name"]: p for p in out["paths"]}
     assert paths["pinocchio python loop"]["ratio_to_loop"] == pytest.approx(1.0)
     assert {"numpy closed form (float64)", "torch cpu float64", "torch cpu float32"} <= set(paths)
@@ -329,11 +335,12 @@ def test_bench_cli_reports_every_path_against_the_loop() -> None:
 
 
 def test_bench_cli_rejects_bad_flags() -> None:
-    proc = subprocess.run([sys.executable, "-m", "ur5kin.bench", "--n", "0"],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.fk_paths", "--n", "0"],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 2 and "--n" in proc.stderr
 
 
 def test_demo_cli_runs() -> None:
-    out = _run_module("ur5kin.demo", "--batch", "1000").stdout
+    out = subprocess.run([sys.executable, str(ROOT / "examples" / "ur5kin_tour.py"), "--batch",
+                          "1000"], capture_output=True, text=True, timeout=120, check=True).stdout
     assert "constrained start" in out and "IK of a random pose" in out

@@ -1,6 +1,6 @@
 """Forward-kinematics throughput: Pinocchio's Python loop against the batched closed form.
 
-    python -m ur5kin.bench [--n 1000000] [--rounds 3] [--json]
+    python -m benchmarks.fk_paths [--n 1000000] [--rounds 3] [--json]
 
 Every path computes the tool0 position of the same random configurations. Paths are measured in
 interleaved rounds and the best round of each is kept, so the ratios compare paths that ran
@@ -74,7 +74,8 @@ def measure(n: int, rounds: int, seed: int, show_progress: bool = True) -> list[
     best = dict.fromkeys(paths, float("inf"))
     errors: dict[str, float] = {}
     steps = [(r, name) for r in range(rounds) for name in paths]
-    for _, name in tqdm(steps, desc="ur5kin.bench", disable=not show_progress, file=sys.stderr):
+    for _, name in tqdm(steps, desc="benchmarks.fk_paths", disable=not show_progress,
+                        file=sys.stderr):
         func, arg = paths[name]
         start = time.perf_counter()
         out = func(arg)
@@ -90,7 +91,7 @@ def measure(n: int, rounds: int, seed: int, show_progress: bool = True) -> list[
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m ur5kin.bench",
+        prog="python -m benchmarks.fk_paths",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

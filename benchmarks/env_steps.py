@@ -18,10 +18,11 @@ beside it; a third times the whole torch env (:class:`envs.torchreach.TorchReach
 on the device, autoreset and goal-pool top-ups on the clock). On CUDA the clock is read after
 ``torch.cuda.synchronize()``.
 
-    python -m envs.bench                 # the table
-    python -m envs.bench --json          # machine-readable
-    python -m envs.bench --num-envs 4096 --peer none --sync 0   # a large batch
-    python -m envs.bench --device cpu --steps 200 --rounds 3 --sync 0 --reference 0 --peer none
+    python -m benchmarks.env_steps                 # the table
+    python -m benchmarks.env_steps --json          # machine-readable
+    python -m benchmarks.env_steps --num-envs 4096 --peer none --sync 0   # a large batch
+    python -m benchmarks.env_steps --device cpu --steps 200 --rounds 3 --sync 0 --reference 0 \
+        --peer none
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from envs.spec import TaskSpec
 
 @dataclass(frozen=True)
 class BenchConfig:
-    """What ``python -m envs.bench`` measures (each field is a command-line flag)."""
+    """What ``python -m benchmarks.env_steps`` measures (each field is a command-line flag)."""
 
     steps: int = 2000
     """Env steps per round for the single env and the peer (the batched rows take
@@ -347,7 +348,7 @@ def format_table(result: dict[str, Any]) -> str:
 def build_parser() -> argparse.ArgumentParser:
     """The command line: one flag per :class:`BenchConfig` field."""
     parser = argparse.ArgumentParser(
-        prog="python -m envs.bench", description=__doc__.split("\n\n")[0],
+        prog="python -m benchmarks.env_steps", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     d = BenchConfig()
     parser.add_argument("--steps", type=int, default=d.steps,

@@ -1,4 +1,4 @@
-"""Timings and sampler comparison of the regions package: ``python -m regions.bench``.
+"""Timings and sampler comparison of the regions package: ``python -m benchmarks.goal_sampling``.
 
 Prints the time to draw goals (the issue's figure: 10,000 farbox goals with 3 joints), the cost
 of one plane-clearance call on the env's (20, 6) batch of sub-step configurations, how long a
@@ -99,9 +99,9 @@ def compare_samplers(joints: Sequence[int], goals: int, seed: int, progress: boo
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m regions.bench``."""
+    """Entry point of ``python -m benchmarks.goal_sampling``."""
     parser = argparse.ArgumentParser(
-        prog="python -m regions.bench", description=__doc__.split("\n\n")[0],
+        prog="python -m benchmarks.goal_sampling", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--goals", type=int, default=10_000,
                         help="goals per timed draw and per sampler comparison row")

@@ -1,4 +1,5 @@
-"""``python -m ddpg_her.bench``: how fast the DDPG update runs, against SB3 and the machine's peak.
+"""``python -m benchmarks.agent_updates``: how fast the DDPG update runs, against SB3 and the
+machine's peak.
 
 Measured in one process with the same torch thread count, ours and SB3 in alternating rounds
 (medians of the rounds; the speed-up is the median of each round's pair, so drifts of a shared
@@ -290,7 +291,7 @@ def measure_rollouts(k: int, joints: int, rounds: int) -> dict[str, float]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m ddpg_her.bench",
+        prog="python -m benchmarks.agent_updates",
         description="Agent-updates per second of our batched DDPG update next to Stable-"
                     "Baselines3's DDPG + HER and a plain PyTorch DDPG on the same env, and the "
                     "update's GFLOP/s against the machine's float32 matrix-product peak, all "

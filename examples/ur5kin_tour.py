@@ -1,6 +1,6 @@
 """A short tour of ur5kin: where the paper's start poses put tool0, IK round trips, batched FK.
 
-    python -m ur5kin.demo
+    python examples/ur5kin_tour.py
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ START_POSES = {
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m ur5kin.demo", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python examples/ur5kin_tour.py", description=__doc__)
     parser.add_argument("--batch", type=int, default=200_000,
                         help="configurations in the batched-FK timing (count)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random configurations")
@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> None:
     ur5kin.fk(batch)
     elapsed = time.perf_counter() - start
     print(f"batched FK: {args.batch:,} configurations in {elapsed * 1e3:.1f} ms "
-          f"({args.batch / elapsed / 1e6:.1f} M/s); python -m ur5kin.bench compares all paths")
+          f"({args.batch / elapsed / 1e6:.1f} M/s); python -m benchmarks.fk_paths compares all "
+          "paths")
 
 
 if __name__ == "__main__":
