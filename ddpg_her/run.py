@@ -45,17 +45,25 @@ class TrainedPolicy:
         """A fresh copy of the env the policy was trained on (``gymnasium.make`` with the run's
         env id and arguments; ``kwargs`` go to ``gymnasium.make`` too, e.g. ``render_mode``).
 
-        Where the run recorded its env's whole task (``spec.json``'s ``task``), the env gets
-        that record as ``spec=``: the arguments alone would take today's defaults for fields
-        that a run of an older version did not name (the env reads a record as of its time)."""
+        Where the run recorded its env's whole task (``spec.json``'s ``task``) and the env
+        takes a task record (a ``spec`` parameter, as UR5Reach-v0 does), the env gets that record
+        as ``spec=``: the arguments alone would take today's defaults for fields that a run of
+        an older version did not name (the env reads a record as of its time)."""
+        import inspect
+
         import gymnasium
+        from gymnasium.envs.registration import load_env_creator
 
         from ddpg_her.vecenv import register_env
 
+        env_id = register_env(self.spec["env_id"])
         env_kwargs = dict(self.spec["env_kwargs"])
-        if self.spec.get("task") and "spec" not in env_kwargs:
+        entry = gymnasium.spec(env_id).entry_point
+        creator = load_env_creator(entry) if isinstance(entry, str) else entry
+        if (self.spec.get("task") and "spec" not in env_kwargs
+                and "spec" in inspect.signature(creator).parameters):
             env_kwargs["spec"] = self.spec["task"]
-        return gymnasium.make(register_env(self.spec["env_id"]), **env_kwargs, **kwargs)
+        return gymnasium.make(env_id, **env_kwargs, **kwargs)
 
     @torch.no_grad()
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -137,20 +137,43 @@ def action_penalty_scale(task: TaskSpec) -> np.ndarray:
     return command_bounds(task)[1]
 
 
-def reach_reward(distance: np.ndarray, action: np.ndarray | None, task: TaskSpec) -> np.ndarray:
-    """The task's reward for distances ``(...)`` m and actions ``(..., n)`` (None if sparse).
+def reach_reward(distance: Any, action: Any, task: TaskSpec, scale: Any = None) -> Any:
+    """The task's reward (eq. 2), unchecked, for numpy arrays and torch tensors alike: the one
+    definition the envs (:class:`envs.task.ReachTask`, :class:`envs.torchreach.TorchReach`),
+    :func:`compute_reward` and the studies read.
 
-    Dense (the paper's eq. 2): ``-distance_weight d - action_weight |a / s|^2 + success_reward
-    1{d <= success_radius}``, with s from :func:`action_penalty_scale` (1 in the command's unit,
-    the command bound in the actor's); sparse: the last term alone.
+    Parameters
+    ----------
+    distance : (...) float array or tensor, m
+        tool0-goal distances after the step.
+    action : (..., n) float array or tensor, or None
+        The actions as applied, in the command's unit (ignored, may be None, if sparse).
+    task : TaskSpec
+    scale : (n,) array or tensor, optional
+        :func:`action_penalty_scale` in ``action``'s own library (and device); built when None.
+
+    Returns
+    -------
+    reward : (...) array or tensor of ``distance``'s dtype
+        Dense: ``-distance_weight d - action_weight |a / s|^2 + success_reward
+        1{d <= success_radius}``, with s from :func:`action_penalty_scale` (1 in the command's
+        unit, the command bound in the actor's); sparse: the last term alone.
     """
-    bonus = task.success_reward * (distance <= task.success_radius)
+    reached = distance <= task.success_radius
+    # a tensor's bool -> float keeps the distance's dtype and device (torch's float * bool
+    # would give the default float32); numpy's astype does the same for arrays
+    bonus = task.success_reward * (reached.to(distance.dtype) if hasattr(reached, "to")
+                                   else reached.astype(distance.dtype))
     if task.reward_type == "sparse":
-        return bonus.astype(np.float64)
+        return bonus
     if task.action_penalty_unit != "command":
-        action = np.divide(action, action_penalty_scale(task))
-    return bonus - task.distance_weight * distance - task.action_weight * np.square(action).sum(
-        axis=-1)
+        if scale is None:
+            scale = action_penalty_scale(task)
+            if hasattr(action, "new_tensor"):  # a torch tensor: the scale on its device
+                scale = action.new_tensor(scale)
+        action = action / scale
+    return bonus - task.distance_weight * distance - task.action_weight * (action * action).sum(
+        -1)
 
 
 def compute_reward(achieved_goal: Any, desired_goal: Any, info: Any, task: TaskSpec

@@ -5,8 +5,8 @@
 autoreset are tensor operations on the same device, so that on a GPU a training step moves no
 data between host and device. Goals come from :class:`GoalPool`, a device-resident stock of
 goals drawn on the host by the task's own sampler (:func:`envs.task.task_sampler`) and topped up
-only when it may run dry. The reward is :func:`envs.reward.reach_reward` (eq. 2) written for
-tensors (:func:`reach_reward`), and :meth:`TorchReach.compute_reward` relabels HER goals with it.
+only when it may run dry. The reward is :func:`envs.reward.reach_reward` (eq. 2, one definition for
+arrays and tensors), and :meth:`TorchReach.compute_reward` relabels HER goals with it.
 
 Where the host is touched (each a device-to-host read, i.e. a synchronisation on CUDA):
 ``reset`` with a seed or for the first time (it fills the pool and checks the start pose), and
@@ -32,7 +32,7 @@ from envs.checks import validate
 from envs.core import single_spaces
 from envs.dynamics import command_bounds
 from envs.reach import make_task
-from envs.reward import ACTION_KEY, GOAL_DIM, action_penalty_scale
+from envs.reward import ACTION_KEY, GOAL_DIM, action_penalty_scale, reach_reward
 from envs.spec import TaskSpec
 from envs.task import INFO_KEYS, task_sampler
 
@@ -50,31 +50,6 @@ DEFAULT_POOL_DEPTH = 64
 def goal_distance(achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> torch.Tensor:
     """Euclidean distance ``(...)`` m of goals ``(..., 3)`` m, world frame (broadcast)."""
     return torch.sqrt(torch.square(achieved_goal - desired_goal).sum(-1))
-
-
-def reach_reward(distance: torch.Tensor, action: torch.Tensor | None, task: TaskSpec,
-                 scale: torch.Tensor | None = None) -> torch.Tensor:
-    """The task's reward (:func:`envs.reward.reach_reward`, eq. 2) on tensors, unchecked.
-
-    Parameters
-    ----------
-    distance : (...) tensor, m
-    action : (..., n) tensor or None
-        The actions as applied, in the command's unit (ignored, may be None, if sparse).
-    task : TaskSpec
-    scale : (n,) tensor, optional
-        :func:`envs.reward.action_penalty_scale` on the action's device (built when None).
-    """
-    bonus = task.success_reward * (distance <= task.success_radius).to(distance.dtype)
-    if task.reward_type == "sparse":
-        return bonus
-    if task.action_penalty_unit != "command":
-        if scale is None:
-            scale = torch.as_tensor(action_penalty_scale(task), dtype=action.dtype,
-                                    device=action.device)
-        action = action / scale
-    return bonus - task.distance_weight * distance - task.action_weight * torch.square(
-        action).sum(-1)
 
 
 # ---------------------------------------------------------------------------- the goals
