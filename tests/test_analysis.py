@@ -7,6 +7,7 @@ import contextlib
 import csv
 import io
 import json
+import re
 import subprocess
 import sys
 import time
@@ -316,3 +317,39 @@ def test_success_map_cli_on_a_tiny_run(tmp_path: Path) -> None:
     assert first == [r["successes"] for r in rows[len(rows) // 2 :]]  # same goals, same policy
     bad = run_module("analysis.success_map", str(tmp_path / "nothing"), check=False)
     assert bad.returncode == 2 and "not a run folder" in bad.stderr
+
+
+_EVAL_HEADER = ["episode", "successes", "tests", "mean_return", "mean_final_distance_m",
+                "env_steps", "wall_s"]
+
+
+@pytest.mark.parametrize(("bad_row", "message"), [
+    (["200", "101", "100", "-1", "0.2", "20000", "1"], "successes is 101, expected 0 to tests"),
+    (["200", "-250", "100", "-1", "0.2", "20000", "1"], "successes is -250"),
+    (["200", "0", "0", "-1", "0.2", "20000", "1"], "tests is 0, expected at least 1"),
+    (["200", "many", "100", "-1", "0.2", "20000", "1"], "successes is 'many', expected a whole"),
+    (["200", "5", "100", "n/a", "0.2", "20000", "1"], "mean_return is 'n/a', expected a number"),
+    (["100", "5", "100", "-1", "0.2", "20000", "1"], "episode is 100, expected more than the "
+                                                      "row before \\(100\\)"),
+])
+def test_an_eval_row_that_cannot_be_is_an_error_in_every_tool(tmp_path: Path, capsys, bad_row,
+                                                              message) -> None:
+    """analysis.report, analysis.curves and ddpg_her.summary read eval.csv through one reader
+    (RunFolder.read_eval); each refuses the impossible row, naming the folder and the line."""
+    from analysis import curves
+    from ddpg_her import summary
+
+    run = tmp_path / "runs" / "s0"
+    _fake_run(run, "farbox", 3, 0, [40])
+    with open(run / "eval.csv", "a", newline="") as f:
+        csv.writer(f).writerow(bad_row)
+    for tool, argv in ((report.main, [str(tmp_path / "runs")]),
+                       (curves.main, [str(tmp_path / "runs"), "--out", str(tmp_path / "c.png")]),
+                       (summary.main, [str(run)])):
+        with pytest.raises(SystemExit) as exit_:
+            tool(argv)
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert f"{run / 'eval.csv'} line 3: " in err and "cannot be trusted" in err, err
+        assert re.search(message, err), err
+    assert not (tmp_path / "c.png").exists()
