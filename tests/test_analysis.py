@@ -176,6 +176,11 @@ def test_far_box_by_1000_counts_the_runs_as_the_paper_does(tmp_path: Path, seeds
     assert checks["far box near 100 % by 1,000 episodes, 6 joints"].verdict is report.Verdict[v6]
     assert f"{sum(s >= 90 for s in seeds_6)} of 5 seeds hit >= 90" in \
         checks["far box near 100 % by 1,000 episodes, 6 joints"].detail
+    late = tmp_path / "late"  # 90 first hit at episode 1,100: too late for the claim
+    for seed in range(5):
+        _fake_run(late / f"s{seed}", "farbox", 3, seed, [95] * 12 if seed else [0] * 10 + [95] * 2)
+    assert _checks(late)["far box near 100 % by 1,000 episodes, 3 joints"].verdict is \
+        report.Verdict.NO
 
 
 def test_a_level_is_the_mean_of_the_last_five_sessions(tmp_path: Path) -> None:
