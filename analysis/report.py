@@ -503,8 +503,8 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
 UNDER = 50.0
 """The paper's "more than 50% of the sampled goal locations" (section IV-A)."""
 
-VERDICT_WORDS_SO_FAR = {Verdict.YES: "in the claimed order so far, not a verdict",
-                        Verdict.NO: "the other way so far, not a verdict",
+VERDICT_WORDS_SO_FAR = {Verdict.YES: "as claimed so far, not a verdict",
+                        Verdict.NO: "not as claimed so far, not a verdict",
                         Verdict.NOISE: "within noise so far"}
 """How a judgement of runs too short to judge is shown: information, not a verdict."""
 
