@@ -336,17 +336,41 @@ def _same(recorded: Any, text: str | list[str]) -> bool:
         return str(recorded).lower() == str(text).lower()
 
 
+def _defaults() -> dict[tuple[str, str], Any]:
+    """(spec section, field) -> this code's default, for every TaskSpec and AgentConfig field."""
+    import dataclasses
+    import enum
+
+    from ddpg_her.config import AgentConfig
+    from envs.spec import TaskSpec
+
+    out = {}
+    for section, cls in (("task", TaskSpec), ("agent", AgentConfig)):
+        for f in dataclasses.fields(cls):
+            if f.default is not dataclasses.MISSING:
+                value = f.default
+                out[(section, f.name)] = value.value if isinstance(value, enum.Enum) else value
+    return out
+
+
 def reading_mismatches(reading: Reading, spec: dict[str, Any]) -> list[str]:
     """How a run's ``spec.json`` differs from ``reading``: each choice of
-    `analysis.readings.CHOICES` (the reading's value, or the default where it sets none) and
-    each other field the reading sets that the spec records; [] when it is the reading's run."""
+    `analysis.readings.CHOICES` (the reading's value; where it sets none, this code's default or
+    the value of runs written before the field existed) and each other field the reading sets
+    that the spec records; [] when it is the reading's run."""
     sets = reading_settings(reading)
     recorded = run_choices(spec)
+    defaults = _defaults()
     problems = []
-    for name, section, field_, default in CHOICES:
-        want = sets.get((section, field_), default)
-        if not _same(recorded[name], want):
-            problems.append(f"{section}.{field_} = {recorded[name]} where the reading has {want}")
+    for name, section, field_, before in CHOICES:
+        if (section, field_) in sets:
+            wants = [sets[(section, field_)]]
+        else:
+            wants = [before] + ([str(defaults[(section, field_)])]
+                                if (section, field_) in defaults else [])
+        if not any(_same(recorded[name], want) for want in wants):
+            problems.append(f"{section}.{field_} = {recorded[name]} where the reading has "
+                            + " or ".join(dict.fromkeys(map(str, wants))))
     checked = {(section, field_) for _, section, field_, _ in CHOICES}
     for (section, field_), want in sets.items():
         have = spec.get(section, {})

@@ -412,7 +412,7 @@ def test_the_report_is_reproducible_and_its_bootstrap_seed_matters(tmp_path: Pat
     assert other["curves.csv"] == first["curves.csv"]  # no bootstrap in the curves
 
 
-def test_a_run_counts_for_the_reading_its_spec_records(tmp_path: Path) -> None:
+def test_a_run_counts_for_the_reading_its_spec_records(tmp_path: Path, monkeypatch) -> None:
     """Issue 23: a run in a reading's folder that was trained under another reading is refused,
     naming it; a folder of an unknown reading must not mix choices."""
     root = tmp_path / "runs"
@@ -421,6 +421,14 @@ def test_a_run_counts_for_the_reading_its_spec_records(tmp_path: Path) -> None:
         _write_run(root / "actor_penalty" / "zheight-j3" / f"s{seed}", "zheight", 3, seed, 30.0,
                    extra_task={"action_penalty_unit": "actor"})
     assert set(sens.group_runs(root)) == {"ours", "actor_penalty"}
+    # a choice whose default changed since older runs: runs of either time count for 'ours'
+    from analysis.readings import CHOICES
+
+    changed = tuple((n, sec, f, "compliant" if f == "contact_model" else before)
+                    for n, sec, f, before in CHOICES)
+    monkeypatch.setattr(sens, "CHOICES", changed)
+    assert set(sens.group_runs(root)) == {"ours", "actor_penalty"}
+    monkeypatch.undo()
     stray = root / "ours" / "zheight-j3" / "s2"
     _write_run(stray, "zheight", 3, 2, 60.0, extra_task={"action_penalty_unit": "actor"})
     with pytest.raises(ValueError, match=re.escape(
