@@ -50,6 +50,10 @@ HIGH_SUCCESS = 90.0
 """Successes out of 100 that count as "highly capable" and "nearly 100 %" (our reading; the
 paper gives no number)."""
 
+UNDER_SUCCESS = 50.0
+"""Unconstrained with 3-6 joints: DDPG "fails to learn a policy that can hit more than 50% of the
+sampled goal locations" (section IV-A)."""
+
 FAST_EPISODES = 1000
 """The far box's speed: "nearly 100% success within 10 testing sessions, or 1000 training
 episodes" (section IV-C)."""

@@ -51,6 +51,7 @@ from analysis.paper import (
     PAPER_GRID,
     PAPER_RESULTS,
     PAPER_SEEDS,
+    UNDER_SUCCESS,
     PaperClaim,
 )
 from analysis.readings import run_choices
@@ -488,7 +489,7 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         1: lambda c: fast(c, 6),
         2: lambda c: order(c, far, [*unc, *constrained]),
         3: lambda c: threshold(c, [("unconstrained", 2)], HIGH_SUCCESS, above=True),
-        4: lambda c: threshold(c, unc, UNDER, above=False),
+        4: lambda c: threshold(c, unc, UNDER_SUCCESS, above=False),
         5: lambda c: about(c, unc, PAPER_RESULTS[("unconstrained", 3)].approx_success),
         6: lambda c: alike(c, [unc]),
         7: lambda c: about(c, constrained, PAPER_RESULTS[("zheight", 3)].approx_success),
@@ -503,9 +504,6 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         checks[claim.name] = judges[i](claim)
     return list(checks.values())
 
-
-UNDER = 50.0
-"""The paper's "more than 50% of the sampled goal locations" (section IV-A)."""
 
 VERDICT_WORDS_SO_FAR = {Verdict.YES: "as claimed so far, not a verdict",
                         Verdict.NO: "not as claimed so far, not a verdict",
