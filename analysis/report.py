@@ -1,10 +1,33 @@
-"""The reproduction report: a Markdown table per setting next to what the paper reports.
+"""The reproduction report: our numbers per setting next to the paper's, and every claim of the
+paper judged by one stated rule.
 
     python -m analysis.report RUNS_ROOT [--out report.md]
 
-For each (region, joints): final and best test successes (mean and confidence interval over
-seeds), the training episode where each seed first hits 90 of 100 goals, and the paper's
-statement; then whether the paper's orderings hold in these runs.
+For each (region, joints): each seed's mean over its last 5 test sessions and its best session
+(mean and confidence interval over seeds), the training episode where each seed first hits 90 of
+100 goals, and the paper's statement; then every claim of the paper's section IV
+(`analysis.paper.CLAIMS`), each *holds*, *fails*, *within noise*, *not judgeable* or *not run*.
+
+The rule (`judge_claims`, printed with every report):
+
+- A claim about where training ends (an asymptote or a converged level: "highly capable",
+  "under 50 %", "about 40 %", "about 20 %", "identical", "approximately equivalent",
+  "similar", "takes longer to converge", the converged policies of Fig. 4) is *not judgeable*
+  when the runs end below the paper's 20,000 episodes. What the runs show so far is printed
+  beside it as information, never as a verdict.
+- Levels are each seed's mean over its last `LAST_SESSIONS` (5) test sessions at the point
+  judged, never one session; intervals are the paper's 65 % Student-t over seeds.
+- "A above B" holds when the weakest setting of A and the strongest of B have intervals apart
+  in that order, fails when they are apart the other way, and is within noise when they overlap.
+  Thresholds, "about X" (X +- `ABOUT_TOLERANCE`) and "alike" (every interval inside a band
+  `ALIKE_TOLERANCE` wide) hold when the intervals lie inside, fail when they lie outside (or,
+  for "alike", apart), and are within noise otherwise. The far box "within 1,000 episodes" holds
+  when no more seeds than the paper's (0 of 5 with 3 joints, 1 of 5 with 6) fail to hit 90 in a
+  test session by episode 1,000.
+- Every comparison also gets a two-sided Welch p-value over seeds, and the report says how many
+  comparisons it made (the p-values are not corrected for their number), and which comparisons
+  carry a confound (other joint counts, another start pose, the penalty-free pose inside the far
+  box).
 """
 
 from __future__ import annotations
@@ -12,18 +35,24 @@ from __future__ import annotations
 import argparse
 import enum
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from analysis.paper import (
+    CLAIMS,
+    FAST_EPISODES,
+    FAST_MISSES,
     HIGH_SUCCESS,
     PAPER_EPISODES,
     PAPER_GRID,
     PAPER_RESULTS,
     PAPER_SEEDS,
+    UNDER_SUCCESS,
+    PaperClaim,
 )
 from analysis.readings import run_choices
 from analysis.runs import (
@@ -35,7 +64,7 @@ from analysis.runs import (
     mean_ci,
     settings_from_args,
 )
-from regions.registry import paper_order
+from regions.registry import default_start, paper_order
 
 READING_NOTE = (
     "Defaults and why: docs/design.md, open points 3-6; what the other readings do to each "
@@ -53,7 +82,8 @@ class SettingSummary:
     episodes: int
     """Last evaluation episode common to every seed."""
     final: tuple[float, float, float]
-    """Successes at the last common evaluation: mean, CI low, CI high."""
+    """Each seed's mean successes over its last `LAST_SESSIONS` common test sessions: mean
+    over seeds, CI low, CI high."""
     best: tuple[float, float, float]
     """Each seed's best evaluation: mean, CI low, CI high."""
     first_high: tuple[int | None, ...]
@@ -61,22 +91,23 @@ class SettingSummary:
     choices: tuple[dict[str, str], ...] = ()
     """Per seed, the paper's unstated choices it was trained under (`analysis.readings.
     run_choices`)."""
+    curves: Curves | None = None
+    """The seeds' common test sessions, which the claims are judged on."""
 
 
 def summarise(runs: Sequence[Run], level: float = CONFIDENCE) -> SettingSummary:
-    episode, successes = aligned_successes(runs)
-    if len(episode) == 0:
-        raise ValueError(f"runs {[str(r.path) for r in runs]} share no evaluation episode")
-    final = mean_ci(successes[:, -1], level, PERCENT)
-    best = mean_ci(successes.max(axis=1), level, PERCENT)
+    """One setting's statistics over its seeds (see `SettingSummary`)."""
+    curves = Curves.of(runs)
+    final = mean_ci(curves.level(), level, PERCENT)
+    best = mean_ci(curves.percent.max(axis=1), level, PERCENT)
     first = []
     for run in runs:
         hit = np.nonzero(run.successes >= HIGH_SUCCESS * run.tests / 100.0)[0]
         first.append(int(run.episode[hit[0]]) if len(hit) else None)
     as_tuple = lambda t: tuple(float(x) for x in t)  # noqa: E731
-    return SettingSummary(runs[0].region, runs[0].joints, len(runs), int(episode[-1]),
+    return SettingSummary(runs[0].region, runs[0].joints, len(runs), curves.end,
                           as_tuple(final), as_tuple(best), tuple(first),
-                          tuple(run_choices(r.spec) for r in runs))
+                          tuple(run_choices(r.spec) for r in runs), curves)
 
 
 def reading_lines(summaries: dict[tuple[str, int], SettingSummary]) -> list[str]:
@@ -109,9 +140,10 @@ def reading_lines(summaries: dict[tuple[str, int], SettingSummary]) -> list[str]
     return [*lines, ""]
 
 
-def _fmt(stat: tuple[float, float, float]) -> str:
+def _fmt(stat: tuple[float, float, float], digits: int = 1) -> str:
     mean, low, high = stat
-    return f"{mean:.1f} [{low:.1f}, {high:.1f}]" if high > low else f"{mean:.1f}"
+    return (f"{mean:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]" if high > low
+            else f"{mean:.{digits}f}")
 
 
 def _first_high(first: tuple[int | None, ...]) -> str:
@@ -122,111 +154,430 @@ def _first_high(first: tuple[int | None, ...]) -> str:
 
 
 class Verdict(str, enum.Enum):
-    """Whether one of the paper's claims holds in these runs, judged on the confidence intervals."""
+    """Whether one of the paper's claims holds in these runs (the rule: module docstring)."""
 
-    YES = "yes"
-    NO = "**no**"
+    YES = "holds"
+    NO = "fails"
     NOISE = "within noise"
     """The intervals overlap: these seeds can't tell."""
+    NOT_JUDGEABLE = "not judgeable"
+    """The runs cannot show it: below the paper's budget for a claim about where training ends,
+    or data the report does not read (success maps)."""
     NOT_RUN = "not run"
+    """A setting the claim needs has no runs."""
 
 
-_CLAIM_JOINTS = range(3, 7)
+LAST_SESSIONS = 5
+"""Level claims are judged on each seed's mean over its last 5 test sessions at the point
+judged (500 episodes at the paper's pace), never on one session of 100 test goals."""
 
-ORDERING_CLAIMS: dict[str, tuple[tuple[tuple[str, int], ...], tuple[tuple[str, int], ...],
-                                 float]] = {
-    "farbox far above unconstrained (3-6 joints)": (
-        tuple(("farbox", n) for n in _CLAIM_JOINTS),
-        tuple(("unconstrained", n) for n in _CLAIM_JOINTS), 20.0),
-    "unconstrained (3-6 joints) above zheight and closebox": (
-        tuple(("unconstrained", n) for n in _CLAIM_JOINTS),
-        tuple((r, n) for r in ("zheight", "closebox") for n in _CLAIM_JOINTS), 0.0),
-}
-"""The paper's orderings (section IV): claim -> (settings claimed higher, settings claimed
-lower, the gap in successes per 100 goals the claim needs: "far above" reads as 20)."""
+ABOUT_TOLERANCE = 10.0
+"""'about X %': the interval must lie within X +- 10 successes per 100 (our reading)."""
 
-HIGH_CLAIM: tuple[str, tuple[str, int]] = ("2 joints high (unconstrained)", ("unconstrained", 2))
-"""The paper's "highly capable policy" with 2 joints: the setting's interval against
-`HIGH_SUCCESS`."""
+ALIKE_TOLERANCE = 10.0
+"""'identical', 'approximately equivalent', 'similar': every interval within one band 10
+successes per 100 wide (our reading)."""
 
+CONVERGED_GAP = 5.0
+"""A seed has converged at its first test session within 5 successes per 100 of its level
+(the mean of its last `LAST_SESSIONS` sessions); 'slower to converge' compares those
+episodes."""
 
-def _stat(name: tuple[str, int], stat: tuple[float, float, float]) -> str:
-    return f"{name[0]} {name[1]} {_fmt(stat)}"
+Interval = tuple[float, float, float]
+"""(estimate, low, high)."""
 
-
-def ordering_checks(
-    summaries: dict[tuple[str, int], SettingSummary],
-) -> list[tuple[str, Verdict, str]]:
-    """The paper's claims, each as (claim, verdict, detail), on the final successes'
-    Student-t intervals (see `judge_claims`)."""
-    return judge_claims({k: s.final for k, s in summaries.items()})
+IntervalFn = Callable[[np.ndarray, tuple[float, float]], Interval]
+"""Per-seed values (n_seeds,) and their feasible range -> an estimate with its interval."""
 
 
-def judge_claims(
-    final: dict[tuple[str, int], tuple[float, float, float]],
-) -> list[tuple[str, Verdict, str]]:
-    """The paper's claims, each as (claim, verdict, detail), on one interval per setting.
+def student_t(level: float = CONFIDENCE) -> IntervalFn:
+    """The paper's interval: the mean over seeds with its two-sided Student-t interval
+    (`analysis.runs.mean_ci`), clipped to the values' feasible range."""
+    def interval(values: np.ndarray, bounds: tuple[float, float]) -> Interval:
+        return tuple(float(x) for x in mean_ci(np.asarray(values, float), level, bounds))
+    return interval
+
+
+@dataclass(frozen=True)
+class Curves:
+    """One setting's seeds on their common test sessions, up to the point judged."""
+
+    episode: np.ndarray
+    """(T,) int: training episodes at each test session."""
+    percent: np.ndarray
+    """(n_seeds, T) float: goals hit per 100 test goals."""
+
+    @classmethod
+    def of(cls, runs: Sequence[Run], upto: int | None = None) -> Curves:
+        """The runs' common sessions (`analysis.runs.aligned_successes`), those after ``upto``
+        (training episodes) dropped."""
+        episode, percent = aligned_successes(runs)
+        keep = episode <= upto if upto is not None else np.ones(len(episode), bool)
+        if not keep.any():
+            raise ValueError(f"runs {[str(r.path) for r in runs]} share no test session"
+                             + (f" at or below episode {upto}" if upto is not None else ""))
+        return cls(episode[keep], percent[:, keep])
+
+    @property
+    def end(self) -> int:
+        """The last session judged (training episodes)."""
+        return int(self.episode[-1])
+
+    def level(self) -> np.ndarray:
+        """(n_seeds,) float: each seed's mean successes per 100 over its last
+        `LAST_SESSIONS` sessions."""
+        return self.percent[:, -LAST_SESSIONS:].mean(axis=1)
+
+
+@dataclass(frozen=True)
+class Check:
+    """One claim judged: the verdict, what it rests on, and what else differs."""
+
+    claim: str
+    verdict: Verdict
+    detail: str
+    p_value: float | None = None
+    """Two-sided Welch p-value over seeds of the claim's comparison (None: not a comparison)."""
+    confounds: tuple[str, ...] = ()
+    """What differs between the compared settings besides what the claim is about."""
+
+
+def welch_p(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sided Welch t-test p-value of two groups of seeds (nan when it is undefined: fewer
+    than 2 seeds, or no spread in either group)."""
+    from scipy import stats
+
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if min(len(a), len(b)) < 2 or (a.std() == 0 and b.std() == 0):
+        return float("nan")
+    with warnings.catch_warnings():
+        # a group of equal values (a far box at 100 in every seed) is exact, not imprecise
+        warnings.filterwarnings("ignore", "Precision loss occurred", RuntimeWarning)
+        return float(stats.ttest_ind(a, b, equal_var=False).pvalue)
+
+
+ZERO_POSE_TOOL = (0.817, 0.191, 0.095)
+"""Where tool0 sits with every joint at 0 rad (m, world frame, base at 0.1 m; tested against
+`ur5kin.fk_world`): the command eq. 2's penalty costs nothing for, inside every region of
+the paper, the far box the smallest of them."""
+
+
+def confounds(a: tuple[str, int], b: tuple[str, int]) -> tuple[str, ...]:
+    """What differs between settings ``a`` and ``b`` besides their regions."""
+    out = []
+    if a[1] != b[1]:
+        out.append(f"{a[1]} vs {b[1]} joints")
+    start = {k: default_start(k[0]) for k in (a, b)}
+    if start[a] != start[b]:
+        out.append(f"another start pose ({a[0]}: {_pose(start[a])}, {b[0]}: {_pose(start[b])})")
+    far = [k[0] for k in (a, b) if k[0].startswith("farbox")]
+    if len(far) == 1:
+        out.append("the penalty-free command (all joints 0 rad) puts tool0 at "
+                   f"({', '.join(f'{x:.2f}' for x in ZERO_POSE_TOOL)}) m, inside the far box "
+                   "(the smallest region that holds it)")
+    return tuple(out)
+
+
+def _pose(q: tuple[float, ...]) -> str:
+    names = {0.0: "0", np.pi / 4: "pi/4", -np.pi / 4: "-pi/4", np.pi / 2: "pi/2"}
+    return "[" + ", ".join(next((n for v, n in names.items() if abs(v - x) < 1e-12), f"{x:.3g}")
+                           for x in q) + "]"
+
+
+_J36 = range(3, 7)
+
+
+def _name(key: tuple[str, int]) -> str:
+    return f"{key[0]} {key[1]}"
+
+
+def _stat(key: tuple[str, int], stat: Interval) -> str:
+    return f"{_name(key)} {_fmt(stat)}"
+
+
+def judge_claims(curves: Mapping[tuple[str, int], Curves],
+                 interval: IntervalFn | None = None) -> list[Check]:
+    """Every claim of `analysis.paper.CLAIMS`, in its order, judged by the module's rule.
 
     Parameters
     ----------
-    final : {(region, joints): (estimate, low, high)}, successes per 100 test goals
-        Any point estimate with its interval: the mean with its Student-t interval (the
-        report), or a bootstrap interval of the mean or the IQM (analysis.sensitivity).
-
-    "A above B" compares the weakest setting of A with the strongest of B (by estimate): YES
-    when their intervals are apart in the claimed order and the estimates differ by at least
-    the claim's margin; NO when the order is reversed with intervals apart, or when even the
-    intervals' far ends are less than the margin apart; otherwise NOISE. "2 joints high": YES
-    when the interval lies at or above `HIGH_SUCCESS`, NO when it lies below, else NOISE.
+    curves : {(region, joints): Curves}
+        Each setting's seeds up to the point judged (the runs' end, or a study's budget).
+    interval : IntervalFn
+        The interval of the per-seed values (default: the paper's 65 % Student-t,
+        `student_t`; `analysis.sensitivity` also passes bootstrap intervals of the mean and
+        the IQM). The Welch p-values do not depend on it.
     """
-    checks = []
+    interval = interval or student_t()
+    level = {k: c.level() for k, c in curves.items()}
+    stat = {k: interval(v, PERCENT) for k, v in level.items()}
+    checks: dict[str, Check] = {}
 
-    def compare(claim: str, high: list[tuple[str, int]], low: list[tuple[str, int]],
-                margin: float) -> None:
-        hi = [k for k in high if k in final]
-        lo = [k for k in low if k in final]
-        missing = [f"{r} {n}" for r, n in high + low if (r, n) in PAPER_GRID
-                   and (r, n) not in final]
+    def present(keys: Sequence[tuple[str, int]]) -> list[tuple[str, int]]:
+        return [k for k in keys if k in curves]
+
+    def gate(claim: PaperClaim, keys: Sequence[tuple[str, int]], what: str, so_far: str,
+             p: float | None = None, conf: tuple[str, ...] = ()) -> Check | None:
+        """NOT_JUDGEABLE for a claim about the end of training on shorter runs (with what the
+        runs show so far as information), else None."""
+        short = [k for k in keys if curves[k].end < PAPER_EPISODES]
+        if not claim.at_end or not short:
+            return None
+        ends = sorted({curves[k].end for k in short})
+        return Check(claim.name, Verdict.NOT_JUDGEABLE,
+                     f"a claim about where training ends; these runs end at "
+                     f"{', '.join(f'{e:,}' for e in ends)} episodes, below the paper's "
+                     f"{PAPER_EPISODES:,}. So far ({so_far}): {what}", p, conf)
+
+    def missing(keys: Sequence[tuple[str, int]]) -> str:
+        lack = [_name(k) for k in keys if k in PAPER_GRID and k not in curves]
+        return "; on the settings run only, missing: " + ", ".join(lack) if lack else ""
+
+    def not_run(claim: PaperClaim, keys: Sequence[tuple[str, int]]) -> Check:
+        """NOT_RUN, naming the missing settings (of a region in the paper's grid, only the
+        joint counts the paper ran)."""
+        grid_regions = {r for r, _ in PAPER_GRID}
+        keys = [k for k in keys if k in PAPER_GRID or k[0] not in grid_regions]
+        return Check(claim.name, Verdict.NOT_RUN,
+                     "settings missing: " + ", ".join(_name(k) for k in keys))
+
+    def fast(claim: PaperClaim, joints: int) -> Check:
+        key = ("farbox", joints)
+        if key not in curves:
+            return not_run(claim, [key])
+        c = curves[key]
+        if c.end < FAST_EPISODES:
+            return Check(claim.name, Verdict.NOT_JUDGEABLE,
+                         f"these runs end at {c.end:,} episodes, before {FAST_EPISODES:,}")
+        early = c.percent[:, c.episode <= FAST_EPISODES]
+        reached = int((early >= HIGH_SUCCESS).any(axis=1).sum())
+        allowed = FAST_MISSES[joints]
+        n = len(c.percent)
+        verdict = Verdict.YES if n - reached <= allowed else Verdict.NO
+        return Check(claim.name, verdict,
+                     f"{reached} of {n} seeds hit >= {HIGH_SUCCESS:g} in a test session by "
+                     f"episode {FAST_EPISODES:,} (the claim allows {allowed} to miss); seeds' "
+                     f"last {LAST_SESSIONS} sessions to {FAST_EPISODES:,}: "
+                     + ", ".join(f"{v:.0f}" for v in early[:, -LAST_SESSIONS:].mean(axis=1)))
+
+    def order(claim: PaperClaim, high: Sequence[tuple[str, int]],
+              low: Sequence[tuple[str, int]]) -> Check:
+        hi, lo = present(high), present(low)
         if not hi or not lo:
-            checks.append((claim, Verdict.NOT_RUN, "settings missing: " + ", ".join(missing)))
-            return
-        h = min(hi, key=lambda k: final[k][0])
-        lo_k = max(lo, key=lambda k: final[k][0])
-        (h_mean, h_low, h_high), (l_mean, l_low, l_high) = final[h], final[lo_k]
-        if h_low > l_high and h_mean - l_mean >= margin:
-            verdict = Verdict.YES
-        elif l_low > h_high or h_high - l_low < margin:
-            verdict = Verdict.NO
-        else:
-            verdict = Verdict.NOISE
-        detail = (f"weakest of the first: {_stat(h, final[h])}; strongest of the second: "
-                  f"{_stat(lo_k, final[lo_k])}"
-                  + (f"; the claim needs a gap of {margin:g}" if margin else ""))
-        if missing:
-            detail += "; on the settings run only, missing: " + ", ".join(missing)
-        checks.append((claim, verdict, detail))
+            return not_run(claim, [k for k in (*high, *low) if k not in curves])
+        # the weakest of A against the strongest of B with as many joints, the closest such
+        # pair deciding; across joint counts (a confound) only when no count has both
+        pairs = [(min(h_n, key=lambda k: stat[k][0]), max(l_n, key=lambda k: stat[k][0]))
+                 for n in sorted({k[1] for k in hi} & {k[1] for k in lo})
+                 for h_n, l_n in [([k for k in hi if k[1] == n], [k for k in lo if k[1] == n])]]
+        if not pairs:
+            pairs = [(min(hi, key=lambda k: stat[k][0]), max(lo, key=lambda k: stat[k][0]))]
+        h, l_ = min(pairs, key=lambda pair: stat[pair[0]][0] - stat[pair[1]][0])
+        (_, h_low, h_high), (_, l_low, l_high) = stat[h], stat[l_]
+        verdict = (Verdict.YES if h_low > l_high else Verdict.NO if l_low > h_high
+                   else Verdict.NOISE)
+        p = welch_p(level[h], level[l_])
+        detail = (f"weakest of the first: {_stat(h, stat[h])}; strongest of the second"
+                  f"{' (as many joints)' if h[1] == l_[1] else ''}: {_stat(l_, stat[l_])}"
+                  + missing([*high, *low]))
+        conf = confounds(h, l_)
+        return gate(claim, [*hi, *lo], detail, VERDICT_WORDS_SO_FAR[verdict], p, conf) \
+            or Check(claim.name, verdict, detail, p, conf)
 
-    for claim, (high, low, margin) in ORDERING_CLAIMS.items():
-        compare(claim, list(high), list(low), margin)
-    claim, key = HIGH_CLAIM
-    if key in final:
-        _, low, high = final[key]
-        verdict = (Verdict.YES if low >= HIGH_SUCCESS else
-                   Verdict.NO if high < HIGH_SUCCESS else Verdict.NOISE)
-        checks.append((claim, verdict, f"{_stat(key, final[key])} against {HIGH_SUCCESS:g}"))
-    else:
-        checks.append((claim, Verdict.NOT_RUN, "setting missing"))
-    return checks
+    def threshold(claim: PaperClaim, keys: Sequence[tuple[str, int]], bound: float,
+                  above: bool) -> Check:
+        have = present(keys)
+        if not have:
+            return not_run(claim, keys)
+        k = (min if above else max)(have, key=lambda k: stat[k][0])
+        _, low, high = stat[k]
+        if above:
+            verdict = (Verdict.YES if low >= bound else Verdict.NO if high < bound
+                       else Verdict.NOISE)
+        else:
+            verdict = (Verdict.YES if high < bound else Verdict.NO if low >= bound
+                       else Verdict.NOISE)
+        detail = (f"{'weakest' if above else 'strongest'}: {_stat(k, stat[k])} against "
+                  f"{bound:g}" + missing(keys))
+        return gate(claim, have, detail, VERDICT_WORDS_SO_FAR[verdict]) \
+            or Check(claim.name, verdict, detail)
+
+    def about(claim: PaperClaim, keys: Sequence[tuple[str, int]], target: float) -> Check:
+        have = present(keys)
+        if not have:
+            return not_run(claim, keys)
+        lo_b, hi_b = target - ABOUT_TOLERANCE, target + ABOUT_TOLERANCE
+        each = []
+        for k in have:
+            _, low, high = stat[k]
+            each.append(Verdict.YES if lo_b <= low and high <= hi_b else
+                        Verdict.NO if high < lo_b or low > hi_b else Verdict.NOISE)
+        verdict = (Verdict.NO if Verdict.NO in each else
+                   Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
+        detail = (", ".join(_stat(k, stat[k]) for k in have)
+                  + f" against {lo_b:g}-{hi_b:g}" + missing(keys))
+        return gate(claim, have, detail, VERDICT_WORDS_SO_FAR[verdict]) \
+            or Check(claim.name, verdict, detail)
+
+    def alike(claim: PaperClaim, groups: Sequence[Sequence[tuple[str, int]]],
+              values: Mapping[tuple[str, int], np.ndarray] | None = None) -> Check:
+        asked = [k for g in groups for k in g]
+        groups = [g for g in (present(g) for g in groups) if len(g) >= 2]
+        if not groups:
+            return not_run(claim, [k for k in asked if k not in curves])
+        each, parts, ps, conf = [], [], [], []
+        for g in groups:
+            lows = [stat[k][1] for k in g]
+            highs = [stat[k][2] for k in g]
+            each.append(Verdict.YES if max(highs) - min(lows) <= ALIKE_TOLERANCE else
+                        Verdict.NO if max(lows) > min(highs) else Verdict.NOISE)
+            weak = min(g, key=lambda k: stat[k][0])
+            strong = max(g, key=lambda k: stat[k][0])
+            ps.append(welch_p(level[weak], level[strong]))
+            conf += [c for c in confounds(weak, strong) if c not in conf]
+            parts.append(", ".join(_stat(k, stat[k]) for k in g))
+        verdict = (Verdict.NO if Verdict.NO in each else
+                   Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
+        p = min(ps) if all(np.isfinite(ps)) else float("nan")
+        detail = "; ".join(parts) + f"; the claim allows a band {ALIKE_TOLERANCE:g} wide"
+        keys = [k for g in groups for k in g]
+        return gate(claim, keys, detail, VERDICT_WORDS_SO_FAR[verdict], p,
+                    tuple(conf)) or Check(claim.name, verdict, detail, p, tuple(conf))
+
+    def slower(claim: PaperClaim) -> Check:
+        pairs = [((r, 6), (r, 3)) for r in ("zheight", "closebox")
+                 if (r, 6) in curves and (r, 3) in curves]
+        if not pairs:
+            return not_run(claim, [(r, n) for r in ("zheight", "closebox") for n in (3, 6)
+                                   if (r, n) not in curves])
+        at = {}
+        for key in {k for pair in pairs for k in pair}:
+            c = curves[key]
+            near = c.percent >= (c.level() - CONVERGED_GAP)[:, None]
+            at[key] = c.episode[near.argmax(axis=1)].astype(float)
+        each, parts, ps = [], [], []
+        for six, three in pairs:
+            (_, s_low, s_high), (_, t_low, t_high) = (
+                interval(at[k], (0.0, np.inf)) for k in (six, three))
+            each.append(Verdict.YES if s_low > t_high else Verdict.NO if t_low > s_high
+                        else Verdict.NOISE)
+            ps.append(welch_p(at[six], at[three]))
+            parts.append(f"{six[0]}: converged at episode "
+                         f"{_fmt(interval(at[six], (0.0, np.inf)), 0)} (6 joints) vs "
+                         f"{_fmt(interval(at[three], (0.0, np.inf)), 0)} (3 joints)")
+        verdict = (Verdict.NO if Verdict.NO in each else
+                   Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
+        detail = "; ".join(parts)
+        p = min(ps) if all(np.isfinite(ps)) else float("nan")
+        keys = [k for pair in pairs for k in pair]
+        return gate(claim, keys, detail, VERDICT_WORDS_SO_FAR[verdict], p) \
+            or Check(claim.name, verdict, detail, p)
+
+    def success_maps(claim: PaperClaim) -> Check:
+        key = ("unconstrained", 3)
+        ends = f"these runs end at {curves[key].end:,} episodes; " if key in curves else ""
+        return Check(claim.name, Verdict.NOT_JUDGEABLE,
+                     f"{ends}judgeable only from success maps (python -m analysis.success_map) "
+                     f"of two converged (about 40 %) policies at the paper's {PAPER_EPISODES:,} "
+                     "episodes; this report reads no success maps")
+
+    far = [("farbox", n) for n in _J36]
+    unc = [("unconstrained", n) for n in _J36]
+    constrained = [(r, n) for r in ("zheight", "closebox") for n in _J36]
+    judges = {
+        0: lambda c: fast(c, 3),
+        1: lambda c: fast(c, 6),
+        2: lambda c: order(c, far, [*unc, *constrained]),
+        3: lambda c: threshold(c, [("unconstrained", 2)], HIGH_SUCCESS, above=True),
+        4: lambda c: threshold(c, unc, UNDER_SUCCESS, above=False),
+        5: lambda c: about(c, unc, PAPER_RESULTS[("unconstrained", 3)].approx_success),
+        6: lambda c: alike(c, [unc]),
+        7: lambda c: about(c, constrained, PAPER_RESULTS[("zheight", 3)].approx_success),
+        8: lambda c: alike(c, [[("zheight", n), ("closebox", n)] for n in (3, 6)]),
+        9: lambda c: order(c, unc, constrained),
+        10: slower,
+        11: lambda c: alike(c, [[("farbox_tall", n), ("farbox", n)] for n in (3, 6)]),
+        12: success_maps,
+    }
+    assert len(judges) == len(CLAIMS)
+    for i, claim in enumerate(CLAIMS):
+        checks[claim.name] = judges[i](claim)
+    return list(checks.values())
+
+
+VERDICT_WORDS_SO_FAR = {Verdict.YES: "as claimed so far, not a verdict",
+                        Verdict.NO: "not as claimed so far, not a verdict",
+                        Verdict.NOISE: "within noise so far"}
+"""How a judgement of runs too short to judge is shown: information, not a verdict."""
+
+
+def ordering_checks(summaries: dict[tuple[str, int], SettingSummary],
+                    level: float = CONFIDENCE) -> list[Check]:
+    """The paper's claims judged on the summaries' curves with the Student-t interval at
+    ``level`` (see `judge_claims`)."""
+    return judge_claims({k: s.curves for k, s in summaries.items()}, student_t(level))
+
+
+def p_text(p: float | None) -> str:
+    """A p-value as the tables print it ('-': not a comparison; 'n/a': undefined)."""
+    if p is None:
+        return "-"
+    return "n/a" if not np.isfinite(p) else f"{p:.2g}" if p >= 0.001 else "< 0.001"
+
+
+def comparisons_line(checks: Sequence[Check]) -> str:
+    """How many comparisons the p-values come from, and what that means for reading them."""
+    n = sum(c.p_value is not None for c in checks)
+    judged = sum(c.p_value is not None and c.verdict in (Verdict.YES, Verdict.NO, Verdict.NOISE)
+                 for c in checks)
+    if not n:
+        return "No comparison was made (no p-value)."
+    return (f"{n} comparisons made ({judged} of them on claims judgeable here), each with a "
+            "two-sided Welch p-value over seeds, not corrected for their number (Bonferroni's "
+            f"threshold for {n} at 0.05: {0.05 / n:.2g}).")
 
 
 def claim_settings() -> dict[str, tuple[tuple[str, int], ...]]:
     """Each claim of `judge_claims` -> the (region, joints) settings it looks at."""
-    out = {claim: (*high, *low) for claim, (high, low, _) in ORDERING_CLAIMS.items()}
-    out[HIGH_CLAIM[0]] = (HIGH_CLAIM[1],)
-    return out
+    far = tuple(("farbox", n) for n in _J36)
+    unc = tuple(("unconstrained", n) for n in _J36)
+    con = tuple((r, n) for r in ("zheight", "closebox") for n in _J36)
+    needs = [(("farbox", 3),), (("farbox", 6),), far + unc + con, (("unconstrained", 2),),
+             unc, unc, unc, con, con, unc + con, con,
+             (("farbox_tall", 3), ("farbox_tall", 6), ("farbox", 3), ("farbox", 6)),
+             (("unconstrained", 3),)]
+    return {c.name: k for c, k in zip(CLAIMS, needs, strict=True)}
+
+
+def rule_lines(level: float) -> list[str]:
+    """Markdown: the verdict rule, as `analysis.report` and `analysis.sensitivity` apply it."""
+    return [
+        "## The rule", "",
+        f"- A claim about where training ends (an asymptote, a converged level: \"highly "
+        f"capable\", \"under 50 %\", \"about 40 %\", \"about 20 %\", \"identical\", \"alike\", "
+        f"\"slower to converge\", Fig. 4) is **not judgeable** when the runs end below the "
+        f"paper's {PAPER_EPISODES:,} episodes; what the runs show so far is printed beside it "
+        "as information, never as a verdict.",
+        f"- Levels are each seed's mean over its last {LAST_SESSIONS} test sessions at the point "
+        f"judged (not one session); the interval is the {level:.0%} Student-t over seeds (the "
+        "paper's figures' interval).",
+        "- A above B: **holds** when the weakest of A and the strongest of B have intervals "
+        "apart in that order, **fails** when apart the other way, **within noise** when they "
+        "overlap. Under / over a threshold, \"about X\" (X +- "
+        f"{ABOUT_TOLERANCE:g}) and \"alike\" (every interval within a band {ALIKE_TOLERANCE:g} "
+        "wide) the same way: holds when the intervals lie inside, fails when they lie outside "
+        "(or apart), within noise otherwise. Far box by 1,000 episodes: holds when at most the "
+        f"paper's misses (0 of 5 with 3 joints, 1 of 5 with 6) never hit {HIGH_SUCCESS:g} "
+        f"in a test session up to episode {FAST_EPISODES:,}.",
+        "- Beside every comparison: its two-sided Welch p-value over seeds (scipy "
+        "`ttest_ind(equal_var=False)`), uncorrected for the number of comparisons, which is "
+        "printed below the table. *not run*: a setting the claim needs has no runs.",
+        "- *Confounds*: what differs between the two settings compared besides the regions.",
+        ""]
 
 
 def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> str:
+    """report.md: the settings' table, the reading, the rule and every claim's verdict."""
     episodes = sorted({s.episodes for s in summaries.values()})
     seeds = sorted({s.seeds for s in summaries.values()})
     span = lambda v: f"{v[0]:,}" if len(v) == 1 else f"{v[0]:,}-{v[-1]:,}"  # noqa: E731
@@ -238,9 +589,11 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
               f"{span(seeds)} seeds per setting (the paper: {PAPER_SEEDS}); {in_grid} of the "
               f"paper's {len(PAPER_GRID)} settings" + (f" and {others} others." if others else "."))
     lines = ["# Reproduction report: Lewis, Moll and Kavraki (2019)", "", budget, "",
-             f"Successes per 100 test goals; mean over seeds with a {level:.0%} Student-t "
-             "confidence interval in brackets.", "",
-             "| region | joints | seeds | episodes | final | best | first >= "
+             f"Successes per 100 test goals; *last {LAST_SESSIONS}*: each seed's mean over its "
+             f"last {LAST_SESSIONS} common test sessions, then the mean over seeds with a "
+             f"{level:.0%} Student-t confidence interval in brackets; *best*: each seed's best "
+             "single session.", "",
+             f"| region | joints | seeds | episodes | last {LAST_SESSIONS} | best | first >= "
              f"{HIGH_SUCCESS:g} | paper |",
              "|---|---|---|---|---|---|---|---|"]
     order = sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1]))
@@ -250,15 +603,23 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
         lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | {_fmt(s.final)} | "
                      f"{_fmt(s.best)} | {_first_high(s.first_high)} | "
                      f"{paper.text if paper else 'not in the paper'} |")
-    lines += ["", *reading_lines(summaries), "## The paper's orderings", "",
-              "Judged on the final successes' confidence intervals: *yes* when they lie apart in "
-              "the claimed order (and as far apart as the claim says), ***no*** when they lie "
-              "apart the other way or can't be as far apart as claimed, *within noise* when "
-              "they overlap.", "",
-              "| claim | holds here | detail |", "|---|---|---|"]
-    for claim, verdict, detail in ordering_checks(summaries):
-        lines.append(f"| {claim} | {verdict.value} | {detail} |")
+    checks = ordering_checks(summaries, level)
+    lines += ["", *reading_lines(summaries), *rule_lines(level), "## The paper's claims", "",
+              *claim_table(checks), "", comparisons_line(checks)]
     return "\n".join(lines) + "\n"
+
+
+def claim_table(checks: Sequence[Check]) -> list[str]:
+    """Markdown: one row per claim, with the paper's words, the verdict, the Welch p-value,
+    the detail and the confounds."""
+    words = {c.name: c for c in CLAIMS}
+    lines = ["| claim | the paper (section, figure) | verdict | Welch p | detail | confounds |",
+             "|---|---|---|---|---|---|"]
+    for c in checks:
+        claim = words[c.claim]
+        lines.append(f"| {c.claim} | \"{claim.words}\" ({claim.where}) | {c.verdict.value} | "
+                     f"{p_text(c.p_value)} | {c.detail} | {'; '.join(c.confounds) or '-'} |")
+    return lines
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -17,8 +17,14 @@ configuration share one stacked agent), into
 ``ROOT/<reading>/<region>-j<joints>/s<seed>``: normal run folders, resumed when unfinished and
 skipped when every seed's eval.csv reaches the budget (units started by hand with that layout
 count as the study's own). The report judges each of the paper's claims
-(`analysis.report.judge_claims`) for each reading at the budget, on the 65 % Student-t interval
-of the paper and on rliable's bootstrap intervals of the mean and the IQM.
+(`analysis.report.judge_claims`, by the rule `analysis.report` states and prints) for each
+reading at the budget: each seed's mean over its last 5 test sessions at or below it, on the 65 %
+Student-t interval of the paper and on percentile bootstrap intervals of the mean and the IQM
+(drawn from a `numpy.random.Generator` seeded by ``--bootstrap-seed``, so the same runs give the
+same bytes), with a Welch p-value for every comparison and the confounds it carries. A claim
+about where training ends is *not judgeable* below the paper's 20,000 episodes. A run counts
+for the reading its ``spec.json`` records: a run whose recorded choices are not those of the
+reading its folder names is refused, naming it.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ import json
 import shlex
 import shutil
 import sys
-import warnings
+import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -37,8 +43,20 @@ from typing import Any
 
 import numpy as np
 
-from analysis.readings import READINGS, Reading
-from analysis.report import Verdict, claim_settings, judge_claims
+from analysis.paper import PAPER_EPISODES
+from analysis.readings import CHOICES, READINGS, Reading, run_choices
+from analysis.report import (
+    LAST_SESSIONS,
+    Check,
+    Curves,
+    Verdict,
+    claim_settings,
+    comparisons_line,
+    judge_claims,
+    p_text,
+    rule_lines,
+    student_t,
+)
 from analysis.runs import CONFIDENCE, PERCENT, Run, aligned_successes, find_runs, mean_ci
 from analysis.sweep import (
     HelpFormatter,
@@ -76,8 +94,7 @@ are first started, so a report of the root knows what each folder means."""
 COLLECTED_FILES = ("spec.json", "eval.csv")
 """What ``--collect`` copies of each run folder (no checkpoints, buffers or logs)."""
 
-VERDICT_WORDS = {Verdict.YES: "holds", Verdict.NO: "fails", Verdict.NOISE: "within noise",
-                 Verdict.NOT_RUN: "not run"}
+VERDICT_WORDS = {v: v.value for v in Verdict}
 """How a verdict of `analysis.report.judge_claims` reads in this study's tables."""
 
 BOOTSTRAP_REPS = 10_000
@@ -217,14 +234,15 @@ class Cell:
     joints: int
     episode: int
     """The evaluation judged: the last one common to every seed at or below the budget."""
-    successes: tuple[float, ...]
-    """Per seed, goals hit per 100 test goals at ``episode``."""
+    levels: tuple[float, ...]
+    """Per seed, goals hit per 100 test goals, the mean over its last `LAST_SESSIONS` test
+    sessions up to ``episode``."""
     t: Interval
     """Mean with the Student-t interval (analysis.runs.mean_ci)."""
     boot_mean: Interval | None
-    """Mean with rliable's percentile bootstrap interval (None: rliable missing)."""
+    """Mean with its percentile bootstrap interval (`bootstrap_intervals`)."""
     boot_iqm: Interval | None
-    """Interquartile mean with rliable's percentile bootstrap interval."""
+    """Interquartile mean with its percentile bootstrap interval."""
     partial: str = ""
     """Why the cell falls short of the study (fewer seeds, fewer episodes); empty when not."""
     worth: Interval | None = None
@@ -244,41 +262,122 @@ def iqm(scores: np.ndarray) -> float:
     return float(a[cut:a.size - cut].mean())
 
 
-def bootstrap_intervals(successes: np.ndarray, level: float, reps: int,
+def bootstrap_intervals(values: np.ndarray, level: float, reps: int,
                         seed: int) -> tuple[Interval, Interval]:
-    """Mean and IQM of one setting's seeds with rliable's percentile bootstrap intervals.
+    """Mean and IQM of one setting's seeds with percentile bootstrap intervals.
 
     Parameters
     ----------
-    successes : (n_seeds,) float, successes per 100 test goals
+    values : (n_seeds,) float, successes per 100 test goals
     level : float in (0, 1)
         Two-sided coverage (the same as the Student-t interval's, so they compare).
     reps : int
         Bootstrap resamples.
     seed : int
-        Seed of the resampling (the same successes give the same intervals).
+        Seed of the resampling. The draws come from ``numpy.random.default_rng([seed,
+        crc32(values)])``: the same values and seed give the same intervals in any order and
+        process, and no global random state is read or changed.
 
     Returns
     -------
     mean, iqm : (estimate, low, high)
-        One task of ``n_seeds`` runs, so rliable's stratified bootstrap resamples the seeds.
-        With one seed, both intervals are the value itself.
+        The seeds resampled with replacement, the percentile interval of each statistic: for
+        one task this is rliable's stratified bootstrap (whose resampling draws from numpy's
+        global generator, whatever its ``random_state``, so it is not used). With one seed,
+        both intervals are the value itself.
     """
-    from rliable import library as rly
-
-    values = np.asarray(successes, dtype=float).reshape(-1, 1)  # (runs, tasks = 1)
-    if len(values) < 2:
-        v = float(values[0, 0])
+    values = np.asarray(values, dtype=float).reshape(-1)
+    n = len(values)
+    if n < 2:
+        v = float(values[0])
         return (v, v, v), (v, v, v)
-    with warnings.catch_warnings():
-        # rliable 1.2 hands arch a RandomState through the argument arch 7 deprecates
-        warnings.filterwarnings("ignore", "random_state is deprecated", FutureWarning)
-        point, interval = rly.get_interval_estimates(
-            {"s": values},
-            lambda x: np.array([x.mean(), iqm(x)]),
-            reps=reps, confidence_interval_size=level, random_state=np.random.RandomState(seed))
-    (m, q), (low, high) = point["s"], interval["s"]
-    return (float(m), float(low[0]), float(high[0])), (float(q), float(low[1]), float(high[1]))
+    rng = np.random.default_rng([seed, zlib.crc32(values.tobytes())])
+    draws = np.sort(values[rng.integers(0, n, size=(reps, n))], axis=1)  # (reps, n)
+    cut = int(0.25 * n)
+    stats_ = (draws.mean(axis=1), draws[:, cut:n - cut].mean(axis=1))
+    q = 100.0 * np.array([(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+    out = []
+    for point, drawn in zip((values.mean(), iqm(values)), stats_, strict=True):
+        low, high = np.percentile(drawn, q)
+        out.append((float(point), float(low), float(high)))
+    return out[0], out[1]
+
+
+def reading_settings(reading: Reading) -> dict[tuple[str, str], str | list[str]]:
+    """What a reading's ``ddpg_her.train`` arguments set: (spec section, field) -> value as
+    text (``--task K=V`` -> ("task", K); ``--flag-name V...`` -> ("agent", "flag_name"))."""
+    out: dict[tuple[str, str], str | list[str]] = {}
+    args, i = list(reading.args), 0
+    while i < len(args):
+        flag, eq, value = args[i].partition("=")
+        i += 1
+        if not flag.startswith("--"):
+            continue
+        values = [value] if eq else []
+        while not eq and i < len(args) and not args[i].startswith("--"):
+            values.append(args[i])
+            i += 1
+        if flag == "--task":
+            for pair in values:
+                key, _, text = pair.partition("=")
+                out[("task", key)] = text
+        elif values:
+            out[("agent", flag[2:].replace("-", "_"))] = values[0] if len(values) == 1 else values
+    return out
+
+
+def _same(recorded: Any, text: str | list[str]) -> bool:
+    if isinstance(text, list):
+        return (isinstance(recorded, list | tuple) and len(recorded) == len(text)
+                and all(_same(r, t) for r, t in zip(recorded, text, strict=True)))
+    try:
+        return float(recorded) == float(text)
+    except (TypeError, ValueError):
+        return str(recorded).lower() == str(text).lower()
+
+
+def _defaults() -> dict[tuple[str, str], Any]:
+    """(spec section, field) -> this code's default, for every TaskSpec and AgentConfig field."""
+    import dataclasses
+    import enum
+
+    from ddpg_her.config import AgentConfig
+    from envs.spec import TaskSpec
+
+    out = {}
+    for section, cls in (("task", TaskSpec), ("agent", AgentConfig)):
+        for f in dataclasses.fields(cls):
+            if f.default is not dataclasses.MISSING:
+                value = f.default
+                out[(section, f.name)] = value.value if isinstance(value, enum.Enum) else value
+    return out
+
+
+def reading_mismatches(reading: Reading, spec: dict[str, Any]) -> list[str]:
+    """How a run's ``spec.json`` differs from ``reading``: each choice of
+    `analysis.readings.CHOICES` (the reading's value; where it sets none, this code's default or
+    the value of runs written before the field existed) and each other field the reading sets
+    that the spec records; [] when it is the reading's run."""
+    sets = reading_settings(reading)
+    recorded = run_choices(spec)
+    defaults = _defaults()
+    problems = []
+    for name, section, field_, before in CHOICES:
+        if (section, field_) in sets:
+            wants = [sets[(section, field_)]]
+        else:
+            wants = [before] + ([str(defaults[(section, field_)])]
+                                if (section, field_) in defaults else [])
+        if not any(_same(recorded[name], want) for want in wants):
+            problems.append(f"{section}.{field_} = {recorded[name]} where the reading has "
+                            + " or ".join(dict.fromkeys(map(str, wants))))
+    checked = {(section, field_) for _, section, field_, _ in CHOICES}
+    for (section, field_), want in sets.items():
+        have = spec.get(section, {})
+        if (section, field_) not in checked and isinstance(have, dict) and field_ in have \
+                and not _same(have[field_], want):
+            problems.append(f"{section}.{field_} = {have[field_]} where the reading has {want}")
+    return problems
 
 
 def reading_of(run: Run, root: Path) -> str | None:
@@ -287,13 +386,41 @@ def reading_of(run: Run, root: Path) -> str | None:
     return parts[0] if len(parts) >= 2 else None
 
 
-def group_runs(root: Path) -> dict[str, dict[tuple[str, int], list[Run]]]:
-    """The runs with evaluations below ``root``, by reading folder and (region, joints)."""
+def group_runs(root: Path, known: Mapping[str, Reading] | None = None,
+               ) -> dict[str, dict[tuple[str, int], list[Run]]]:
+    """The runs with evaluations below ``root``, by reading folder and (region, joints).
+
+    Raises
+    ------
+    ValueError
+        When a run's ``spec.json`` records choices other than those of the reading its folder
+        names (``known``: the readings by name, default the built-in ones), or, for a folder of
+        an unknown reading, other choices than the folder's other runs: a study pools a run by
+        what it was trained under, not by where it lies.
+    """
+    known = READINGS if known is None else known
     out: dict[str, dict[tuple[str, int], list[Run]]] = {}
+    first: dict[str, tuple[Run, dict[str, str]]] = {}
     for run in find_runs([root]):
         reading = reading_of(run, root)
         if reading is None or not len(run.episode):
             continue
+        if reading in known:
+            problems = reading_mismatches(known[reading], run.spec)
+            if problems:
+                raise ValueError(
+                    f"{run.path}: its spec.json records {'; '.join(problems)}: it was not "
+                    f"trained under the reading {reading!r} its folder names "
+                    f"({' '.join(known[reading].args) or 'the defaults'}); move it to the folder "
+                    "of its reading")
+        else:
+            choices = run_choices(run.spec)
+            seen = first.setdefault(reading, (run, choices))
+            if seen[1] != choices:
+                diff = [f"{k}: {seen[1][k]} in {seen[0].path}, {v} in {run.path}"
+                        for k, v in choices.items() if seen[1][k] != v]
+                raise ValueError(f"reading folder {root / reading} mixes runs trained under "
+                                 f"other choices ({'; '.join(diff)})")
         out.setdefault(reading, {}).setdefault(run.setting, []).append(run)
     return out
 
@@ -301,24 +428,26 @@ def group_runs(root: Path) -> dict[str, dict[tuple[str, int], list[Run]]]:
 def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level: float,
               reps: int, boot_seed: int) -> Cell:
     """The statistics of one reading x setting at the budget (see `Cell`)."""
-    episode, table = aligned_successes(runs)
-    if len(episode) == 0:
-        raise ValueError(f"runs {[str(r.path) for r in runs]} share no evaluation episode")
-    at = np.nonzero(episode <= budget)[0]
-    i = int(at[-1]) if len(at) else 0
-    values = table[:, i]
+    curves = cut_curves(runs, budget)
+    values = curves.level()
     short = []
     if len(runs) < seeds:
         short.append(f"{len(runs)} of {seeds} seeds")
-    if episode[i] < budget:
-        short.append(f"{int(episode[i]):,} of {budget:,} episodes")
+    if curves.end < budget:
+        short.append(f"{curves.end:,} of {budget:,} episodes")
     t = tuple(float(x) for x in mean_ci(values, level, PERCENT))
-    try:
-        boot_mean, boot_iqm = bootstrap_intervals(values, level, reps, boot_seed)
-    except ImportError:
-        boot_mean = boot_iqm = None
-    return Cell(reading, runs[0].region, runs[0].joints, int(episode[i]),
+    boot_mean, boot_iqm = bootstrap_intervals(values, level, reps, boot_seed)
+    return Cell(reading, runs[0].region, runs[0].joints, curves.end,
                 tuple(float(v) for v in values), t, boot_mean, boot_iqm, "; ".join(short))
+
+
+def cut_curves(runs: Sequence[Run], budget: int) -> Curves:
+    """The runs' common test sessions at or below the budget (the first session when none is:
+    judged there, and marked partial)."""
+    episode, _ = aligned_successes(runs)
+    if len(episode) == 0:
+        raise ValueError(f"runs {[str(r.path) for r in runs]} share no evaluation episode")
+    return Curves.of(runs, max(budget, int(episode[0])))
 
 
 def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
@@ -377,26 +506,34 @@ class VerdictRow:
     detail_boot_iqm: str
     partial: str = ""
     """The claim's settings of this reading that fall short of the study, with why."""
+    p_value: float | None = None
+    """Two-sided Welch p-value over seeds of the claim's comparison (None: not a comparison)."""
+    confounds: tuple[str, ...] = ()
+    """What differs between the compared settings besides their regions."""
 
 
-def verdicts(cells: Sequence[Cell], readings: Sequence[str]) -> list[VerdictRow]:
-    """Every claim of `analysis.report.judge_claims` for every reading, claim-major."""
+def verdicts(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, int], Sequence[Run]]],
+             readings: Sequence[str], budget: int, level: float, reps: int,
+             boot_seed: int) -> list[VerdictRow]:
+    """Every claim of `analysis.report.judge_claims` for every reading, claim-major, judged on
+    each setting's sessions at or below ``budget``; ``cells`` say which settings are partial."""
     needs = claim_settings()
+
+    def boot(which: int) -> Any:
+        return lambda values, bounds: bootstrap_intervals(values, level, reps, boot_seed)[which]
+
     per: dict[str, list[VerdictRow]] = {}
     for reading in readings:
-        mine = {c.setting: c for c in cells if c.reading == reading}
-        t = judge_claims({k: c.t for k, c in mine.items()})
-        have_boot = all(c.boot_mean is not None for c in mine.values())
-        bm = judge_claims({k: c.boot_mean for k, c in mine.items()}) if have_boot else None
-        bi = judge_claims({k: c.boot_iqm for k, c in mine.items()}) if have_boot else None
-        for n, (claim, verdict, detail) in enumerate(t):
-            short = [f"{r} {j}: {mine[(r, j)].partial}" for r, j in needs[claim]
-                     if (r, j) in mine and mine[(r, j)].partial]
-            per.setdefault(claim, []).append(VerdictRow(
-                claim, reading, verdict, bm[n][1] if bm else None, bi[n][1] if bi else None,
-                detail, bm[n][2] if bm else "rliable not installed",
-                bi[n][2] if bi else "rliable not installed",
-                "; ".join(short) if verdict is not Verdict.NOT_RUN else ""))
+        mine = {k: cut_curves(runs, budget) for k, runs in groups.get(reading, {}).items()}
+        short = {c.setting: c.partial for c in cells if c.reading == reading}
+        checks = [judge_claims(mine, fn) for fn in (student_t(level), boot(0), boot(1))]
+        for a, b, c in zip(*checks, strict=True):
+            partial = [f"{r} {j}: {short[(r, j)]}" for r, j in needs[a.claim]
+                       if short.get((r, j))]
+            per.setdefault(a.claim, []).append(VerdictRow(
+                a.claim, reading, a.verdict, b.verdict, c.verdict, a.detail, b.detail, c.detail,
+                "; ".join(partial) if a.verdict is not Verdict.NOT_RUN else "", a.p_value,
+                a.confounds))
     return [row for rows in per.values() for row in rows]
 
 
@@ -409,16 +546,19 @@ def word(verdict: Verdict | None, partial: str = "") -> str:
 
 
 VERDICT_COLUMNS = ("claim", "reading", "verdict_t", "verdict_bootstrap_mean",
-                   "verdict_bootstrap_iqm", "partial", "detail_t", "detail_bootstrap_mean",
-                   "detail_bootstrap_iqm")
+                   "verdict_bootstrap_iqm", "welch_p", "partial", "confounds", "detail_t",
+                   "detail_bootstrap_mean", "detail_bootstrap_iqm")
 """Columns of verdicts.csv: one row per claim and reading; verdicts read holds | fails |
-within noise | not run; partial names the claim's settings below the study's seeds or budget."""
+within noise | not judgeable | not run; welch_p is the comparison's two-sided Welch p-value
+over seeds (empty: not a comparison, nan: undefined); partial names the claim's settings below
+the study's seeds or budget; confounds what else differs between the settings compared."""
 
-FINAL_COLUMNS = ("reading", "region", "joints", "seeds", "episode", "partial", "successes",
+FINAL_COLUMNS = ("reading", "region", "joints", "seeds", "episode", "partial", "levels",
                  "mean", "t_low", "t_high", "boot_mean_low", "boot_mean_high", "iqm",
                  "boot_iqm_low", "boot_iqm_high", "worth_reaching", "worth_low", "worth_high")
-"""Columns of finals.csv: per reading and setting, successes per 100 test goals at the judged
-evaluation (each seed's, ';'-separated), their intervals, and the worth-reaching share (%)."""
+"""Columns of finals.csv: per reading and setting, each seed's mean successes per 100 test goals
+over its last 5 test sessions up to the judged evaluation (';'-separated), their intervals, and
+the worth-reaching share (%)."""
 
 CURVE_COLUMNS = ("reading", "region", "joints", "episode", "seeds", "mean_successes", "ci_low",
                  "ci_high")
@@ -437,15 +577,17 @@ def write_csvs(cells: Sequence[Cell], rows: Sequence[VerdictRow], curves: Sequen
         w.writerow(VERDICT_COLUMNS)
         for r in rows:
             w.writerow([r.claim, r.reading, word(r.t), word(r.boot_mean), word(r.boot_iqm),
-                        r.partial, r.detail_t, r.detail_boot_mean, r.detail_boot_iqm])
+                        "" if r.p_value is None else f"{r.p_value:.4g}", r.partial,
+                        "; ".join(r.confounds), r.detail_t, r.detail_boot_mean,
+                        r.detail_boot_iqm])
     with open(out / "finals.csv", "w", newline="") as f:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(FINAL_COLUMNS)
         for c in cells:
             bm, bi, wr = c.boot_mean or (None,) * 3, c.boot_iqm or (None,) * 3, \
                 c.worth or (None,) * 3
-            w.writerow([c.reading, c.region, c.joints, len(c.successes), c.episode, c.partial,
-                        ";".join(f"{v:g}" for v in c.successes), _r(c.t[0]), _r(c.t[1]),
+            w.writerow([c.reading, c.region, c.joints, len(c.levels), c.episode, c.partial,
+                        ";".join(f"{v:g}" for v in c.levels), _r(c.t[0]), _r(c.t[1]),
                         _r(c.t[2]), _r(bm[1]), _r(bm[2]), _r(bi[0]), _r(bi[1]), _r(bi[2]),
                         _r(wr[0]), _r(wr[1]), _r(wr[2])])
     with open(out / "curves.csv", "w", newline="") as f:
@@ -551,51 +693,64 @@ def _fmt(stat: Interval | None) -> str:
 
 def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence[str],
            known: Mapping[str, Reading], budget: int, seeds: int, level: float, reps: int,
-           worth_note: str) -> str:
-    """report.md: the readings, each cell's statistics, and the verdict tables."""
-    from importlib import metadata
-
-    try:
-        boot = f"rliable {metadata.version('rliable')} percentile bootstrap, {reps:,} resamples"
-    except metadata.PackageNotFoundError:
-        boot = "rliable not installed: no bootstrap intervals"
+           worth_note: str, boot_seed: int = 0) -> str:
+    """report.md: the readings, the rule, the verdict tables and each cell's statistics."""
+    boot = (f"a percentile bootstrap over seeds ({reps:,} resamples, numpy Generator seeded "
+            f"by --bootstrap-seed {boot_seed})")
     lines = [
         "# Sensitivity of the paper's claims to the reproduction's unstated choices", "",
-        f"Budget {budget:,} training episodes and {seeds} seeds per unit; every claim judged at "
-        "the last evaluation at or below the budget. Intervals are two-sided "
-        f"{level:.0%}: Student-t of the mean over seeds (the paper's), and {boot} of the mean "
-        "and the interquartile mean (IQM) over seeds. Successes per 100 test goals. Settings "
-        "with fewer seeds or episodes than the study are marked *partial*.", "",
-        "## Readings", "", "| reading | the paper | this reading | ddpg_her.train arguments |",
-        "|---|---|---|---|"]
+        f"Budget {budget:,} training episodes and {seeds} seeds per unit; every claim judged on "
+        f"each seed's mean over its last {LAST_SESSIONS} test sessions at or below the budget. "
+        f"Intervals are two-sided {level:.0%}: Student-t of the mean over seeds (the paper's), "
+        f"and {boot} of the mean and the interquartile mean (IQM). Successes per 100 test "
+        "goals. Settings with fewer seeds or episodes than the study are marked *partial*.", ""]
+    if budget < PAPER_EPISODES:
+        lines += [f"**At {budget:,} episodes ({budget / PAPER_EPISODES:.0%} of the paper's "
+                  f"{PAPER_EPISODES:,}) every claim about where training ends is not "
+                  "judgeable**; the tables show what the runs reach so far as information.", ""]
+    lines += ["## Readings", "", "| reading | the paper | this reading | ddpg_her.train "
+              "arguments |", "|---|---|---|---|"]
     for name in readings:
         r = known.get(name)
         lines.append(f"| {name} | {r.paper if r else '?'} | {r.ours if r else '?'} | "
                      f"{' '.join(r.args) if r and r.args else '(none)' if r else '?'} |")
-    lines += ["", "## The paper's claims, per reading", "",
+    lines += ["", *rule_lines(level), "## The paper's claims, per reading", "",
               "Each cell: the verdict on the Student-t interval / on the bootstrap interval of "
-              "the mean / of the IQM. *holds*: the intervals lie apart in the claimed order (and "
-              "as far apart as the claim says); *fails*: they lie apart the other way, or can't "
-              "be as far apart as claimed; *within noise*: they overlap; *not run*: a setting "
-              "the claim needs was not run for this reading.", "",
+              "the mean / of the IQM, then the Welch p-value of the comparison (p, where the "
+              "claim compares settings).", "",
               "| claim | " + " | ".join(readings) + " |",
               "|---|" + "---|" * len(readings)]
     for claim in dict.fromkeys(r.claim for r in rows):
         cells_ = []
         for name in readings:
             row = next(r for r in rows if r.claim == claim and r.reading == name)
-            if row.t is Verdict.NOT_RUN:
-                cells_.append("not run")
+            if row.t in (Verdict.NOT_RUN, Verdict.NOT_JUDGEABLE) and row.boot_mean is row.t:
+                text = word(row.t)
             else:
-                cells_.append(f"{word(row.t, row.partial)} / {word(row.boot_mean)} / "
-                              f"{word(row.boot_iqm)}")
+                text = (f"{word(row.t, row.partial)} / {word(row.boot_mean)} / "
+                        f"{word(row.boot_iqm)}")
+            if row.p_value is not None:
+                text += f"; p {p_text(row.p_value)}"
+            cells_.append(text)
         lines.append(f"| {claim} | " + " | ".join(cells_) + " |")
-    lines += ["", "## Final successes", "",
+    judged = [Check(r.claim, r.t, r.detail_t, r.p_value) for r in rows]
+    lines += ["", comparisons_line(judged), "", "## Confounds", "",
+              "The comparisons whose settings differ in more than the goal region (per reading: "
+              "the settings each compares depend on which were run).", "",
+              "| claim | reading | confounds |", "|---|---|---|"]
+    confounded = [r for r in rows if r.confounds]
+    for r in confounded:
+        lines.append(f"| {r.claim} | {r.reading} | {'; '.join(r.confounds)} |")
+    if not confounded:
+        lines.append("| (none) | | |")
+    lines += ["", f"## Levels at {budget:,} episodes", "",
+              f"Each seed's mean over its last {LAST_SESSIONS} test sessions at or below the "
+              "budget, then over seeds.", "",
               "| reading | setting | seeds | episode | mean [t] | mean [bootstrap] | "
               "IQM [bootstrap] | worth reaching (%) | partial |",
               "|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
-        lines.append(f"| {c.reading} | {c.region} {c.joints} | {len(c.successes)} | "
+        lines.append(f"| {c.reading} | {c.region} {c.joints} | {len(c.levels)} | "
                      f"{c.episode:,} | {_fmt(c.t)} | {_fmt(c.boot_mean)} | "
                      f"{_fmt(c.boot_iqm)} | {_fmt(c.worth)} | {c.partial or '-'} |")
     lines += ["", worth_note + ".", "", "## Verdict details", "",
@@ -656,8 +811,8 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
     """
     if not root.exists():
         raise FileNotFoundError(f"runs root {root} does not exist")
-    groups = group_runs(root)
     known = known_readings(root, extra)
+    groups = group_runs(root, known)
     names = list(readings) if readings else [*READINGS, *sorted(set(groups) - set(READINGS))]
     settings = [*(s for s in SETTINGS if any(s in groups.get(r, {}) for r in names)),
                 *sorted({s for r in names for s in groups.get(r, {})} - set(SETTINGS))]
@@ -665,7 +820,7 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
              for r in names for s in settings if s in groups.get(r, {})]
     shares, note = worth_shares(cells, groups, worth_goals, boot_seed)
     cells = [Cell(**{**asdict(c), "worth": shares.get((c.reading, *c.setting))}) for c in cells]
-    rows = verdicts(cells, names)
+    rows = verdicts(cells, groups, names, budget, level, reps, boot_seed)
     curves = curve_rows({r: groups[r] for r in names if r in groups}, level)
     write_csvs(cells, rows, curves, out)
     files = [out / "verdicts.csv", out / "finals.csv", out / "curves.csv"]
@@ -676,7 +831,7 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
     if shares:
         plot_worth(cells, settings, [r for r in names if r in groups], out / "worth_reaching.png")
         files.append(out / "worth_reaching.png")
-    text = render(cells, rows, names, known, budget, seeds, level, reps, note)
+    text = render(cells, rows, names, known, budget, seeds, level, reps, note, boot_seed)
     (out / "report.md").write_text(text)
     files.append(out / "report.md")
     return StudyReport(cells, rows, names, text, files)
@@ -755,7 +910,7 @@ def report_main(argv: Sequence[str]) -> int:
         result = report(args.root, args.out or args.root, args.episodes, args.seeds,
                         args.confidence, args.reps, args.bootstrap_seed, args.worth_goals,
                         args.readings, _user_readings(parser, args))
-    except FileNotFoundError as err:
+    except (FileNotFoundError, ValueError) as err:
         parser.error(str(err))
     print(result.text, end="")
     print("wrote " + ", ".join(map(str, result.files)), file=sys.stderr)

@@ -67,6 +67,38 @@ class RunFolderError(ValueError):
     """A run folder, or one of its files, that cannot be read or does not fit the request."""
 
 
+_EVAL_WHOLE = ("episode", "successes", "tests", "env_steps")
+"""Columns of eval.csv that count something: whole numbers."""
+
+
+def _check_eval_row(path: Path, line: int, row: dict[str, str], last: int | None) -> int:
+    """Check one eval.csv row (see `RunFolder.read_eval`); return its episode."""
+    def bad(what: str) -> RunFolderError:
+        return RunFolderError(f"{path} line {line}: {what}; the run folder {path.parent} "
+                              "cannot be trusted")
+
+    values: dict[str, float] = {}
+    for name, text in row.items():
+        whole = name in _EVAL_WHOLE
+        try:
+            value = int(text) if whole else float(text)
+        except ValueError:
+            raise bad(f"{name} is {text!r}, expected "
+                      + ("a whole number" if whole else "a number")) from None
+        if not np.isfinite(value):
+            raise bad(f"{name} is {text!r}, expected a finite number")
+        values[name] = value
+    episode, successes, tests = (int(values[k]) for k in ("episode", "successes", "tests"))
+    if tests < 1:
+        raise bad(f"tests is {tests}, expected at least 1 test episode")
+    if not 0 <= successes <= tests:
+        raise bad(f"successes is {successes}, expected 0 to tests = {tests}")
+    if episode < 0 or (last is not None and episode <= last):
+        raise bad(f"episode is {episode}, expected more than the row before"
+                  + (f" ({last})" if last is not None else " and >= 0"))
+    return episode
+
+
 def atomic_write(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part."""
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
@@ -169,12 +201,19 @@ class RunFolder:
         atomic_write(self.path / "eval.csv", buf.getvalue().encode())
 
     def read_eval(self) -> list[dict[str, str]]:
-        """The rows of ``eval.csv`` (strings; [] when there is no ``eval.csv`` yet).
+        """The rows of ``eval.csv`` (strings; [] when there is no ``eval.csv`` yet), checked.
+
+        Every tool that reads test sessions (``analysis``, ``ddpg_her.summary``) reads them
+        here, so a row that cannot be is refused once for all of them.
 
         Raises
         ------
         RunFolderError
-            When its header is not `EVAL_COLUMNS` or a row has another number of cells.
+            When its header is not `EVAL_COLUMNS`, a row has another number of cells, or a row
+            cannot be a test session: ``episode``, ``successes``, ``tests`` or ``env_steps`` not
+            a whole number, another column not a finite number, ``tests`` < 1, ``successes``
+            outside [0, tests], or ``episode`` not above the row before. The message names the
+            file, the line and the value.
         """
         path = self.path / "eval.csv"
         if not path.exists():
@@ -190,11 +229,15 @@ class RunFolder:
             return []
         if tuple(header) != EVAL_COLUMNS:
             raise RunFolderError(f"{path} has columns {header}, expected {list(EVAL_COLUMNS)}")
+        rows, last = [], None
         for i, cells in enumerate(body, start=2):
             if len(cells) != len(EVAL_COLUMNS):
                 raise RunFolderError(f"{path} line {i} has {len(cells)} cells, expected "
                                      f"{len(EVAL_COLUMNS)}")
-        return [dict(zip(EVAL_COLUMNS, cells, strict=True)) for cells in body]
+            row = dict(zip(EVAL_COLUMNS, cells, strict=True))
+            last = _check_eval_row(path, i, row, last)
+            rows.append(row)
+        return rows
 
     # --- checkpoints and buffer chunks ---------------------------------------------------------
     def _listing(self, sub: str, pattern: re.Pattern) -> dict[int, Path]:

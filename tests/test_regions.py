@@ -244,3 +244,23 @@ def test_box_contains_agrees_with_its_mesh(limits: list[float]) -> None:
     pts = np.random.default_rng(0).uniform(lo - 0.5, hi + 0.5, (500, 3))
     assert np.array_equal(box.contains(pts), mesh_region.contains(pts))
     assert box.volume == pytest.approx(float(np.prod(hi - lo)), rel=1e-12)
+
+
+def test_the_constrained_start_is_the_one_reading_of_the_papers_pose_inside_the_regions() -> None:
+    """docs/design.md, open point 1: of the 8 readings of the paper's [0, pi/2, pi/4, 0, 0, 0]
+    (which of lift and elbow takes pi/2, each sign), only CONSTRAINED_START puts tool0 inside
+    zheight, closebox and farbox ("the end effector is within the goal constraint region")
+    with every link above the plane."""
+    import itertools
+
+    from regions.registry import CONSTRAINED_START, DEFAULT_BASE_HEIGHT, get
+
+    inside = []
+    for (lift, elbow), (s1, s2) in itertools.product(
+            ((np.pi / 2, np.pi / 4), (np.pi / 4, np.pi / 2)), itertools.product((1, -1), (1, -1))):
+        q = np.array([0.0, s1 * lift, s2 * elbow, 0.0, 0.0, 0.0])
+        tool = np.asarray(ur5kin.fk_world(q, DEFAULT_BASE_HEIGHT)).reshape(1, 3)
+        clear = float(np.min(ur5kin.link_heights(q, DEFAULT_BASE_HEIGHT))) >= 0.0
+        if clear and all(get(r).contains(tool)[0] for r in ("zheight", "closebox", "farbox")):
+            inside.append(tuple(q))
+    assert inside == [pytest.approx(CONSTRAINED_START)]
