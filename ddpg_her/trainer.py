@@ -266,12 +266,8 @@ class Trainer:
                         self._mismatch(f.checkpoints()[episode], state["config"], spec)
                 chunks = [f.chunks(upto=episode) for f in self.folders]
                 for f, state, rows in zip(self.folders, states, chunks, strict=True):
-                    total = rows[-1][0] + len(rows[-1][1]) if rows else 0
-                    if total != state["buffer_total"]:
-                        raise RunFolderError(
-                            f"{f.path / 'buffer'}: the chunks up to episode {episode} end at "
-                            f"transition {total}, its checkpoint expects "
-                            f"{state['buffer_total']}")
+                    _check_coverage(f.path / "buffer", episode, rows, int(state["buffer_total"]),
+                                    self.config.buffer_size)
             except RunFolderError as err:
                 if i + 1 == len(candidates):
                     raise
@@ -296,7 +292,10 @@ class Trainer:
                                    f"transitions, the checkpoint expects {s['buffer_total']}")
             self.env_steps[k] = s["env_steps"]
             self.rows[k] = list(s["rows"])
-            f.prune(upto=episode, keep_from=s["buffer_total"] - self.config.buffer_size)
+            # only the abandoned future: the older checkpoint kept beside this one needs the
+            # chunks before this one's window, should this one be found corrupt later (the
+            # next save prunes them, when it deletes that older checkpoint)
+            f.prune(upto=episode, keep_from=0)
             f.write_eval(self.rows[k])
         self.episode = episode
         self.wall_s = float(states[0]["wall_s"])
@@ -560,6 +559,28 @@ class Trainer:
     def close(self) -> None:
         self.envs.close()
         self.eval_envs.close()
+
+
+def _check_coverage(where: Path, episode: int, chunks: Sequence[tuple[int, Any]], total: int,
+                    capacity: int) -> None:
+    """Raise RunFolderError unless ``chunks`` hold every transition that a checkpoint with
+    ``total`` transitions keeps in a buffer of ``capacity``: numbers ``total - capacity``
+    (or 0) to ``total - 1``, without a gap. A gap would leave rows that were never written."""
+    need = max(0, total - capacity)
+    covered = need
+    for start, rows in chunks:
+        end = start + len(rows)
+        if end <= covered:
+            continue
+        if start > covered:
+            raise RunFolderError(
+                f"{where}: the checkpoint of episode {episode} needs transitions {need} to "
+                f"{total - 1}, but no chunk holds {covered} to {start - 1} (deleted or lost)")
+        covered = end
+    if covered != total:
+        raise RunFolderError(
+            f"{where}: the chunks up to episode {episode} end at transition {covered}, its "
+            f"checkpoint expects {total}")
 
 
 def json_equal(a: Any, b: Any) -> bool:
