@@ -83,3 +83,89 @@ def test_a_checkpoint_whose_buffer_has_a_gap_is_refused_naming_it(tmp_path, shor
             pytest.raises(ValueError, match=rf"{run / 'buffer'}: the checkpoint of episode 7 "
                                             r"needs transitions \d+ to \d+, but no chunk holds"):
         Trainer(ENV_ID, TASK, SHORT, [0], [str(run)], resume=True)
+
+
+# --- every field given on the command line is the one recorded ----------------------------------
+TASK_VALUES = {
+    "region": "zmax:0.3", "n_joints": 4, "start_q": [0.0, -0.7, 1.5, 0.0, 0.0, 0.0],
+    "base_height": 0.2, "goal_sampler": "cartesian", "control_mode": "velocity",
+    "reward_type": "sparse", "distance_weight": 2, "action_weight": 0.5,
+    "action_penalty_unit": "actor", "success_reward": 50, "success_radius": 0.05,
+    "terminate_on_success": False, "max_episode_steps": 10, "control_hz": 25, "sim_hz": 2000,
+    "kp": [3500.0, 3200.0, 700.0, 200.0, 200.0, 14.0],
+    "kd": [250.0, 230.0, 50.0, 15.0, 15.0, 1.0], "gravity_compensation": False,
+    "plane_margin": 0.01, "contact_model": "compliant", "contact_stiffness": 100000.0,
+    "contact_damping": 1000.0, "contact_friction": 0.5, "contact_max_depth": 0.01,
+}
+"""A valid value other than the default for each TaskSpec field."""
+
+AGENT_FLAGS = {
+    "gamma": (["0.9"], 0.9), "buffer_size": (["500"], 500), "batch_size": (["16"], 16),
+    "exploration_rate": (["0.2"], 0.2), "tau": (["0.01"], 0.01),
+    "actor_lr": (["0.0002"], 0.0002), "critic_lr": (["0.002"], 0.002),
+    "episodes": (["0"], 0), "eval_every": (["7"], 7), "eval_episodes": (["3"], 3),
+    "hidden_sizes": (["8", "9"], [8, 9]), "final_init": (["0.001"], 0.001),
+    "her_strategy": (["future"], "future"), "her_k": (["2"], 2),
+    "exploration": (["ou"], "ou"), "ou_theta": (["0.3"], 0.3),
+    "warmup_episodes": (["5"], 5), "updates_per_episode": (["3"], 3),
+    "normalize_obs": ([], False), "obs_clip": (["4"], 4.0), "norm_eps": (["0.02"], 0.02),
+    "critic_l2": (["0.01"], 0.01), "flush_denormals": ([], False),
+}
+"""For each AgentConfig flag, a value other than the default and what spec.json must record
+([]: the --no- form of a switch)."""
+
+
+def test_the_tables_name_every_field():
+    import dataclasses
+
+    from envs.spec import TaskSpec
+
+    assert set(TASK_VALUES) == {f.name for f in dataclasses.fields(TaskSpec)}
+    assert set(AGENT_FLAGS) == {f.name for f in dataclasses.fields(AgentConfig)}
+
+
+def recorded_spec(tmp_path, *args: str) -> dict:
+    import json
+
+    from ddpg_her.train import main
+
+    out = tmp_path / "run"
+    assert main([*args, "--episodes", "0", "--out", str(out), "--no-progress",
+                 "--no-tensorboard"]) == 0
+    return json.loads((out / "spec.json").read_text())
+
+
+@pytest.mark.parametrize("field", sorted(TASK_VALUES))
+def test_every_task_field_given_is_the_one_recorded(tmp_path, field):
+    """``--task max_episode_steps=10`` trained 10-step episodes and recorded 100."""
+    import json
+
+    value = TASK_VALUES[field]
+    flags = ["--region", value] if field == "region" else \
+        ["--region", "zheight", "--task", f"{field}={json.dumps(value)}"]
+    if field == "goal_sampler":
+        flags += ["--task", "n_joints=3"]
+    spec = recorded_spec(tmp_path, *flags, "--eval-episodes", "1", "--hidden-sizes", "8", "8")
+    recorded = spec["task"][field]
+    assert json.dumps(recorded) == json.dumps(value) or recorded == pytest.approx(value)
+    if field == "max_episode_steps":
+        assert spec["dims"]["max_episode_steps"] == value
+
+
+@pytest.mark.parametrize("field", sorted(AGENT_FLAGS))
+def test_every_agent_flag_given_is_the_one_recorded(tmp_path, field):
+    values, expected = AGENT_FLAGS[field]
+    flag = "--" + ("no-" if not values else "") + field.replace("_", "-")
+    spec = recorded_spec(tmp_path, "--env-id", f"toy_goal_env:{ENV_ID}", "--region", "box",
+                         flag, *values)
+    default = AgentConfig().to_dict()[field]
+    assert spec["agent"][field] == expected != default
+
+
+def test_a_task_field_the_env_does_not_take_is_refused(tmp_path):
+    from ddpg_her.trainer import _check_recorded
+
+    with pytest.raises(ValueError, match=r"did not take the task field\(s\) given: "
+                                         r"max_episode_steps=10 \(the task holds 100\)"):
+        _check_recorded("UR5Reach-v0", {"max_episode_steps": 10, "start_q": None},
+                        {"max_episode_steps": 100, "start_q": [0.0] * 6})
