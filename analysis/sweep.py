@@ -10,7 +10,7 @@ One training process per setting trains all its seeds at once (``ddpg_her.train 
 trains every unfinished setting, the settings of one joint count stacked into one agent batch.
 Finished runs are skipped and unfinished ones resumed from their last checkpoint, so an interrupted
 sweep continues where it stopped when run again; a setting another ``ddpg_her.train`` or
-``ddpg_her.train_many`` process is training (same ``--out``) is left to it. Each process's output
+``ddpg_her.train_many`` process is training (it holds a run folder's lock) is left to it. Each process's output
 goes to ``ROOT/logs/<region>-j<joints>.log`` (one process: ``ROOT/logs/one-process.log``). Arguments
 after ``--`` pass to ``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
 """
@@ -125,39 +125,6 @@ class Unit:
     @property
     def log_path(self) -> Path:
         return self.root / "logs" / f"{self.setting}.log"
-
-
-def training_outs() -> set[Path]:
-    """The ``--out`` folders (resolved, ``{seed}`` left in) of every ``ddpg_her.train`` and
-    ``ddpg_her.train_many`` process running on this machine, read from /proc; empty where
-    there is no /proc.
-
-    A unit whose folder is among them is being trained by another process (an earlier sweep,
-    or a command started by hand with the same layout): starting it again would make two
-    processes write the same run folders.
-    """
-    from ddpg_her.train_many import command_outs
-
-    outs: set[Path] = set()
-    proc = Path("/proc")
-    if not proc.is_dir():
-        return outs
-    for entry in proc.iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
-            if "ddpg_her.train_many" in argv:
-                cwd = (entry / "cwd").resolve()
-                outs.update(command_outs(argv[argv.index("ddpg_her.train_many") + 1:], cwd))
-                continue
-            if "ddpg_her.train" not in argv or "--out" not in argv:
-                continue
-            out = Path(argv[argv.index("--out") + 1])
-            outs.add((out if out.is_absolute() else (entry / "cwd").resolve() / out).resolve())
-        except (OSError, IndexError):
-            continue
-    return outs
 
 
 def parse_setting(text: str) -> tuple[str, int]:
@@ -467,10 +434,12 @@ def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequ
     return 0
 
 
-def busy(unit: Unit, outs: set[Path]) -> bool:
-    """Whether another process trains ``unit`` (its ``--out`` is in ``outs``, see
-    `training_outs`)."""
-    return Path(unit.out).resolve() in outs
+def busy(unit: Unit) -> bool:
+    """Whether another live process trains one of ``unit``'s run folders: it holds the
+    folder's lock (`ddpg_her.runfolder.RunFolder.lock`), whatever its command line or cwd."""
+    from ddpg_her.runfolder import RunFolder
+
+    return any(RunFolder(unit.run_dir(seed)).holder() is not None for seed in unit.seeds)
 
 
 def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
@@ -478,14 +447,13 @@ def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
     """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
     trains its unit), tag, setting, seed, folder and the unit's command (with ``one``: its
     arguments in the one ``ddpg_her.train_many`` process)."""
-    outs = training_outs()
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if one else \
             "python " + " ".join(unit.command(threads, [*extra, *backend_args(env_backend)],
                                               device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
-            status = "busy" if busy(unit, outs) and unit.status(seed) != "done" \
+            status = "busy" if busy(unit) and unit.status(seed) != "done" \
                 else unit.status(seed)
             print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
                   f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
@@ -505,8 +473,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)
-    outs = training_outs()
-    for unit in [u for u in todo if busy(u, outs)]:
+    for unit in [u for u in todo if busy(u)]:
         print(f"{unit.name}: another process is training it ({unit.out}); skipped, run again "
               "when it has ended", file=sys.stderr)
         todo.remove(unit)

@@ -10,7 +10,9 @@ A run folder holds
 - ``buffer/episode-NNNNNN.npz``: the transitions each checkpoint interval added to the replay
   buffer, so a checkpoint need not rewrite the whole buffer; chunks that the buffer has since
   overwritten are deleted;
-- ``tb/``: TensorBoard logs, when tensorboard is installed.
+- ``tb/``: TensorBoard logs, when tensorboard is installed;
+- ``lock.json``: while a trainer runs, its pid and host (`RunFolder.lock`): a second trainer on
+  the folder is refused, a lock of a process that has ended is taken over with a warning.
 
 Every file is written to a temporary name (`TEMPORARY`) and moved into place with
 ``os.replace``, so a run killed at any moment leaves each file either complete or as it was, plus
@@ -27,12 +29,15 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import datetime
 import io
 import json
 import os
 import re
+import socket
 import subprocess
 import sys
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +70,38 @@ _CHUNK = re.compile(r"episode-(\d{6,})\.npz$")
 
 class RunFolderError(ValueError):
     """A run folder, or one of its files, that cannot be read or does not fit the request."""
+
+
+LOCK = "lock.json"
+"""The run folder's lock file, held by the one process that trains the run: its pid, host and
+start time (JSON)."""
+
+
+class RunFolderBusy(RunFolderError):
+    """A run folder that another live process trains (it holds the folder's `LOCK`)."""
+
+
+def _alive(pid: int) -> bool:
+    """Whether a Python process ``pid`` lives on this host (a pid reused by a process of
+    another program, e.g. a kernel thread, does not count where /proc tells)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        pass
+    try:
+        return b"python" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    except FileNotFoundError:
+        return not Path("/proc/self").exists()  # gone in between, or no /proc at all
+    except OSError:
+        return True
+
+
+def _host() -> str:
+    return socket.gethostname()
 
 
 def atomic_write(path: Path, data: bytes) -> None:
@@ -124,17 +161,93 @@ class RunFolder:
     def clean(self) -> list[Path]:
         """Delete the temporary files that interrupted writes left behind; returns their paths.
 
-        Only for the one process that writes the run (the trainer, at its start).
+        Only for the one process that writes the run (the trainer, at its start, holding the
+        `lock`); a temporary file whose writer (the pid in its name) still lives on this host
+        is left alone all the same.
         """
         removed = []
         for folder in (self.path, *(self.path / s for s in SUBFOLDERS)):
             if not folder.is_dir():
                 continue
             for p in folder.iterdir():
-                if TEMPORARY.match(p.name) and p.is_file():
+                m = TEMPORARY.match(p.name)
+                if m and p.is_file():
+                    pid = int(p.name.rsplit(".tmp", 1)[1])
+                    if pid != os.getpid() and _alive(pid):
+                        continue
                     p.unlink(missing_ok=True)
                     removed.append(p)
         return removed
+
+    # --- the lock -------------------------------------------------------------------------------
+    @property
+    def lock_path(self) -> Path:
+        return self.path / LOCK
+
+    def holder(self) -> dict[str, Any] | None:
+        """Who holds the folder's lock (``pid``, ``host``, ``since``), or None when nobody
+        does; a lock left by a dead process of this host counts as nobody's."""
+        try:
+            holder = json.loads(self.lock_path.read_text())
+            pid, host = int(holder["pid"]), str(holder["host"])
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, KeyError, TypeError):
+            return {"pid": None, "host": None, "since": None, "unreadable": True}
+        if host == _host() and not _alive(pid):
+            return None
+        return holder
+
+    def lock(self) -> None:
+        """Take the folder's lock for this process (creating the folder).
+
+        A lock of a dead process of this host is taken over with a warning naming it.
+
+        Raises
+        ------
+        RunFolderBusy
+            When a live process holds it (or one of another host, which cannot be checked);
+            the message names its pid and host and how to free a stale lock.
+        """
+        self.path.mkdir(parents=True, exist_ok=True)
+        me = {"pid": os.getpid(), "host": _host(),
+              "since": datetime.datetime.now().isoformat(timespec="seconds")}
+        for _ in range(3):
+            try:
+                fd = os.open(self.lock_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                holder = self.holder()
+                if holder is not None and holder.get("pid") == os.getpid() and \
+                        holder.get("host") == me["host"]:
+                    return  # this process holds it already
+                if holder is not None:
+                    raise RunFolderBusy(
+                        f"{self.path} is being trained by process {holder.get('pid')} on host "
+                        f"{holder.get('host')} (since {holder.get('since')}; its lock "
+                        f"{self.lock_path}); wait for it to end, or delete the lock if that "
+                        "process is gone") from None
+                try:
+                    stale = self.lock_path.read_text()
+                except FileNotFoundError:
+                    continue
+                warnings.warn(f"{self.lock_path}: taking over the lock of a process that has "
+                              f"ended ({stale.strip()})", stacklevel=2)
+                self.lock_path.unlink(missing_ok=True)
+                continue
+            with os.fdopen(fd, "w") as f:
+                json.dump(me, f)
+            return
+        raise RunFolderBusy(f"{self.lock_path}: could not take the lock (another process "
+                            "took it in between); try again")
+
+    def unlock(self) -> None:
+        """Release this process's lock on the folder (nothing if another holds it)."""
+        try:
+            holder = json.loads(self.lock_path.read_text())
+        except (OSError, ValueError):
+            return
+        if holder.get("pid") == os.getpid() and holder.get("host") == _host():
+            self.lock_path.unlink(missing_ok=True)
 
     def read_spec(self) -> dict[str, Any]:
         """``spec.json`` as a dict.

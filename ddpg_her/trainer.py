@@ -14,6 +14,7 @@ goals, minibatches), so K = 1 and K > 1 train agent k alike, and a resumed run c
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import functools
 import json
@@ -143,6 +144,7 @@ class Trainer:
         self._saved_total = np.zeros(self.k, dtype=np.int64)
         self._kept_totals: list[np.ndarray] = []
         self.specs = [self._spec(k, command) for k in range(self.k)]
+        self._locked: list[RunFolder] = []
         self._open(resume)
         self._log: _Interval | None = None
         self._tick = 0.0
@@ -217,6 +219,25 @@ class Trainer:
                 "checkpoints of a run (its spec.json is missing)"
             raise ValueError(f"{existing[0].path} already holds {what}; pass --resume to "
                              "continue it, or choose another --out")
+        made = [not f.path.exists() for f in self.folders]
+        locked: list[RunFolder] = []
+        try:
+            for f in self.folders:
+                f.lock()
+                locked.append(f)
+            self._open_locked(resume)
+        except BaseException:
+            for f, new in zip(self.folders, made, strict=True):
+                if f in locked:
+                    f.unlock()
+                    if new:  # a refused start leaves no folder behind
+                        with contextlib.suppress(OSError):
+                            f.path.rmdir()
+            raise
+        self._locked = locked
+
+    def _open_locked(self, resume: bool) -> None:
+        """`_open` once this process holds every folder's lock."""
         olds: list[dict[str, Any] | None] = []
         for f, spec in zip(self.folders, self.specs, strict=True):
             old = f.read_spec() if f.spec_path.exists() else None
@@ -224,6 +245,10 @@ class Trainer:
                 self._mismatch(f.path, old, spec)
             olds.append(old)
         episode, states, chunks = self._readable_checkpoint()
+        if episode is None:
+            for f, old in zip(self.folders, olds, strict=True):
+                if old is not None:
+                    _refuse_lost_checkpoints(f)
         for f, spec, old in zip(self.folders, self.specs, olds, strict=True):
             # temporary files of writes that a kill interrupted; only now that this process
             # has the folder's run (a refused start touches nothing)
@@ -559,8 +584,27 @@ class Trainer:
         return self.rows
 
     def close(self) -> None:
+        """Close the envs and release the run folders' locks."""
         self.envs.close()
         self.eval_envs.close()
+        for f in self._locked:
+            f.unlock()
+        self._locked = []
+
+
+def _refuse_lost_checkpoints(f: RunFolder) -> None:
+    """Raise ValueError when the run in ``f`` has finished work (test sessions, buffer chunks)
+    but no checkpoint: resuming would train it again from episode 0 over its eval.csv. A run
+    killed before its first checkpoint has none of either and starts afresh."""
+    sessions = len(f.read_eval())
+    chunks = sorted(p.name for p in (f.path / "buffer").glob("episode-*.npz"))
+    if sessions or chunks:
+        raise ValueError(
+            f"{f.path} holds a run with {sessions} test session(s) in eval.csv"
+            + (f" and {len(chunks)} buffer chunk(s)" if chunks else "")
+            + f" but no checkpoint in {f.path / 'checkpoints'} (deleted or moved?); --resume "
+            "would start it again from episode 0. Restore the checkpoints, or move the folder "
+            "away (or choose another --out) to train the run anew")
 
 
 def _check_recorded(env_id: str, given: dict[str, Any], task: dict[str, Any]) -> None:

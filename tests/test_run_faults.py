@@ -169,3 +169,128 @@ def test_a_task_field_the_env_does_not_take_is_refused(tmp_path):
                                          r"max_episode_steps=10 \(the task holds 100\)"):
         _check_recorded("UR5Reach-v0", {"max_episode_steps": 10, "start_q": None},
                         {"max_episode_steps": 100, "start_q": [0.0] * 6})
+
+
+# --- resuming: the recorded budget, lost checkpoints -------------------------------------------
+CLI = ["--env-id", f"toy_goal_env:{ENV_ID}", "--region", "box", "--eval-every", "1",
+       "--eval-episodes", "2", "--hidden-sizes", "8", "8", "--updates-per-episode", "2",
+       "--warmup-episodes", "1", "--no-progress", "--no-tensorboard"]
+
+
+@pytest.fixture(scope="module")
+def two_episodes(tmp_path_factory) -> Path:
+    """A finished 2-episode run made by the command line."""
+    from ddpg_her.train import main
+
+    out = tmp_path_factory.mktemp("two") / "run"
+    assert main([*CLI, "--episodes", "2", "--out", str(out)]) == 0
+    return out
+
+
+def test_resume_without_episodes_keeps_the_recorded_budget_and_says_so(tmp_path, two_episodes,
+                                                                       monkeypatch, capsys):
+    """The README's ``--resume`` turned a finished 2-episode run into a 20,000-episode plan and
+    rewrote its spec.json."""
+    from ddpg_her.train import main
+
+    run = copy_to(two_episodes, tmp_path / "run")
+    before = {p: (run / p).read_bytes() for p in ("spec.json", "eval.csv")}
+    planned = []
+    real_run = Trainer.run
+
+    def run_and_note(self):
+        planned.append(self.config.episodes)
+        return real_run(self) if self.config.episodes < 100 else self.rows
+
+    monkeypatch.setattr(Trainer, "run", run_and_note)
+    assert main([*CLI, "--out", str(run), "--resume"]) == 0
+    assert planned == [2]
+    assert "training to the 2 episodes that spec.json records" in capsys.readouterr().err
+    assert {p: (run / p).read_bytes() for p in before} == before
+    assert main([*CLI, "--out", str(run), "--resume", "--episodes", "3"]) == 0  # given: extends
+    assert planned == [2, 3] and len(eval_rows(run)) == 4
+
+
+def usage_error(capsys, *args: str) -> str:
+    from ddpg_her.train import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(list(args))
+    assert exit_.value.code == 2
+    return capsys.readouterr().err
+
+
+def test_resume_after_the_checkpoints_were_deleted_is_an_error_naming_the_folder(
+        tmp_path, two_episodes, capsys):
+    run = copy_to(two_episodes, tmp_path / "run")
+    before = (run / "eval.csv").read_bytes()
+    shutil.rmtree(run / "checkpoints")
+    err = usage_error(capsys, *CLI, "--out", str(run), "--resume", "--episodes", "2")
+    assert f"{run} holds a run with 2 test session(s) in eval.csv" in err
+    assert f"no checkpoint in {run / 'checkpoints'}" in err and "episode 0" in err
+    assert (run / "eval.csv").read_bytes() == before
+    assert not (run / "lock.json").exists()
+
+
+# --- the lock: one trainer per run folder -------------------------------------------------------
+@pytest.fixture
+def other_process():
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    yield proc.pid
+    proc.kill()
+    proc.wait()
+
+
+def ended_pid() -> int:
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def write_lock(run: Path, pid: int) -> None:
+    import json
+    import socket
+
+    (run / "lock.json").write_text(json.dumps({"pid": pid, "host": socket.gethostname(),
+                                               "since": "2026-01-01T00:00:00"}))
+
+
+def test_a_second_trainer_on_a_folder_is_refused_naming_the_holder(tmp_path, two_episodes,
+                                                                   other_process, capsys):
+    import socket
+
+    run = copy_to(two_episodes, tmp_path / "run")
+    write_lock(run, other_process)
+    tmp = run / f".eval.csv.tmp{other_process}"
+    tmp.write_text("the other trainer's write in progress")
+    before = (run / "spec.json").read_bytes()
+    err = usage_error(capsys, *CLI, "--out", str(run), "--resume", "--episodes", "3")
+    assert f"{run} is being trained by process {other_process} on host " \
+           f"{socket.gethostname()}" in err
+    assert tmp.exists() and (run / "spec.json").read_bytes() == before
+    assert str(other_process) in (run / "lock.json").read_text()
+
+
+def test_a_stale_lock_is_taken_over_with_a_warning_and_live_temporary_files_kept(
+        tmp_path, two_episodes, other_process):
+    from ddpg_her.train import main
+
+    run = copy_to(two_episodes, tmp_path / "run")
+    dead = ended_pid()
+    write_lock(run, dead)
+    live = run / f".eval.csv.tmp{other_process}"
+    orphan = run / "checkpoints" / f".episode-000003.pt.tmp{dead}"
+    for p in (live, orphan):
+        p.write_text("x")
+    with pytest.warns(UserWarning, match=rf"taking over the lock of a process that has ended "
+                                         rf".*{dead}"):
+        main([*CLI, "--out", str(run), "--resume", "--episodes", "3"])
+    assert live.exists() and not orphan.exists()
+    assert not (run / "lock.json").exists()  # released at the end
+    assert len(eval_rows(run)) == 4
