@@ -104,14 +104,45 @@ def _host() -> str:
     return socket.gethostname()
 
 
+class RunFolderWriteError(RunFolderError):
+    """A file of a run folder that cannot be written (read-only, full disk, no permission, a
+    file where a folder should be); the file as it was is left in place."""
+
+
+def write_failure(path: Path, err: OSError, what: str = "write") -> RunFolderWriteError:
+    """The `RunFolderWriteError` of an ``OSError`` while writing ``path``: names the path and
+    the system's reason."""
+    reason = err.strerror or type(err).__name__
+    return RunFolderWriteError(f"cannot {what} {path}: {reason} (errno {err.errno})")
+
+
 def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part."""
+    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part.
+
+    Raises
+    ------
+    RunFolderWriteError
+        When the file cannot be written (its temporary file is removed, the old file kept).
+    """
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise write_failure(path, err) from err
+
+
+def make_folder(path: Path) -> None:
+    """``path.mkdir(parents=True, exist_ok=True)``, its failure a `RunFolderWriteError`."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise write_failure(path, err, "create the folder") from err
 
 
 def versions() -> dict[str, str]:
@@ -209,7 +240,7 @@ class RunFolder:
             When a live process holds it (or one of another host, which cannot be checked);
             the message names its pid and host and how to free a stale lock.
         """
-        self.path.mkdir(parents=True, exist_ok=True)
+        make_folder(self.path)
         me = {"pid": os.getpid(), "host": _host(),
               "since": datetime.datetime.now().isoformat(timespec="seconds")}
         for _ in range(3):
@@ -232,10 +263,20 @@ class RunFolder:
                     continue
                 warnings.warn(f"{self.lock_path}: taking over the lock of a process that has "
                               f"ended ({stale.strip()})", stacklevel=2)
-                self.lock_path.unlink(missing_ok=True)
+                try:
+                    self.lock_path.unlink(missing_ok=True)
+                except OSError as err:
+                    raise write_failure(self.lock_path, err, "delete the stale lock") from err
                 continue
-            with os.fdopen(fd, "w") as f:
-                json.dump(me, f)
+            except OSError as err:
+                raise write_failure(self.lock_path, err, "create") from err
+            try:
+                with os.fdopen(fd, "w") as f:
+                    json.dump(me, f)
+            except OSError as err:
+                with contextlib.suppress(OSError):
+                    self.lock_path.unlink()
+                raise write_failure(self.lock_path, err) from err
             return
         raise RunFolderBusy(f"{self.lock_path}: could not take the lock (another process "
                             "took it in between); try again")
@@ -247,7 +288,8 @@ class RunFolder:
         except (OSError, ValueError):
             return
         if holder.get("pid") == os.getpid() and holder.get("host") == _host():
-            self.lock_path.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):  # a folder made read-only meanwhile
+                self.lock_path.unlink(missing_ok=True)
 
     def read_spec(self) -> dict[str, Any]:
         """``spec.json`` as a dict.
@@ -271,7 +313,7 @@ class RunFolder:
         return spec
 
     def write_spec(self, spec: dict[str, Any]) -> None:
-        self.path.mkdir(parents=True, exist_ok=True)
+        make_folder(self.path)
         atomic_write(self.spec_path, (json.dumps(spec, indent=2) + "\n").encode())
 
     def write_eval(self, rows: Sequence[dict[str, Any]]) -> None:
@@ -329,7 +371,7 @@ class RunFolder:
         import torch
 
         folder = self.path / "checkpoints"
-        folder.mkdir(parents=True, exist_ok=True)
+        make_folder(folder)
         buf = io.BytesIO()
         torch.save(state, buf)
         atomic_write(folder / f"episode-{episode:06d}.pt", buf.getvalue())
@@ -364,7 +406,7 @@ class RunFolder:
 
     def save_chunk(self, episode: int, start: int, rows: np.ndarray) -> None:
         folder = self.path / "buffer"
-        folder.mkdir(parents=True, exist_ok=True)
+        make_folder(folder)
         buf = io.BytesIO()
         np.savez(buf, start=np.int64(start), rows=rows)
         atomic_write(folder / f"episode-{episode:06d}.npz", buf.getvalue())

@@ -294,12 +294,24 @@ def build_trainer(parser: argparse.ArgumentParser, make: Callable[[], Any]) -> A
 
 def run_to_end(trainer: Any) -> Any:
     """Train ``trainer`` to its budget and close it; its rows, or None when interrupted (what
-    is finished is on disk, and ``--resume`` continues)."""
+    is finished is on disk, and ``--resume`` continues).
+
+    A run folder that can no longer be written (full disk, made read-only) ends the process
+    with status 1 and a message naming the file and the reason; the last checkpoint written
+    stays whole, and ``--resume`` continues from it once the disk is fixed.
+    """
+    from ddpg_her.runfolder import RunFolderWriteError
+
     try:
         return trainer.run()
     except KeyboardInterrupt:
         print("interrupted; continue with the same command and --resume", file=sys.stderr)
         return None
+    except RunFolderWriteError as err:
+        print(f"error: {err}. Training stopped; the last checkpoint written is whole: free "
+              "space or make the folder writable, then run the same command with --resume",
+              file=sys.stderr)
+        raise SystemExit(1) from None
     finally:
         trainer.close()
 

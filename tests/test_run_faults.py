@@ -294,3 +294,124 @@ def test_a_stale_lock_is_taken_over_with_a_warning_and_live_temporary_files_kept
     assert live.exists() and not orphan.exists()
     assert not (run / "lock.json").exists()  # released at the end
     assert len(eval_rows(run)) == 4
+
+
+# --- file-system faults -------------------------------------------------------------------------
+@pytest.fixture
+def tmpfs(tmp_path):
+    """A mount point for small tmpfs file systems: ``mount(size)``, ``remount(options)``;
+    unmounted afterwards. Skipped where mounting is not allowed (not root, a container
+    without the capability)."""
+    import os
+    import subprocess
+
+    point = tmp_path / "mnt"
+    point.mkdir()
+
+    def run(*args: str) -> None:
+        subprocess.run(["mount", *args], check=True, capture_output=True, timeout=30)
+
+    def mount(size: str) -> Path:
+        try:
+            run("-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(point))
+        except (OSError, subprocess.CalledProcessError) as err:
+            pytest.skip(f"cannot mount a tmpfs here ({err}); needs root and CAP_SYS_ADMIN")
+        return point
+
+    def remount(options: str) -> None:
+        run("-o", f"remount,{options}", str(point))
+
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root (a read-only or full disk cannot be "
+                    "made otherwise; chmod does not stop root)")
+    mount.remount = remount
+    yield mount
+    subprocess.run(["umount", str(point)], capture_output=True, timeout=30)
+
+
+def six_episodes(tmp_path_factory) -> Path:
+    from ddpg_her.train import main
+
+    out = tmp_path_factory.mktemp("six") / "run"
+    assert main([*CLI, "--episodes", "6", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> Path:
+    """The 6-episode run the fault tests must recover to, trained without a fault."""
+    return six_episodes(tmp_path_factory)
+
+
+@pytest.mark.parametrize("where", ["a file", "under a file"])
+def test_an_out_that_cannot_be_a_folder_is_a_usage_error_naming_it(tmp_path, capsys, where):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("not a folder")
+    out = blocker if where == "a file" else blocker / "run"
+    err = usage_error(capsys, *CLI, "--episodes", "2", "--out", str(out))
+    assert f"cannot create the folder {out}" in err or f"cannot create {out}" in err, err
+    assert "Traceback" not in err and blocker.read_text() == "not a folder"
+
+
+def test_a_read_only_out_is_refused_before_any_training(tmpfs, capsys):
+    root = tmpfs("1m")
+    tmpfs.remount("ro")
+    err = usage_error(capsys, *CLI, "--episodes", "2", "--out", str(root / "run"))
+    assert f"cannot create the folder {root / 'run'}: Read-only file system" in err, err
+
+
+def test_a_folder_made_read_only_midway_stops_clearly_and_resumes_exactly(
+        tmpfs, capsys, monkeypatch, uninterrupted):
+    from ddpg_her.runfolder import RunFolder
+    from ddpg_her.train import main
+
+    root = tmpfs("1m")
+    saved = []
+    real = RunFolder.save_checkpoint
+
+    def save_then_freeze(self, episode, state, keep=2):
+        real(self, episode, state, keep)
+        saved.append(episode)
+        if episode == 3:
+            tmpfs.remount("ro")
+
+    monkeypatch.setattr(RunFolder, "save_checkpoint", save_then_freeze)
+    with pytest.raises(SystemExit) as exit_:
+        main([*CLI, "--episodes", "6", "--out", str(root / "run")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 1 and "Read-only file system" in err and str(root / "run") in err
+    assert "--resume" in err and "Traceback" not in err
+    tmpfs.remount("rw")
+    assert main([*CLI, "--episodes", "6", "--out", str(root / "run"), "--resume"]) == 0
+    assert eval_rows(root / "run") == eval_rows(uninterrupted)
+    assert not [p for p in (root / "run").rglob(".*.tmp*")]
+
+
+def test_a_full_disk_stops_clearly_leaves_nothing_half_written_and_resumes_exactly(
+        tmpfs, capsys, uninterrupted):
+    from ddpg_her.train import main
+
+    root = tmpfs("64k")  # a checkpoint is about 32 KB: the second does not fit
+    with pytest.raises(SystemExit) as exit_:
+        main([*CLI, "--episodes", "6", "--out", str(root / "run")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 1 and "No space left on device" in err, err
+    assert not [p for p in (root / "run").rglob(".*.tmp*")]  # no partial file left
+    tmpfs.remount("size=2m")
+    assert main([*CLI, "--episodes", "6", "--out", str(root / "run"), "--resume"]) == 0
+    assert eval_rows(root / "run") == eval_rows(uninterrupted)
+
+
+def test_a_finished_run_on_a_read_only_folder_is_read_and_reported(tmpfs, capsys,
+                                                                   uninterrupted):
+    from ddpg_her.runfolder import read_run
+    from ddpg_her.summary import main as summary
+
+    root = tmpfs("1m")
+    run = copy_to(uninterrupted, root / "run")
+    tmpfs.remount("ro")
+    assert read_run(run).finished
+    assert summary([str(run)]) in (0, None)
+    assert str(run) in capsys.readouterr().out
+    err = usage_error(capsys, *CLI, "--episodes", "7", "--out", str(run), "--resume")
+    assert f"cannot create {run / 'lock.json'}: Read-only file system" in err, err
