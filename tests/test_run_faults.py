@@ -415,3 +415,46 @@ def test_a_finished_run_on_a_read_only_folder_is_read_and_reported(tmpfs, capsys
     assert str(run) in capsys.readouterr().out
     err = usage_error(capsys, *CLI, "--episodes", "7", "--out", str(run), "--resume")
     assert f"cannot create {run / 'lock.json'}: Read-only file system" in err, err
+
+
+# --- killed at random moments -------------------------------------------------------------------
+def _train_in_child(args: list[str]) -> None:
+    import os
+    import sys
+
+    from ddpg_her.train import main
+
+    sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (the warnings of a taken-over lock)
+    code = main(args)
+    os._exit(code or 0)
+
+
+def test_a_run_killed_at_random_moments_resumes_to_the_uninterrupted_eval_csv(tmp_path,
+                                                                              uninterrupted):
+    """SIGKILL at seeded random moments (opening the folder, training, a chunk, checkpoint or
+    eval.csv write), each time resumed: eval.csv ends as the uninterrupted run's, and no
+    temporary file or lock is left. The trainer runs in a forked child of this process, so
+    a start costs no imports."""
+    import multiprocessing
+    import random
+
+    out = tmp_path / "run"
+    fork = multiprocessing.get_context("fork")
+    rng = random.Random(23)
+    kills = 0
+    for attempt in range(12):
+        args = [*CLI, "--episodes", "6", "--out", str(out), *(["--resume"] if out.exists()
+                                                                else [])]
+        child = fork.Process(target=_train_in_child, args=(args,))
+        child.start()
+        child.join(timeout=rng.uniform(0.02, 0.4) if attempt < 6 else 120)
+        if child.exitcode is None:
+            child.kill()
+            child.join()
+            kills += 1
+            continue
+        assert child.exitcode == 0
+        break
+    assert kills >= 3  # most tries were cut short
+    assert eval_rows(out) == eval_rows(uninterrupted)
+    assert not (out / "lock.json").exists() and not list(out.rglob(".*.tmp*"))
