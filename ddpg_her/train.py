@@ -301,6 +301,7 @@ def run_to_end(trainer: Any) -> Any:
     stays whole, and ``--resume`` continues from it once the disk is fixed.
     """
     from ddpg_her.runfolder import RunFolderWriteError
+    from ddpg_her.trainer import Diverged
 
     try:
         return trainer.run()
@@ -311,6 +312,9 @@ def run_to_end(trainer: Any) -> Any:
         print(f"error: {err}. Training stopped; the last checkpoint written is whole: free "
               "space or make the folder writable, then run the same command with --resume",
               file=sys.stderr)
+        raise SystemExit(1) from None
+    except Diverged as err:
+        print(f"error: {err}", file=sys.stderr)
         raise SystemExit(1) from None
     finally:
         trainer.close()

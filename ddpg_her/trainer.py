@@ -19,6 +19,7 @@ import datetime
 import functools
 import json
 import math
+import os
 import sys
 import time
 import warnings
@@ -57,6 +58,66 @@ kernel for all of them), with the same goals and exploration as ``numpy`` and tr
 equal to rounding. ``torch``: the env id's tensor twin (``vecenv.TORCH_TWINS``, e.g.
 ``envs.TorchReach``) on the trainer's device, so rollout, HER and the buffer stay on the device
 (stop contact model only)."""
+
+
+class Diverged(RuntimeError):
+    """Training produced networks with inf or NaN (a diverging run)."""
+
+
+BYTES_PER_PARAMETER = 6
+"""Copies of each network parameter in memory: the weight, its target, its gradient, Adam's
+two moments, and one for the update's scratch (an upper estimate)."""
+
+
+def check_memory(config: AgentConfig, layout: Layout, k: int, dtype: torch.dtype,
+                 device: torch.device) -> None:
+    """Refuse, before allocating, replay buffers and networks larger than the memory of
+    ``device`` (the host's available memory for the CPU, the GPU's free memory).
+
+    Raises
+    ------
+    ValueError
+        Naming --buffer-size or --hidden-sizes and the memory they would need.
+    """
+    size = torch.empty((), dtype=dtype).element_size()
+    buffer = k * config.buffer_size * layout.width * size
+    h1, h2 = config.hidden_sizes
+    params = (layout.in_dim * h1 + h1 + h1 * h2 + h2 + h2 * layout.act_dim + layout.act_dim
+              + layout.in_dim * h1 + h1 + (h1 + layout.act_dim) * h2 + h2 + h2 + 1)
+    networks = k * params * size * BYTES_PER_PARAMETER
+    available = available_memory(device)
+    if available is None:
+        return
+    gib = 2.0 ** 30
+    for flag, need in (("--buffer-size", buffer), ("--hidden-sizes", networks),
+                       ("--buffer-size and --hidden-sizes", buffer + networks)):
+        if need > available:
+            raise ValueError(
+                f"{flag}: {k} agent(s) would need {need / gib:.3g} GiB ({buffer / gib:.3g} GiB "
+                f"of replay buffers: {config.buffer_size} transitions x {layout.width} "
+                f"values x {size} bytes each; {networks / gib:.3g} GiB of networks "
+                f"{config.hidden_sizes}), more than the {available / gib:.3g} GiB available "
+                f"on {device}")
+
+
+def available_memory(device: torch.device) -> int | None:
+    """Bytes that can still be allocated on ``device``, or None when it cannot be told."""
+    if device.type == "cuda":
+        try:
+            return int(torch.cuda.mem_get_info(device)[0])
+        except (RuntimeError, AssertionError):
+            return None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
 
 
 def stream_seed(seed: int, *key: int) -> int:
@@ -122,6 +183,7 @@ class Trainer:
         self.scale = envs.scale
         self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)
         self.folders = [RunFolder(d) for d in run_dirs]
+        check_memory(config, self.layout, self.k, dtype, self.device)
 
         self.agent = DDPG(
             config, self.layout.in_dim, self.layout.act_dim, dtype=dtype, device=self.device,
@@ -423,6 +485,24 @@ class Trainer:
             self.env_steps[k] += int(length[k])
         return success
 
+    def _check_finite(self, losses: torch.Tensor) -> None:
+        """Raise `Diverged` when an agent's mean losses (2, K) of this episode's updates are
+        not finite: its networks hold inf or NaN, and every later action and eval row would
+        be NaN. Before the episode's checkpoint, so the last one written is still finite."""
+        finite = torch.isfinite(losses).all(0).cpu().numpy()
+        if finite.all():
+            return
+        bad = np.flatnonzero(~finite)
+        values = losses.cpu().numpy()
+        raise Diverged(
+            "the networks diverged (a loss is not finite) in training episode "
+            f"{self.episode + 1}: "
+            + "; ".join(f"seed {self.seeds[k]} ({self.folders[k].path}): critic loss "
+                        f"{values[0, k]:.3g}, actor loss {values[1, k]:.3g}" for k in bad)
+            + f". The last checkpoint written is from before; lower --critic-lr "
+            f"({self.config.critic_lr:g}) or --actor-lr ({self.config.actor_lr:g}), or check "
+            "the task's reward scale")
+
     def train_episode(self) -> np.ndarray:
         """One exploring episode per agent, stored with its HER copies; returns successes (K,)."""
         if self.env_backend == "torch":
@@ -541,7 +621,9 @@ class Trainer:
         self._flush_denormals()
         log.successes += self.train_episode()
         if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
-            log.losses += self.learn(cfg.updates_per_episode)
+            losses = self.learn(cfg.updates_per_episode)
+            self._check_finite(losses)
+            log.losses += losses
             log.updates += cfg.updates_per_episode
             log.learning += 1
         self.episode += 1

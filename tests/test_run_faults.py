@@ -458,3 +458,34 @@ def test_a_run_killed_at_random_moments_resumes_to_the_uninterrupted_eval_csv(tm
     assert kills >= 3  # most tries were cut short
     assert eval_rows(out) == eval_rows(uninterrupted)
     assert not (out / "lock.json").exists() and not list(out.rglob(".*.tmp*"))
+
+
+# --- sizes that cannot fit, runs that diverge ---------------------------------------------------
+@pytest.mark.parametrize("flag, values", [("--buffer-size", ["10000000000000"]),
+                                          ("--hidden-sizes", ["1000000", "1000000"])])
+def test_sizes_that_cannot_fit_are_refused_up_front_naming_the_flag(tmp_path, capsys, flag,
+                                                                    values):
+    err = usage_error(capsys, *CLI, "--episodes", "2", flag, *values, "--out",
+                      str(tmp_path / "run"))
+    assert f"error: {flag}: 1 agent(s) would need" in err and "GiB available on cpu" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_diverging_run_says_it_diverged_and_keeps_its_last_finite_checkpoint(tmp_path,
+                                                                               capsys):
+    """With learning rates of 1e38 the networks turn NaN in the first updates; the run wrote
+    NaN eval rows to the end and exited 0."""
+    from ddpg_her.train import main
+
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exit_:
+        main([*CLI, "--episodes", "6", "--out", str(out), "--critic-lr", "1e38",
+              "--actor-lr", "1e38"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 1
+    assert f"the networks diverged (a loss is not finite) in training episode 2: seed 0 " \
+           f"({out}): critic loss nan" in err, err
+    rows = eval_rows(out)
+    assert len(rows) == 2 and "nan" not in rows[1]
+    state = torch.load(out / "checkpoints" / "episode-000001.pt", weights_only=True)
+    assert all(bool(torch.isfinite(v).all()) for v in state["agent"]["actor"].values())
