@@ -4,9 +4,11 @@ test_run_errors.py)."""
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from test_run_errors import TASK, TINY, eval_rows, train
@@ -489,3 +491,74 @@ def test_a_diverging_run_says_it_diverged_and_keeps_its_last_finite_checkpoint(t
     assert len(rows) == 2 and "nan" not in rows[1]
     state = torch.load(out / "checkpoints" / "episode-000001.pt", weights_only=True)
     assert all(bool(torch.isfinite(v).all()) for v in state["agent"]["actor"].values())
+
+
+# --- every field by kind: ranges, NaN, types; spec.json as strictly as the command line ---------
+BAD_AGENT_VALUES = {
+    **{name: [float("nan"), True, "0.5"] for name in (
+        "gamma", "exploration_rate", "tau", "actor_lr", "critic_lr", "final_init", "ou_theta",
+        "obs_clip", "norm_eps", "critic_l2")},
+    **{name: [float("nan"), 10.5, True, "10"] for name in (
+        "buffer_size", "batch_size", "episodes", "eval_every", "eval_episodes", "her_k",
+        "warmup_episodes", "updates_per_episode")},
+    "hidden_sizes": ["12", [400.5, 300], [400, True], [400], None],
+    "normalize_obs": ["false", 0, None],
+    "flush_denormals": ["true", 1, None],
+    "her_strategy": ["finale", 1],
+    "exploration": ["gauss", None],
+}
+"""For each AgentConfig field, values of the wrong kind: NaN, a bool or a string for a number,
+a float for a count, a string or floats for the two sizes, text for a switch."""
+
+
+def test_every_agent_field_has_bad_values():
+    import dataclasses
+
+    assert set(BAD_AGENT_VALUES) == {f.name for f in dataclasses.fields(AgentConfig)}
+
+
+@pytest.mark.parametrize("field, value", [(f, v) for f, vs in BAD_AGENT_VALUES.items()
+                                          for v in vs])
+def test_every_agent_field_refuses_values_of_the_wrong_kind(field, value):
+    with pytest.raises(ValueError, match=rf"invalid agent configuration: (.*, )?{field}="):
+        AgentConfig(**{field: value})
+    with pytest.raises(ValueError, match=rf"invalid agent configuration: (.*, )?{field}="):
+        AgentConfig.from_dict({**AgentConfig().to_dict(), field: value})  # as spec.json
+
+
+@pytest.mark.parametrize("field, value", [("hidden_sizes", "16"), ("gamma", float("nan")),
+                                          ("normalize_obs", "false")])
+def test_a_policy_whose_spec_json_is_invalid_is_refused_naming_it(tmp_path, two_episodes,
+                                                                  field, value):
+    import json
+
+    import ddpg_her
+
+    run = copy_to(two_episodes, tmp_path / "run")
+    spec = json.loads((run / "spec.json").read_text())
+    spec["agent"][field] = value
+    (run / "spec.json").write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=rf"{run / 'spec.json'} does not hold a valid run "
+                                         rf"specification .*{field}="):
+        ddpg_her.load(run)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda o: {k: v for k, v in o.items() if k != "desired_goal"}, "keys"),
+    (lambda o: {**o, "observation": o["observation"][:-1]}, "obs['observation'] must be"),
+    (lambda o: {**o, "desired_goal": np.full_like(o["desired_goal"], np.nan)},
+     "obs['desired_goal'] must be finite"),
+    (lambda o: {**o, "achieved_goal": "0 0"}, "obs['achieved_goal'] must be"),
+    (lambda o: {**o, "achieved_goal": np.stack([o["achieved_goal"]] * 2)},
+     "must share their batch shape"),
+    (lambda o: [o["observation"]], "obs must be the env's Dict observation"),
+])
+def test_a_trained_policy_refuses_observations_it_cannot_use(two_episodes, change, message):
+    import ddpg_her
+
+    policy = ddpg_her.load(two_episodes)
+    env = policy.make_env()
+    obs, _ = env.reset(seed=0)
+    assert policy(obs).shape == env.action_space.shape
+    with pytest.raises(ValueError, match=re.escape(message)):
+        policy(change(obs))
