@@ -451,11 +451,13 @@ def busy(unit: Unit) -> bool:
 def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
     """Why units could not start, one line each: a command line ``ddpg_her.train`` refuses
     (an unknown flag, a bad value), a region that does not parse, or two units (or two seeds)
-    with one run folder. Checks what needs neither the robot nor torch."""
+    with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks what
+    needs neither the robot nor torch."""
     import contextlib
     import io
 
     from ddpg_her import train
+    from envs import ENV_IDS
     from regions import parse as parse_region
 
     problems = []
@@ -465,7 +467,7 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
         err = io.StringIO()
         try:
             with contextlib.redirect_stderr(err):
-                train.request(train.parse_args(parser, args), resume=True)
+                req = train.request(train.parse_args(parser, args), resume=True)
         except SystemExit:
             message = err.getvalue().strip().splitlines()[-1:] or ["a usage error"]
             problems.append(f"{unit.name}: ddpg_her.train refuses its command line: "
@@ -474,6 +476,8 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
         except ValueError as error:
             problems.append(f"{unit.name}: {error}")
             continue
+        if req.env_id.rpartition(":")[2] not in ENV_IDS:
+            continue  # another env's regions are its own
         try:
             parse_region(unit.region)
         except (ValueError, OSError) as error:
