@@ -91,7 +91,7 @@ def test_a_checkpoint_whose_buffer_has_a_gap_is_refused_naming_it(tmp_path, shor
 TASK_VALUES = {
     "region": "zmax:0.3", "n_joints": 4, "start_q": [0.0, -0.7, 1.5, 0.0, 0.0, 0.0],
     "base_height": 0.2, "goal_sampler": "cartesian", "control_mode": "velocity",
-    "reward_type": "sparse", "distance_weight": 2, "action_weight": 0.5,
+    "held_joints": "pd", "reward_type": "sparse", "distance_weight": 2, "action_weight": 0.5,
     "action_penalty_unit": "actor", "success_reward": 50, "success_radius": 0.05,
     "terminate_on_success": False, "max_episode_steps": 10, "control_hz": 25, "sim_hz": 2000,
     "kp": [3500.0, 3200.0, 700.0, 200.0, 200.0, 14.0],
@@ -556,9 +556,11 @@ def test_a_policy_whose_spec_json_is_invalid_is_refused_naming_it(tmp_path, two_
 def test_a_trained_policy_refuses_observations_it_cannot_use(two_episodes, change, message):
     import ddpg_her
 
+    import gymnasium
+
     policy = ddpg_her.load(two_episodes)
-    env = policy.make_env()
-    obs, _ = env.reset(seed=0)
+    env = gymnasium.make(ENV_ID, **policy.spec["env_kwargs"])  # (make_env passes spec=, which
+    obs, _ = env.reset(seed=0)                                # the toy env does not take)
     assert policy(obs).shape == env.action_space.shape
     with pytest.raises(ValueError, match=re.escape(message)):
         policy(change(obs))
