@@ -10,9 +10,12 @@ One training process per setting trains all its seeds at once (``ddpg_her.train 
 trains every unfinished setting, the settings of one joint count stacked into one agent batch.
 Finished runs are skipped and unfinished ones resumed from their last checkpoint, so an interrupted
 sweep continues where it stopped when run again; a setting another ``ddpg_her.train`` or
-``ddpg_her.train_many`` process is training (it holds a run folder's lock) is left to it. Each process's output
-goes to ``ROOT/logs/<region>-j<joints>.log`` (one process: ``ROOT/logs/one-process.log``). Arguments
-after ``--`` pass to ``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
+``ddpg_her.train_many`` process is training (it holds a run folder's lock) is left to it.
+Each process's output goes to ``ROOT/logs/<region>-j<joints>.log`` (one process:
+``ROOT/logs/one-process.log``). Arguments after ``--`` pass to ``ddpg_her.train`` unchanged
+(e.g. ``-- --her-strategy future``). A unit that could not start (a region that does not
+parse, an argument the trainer refuses, a run folder two units share) is refused before any
+starts, in a dry run too.
 """
 
 from __future__ import annotations

@@ -554,9 +554,9 @@ def test_a_policy_whose_spec_json_is_invalid_is_refused_naming_it(tmp_path, two_
     (lambda o: [o["observation"]], "obs must be the env's Dict observation"),
 ])
 def test_a_trained_policy_refuses_observations_it_cannot_use(two_episodes, change, message):
-    import ddpg_her
-
     import gymnasium
+
+    import ddpg_her
 
     policy = ddpg_her.load(two_episodes)
     env = gymnasium.make(ENV_ID, **policy.spec["env_kwargs"])  # (make_env passes spec=, which
