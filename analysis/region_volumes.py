@@ -427,6 +427,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+VOXEL_GRID_COPIES = 4
+"""Bytes per voxel of the grids one workspace holds at once (occupied, filled, masks): an
+upper estimate, for refusing a --resolution that cannot fit."""
+
+
+def voxel_bytes(resolution: float, base_height: float) -> float:
+    """Bytes of the voxel grids of one workspace at ``resolution`` (m): its bounding box is
+    at most the reach ball's, 2 R x 2 R wide and R + base_height (+ the shoulder) high."""
+    from regions.reach import reach_radius
+
+    r = reach_radius()
+    cells = (2 * r / resolution + 2) ** 2 * ((r + base_height + 0.1) / resolution + 2)
+    return cells * VOXEL_GRID_COPIES
+
+
+def available_bytes() -> int | None:
+    """The host's available memory (``MemAvailable``), or None where it cannot be read."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Settings:
     if not args.joints or any(not 1 <= n <= 6 for n in args.joints):
         parser.error(f"--joints must be counts in 1..6; got {args.joints}")
@@ -437,6 +464,11 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Sett
         parser.error(f"--resolution must be a voxel edge > 0 (m); got {args.resolution}")
     if not (math.isfinite(args.base_height) and args.base_height >= 0):
         parser.error(f"--base-height must be a height >= 0 (m); got {args.base_height}")
+    need, have = voxel_bytes(args.resolution, args.base_height), available_bytes()
+    if have is not None and need > have:
+        parser.error(f"--resolution {args.resolution} m: the workspace's voxel grids would need "
+                     f"about {need / 2 ** 30:.3g} GiB, more than the {have / 2 ** 30:.3g} GiB "
+                     "of memory available; use a coarser voxel edge")
     for spec in args.regions:
         try:
             regions.parse(spec, args.base_height)

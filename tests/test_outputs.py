@@ -102,3 +102,12 @@ def test_optimality_out_that_cannot_be_a_folder_is_refused_up_front(tmp_path, ca
     err = usage_error(capsys, "analysis.optimality",
                       ["--settings", "zheight:3", "--goals", "5", "--out", str(out)])
     assert str(blocker) in err and ("is a file" in err), err
+
+
+def test_a_voxel_resolution_that_cannot_fit_is_refused_up_front(capsys):
+    """--resolution 1e-5 sampled the workspace, then failed allocating 2.4 PiB."""
+    err = usage_error(capsys, "analysis.region_volumes",
+                      ["--regions", "farbox", "--joints", "3", "--samples", "1000",
+                       "--resolution", "0.00001"])
+    assert "--resolution 1e-05 m: the workspace's voxel grids would need about" in err
+    assert "GiB of memory available" in err
