@@ -246,6 +246,33 @@ def recorded_budget(dirs: Sequence[str]) -> int | None:
     return next(iter(found), None)
 
 
+def contradictions(config: AgentConfig) -> None:
+    """Raise ValueError for agent flags that contradict each other: a value given to a flag
+    that the others make unused (``--her-k`` without ``--her-strategy future``, ``--ou-theta``
+    without ``--exploration ou``, ``--obs-clip`` or ``--norm-eps`` with
+    ``--no-normalize-obs``), or a budget whose last episodes no test session would score (the
+    run would never count as finished)."""
+    default = AgentConfig()
+    unused = [
+        ("--her-k", config.her_k != default.her_k and config.her_strategy.value != "future",
+         f"--her-strategy {config.her_strategy.value} (--her-k counts the copies of 'future')"),
+        ("--ou-theta", config.ou_theta != default.ou_theta and config.exploration.value != "ou",
+         f"--exploration {config.exploration.value} (--ou-theta is OU noise's)"),
+        ("--obs-clip", config.obs_clip != default.obs_clip and not config.normalize_obs,
+         "--no-normalize-obs"),
+        ("--norm-eps", config.norm_eps != default.norm_eps and not config.normalize_obs,
+         "--no-normalize-obs"),
+    ]
+    for flag, contradicted, other in unused:
+        if contradicted:
+            raise ValueError(f"{flag} has no effect with {other}; drop one of them")
+    if config.episodes % config.eval_every:
+        raise ValueError(
+            f"--episodes {config.episodes} is not a multiple of --eval-every "
+            f"{config.eval_every}: its last {config.episodes % config.eval_every} episode(s) "
+            "would have no test session and the run would never count as finished")
+
+
 def request(args: argparse.Namespace, resume: bool | None = None) -> Request:
     """The runs a parsed command line asks for.
 
@@ -270,6 +297,7 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Request:
         raise ValueError(f"--seeds must be distinct, got {seeds}")
     config = AgentConfig(**{f.name: getattr(args, f.name)
                             for f in dataclasses.fields(AgentConfig)})
+    contradictions(config)
     dirs = run_dirs(args.out, args.region, joints, seeds)
     note = None
     if (args.resume if resume is None else resume) and not getattr(args, "episodes_given", True):

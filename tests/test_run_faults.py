@@ -107,8 +107,8 @@ AGENT_FLAGS = {
     "actor_lr": (["0.0002"], 0.0002), "critic_lr": (["0.002"], 0.002),
     "episodes": (["0"], 0), "eval_every": (["7"], 7), "eval_episodes": (["3"], 3),
     "hidden_sizes": (["8", "9"], [8, 9]), "final_init": (["0.001"], 0.001),
-    "her_strategy": (["future"], "future"), "her_k": (["2"], 2),
-    "exploration": (["ou"], "ou"), "ou_theta": (["0.3"], 0.3),
+    "her_strategy": (["future"], "future"), "her_k": (["2", "--her-strategy", "future"], 2),
+    "exploration": (["ou"], "ou"), "ou_theta": (["0.3", "--exploration", "ou"], 0.3),
     "warmup_episodes": (["5"], 5), "updates_per_episode": (["3"], 3),
     "normalize_obs": ([], False), "obs_clip": (["4"], 4.0), "norm_eps": (["0.02"], 0.02),
     "critic_l2": (["0.01"], 0.01), "flush_denormals": ([], False),
@@ -564,3 +564,30 @@ def test_a_trained_policy_refuses_observations_it_cannot_use(two_episodes, chang
     assert policy(obs).shape == env.action_space.shape
     with pytest.raises(ValueError, match=re.escape(message)):
         policy(change(obs))
+
+
+# --- flags that contradict each other -----------------------------------------------------------
+@pytest.mark.parametrize("flags, message", [
+    (["--her-k", "8"], "--her-k has no effect with --her-strategy final"),
+    (["--her-k", "8", "--her-strategy", "none"], "--her-k has no effect with --her-strategy none"),
+    (["--ou-theta", "0.3"], "--ou-theta has no effect with --exploration gaussian"),
+    (["--obs-clip", "3", "--no-normalize-obs"], "--obs-clip has no effect with "
+                                                "--no-normalize-obs"),
+    (["--norm-eps", "0.1", "--no-normalize-obs"], "--norm-eps has no effect with "
+                                                  "--no-normalize-obs"),
+    (["--eval-every", "2", "--episodes", "5"], "--episodes 5 is not a multiple of --eval-every 2"
+                                               ": its last 1 episode(s) would have no test"),
+])
+def test_flags_that_contradict_each_other_are_a_usage_error(tmp_path, capsys, flags, message):
+    """Each was accepted: the flag silently did nothing, or the run never counted as
+    finished (a sweep would resume it for ever)."""
+    err = usage_error(capsys, *CLI, *flags, "--out", str(tmp_path / "run"))
+    assert message in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_flags_that_agree_are_accepted(tmp_path):
+    spec = recorded_spec(tmp_path, "--env-id", f"toy_goal_env:{ENV_ID}", "--region", "box",
+                         "--her-k", "2", "--her-strategy", "future", "--ou-theta", "0.3",
+                         "--exploration", "ou")
+    assert spec["agent"]["her_k"] == 2 and spec["agent"]["ou_theta"] == 0.3
