@@ -23,7 +23,7 @@ def test_a_dry_run_refuses_units_that_could_not_start(tmp_path, capsys, settings
                                                       message):
     args = [a for s in settings for a in ("--setting", s)]
     with pytest.raises(SystemExit) as exit_:
-        sweep.main([*args, "--episodes", "10", "--seeds", "1", "--out", str(tmp_path),
+        sweep.main([*args, "--episodes", "200", "--seeds", "1", "--out", str(tmp_path),
                     "--dry-run", *(["--", *extra] if extra else [])])
     assert exit_.value.code == 2
     out = capsys.readouterr()
@@ -32,7 +32,7 @@ def test_a_dry_run_refuses_units_that_could_not_start(tmp_path, capsys, settings
 
 
 def test_a_dry_run_of_good_units_lists_them(tmp_path, capsys):
-    assert sweep.main(["--setting", "farbox:3", "--episodes", "10", "--seeds", "2", "--out",
+    assert sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "2", "--out",
                        str(tmp_path), "--dry-run"]) == 0
     assert [line.split()[0] for line in capsys.readouterr().out.splitlines()] == ["new"] * 2
 
