@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_text
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
     PERCENT,
@@ -106,17 +108,16 @@ def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> N
     fig.suptitle(f"Test successes, mean and {level:.0%} confidence interval over seeds",
                  fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
+    save_figure(fig, out, dpi=120)
     plt.close(fig)
 
 
 def write_csv(rows: list[dict], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text(path, buf.getvalue())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -127,13 +128,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("curves.png"),
                         help="figure file (.png, .pdf, .svg); the CSV goes beside it")
     args = parser.parse_args(argv)
+    try:  # before any reading or computing
+        out = figure_path(args.out, "--out")
+        csv_path = check_writable(out.with_suffix(".csv"), "--out")
+    except OutputError as err:
+        parser.error(str(err))
     groups = settings_from_args(parser, args)
     rows = curve_rows(groups, args.confidence)
-    plot(groups, args.out, args.confidence)
-    csv_path = args.out.with_suffix(".csv")
-    write_csv(rows, csv_path)
+    try:
+        plot(groups, out, args.confidence)
+        write_csv(rows, csv_path)
+    except OutputError as err:
+        parser.exit(1, f"error: {err}\n")
     runs = sum(len(v) for v in groups.values())
-    print(f"{runs} runs in {len(groups)} settings -> {args.out} and {csv_path}",
+    print(f"{runs} runs in {len(groups)} settings -> {out} and {csv_path}",
           file=sys.stderr)
     return 0
 

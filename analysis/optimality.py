@@ -38,6 +38,7 @@ import argparse
 import csv
 import dataclasses
 import functools
+import io
 import math
 import sys
 import time
@@ -48,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis.outputs import OutputError, check_folder, check_writable, save_figure, write_text
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
 from ddpg_her.train import task_option
@@ -662,11 +664,11 @@ def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
 
 
 def write_csv(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, CSV_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text(path, buf.getvalue())
 
 
 def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = None) -> Any:
@@ -725,8 +727,7 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
     ax.set_title("Goals worth reaching under a constant command (95 % Wilson CI)", fontsize=9)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        ax.figure.savefig(out, dpi=120, bbox_inches="tight")
+        save_figure(ax.figure, out, dpi=120, bbox_inches="tight")
         plt.close(ax.figure)
     return ax
 
@@ -782,9 +783,8 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
     plot(rows, ax=right)
     for k, tick in enumerate(right.get_xticklabels()):
         tick.set_color(f"C{k % 10}")
-    out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(out, dpi=120, bbox_inches="tight")
+    save_figure(fig, out, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
@@ -800,6 +800,15 @@ def _positive(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {text}")
     return value
+
+
+def write_outputs(rows: Sequence[Mapping[str, Any]], out: Path, curves: Any) -> None:
+    """optimality.csv and optimality.png in ``out``, and optimality_curves.png when
+    ``curves`` names the runs to draw beside them."""
+    write_csv(rows, out / "optimality.csv")
+    plot(rows, out=out / "optimality.png")
+    if curves:
+        plot_beside_curves(rows, curves, out / "optimality_curves.png")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -856,15 +865,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--seed must be >= 0; got {args.seed}")
     if args.grid != 0 and args.grid < 2:
         parser.error(f"--grid must be 0 (off) or >= 2 angles per joint; got {args.grid}")
+    try:  # before any computing
+        if args.out.exists() and not args.out.is_dir():
+            raise OutputError(f"--out {args.out} is a file; it names the output folder")
+        check_folder(args.out, "--out")
+        for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):
+            check_writable(args.out / name, "--out")
+    except OutputError as err:
+        parser.error(str(err))
     if args.from_csv:
         rows = []
         for path in args.from_csv:
             with open(path, newline="") as f:
                 rows += list(csv.DictReader(f))
-        write_csv(rows, args.out / "optimality.csv")
-        plot(rows, out=args.out / "optimality.png")
-        if args.curves:
-            plot_beside_curves(rows, args.curves, args.out / "optimality_curves.png")
+        try:
+            write_outputs(rows, args.out, args.curves)
+        except OutputError as err:
+            parser.exit(1, f"error: {err}\n")
         print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
         return 0
     if args.settings is None:
@@ -887,10 +904,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not rows:
         print("nothing to do: every reading was skipped", file=sys.stderr)
         return 1
-    write_csv(rows, args.out / "optimality.csv")
-    plot(rows, out=args.out / "optimality.png")
-    if args.curves:
-        plot_beside_curves(rows, args.curves, args.out / "optimality_curves.png")
+    try:
+        write_outputs(rows, args.out, args.curves)
+    except OutputError as err:
+        parser.exit(1, f"error: {err}\n")
     print(f"{'region':<14}{'n':>2} {'reading':<14}{'worth %':>8} {'95 % CI':>13} "
           f"{'reachable %':>12} {'mean gap':>9} {'grid worth %':>13}")
     for r in rows:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import csv
 import hashlib
+import io
 import json
 import math
 import pathlib
@@ -28,6 +29,7 @@ from tqdm import tqdm
 
 import regions
 import ur5kin
+from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_text
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
 from regions.coverage import (
     DEFAULT_RESOLUTION,
@@ -345,19 +347,18 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     fig.suptitle(f"Goal regions over the reachable workspace ({n_joints} joints, base at "
                  f"{settings.base_height} m; start: {settings.start})", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=130)
+    save_figure(fig, path, dpi=130)
     plt.close(fig)
 
     data_json = path.with_suffix(".json")
-    data_json.write_text(json.dumps({
+    write_text(data_json, json.dumps({
         "settings": asdict(settings), "plot_joints": n_joints, "rows": table_rows,
         "outlines": outlines, "start_tool0_m": starts,
         "regions": {r.name: r.to_dict() for r in study.region_objects.values()
                     if not isinstance(r, regions.MeshRegion)},
     }, indent=1))
     data_csv = path.with_suffix(".csv")
-    with data_csv.open("w", newline="") as f:
+    with io.StringIO() as f:
         writer = csv.writer(f)
         keys = sorted({_workspace_key(n_joints, start_for(r.name, settings.start))
                        for r in study.region_objects.values()})
@@ -371,6 +372,7 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
                 writer.writerow([" ".join(f"{x:.6g}" for x in key[1]),
                                  *(f"{v:.6f}" for v in ws.goals[k]), int(ws.clear[k]),
                                  *(int(col[m]) for col in inside)])
+        write_text(data_csv, f.getvalue())
     return [path, data_json, data_csv]
 
 
@@ -425,6 +427,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+VOXEL_GRID_COPIES = 4
+"""Bytes per voxel of the grids one workspace holds at once (occupied, filled, masks): an
+upper estimate, for refusing a --resolution that cannot fit."""
+
+
+def voxel_bytes(resolution: float, base_height: float) -> float:
+    """Bytes of the voxel grids of one workspace at ``resolution`` (m): its bounding box is
+    at most the reach ball's, 2 R x 2 R wide and R + base_height (+ the shoulder) high."""
+    from regions.reach import reach_radius
+
+    r = reach_radius()
+    cells = (2 * r / resolution + 2) ** 2 * ((r + base_height + 0.1) / resolution + 2)
+    return cells * VOXEL_GRID_COPIES
+
+
+def available_bytes() -> int | None:
+    """The host's available memory (``MemAvailable``), or None where it cannot be read."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Settings:
     if not args.joints or any(not 1 <= n <= 6 for n in args.joints):
         parser.error(f"--joints must be counts in 1..6; got {args.joints}")
@@ -435,6 +464,11 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Sett
         parser.error(f"--resolution must be a voxel edge > 0 (m); got {args.resolution}")
     if not (math.isfinite(args.base_height) and args.base_height >= 0):
         parser.error(f"--base-height must be a height >= 0 (m); got {args.base_height}")
+    need, have = voxel_bytes(args.resolution, args.base_height), available_bytes()
+    if have is not None and need > have:
+        parser.error(f"--resolution {args.resolution} m: the workspace's voxel grids would need "
+                     f"about {need / 2 ** 30:.3g} GiB, more than the {have / 2 ** 30:.3g} GiB "
+                     "of memory available; use a coarser voxel edge")
     for spec in args.regions:
         try:
             regions.parse(spec, args.base_height)
@@ -467,13 +501,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     n_plot = args.plot_joints or (3 if 3 in settings.joints else max(settings.joints))
     if args.plot is not None and n_plot not in settings.joints:
         parser.error(f"--plot-joints {n_plot} must be one of --joints {list(settings.joints)}")
+    if args.plot is not None:
+        try:  # before the study
+            args.plot = figure_path(args.plot, "--plot")
+            for suffix in (".json", ".csv"):
+                check_writable(args.plot.with_suffix(suffix), "--plot")
+        except OutputError as err:
+            parser.error(str(err))
     study = run_study(settings, progress)
     if args.json:
         print(json.dumps([r.json_row() for r in study.rows], indent=1))
     else:
         print(format_table(study, settings))
     if args.plot is not None:
-        written = plot(study, settings, args.plot, n_plot)
+        try:
+            written = plot(study, settings, args.plot, n_plot)
+        except OutputError as err:
+            parser.exit(1, f"error: {err}\n")
         print("wrote " + ", ".join(map(str, written)), file=sys.stderr)
     return 0
 

@@ -14,12 +14,16 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
+import math
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_text
 
 CELL = 0.1
 """Default edge (m) of the grid cells: the paper's "coarse tiling"."""
@@ -125,13 +129,12 @@ def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
     axes[0, 0].set_ylabel("y (m)")  # one label: the maps share their y axis
     fig.colorbar(image, ax=axes[0].tolist(), label="goals reached (%)", shrink=0.85)
     fig.suptitle(f"Success by goal position, {z[0]} <= z <= {z[1]} m (world frame)", fontsize=10)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120, bbox_inches="tight")
+    save_figure(fig, out, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
 def write_csv(maps: Sequence[SuccessMap], path: Path) -> None:
-    with open(path, "w", newline="") as f:
+    with io.StringIO() as f:
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(CSV_COLUMNS)
         for m in maps:
@@ -142,6 +145,7 @@ def write_csv(maps: Sequence[SuccessMap], path: Path) -> None:
                                      round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
                                      int(m.goals[i, j]), int(m.successes[i, j]),
                                      "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
+        write_text(path, f.getvalue())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -164,9 +168,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="figure file; the CSV goes beside it")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
-    if args.goals < 1 or args.batch < 1 or args.cell <= 0:
-        parser.error(f"--goals, --batch and --cell must be positive; got {args.goals}, "
-                     f"{args.batch}, {args.cell}")
+    if args.goals < 1 or args.batch < 1 or not 0 < args.cell < math.inf:
+        parser.error(f"--goals, --batch and --cell must be positive (and finite); got "
+                     f"{args.goals}, {args.batch}, {args.cell}")
+    if not all(math.isfinite(v) for v in args.z):
+        parser.error(f"--z needs two finite heights (m); got {args.z}")
+    try:  # before loading any policy or rolling out
+        out = figure_path(args.out, "--out")
+        csv_path = check_writable(out.with_suffix(".csv"), "--out")
+    except OutputError as err:
+        parser.error(str(err))
     z = (min(args.z), max(args.z))
     if z[0] == z[1]:
         parser.error(f"--z needs two different heights; got {args.z}")
@@ -193,13 +204,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         label = f"{Path(run).name} (episode {policy.episode})"
         reached = evaluate(policy, task, goals, args.batch, label, not args.no_progress)
         maps.append(bin_successes(label, goals, reached, args.cell))
-    plot(maps, z, args.out)
-    csv_path = args.out.with_suffix(".csv")
-    write_csv(maps, csv_path)
+    try:
+        plot(maps, z, out)
+        write_csv(maps, csv_path)
+    except OutputError as err:
+        parser.exit(1, f"error: {err}\n")
     for m in maps:
         print(f"{m.run}: {m.successes.sum()} of {m.goals.sum()} goals reached "
               f"({100.0 * m.successes.sum() / m.goals.sum():.1f} %)")
-    print(f"-> {args.out} and {csv_path}", file=sys.stderr)
+    print(f"-> {out} and {csv_path}", file=sys.stderr)
     return 0
 
 

@@ -10,9 +10,12 @@ One training process per setting trains all its seeds at once (``ddpg_her.train 
 trains every unfinished setting, the settings of one joint count stacked into one agent batch.
 Finished runs are skipped and unfinished ones resumed from their last checkpoint, so an interrupted
 sweep continues where it stopped when run again; a setting another ``ddpg_her.train`` or
-``ddpg_her.train_many`` process is training (same ``--out``) is left to it. Each process's output
-goes to ``ROOT/logs/<region>-j<joints>.log`` (one process: ``ROOT/logs/one-process.log``). Arguments
-after ``--`` pass to ``ddpg_her.train`` unchanged (e.g. ``-- --her-strategy future``).
+``ddpg_her.train_many`` process is training (it holds a run folder's lock) is left to it.
+Each process's output goes to ``ROOT/logs/<region>-j<joints>.log`` (one process:
+``ROOT/logs/one-process.log``). Arguments after ``--`` pass to ``ddpg_her.train`` unchanged
+(e.g. ``-- --her-strategy future``). A unit that could not start (a region that does not
+parse, an argument the trainer refuses, a run folder two units share) is refused before any
+starts, in a dry run too.
 """
 
 from __future__ import annotations
@@ -127,39 +130,6 @@ class Unit:
         return self.root / "logs" / f"{self.setting}.log"
 
 
-def training_outs() -> set[Path]:
-    """The ``--out`` folders (resolved, ``{seed}`` left in) of every ``ddpg_her.train`` and
-    ``ddpg_her.train_many`` process running on this machine, read from /proc; empty where
-    there is no /proc.
-
-    A unit whose folder is among them is being trained by another process (an earlier sweep,
-    or a command started by hand with the same layout): starting it again would make two
-    processes write the same run folders.
-    """
-    from ddpg_her.train_many import command_outs
-
-    outs: set[Path] = set()
-    proc = Path("/proc")
-    if not proc.is_dir():
-        return outs
-    for entry in proc.iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
-            if "ddpg_her.train_many" in argv:
-                cwd = (entry / "cwd").resolve()
-                outs.update(command_outs(argv[argv.index("ddpg_her.train_many") + 1:], cwd))
-                continue
-            if "ddpg_her.train" not in argv or "--out" not in argv:
-                continue
-            out = Path(argv[argv.index("--out") + 1])
-            outs.add((out if out.is_absolute() else (entry / "cwd").resolve() / out).resolve())
-        except (OSError, IndexError):
-            continue
-    return outs
-
-
 def parse_setting(text: str) -> tuple[str, int]:
     """``REGION:JOINTS`` -> (region, joints)."""
     region, sep, joints = text.rpartition(":")
@@ -214,7 +184,8 @@ class EpisodeBar:
     """A tqdm bar over the training episodes of a set of units, read from their eval.csv files.
 
     Evaluations come every ``--eval-every`` episodes, so the bar moves in those steps; a unit
-    whose process has ended counts in full (a failed one too: it is reported separately).
+    whose process has ended well counts in full, a failed one only with the episodes it
+    finished, so the bar never reaches 100 % over a failure, and its postfix counts them.
     """
 
     def __init__(self, units: Sequence[Unit], desc: str):
@@ -222,14 +193,16 @@ class EpisodeBar:
 
         self.units = list(units)
         self.ended: set[int] = set()
+        self.failed: set[int] = set()
         self._last_poll = 0.0
         self.bar = tqdm(total=sum(u.episodes_total for u in self.units), desc=desc,
                         unit="episode", file=sys.stderr, smoothing=0.05)
         self.bar.update(sum(u.episodes_done() for u in self.units))
         self.bar.unpause()
 
-    def end(self, unit: Unit) -> None:
-        self.ended.add(self.units.index(unit))
+    def end(self, unit: Unit, failed: bool = False) -> None:
+        """Mark ``unit``'s process as ended (``failed``: with a non-zero status)."""
+        (self.failed if failed else self.ended).add(self.units.index(unit))
         self.refresh(force=True)
 
     def refresh(self, force: bool = False) -> None:
@@ -241,7 +214,10 @@ class EpisodeBar:
                    for i, u in enumerate(self.units))
         if done > self.bar.n:
             self.bar.update(done - self.bar.n)
-        self.bar.set_postfix_str(f"{len(self.ended)}/{len(self.units)} units", refresh=False)
+        ended = len(self.ended) + len(self.failed)
+        self.bar.set_postfix_str(f"{ended}/{len(self.units)} units"
+                                 + (f", {len(self.failed)} FAILED" if self.failed else ""),
+                                 refresh=False)
 
     def write(self, text: str) -> None:
         self.bar.write(text, file=sys.stderr)
@@ -271,7 +247,7 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
                     failed += 1
                     bar.write(f"{unit.name} failed (exit {proc.returncode}); see "
                               f"{unit.log_path}")
-                bar.end(unit)
+                bar.end(unit, failed=proc.returncode != 0)
             bar.refresh()
             time.sleep(0.2)
     except KeyboardInterrupt:
@@ -322,7 +298,7 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
                 if code != 0:
                     failed += 1
                     bar.write(f"{unit.name} failed (exit {code}); see {unit.log_path}")
-                bar.end(unit)
+                bar.end(unit, failed=code != 0)
         finally:
             bar.close()
         return failed
@@ -456,9 +432,9 @@ def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequ
         raise
     finally:
         log.close()
-        if proc.returncode == 0:
+        if proc.returncode is not None:
             for unit in units:
-                bar.end(unit)
+                bar.end(unit, failed=proc.returncode != 0)
         bar.close()
     if proc.returncode != 0:
         print(f"the training process failed (exit {proc.returncode}); see "
@@ -467,25 +443,81 @@ def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequ
     return 0
 
 
-def busy(unit: Unit, outs: set[Path]) -> bool:
-    """Whether another process trains ``unit`` (its ``--out`` is in ``outs``, see
-    `training_outs`)."""
-    return Path(unit.out).resolve() in outs
+def busy(unit: Unit) -> bool:
+    """Whether another live process trains one of ``unit``'s run folders: it holds the
+    folder's lock (`ddpg_her.runfolder.RunFolder.lock`), whatever its command line or cwd."""
+    from ddpg_her.runfolder import RunFolder
+
+    return any(RunFolder(unit.run_dir(seed)).holder() is not None for seed in unit.seeds)
+
+
+def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
+    """Why units could not start, one line each: a command line ``ddpg_her.train`` refuses
+    (an unknown flag, a bad value), a region that does not parse, or two units (or two seeds)
+    with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks what
+    needs neither the robot nor torch."""
+    import contextlib
+    import io
+
+    from ddpg_her import train
+    from envs import ENV_IDS
+    from regions import parse as parse_region
+
+    problems = []
+    parser = train.make_parser()
+    for unit in units:
+        args = unit.run_args(extra)
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err):
+                req = train.request(train.parse_args(parser, args), resume=True)
+        except SystemExit:
+            message = err.getvalue().strip().splitlines()[-1:] or ["a usage error"]
+            problems.append(f"{unit.name}: ddpg_her.train refuses its command line: "
+                            f"{message[0]}")
+            continue
+        except ValueError as error:
+            problems.append(f"{unit.name}: {error}")
+            continue
+        if req.env_id.rpartition(":")[2] not in ENV_IDS:
+            continue  # another env's regions are its own
+        try:
+            parse_region(unit.region)
+        except (ValueError, OSError) as error:
+            problems.append(f"{unit.name}: region {unit.region!r}: {error}")
+    owners: dict[Path, list[str]] = {}
+    for unit in units:
+        for seed in unit.seeds:
+            owners.setdefault(unit.run_dir(seed).resolve(), []).append(f"{unit.name} s{seed}")
+    problems += [f"{', '.join(names)} would all train in {folder}"
+                 for folder, names in owners.items() if len(names) > 1]
+    return problems
+
+
+def refuse_problems(units: Sequence[Unit], extra: Sequence[str]) -> None:
+    """Exit with status 2 and every line of `unit_problems` when a unit could not start."""
+    problems = unit_problems(units, extra)
+    if problems:
+        for line in problems:
+            print(f"error: {line}", file=sys.stderr)
+        print(f"error: {len(problems)} problem(s); nothing was started", file=sys.stderr)
+        raise SystemExit(2)
 
 
 def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
                   device: str = "cpu", one: bool = False, env_backend: str = "numpy") -> None:
     """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
     trains its unit), tag, setting, seed, folder and the unit's command (with ``one``: its
-    arguments in the one ``ddpg_her.train_many`` process)."""
-    outs = training_outs()
+    arguments in the one ``ddpg_her.train_many`` process). Units that could not start are
+    refused first (`refuse_problems`), as a real run would."""
+    refuse_problems(units, [*extra, *backend_args(env_backend)])
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if one else \
             "python " + " ".join(unit.command(threads, [*extra, *backend_args(env_backend)],
                                               device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
-            status = "busy" if busy(unit, outs) and unit.status(seed) != "done" \
+            status = "busy" if busy(unit) and unit.status(seed) != "done" \
                 else unit.status(seed)
             print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
                   f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
@@ -502,11 +534,11 @@ def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
 def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
+    refuse_problems(units, [*extra, *backend_args(args.env_backend)])
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)
-    outs = training_outs()
-    for unit in [u for u in todo if busy(u, outs)]:
+    for unit in [u for u in todo if busy(u)]:
         print(f"{unit.name}: another process is training it ({unit.out}); skipped, run again "
               "when it has ended", file=sys.stderr)
         todo.remove(unit)

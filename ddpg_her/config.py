@@ -126,9 +126,15 @@ class AgentConfig:
     of magnitude below the weights."""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "her_strategy", HERStrategy(self.her_strategy))
-        object.__setattr__(self, "exploration", Exploration(self.exploration))
-        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+        for name, kind in (("her_strategy", HERStrategy), ("exploration", Exploration)):
+            try:
+                object.__setattr__(self, name, kind(getattr(self, name)))
+            except ValueError:
+                raise ValueError(f"invalid agent configuration: {name}={getattr(self, name)!r} "
+                                 f"(expected one of {[e.value for e in kind]})") from None
+        sizes = self.hidden_sizes
+        if isinstance(sizes, list | tuple):  # a string is not a sequence of sizes
+            object.__setattr__(self, "hidden_sizes", tuple(sizes))
         bad = [name for name, (_, ok) in VALID.items() if not _holds(ok, self)]
         if bad:
             raise ValueError(
@@ -165,31 +171,46 @@ def _integer(x: Any) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool)
 
 
+def _real(x: Any) -> bool:
+    """A real number, not a bool or a string (NaN fails every range below)."""
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
 VALID: dict[str, tuple[str, Any]] = {
-    "gamma": ("a number in [0, 1]", lambda c: 0.0 <= c.gamma <= 1.0),
+    "gamma": ("a number in [0, 1]", lambda c: _real(c.gamma) and 0.0 <= c.gamma <= 1.0),
     "buffer_size": ("an integer >= batch_size",
                     lambda c: _integer(c.buffer_size) and c.buffer_size >= c.batch_size),
     "batch_size": ("an integer >= 1", lambda c: _integer(c.batch_size) and c.batch_size >= 1),
-    "exploration_rate": ("a finite number >= 0", lambda c: 0.0 <= c.exploration_rate < math.inf),
-    "tau": ("a number in (0, 1]", lambda c: 0.0 < c.tau <= 1.0),
-    "actor_lr": ("a finite number > 0", lambda c: 0.0 < c.actor_lr < math.inf),
-    "critic_lr": ("a finite number > 0", lambda c: 0.0 < c.critic_lr < math.inf),
+    "exploration_rate": ("a finite number >= 0", lambda c: _real(c.exploration_rate)
+                         and 0.0 <= c.exploration_rate < math.inf),
+    "tau": ("a number in (0, 1]", lambda c: _real(c.tau) and 0.0 < c.tau <= 1.0),
+    "actor_lr": ("a finite number > 0", lambda c: _real(c.actor_lr)
+                 and 0.0 < c.actor_lr < math.inf),
+    "critic_lr": ("a finite number > 0", lambda c: _real(c.critic_lr)
+                  and 0.0 < c.critic_lr < math.inf),
     "episodes": ("an integer >= 0", lambda c: _integer(c.episodes) and c.episodes >= 0),
     "eval_every": ("an integer >= 1", lambda c: _integer(c.eval_every) and c.eval_every >= 1),
     "eval_episodes": ("an integer >= 1",
                       lambda c: _integer(c.eval_episodes) and c.eval_episodes >= 1),
     "hidden_sizes": ("two integers >= 1",
-                     lambda c: len(c.hidden_sizes) == 2 and min(c.hidden_sizes) >= 1),
-    "final_init": ("a finite number > 0", lambda c: 0.0 < c.final_init < math.inf),
+                     lambda c: isinstance(c.hidden_sizes, tuple) and len(c.hidden_sizes) == 2
+                     and all(_integer(h) and h >= 1 for h in c.hidden_sizes)),
+    "final_init": ("a finite number > 0", lambda c: _real(c.final_init)
+                   and 0.0 < c.final_init < math.inf),
     "her_k": ("an integer >= 1", lambda c: _integer(c.her_k) and c.her_k >= 1),
-    "ou_theta": ("a number in [0, 1]", lambda c: 0.0 <= c.ou_theta <= 1.0),
+    "ou_theta": ("a number in [0, 1]", lambda c: _real(c.ou_theta) and 0.0 <= c.ou_theta <= 1.0),
     "warmup_episodes": ("an integer >= 0",
                         lambda c: _integer(c.warmup_episodes) and c.warmup_episodes >= 0),
     "updates_per_episode": ("an integer >= 0", lambda c: _integer(c.updates_per_episode)
                             and c.updates_per_episode >= 0),
-    "obs_clip": ("a number > 0", lambda c: c.obs_clip > 0.0),
-    "norm_eps": ("a finite number > 0", lambda c: 0.0 < c.norm_eps < math.inf),
-    "critic_l2": ("a finite number >= 0", lambda c: 0.0 <= c.critic_l2 < math.inf),
+    "obs_clip": ("a number > 0 (inf: no clipping)", lambda c: _real(c.obs_clip)
+                 and c.obs_clip > 0.0),
+    "norm_eps": ("a finite number > 0", lambda c: _real(c.norm_eps)
+                 and 0.0 < c.norm_eps < math.inf),
+    "critic_l2": ("a finite number >= 0", lambda c: _real(c.critic_l2)
+                  and 0.0 <= c.critic_l2 < math.inf),
+    "normalize_obs": ("true or false", lambda c: isinstance(c.normalize_obs, bool)),
+    "flush_denormals": ("true or false", lambda c: isinstance(c.flush_denormals, bool)),
 }
 """The valid values of the checked `AgentConfig` fields: {field: (the range in words, test)}.
 The words appear in the error message and in ``--help``."""

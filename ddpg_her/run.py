@@ -7,6 +7,7 @@ This module needs torch; reading a run folder's spec and evaluations does not (s
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -65,9 +66,43 @@ class TrainedPolicy:
             env_kwargs["spec"] = self.spec["task"]
         return gymnasium.make(env_id, **env_kwargs, **kwargs)
 
+    def _checked(self, obs: Any) -> list[np.ndarray]:
+        """The three arrays of ``obs`` as float64, or ValueError naming what does not fit the
+        layout the policy was trained on (its run's ``dims``)."""
+        dims = self.spec["dims"]
+        sizes = {"observation": dims["obs_dim"], "achieved_goal": dims["goal_dim"],
+                 "desired_goal": dims["goal_dim"]}
+        if not isinstance(obs, Mapping) or set(sizes) - set(obs):
+            raise ValueError(f"obs must be the env's Dict observation with keys "
+                             f"{sorted(sizes)}; got "
+                             f"{sorted(obs) if isinstance(obs, Mapping) else type(obs).__name__}")
+        arrays, batch = [], set()
+        for key, n in sizes.items():
+            arr = np.asarray(obs[key])
+            if arr.dtype.kind not in "iuf" or arr.ndim not in (1, 2) or arr.shape[-1] != n:
+                raise ValueError(f"obs[{key!r}] must be ({n},) or (B, {n}) real numbers (the "
+                                 f"layout this policy was trained on); got "
+                                 f"{arr.dtype} of shape {arr.shape}")
+            if not np.isfinite(arr).all():
+                raise ValueError(f"obs[{key!r}] must be finite; got {arr}")
+            arrays.append(arr.astype(np.float64, copy=False))
+            batch.add(arr.shape[:-1])
+        if len(batch) > 1:
+            raise ValueError(f"obs arrays must share their batch shape; got "
+                             f"{[a.shape for a in arrays]}")
+        return arrays
+
     @torch.no_grad()
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        x = goal_input(obs["observation"], obs["achieved_goal"], obs["desired_goal"])
+        """The action for ``obs`` (see the class docstring).
+
+        Raises
+        ------
+        ValueError
+            When ``obs`` lacks a key, or an array is not real, finite and of the run's
+            layout (``spec['dims']``), or the batch shapes differ.
+        """
+        x = goal_input(*self._checked(obs))
         single = x.ndim == 1
         xt = torch.as_tensor(x.reshape(1, -1, x.shape[-1]), device=self.device)
         u = self.actor(self.normalizer(xt.to(self.actor.l1.weight.dtype)))[0]
@@ -96,9 +131,16 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
         raise FileNotFoundError(f"{run_dir} has no checkpoint yet")
     episode = max(ckpts) if episode is None else episode
     state = folder.load_checkpoint(episode)["agent"]
-    config = AgentConfig.from_dict(spec["agent"])
-    dims = spec["dims"]
-    in_dim = dims["obs_dim"] + 2 * dims["goal_dim"]
+    try:  # spec.json's values are checked as strictly as the command line's
+        config = AgentConfig.from_dict(spec["agent"])
+        dims = spec["dims"]
+        in_dim = dims["obs_dim"] + 2 * dims["goal_dim"]
+        if not all(isinstance(dims[k], int) and dims[k] >= 1
+                   for k in ("obs_dim", "goal_dim", "act_dim")):
+            raise ValueError(f"dims {dims} are not counts >= 1")
+    except (KeyError, TypeError, ValueError) as err:
+        raise RunFolderError(f"{folder.spec_path} does not hold a valid run specification "
+                             f"({type(err).__name__}: {err})") from err
     actor = Actor(1, in_dim, dims["act_dim"], config.hidden_sizes, dtype=torch.float32,
                   device=torch.device(device))
     load_agent_slices(actor, [state["actor"]])

@@ -10,7 +10,9 @@ A run folder holds
 - ``buffer/episode-NNNNNN.npz``: the transitions each checkpoint interval added to the replay
   buffer, so a checkpoint need not rewrite the whole buffer; chunks that the buffer has since
   overwritten are deleted;
-- ``tb/``: TensorBoard logs, when tensorboard is installed.
+- ``tb/``: TensorBoard logs, when tensorboard is installed;
+- ``lock.json``: while a trainer runs, its pid and host (`RunFolder.lock`): a second trainer on
+  the folder is refused, a lock of a process that has ended is taken over with a warning.
 
 Every file is written to a temporary name (`TEMPORARY`) and moved into place with
 ``os.replace``, so a run killed at any moment leaves each file either complete or as it was, plus
@@ -27,12 +29,15 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import datetime
 import io
 import json
 import os
 import re
+import socket
 import subprocess
 import sys
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -97,16 +102,77 @@ def _check_eval_row(path: Path, line: int, row: dict[str, str], last: int | None
         raise bad(f"episode is {episode}, expected more than the row before"
                   + (f" ({last})" if last is not None else " and >= 0"))
     return episode
+LOCK = "lock.json"
+"""The run folder's lock file, held by the one process that trains the run: its pid, host and
+start time (JSON)."""
+
+
+class RunFolderBusy(RunFolderError):
+    """A run folder that another live process trains (it holds the folder's `LOCK`)."""
+
+
+def _alive(pid: int) -> bool:
+    """Whether a Python process ``pid`` lives on this host (a pid reused by a process of
+    another program, e.g. a kernel thread, does not count where /proc tells)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        pass
+    try:
+        return b"python" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    except FileNotFoundError:
+        return not Path("/proc/self").exists()  # gone in between, or no /proc at all
+    except OSError:
+        return True
+
+
+def _host() -> str:
+    return socket.gethostname()
+
+
+class RunFolderWriteError(RunFolderError):
+    """A file of a run folder that cannot be written (read-only, full disk, no permission, a
+    file where a folder should be); the file as it was is left in place."""
+
+
+def write_failure(path: Path, err: OSError, what: str = "write") -> RunFolderWriteError:
+    """The `RunFolderWriteError` of an ``OSError`` while writing ``path``: names the path and
+    the system's reason."""
+    reason = err.strerror or type(err).__name__
+    return RunFolderWriteError(f"cannot {what} {path}: {reason} (errno {err.errno})")
 
 
 def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part."""
+    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part.
+
+    Raises
+    ------
+    RunFolderWriteError
+        When the file cannot be written (its temporary file is removed, the old file kept).
+    """
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise write_failure(path, err) from err
+
+
+def make_folder(path: Path) -> None:
+    """``path.mkdir(parents=True, exist_ok=True)``, its failure a `RunFolderWriteError`."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise write_failure(path, err, "create the folder") from err
 
 
 def versions() -> dict[str, str]:
@@ -156,17 +222,104 @@ class RunFolder:
     def clean(self) -> list[Path]:
         """Delete the temporary files that interrupted writes left behind; returns their paths.
 
-        Only for the one process that writes the run (the trainer, at its start).
+        Only for the one process that writes the run (the trainer, at its start, holding the
+        `lock`); a temporary file whose writer (the pid in its name) still lives on this host
+        is left alone all the same.
         """
         removed = []
         for folder in (self.path, *(self.path / s for s in SUBFOLDERS)):
             if not folder.is_dir():
                 continue
             for p in folder.iterdir():
-                if TEMPORARY.match(p.name) and p.is_file():
+                m = TEMPORARY.match(p.name)
+                if m and p.is_file():
+                    pid = int(p.name.rsplit(".tmp", 1)[1])
+                    if pid != os.getpid() and _alive(pid):
+                        continue
                     p.unlink(missing_ok=True)
                     removed.append(p)
         return removed
+
+    # --- the lock -------------------------------------------------------------------------------
+    @property
+    def lock_path(self) -> Path:
+        return self.path / LOCK
+
+    def holder(self) -> dict[str, Any] | None:
+        """Who holds the folder's lock (``pid``, ``host``, ``since``), or None when nobody
+        does; a lock left by a dead process of this host counts as nobody's."""
+        try:
+            holder = json.loads(self.lock_path.read_text())
+            pid, host = int(holder["pid"]), str(holder["host"])
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, KeyError, TypeError):
+            return {"pid": None, "host": None, "since": None, "unreadable": True}
+        if host == _host() and not _alive(pid):
+            return None
+        return holder
+
+    def lock(self) -> None:
+        """Take the folder's lock for this process (creating the folder).
+
+        A lock of a dead process of this host is taken over with a warning naming it.
+
+        Raises
+        ------
+        RunFolderBusy
+            When a live process holds it (or one of another host, which cannot be checked);
+            the message names its pid and host and how to free a stale lock.
+        """
+        make_folder(self.path)
+        me = {"pid": os.getpid(), "host": _host(),
+              "since": datetime.datetime.now().isoformat(timespec="seconds")}
+        for _ in range(3):
+            try:
+                fd = os.open(self.lock_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                holder = self.holder()
+                if holder is not None and holder.get("pid") == os.getpid() and \
+                        holder.get("host") == me["host"]:
+                    return  # this process holds it already
+                if holder is not None:
+                    raise RunFolderBusy(
+                        f"{self.path} is being trained by process {holder.get('pid')} on host "
+                        f"{holder.get('host')} (since {holder.get('since')}; its lock "
+                        f"{self.lock_path}); wait for it to end, or delete the lock if that "
+                        "process is gone") from None
+                try:
+                    stale = self.lock_path.read_text()
+                except FileNotFoundError:
+                    continue
+                warnings.warn(f"{self.lock_path}: taking over the lock of a process that has "
+                              f"ended ({stale.strip()})", stacklevel=2)
+                try:
+                    self.lock_path.unlink(missing_ok=True)
+                except OSError as err:
+                    raise write_failure(self.lock_path, err, "delete the stale lock") from err
+                continue
+            except OSError as err:
+                raise write_failure(self.lock_path, err, "create") from err
+            try:
+                with os.fdopen(fd, "w") as f:
+                    json.dump(me, f)
+            except OSError as err:
+                with contextlib.suppress(OSError):
+                    self.lock_path.unlink()
+                raise write_failure(self.lock_path, err) from err
+            return
+        raise RunFolderBusy(f"{self.lock_path}: could not take the lock (another process "
+                            "took it in between); try again")
+
+    def unlock(self) -> None:
+        """Release this process's lock on the folder (nothing if another holds it)."""
+        try:
+            holder = json.loads(self.lock_path.read_text())
+        except (OSError, ValueError):
+            return
+        if holder.get("pid") == os.getpid() and holder.get("host") == _host():
+            with contextlib.suppress(OSError):  # a folder made read-only meanwhile
+                self.lock_path.unlink(missing_ok=True)
 
     def read_spec(self) -> dict[str, Any]:
         """``spec.json`` as a dict.
@@ -190,7 +343,7 @@ class RunFolder:
         return spec
 
     def write_spec(self, spec: dict[str, Any]) -> None:
-        self.path.mkdir(parents=True, exist_ok=True)
+        make_folder(self.path)
         atomic_write(self.spec_path, (json.dumps(spec, indent=2) + "\n").encode())
 
     def write_eval(self, rows: Sequence[dict[str, Any]]) -> None:
@@ -259,7 +412,7 @@ class RunFolder:
         import torch
 
         folder = self.path / "checkpoints"
-        folder.mkdir(parents=True, exist_ok=True)
+        make_folder(folder)
         buf = io.BytesIO()
         torch.save(state, buf)
         atomic_write(folder / f"episode-{episode:06d}.pt", buf.getvalue())
@@ -294,7 +447,7 @@ class RunFolder:
 
     def save_chunk(self, episode: int, start: int, rows: np.ndarray) -> None:
         folder = self.path / "buffer"
-        folder.mkdir(parents=True, exist_ok=True)
+        make_folder(folder)
         buf = io.BytesIO()
         np.savez(buf, start=np.int64(start), rows=rows)
         atomic_write(folder / f"episode-{episode:06d}.npz", buf.getvalue())

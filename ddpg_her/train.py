@@ -198,14 +198,86 @@ class Request:
     config: AgentConfig
     seeds: tuple[int, ...]
     run_dirs: tuple[str, ...]
+    note: str | None = None
+    """What the command should say about the request (a budget kept on resume), or None."""
 
 
 PROCESS_FLAGS = ("resume", "device", "env_backend", "threads", "no_progress", "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
 
 
-def request(args: argparse.Namespace) -> Request:
+def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None
+               ) -> argparse.Namespace:
+    """``parser.parse_args(argv)``, noting in ``args.episodes_given`` whether --episodes was
+    given: a resume keeps the recorded budget unless it was (see `request`)."""
+    args = parser.parse_args(argv, namespace=argparse.Namespace(episodes=None))
+    args.episodes_given = args.episodes is not None
+    if not args.episodes_given:
+        args.episodes = AgentConfig.episodes
+    return args
+
+
+def recorded_budget(dirs: Sequence[str]) -> int | None:
+    """The ``agent.episodes`` that the ``spec.json`` of the folders ``dirs`` record, or None
+    when none has one yet (an unreadable one is left to the trainer to name).
+
+    Raises
+    ------
+    ValueError
+        When the folders record different budgets.
+    """
+    from ddpg_her.runfolder import RunFolder, RunFolderError
+
+    found: dict[int, list[str]] = {}
+    for d in dirs:
+        folder = RunFolder(d)
+        if not folder.spec_path.exists():
+            continue
+        try:
+            episodes = folder.read_spec().get("agent", {}).get("episodes")
+        except (RunFolderError, AttributeError):
+            continue
+        if isinstance(episodes, int) and not isinstance(episodes, bool):
+            found.setdefault(episodes, []).append(d)
+    if len(found) > 1:
+        raise ValueError("--resume: the run folders record different budgets ("
+                         + "; ".join(f"{n} episodes: {', '.join(ds)}" for n, ds in found.items())
+                         + "); give --episodes")
+    return next(iter(found), None)
+
+
+def contradictions(config: AgentConfig) -> None:
+    """Raise ValueError for agent flags that contradict each other: a value given to a flag
+    that the others make unused (``--her-k`` without ``--her-strategy future``, ``--ou-theta``
+    without ``--exploration ou``, ``--obs-clip`` or ``--norm-eps`` with
+    ``--no-normalize-obs``), or a budget whose last episodes no test session would score (the
+    run would never count as finished)."""
+    default = AgentConfig()
+    unused = [
+        ("--her-k", config.her_k != default.her_k and config.her_strategy.value != "future",
+         f"--her-strategy {config.her_strategy.value} (--her-k counts the copies of 'future')"),
+        ("--ou-theta", config.ou_theta != default.ou_theta and config.exploration.value != "ou",
+         f"--exploration {config.exploration.value} (--ou-theta is OU noise's)"),
+        ("--obs-clip", config.obs_clip != default.obs_clip and not config.normalize_obs,
+         "--no-normalize-obs"),
+        ("--norm-eps", config.norm_eps != default.norm_eps and not config.normalize_obs,
+         "--no-normalize-obs"),
+    ]
+    for flag, contradicted, other in unused:
+        if contradicted:
+            raise ValueError(f"{flag} has no effect with {other}; drop one of them")
+    if config.episodes % config.eval_every:
+        raise ValueError(
+            f"--episodes {config.episodes} is not a multiple of --eval-every "
+            f"{config.eval_every}: its last {config.episodes % config.eval_every} episode(s) "
+            "would have no test session and the run would never count as finished")
+
+
+def request(args: argparse.Namespace, resume: bool | None = None) -> Request:
     """The runs a parsed command line asks for.
+
+    With ``resume`` (default: ``args.resume``) and no --episodes given (see `parse_args`),
+    the budget is the one the existing run folders record, not the default.
 
     Raises
     ------
@@ -225,8 +297,16 @@ def request(args: argparse.Namespace) -> Request:
         raise ValueError(f"--seeds must be distinct, got {seeds}")
     config = AgentConfig(**{f.name: getattr(args, f.name)
                             for f in dataclasses.fields(AgentConfig)})
+    contradictions(config)
     dirs = run_dirs(args.out, args.region, joints, seeds)
-    return Request(args.env_id, env_kwargs, config, tuple(seeds), tuple(dirs))
+    note = None
+    if (args.resume if resume is None else resume) and not getattr(args, "episodes_given", True):
+        budget = recorded_budget(dirs)
+        if budget is not None and budget != config.episodes:
+            config = dataclasses.replace(config, episodes=budget)
+            note = (f"--resume: training to the {budget} episodes that spec.json records "
+                    "(give --episodes to extend the run)")
+    return Request(args.env_id, env_kwargs, config, tuple(seeds), tuple(dirs), note)
 
 
 def build_trainer(parser: argparse.ArgumentParser, make: Callable[[], Any]) -> Any:
@@ -242,12 +322,28 @@ def build_trainer(parser: argparse.ArgumentParser, make: Callable[[], Any]) -> A
 
 def run_to_end(trainer: Any) -> Any:
     """Train ``trainer`` to its budget and close it; its rows, or None when interrupted (what
-    is finished is on disk, and ``--resume`` continues)."""
+    is finished is on disk, and ``--resume`` continues).
+
+    A run folder that can no longer be written (full disk, made read-only) ends the process
+    with status 1 and a message naming the file and the reason; the last checkpoint written
+    stays whole, and ``--resume`` continues from it once the disk is fixed.
+    """
+    from ddpg_her.runfolder import RunFolderWriteError
+    from ddpg_her.trainer import Diverged
+
     try:
         return trainer.run()
     except KeyboardInterrupt:
         print("interrupted; continue with the same command and --resume", file=sys.stderr)
         return None
+    except RunFolderWriteError as err:
+        print(f"error: {err}. Training stopped; the last checkpoint written is whole: free "
+              "space or make the folder writable, then run the same command with --resume",
+              file=sys.stderr)
+        raise SystemExit(1) from None
+    except Diverged as err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(1) from None
     finally:
         trainer.close()
 
@@ -262,13 +358,15 @@ def last_session(rows: Sequence[dict[str, Any]]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = make_parser()
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
     try:
         req = request(args)
     except ValueError as e:
         parser.error(str(e))
+    if req.note:
+        print(req.note, file=sys.stderr)
     env_kwargs, config, seeds, dirs = req.env_kwargs, req.config, list(req.seeds), \
         list(req.run_dirs)
 

@@ -126,8 +126,9 @@ def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
     return argv, []
 
 
-def settings_of(units: Sequence[Sequence[str]]):
-    """The `ddpg_her.multi.Setting` of each unit, parsed by ddpg_her.train's parser.
+def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
+    """The `ddpg_her.multi.Setting` of each unit, parsed by ddpg_her.train's parser (with
+    ``resume``, a unit without --episodes keeps the budget its run folders record).
 
     Raises
     ------
@@ -143,7 +144,7 @@ def settings_of(units: Sequence[Sequence[str]]):
     for i, unit in enumerate(units, start=1):
         where = f"unit {i} ({shlex.join(unit)})"
         try:
-            args = unit_parser.parse_args(list(unit))
+            args = train.parse_args(unit_parser, list(unit))
         except SystemExit:
             raise ValueError(f"{where} is not a ddpg_her.train command line (see above)"
                              ) from None
@@ -153,7 +154,7 @@ def settings_of(units: Sequence[Sequence[str]]):
                              f"{', '.join('--' + d.replace('_', '-') for d in process)}; give "
                              "them once, to ddpg_her.train_many")
         try:
-            req = train.request(args)
+            req = train.request(args, resume=resume)
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from None
         out.append(Setting(req.env_id, req.env_kwargs, req.config, req.seeds, req.run_dirs))
@@ -175,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not units:
         parser.error("give one or more --unit or --plan")
     try:
-        settings = settings_of([[*u, *common] for u in units])
+        settings = settings_of([[*u, *common] for u in units], resume=args.resume)
     except ValueError as err:
         parser.error(str(err))
 

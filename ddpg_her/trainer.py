@@ -14,10 +14,12 @@ goals, minibatches), so K = 1 and K > 1 train agent k alike, and a resumed run c
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import functools
 import json
 import math
+import os
 import sys
 import time
 import warnings
@@ -56,6 +58,66 @@ kernel for all of them), with the same goals and exploration as ``numpy`` and tr
 equal to rounding. ``torch``: the env id's tensor twin (``vecenv.TORCH_TWINS``, e.g.
 ``envs.TorchReach``) on the trainer's device, so rollout, HER and the buffer stay on the device
 (stop contact model only)."""
+
+
+class Diverged(RuntimeError):
+    """Training produced networks with inf or NaN (a diverging run)."""
+
+
+BYTES_PER_PARAMETER = 6
+"""Copies of each network parameter in memory: the weight, its target, its gradient, Adam's
+two moments, and one for the update's scratch (an upper estimate)."""
+
+
+def check_memory(config: AgentConfig, layout: Layout, k: int, dtype: torch.dtype,
+                 device: torch.device) -> None:
+    """Refuse, before allocating, replay buffers and networks larger than the memory of
+    ``device`` (the host's available memory for the CPU, the GPU's free memory).
+
+    Raises
+    ------
+    ValueError
+        Naming --buffer-size or --hidden-sizes and the memory they would need.
+    """
+    size = torch.empty((), dtype=dtype).element_size()
+    buffer = k * config.buffer_size * layout.width * size
+    h1, h2 = config.hidden_sizes
+    params = (layout.in_dim * h1 + h1 + h1 * h2 + h2 + h2 * layout.act_dim + layout.act_dim
+              + layout.in_dim * h1 + h1 + (h1 + layout.act_dim) * h2 + h2 + h2 + 1)
+    networks = k * params * size * BYTES_PER_PARAMETER
+    available = available_memory(device)
+    if available is None:
+        return
+    gib = 2.0 ** 30
+    for flag, need in (("--buffer-size", buffer), ("--hidden-sizes", networks),
+                       ("--buffer-size and --hidden-sizes", buffer + networks)):
+        if need > available:
+            raise ValueError(
+                f"{flag}: {k} agent(s) would need {need / gib:.3g} GiB ({buffer / gib:.3g} GiB "
+                f"of replay buffers: {config.buffer_size} transitions x {layout.width} "
+                f"values x {size} bytes each; {networks / gib:.3g} GiB of networks "
+                f"{config.hidden_sizes}), more than the {available / gib:.3g} GiB available "
+                f"on {device}")
+
+
+def available_memory(device: torch.device) -> int | None:
+    """Bytes that can still be allocated on ``device``, or None when it cannot be told."""
+    if device.type == "cuda":
+        try:
+            return int(torch.cuda.mem_get_info(device)[0])
+        except (RuntimeError, AssertionError):
+            return None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
 
 
 def stream_seed(seed: int, *key: int) -> int:
@@ -116,9 +178,12 @@ class Trainer:
             self.envs = GoalVecEnv(env_id, per_agent, 1, merge=merge)
             self.eval_envs = GoalVecEnv(env_id, per_agent, config.eval_episodes, merge=merge)
         envs = self.envs
+        for k, kwargs in enumerate(per_agent):
+            _check_recorded(env_id, kwargs, envs.task_of(k))
         self.scale = envs.scale
         self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)
         self.folders = [RunFolder(d) for d in run_dirs]
+        check_memory(config, self.layout, self.k, dtype, self.device)
 
         self.agent = DDPG(
             config, self.layout.in_dim, self.layout.act_dim, dtype=dtype, device=self.device,
@@ -141,6 +206,7 @@ class Trainer:
         self._saved_total = np.zeros(self.k, dtype=np.int64)
         self._kept_totals: list[np.ndarray] = []
         self.specs = [self._spec(k, command) for k in range(self.k)]
+        self._locked: list[RunFolder] = []
         self._open(resume)
         self._log: _Interval | None = None
         self._tick = 0.0
@@ -215,6 +281,25 @@ class Trainer:
                 "checkpoints of a run (its spec.json is missing)"
             raise ValueError(f"{existing[0].path} already holds {what}; pass --resume to "
                              "continue it, or choose another --out")
+        made = [not f.path.exists() for f in self.folders]
+        locked: list[RunFolder] = []
+        try:
+            for f in self.folders:
+                f.lock()
+                locked.append(f)
+            self._open_locked(resume)
+        except BaseException:
+            for f, new in zip(self.folders, made, strict=True):
+                if f in locked:
+                    f.unlock()
+                    if new:  # a refused start leaves no folder behind
+                        with contextlib.suppress(OSError):
+                            f.path.rmdir()
+            raise
+        self._locked = locked
+
+    def _open_locked(self, resume: bool) -> None:
+        """`_open` once this process holds every folder's lock."""
         olds: list[dict[str, Any] | None] = []
         for f, spec in zip(self.folders, self.specs, strict=True):
             old = f.read_spec() if f.spec_path.exists() else None
@@ -222,6 +307,10 @@ class Trainer:
                 self._mismatch(f.path, old, spec)
             olds.append(old)
         episode, states, chunks = self._readable_checkpoint()
+        if episode is None:
+            for f, old in zip(self.folders, olds, strict=True):
+                if old is not None:
+                    _refuse_lost_checkpoints(f)
         for f, spec, old in zip(self.folders, self.specs, olds, strict=True):
             # temporary files of writes that a kill interrupted; only now that this process
             # has the folder's run (a refused start touches nothing)
@@ -266,12 +355,8 @@ class Trainer:
                         self._mismatch(f.checkpoints()[episode], state["config"], spec)
                 chunks = [f.chunks(upto=episode) for f in self.folders]
                 for f, state, rows in zip(self.folders, states, chunks, strict=True):
-                    total = rows[-1][0] + len(rows[-1][1]) if rows else 0
-                    if total != state["buffer_total"]:
-                        raise RunFolderError(
-                            f"{f.path / 'buffer'}: the chunks up to episode {episode} end at "
-                            f"transition {total}, its checkpoint expects "
-                            f"{state['buffer_total']}")
+                    _check_coverage(f.path / "buffer", episode, rows, int(state["buffer_total"]),
+                                    self.config.buffer_size)
             except RunFolderError as err:
                 if i + 1 == len(candidates):
                     raise
@@ -296,7 +381,10 @@ class Trainer:
                                    f"transitions, the checkpoint expects {s['buffer_total']}")
             self.env_steps[k] = s["env_steps"]
             self.rows[k] = list(s["rows"])
-            f.prune(upto=episode, keep_from=s["buffer_total"] - self.config.buffer_size)
+            # only the abandoned future: the older checkpoint kept beside this one needs the
+            # chunks before this one's window, should this one be found corrupt later (the
+            # next save prunes them, when it deletes that older checkpoint)
+            f.prune(upto=episode, keep_from=0)
             f.write_eval(self.rows[k])
         self.episode = episode
         self.wall_s = float(states[0]["wall_s"])
@@ -396,6 +484,24 @@ class Trainer:
             self.agent.normalizer.update(k, all_rows[:, :self.layout.in_dim])
             self.env_steps[k] += int(length[k])
         return success
+
+    def _check_finite(self, losses: torch.Tensor) -> None:
+        """Raise `Diverged` when an agent's mean losses (2, K) of this episode's updates are
+        not finite: its networks hold inf or NaN, and every later action and eval row would
+        be NaN. Before the episode's checkpoint, so the last one written is still finite."""
+        finite = torch.isfinite(losses).all(0).cpu().numpy()
+        if finite.all():
+            return
+        bad = np.flatnonzero(~finite)
+        values = losses.cpu().numpy()
+        raise Diverged(
+            "the networks diverged (a loss is not finite) in training episode "
+            f"{self.episode + 1}: "
+            + "; ".join(f"seed {self.seeds[k]} ({self.folders[k].path}): critic loss "
+                        f"{values[0, k]:.3g}, actor loss {values[1, k]:.3g}" for k in bad)
+            + f". The last checkpoint written is from before; lower --critic-lr "
+            f"({self.config.critic_lr:g}) or --actor-lr ({self.config.actor_lr:g}), or check "
+            "the task's reward scale")
 
     def train_episode(self) -> np.ndarray:
         """One exploring episode per agent, stored with its HER copies; returns successes (K,)."""
@@ -515,7 +621,9 @@ class Trainer:
         self._flush_denormals()
         log.successes += self.train_episode()
         if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
-            log.losses += self.learn(cfg.updates_per_episode)
+            losses = self.learn(cfg.updates_per_episode)
+            self._check_finite(losses)
+            log.losses += losses
             log.updates += cfg.updates_per_episode
             log.learning += 1
         self.episode += 1
@@ -558,8 +666,73 @@ class Trainer:
         return self.rows
 
     def close(self) -> None:
+        """Close the envs and release the run folders' locks."""
         self.envs.close()
         self.eval_envs.close()
+        for f in self._locked:
+            f.unlock()
+        self._locked = []
+
+
+def _refuse_lost_checkpoints(f: RunFolder) -> None:
+    """Raise ValueError when the run in ``f`` has finished work (test sessions, buffer chunks)
+    but no checkpoint: resuming would train it again from episode 0 over its eval.csv. A run
+    killed before its first checkpoint has none of either and starts afresh."""
+    sessions = len(f.read_eval())
+    chunks = sorted(p.name for p in (f.path / "buffer").glob("episode-*.npz"))
+    if sessions or chunks:
+        raise ValueError(
+            f"{f.path} holds a run with {sessions} test session(s) in eval.csv"
+            + (f" and {len(chunks)} buffer chunk(s)" if chunks else "")
+            + f" but no checkpoint in {f.path / 'checkpoints'} (deleted or moved?); --resume "
+            "would start it again from episode 0. Restore the checkpoints, or move the folder "
+            "away (or choose another --out) to train the run anew")
+
+
+def _check_recorded(env_id: str, given: dict[str, Any], task: dict[str, Any]) -> None:
+    """Raise ValueError unless every task field in ``given`` (the env's keyword arguments) is
+    the value the env's task holds, which ``spec.json`` records and every tool rebuilds the
+    task from. A given None asks the task for its derived value (e.g. ``start_q``)."""
+    wrong = [f"{key}={value!r} (the task holds {task[key]!r})" for key, value in given.items()
+             if key in task and value is not None and _plain(value) != _plain(task[key])]
+    if wrong:
+        raise ValueError(f"{env_id} did not take the task field(s) given: {', '.join(wrong)}; "
+                         "the run would train one task and record another")
+
+
+def _plain(x: Any) -> Any:
+    """``x`` as JSON holds it, numbers as floats: 1 and 1.0 are one value, (1, 2) and [1, 2]."""
+    if isinstance(x, bool) or x is None or isinstance(x, str):
+        return x
+    if isinstance(x, (int, float, np.integer, np.floating)):
+        return float(x)
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in x]
+    return json.loads(json.dumps(x, default=str))
+
+
+def _check_coverage(where: Path, episode: int, chunks: Sequence[tuple[int, Any]], total: int,
+                    capacity: int) -> None:
+    """Raise RunFolderError unless ``chunks`` hold every transition that a checkpoint with
+    ``total`` transitions keeps in a buffer of ``capacity``: numbers ``total - capacity``
+    (or 0) to ``total - 1``, without a gap. A gap would leave rows that were never written."""
+    need = max(0, total - capacity)
+    covered = need
+    for start, rows in chunks:
+        end = start + len(rows)
+        if end <= covered:
+            continue
+        if start > covered:
+            raise RunFolderError(
+                f"{where}: the checkpoint of episode {episode} needs transitions {need} to "
+                f"{total - 1}, but no chunk holds {covered} to {start - 1} (deleted or lost)")
+        covered = end
+    if covered != total:
+        raise RunFolderError(
+            f"{where}: the chunks up to episode {episode} end at transition {covered}, its "
+            f"checkpoint expects {total}")
 
 
 def json_equal(a: Any, b: Any) -> bool:

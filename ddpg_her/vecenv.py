@@ -13,6 +13,7 @@ of them, the goals still each group's own draws.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 from collections.abc import Callable, Sequence
@@ -55,11 +56,24 @@ def register_env(env_id: str) -> str:
     return name
 
 
+def _make(env_id: str, kwargs: dict[str, Any]) -> gymnasium.Env:
+    """``gymnasium.make(env_id, **kwargs)``, but a ``max_episode_steps`` in ``kwargs`` reaches
+    the env as ``make_vec`` passes it: ``make`` would take it for its own time limit alone,
+    and the task would keep (and record) its default episode length."""
+    if "max_episode_steps" not in kwargs:
+        return gymnasium.make(env_id, **kwargs)
+    steps = kwargs["max_episode_steps"]
+    spec = gymnasium.spec(env_id)
+    spec = dataclasses.replace(spec, kwargs={**spec.kwargs, "max_episode_steps": steps})
+    rest = {k: v for k, v in kwargs.items() if k != "max_episode_steps"}
+    return gymnasium.make(spec, max_episode_steps=steps, **rest)
+
+
 class _Singles:
     """M copies made one by one with ``gymnasium.make``, stepped in a loop."""
 
     def __init__(self, env_id: str, m: int, kwargs: dict[str, Any]):
-        self.envs = [gymnasium.make(env_id, **kwargs) for _ in range(m)]
+        self.envs = [_make(env_id, kwargs) for _ in range(m)]
         env = self.envs[0]
         self.observation_space, self.action_space = env.observation_space, env.action_space
         self.goal_env = env.unwrapped

@@ -213,12 +213,15 @@ class UR5ReachEnv(gymnasium.Env):
               ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         goals = None
+        if options is not None and not isinstance(options, Mapping):
+            raise ValueError(f"options must be a dict such as {{'goal': (x, y, z)}}; got "
+                             f"{options!r}")
         if options:
             unknown = sorted(set(options) - {"goal"})
             if unknown:
                 raise ValueError(f"unknown reset option(s) {unknown}; the only option is 'goal'")
-            goal = np.asarray(options["goal"], dtype=np.float64)
-            if goal.shape != (3,) or not np.all(np.isfinite(goal)):
+            goal = real_actions(options["goal"])  # None for strings, complex, objects
+            if goal is None or goal.shape != (3,) or not np.all(np.isfinite(goal)):
                 raise ValueError(f"options['goal'] must be 3 finite numbers (x, y, z in m, world "
                                  f"frame); got {options['goal']!r}")
             goals = goal[None]

@@ -105,13 +105,23 @@ def info_actions(info: Any) -> np.ndarray:
     if isinstance(info, Mapping):
         if ACTION_KEY not in info:
             raise _missing_action()
-        return np.asarray(info[ACTION_KEY], dtype=np.float64)
+        return _real(info[ACTION_KEY], "info['action']", "the action as applied, (..., n)")
+    if isinstance(info, str | bytes):
+        raise _missing_action()
     infos = np.asarray(info, dtype=object)
     flat = infos.reshape(-1)
     try:
-        stacked = np.stack([np.asarray(i[ACTION_KEY], dtype=np.float64) for i in flat])
-    except (KeyError, TypeError) as err:
+        actions = [i[ACTION_KEY] for i in flat]
+    except (KeyError, TypeError, IndexError) as err:
         raise _missing_action() from err
+    try:
+        stacked = np.stack([_real(a, "info['action']", "the action as applied, (n,) per "
+                                  "transition") for a in actions])
+    except ValueError as err:
+        if "info['action']" in str(err):
+            raise
+        raise ValueError(f"the infos' actions must all have one shape (n,); got shapes "
+                         f"{sorted({np.shape(a) for a in actions})}") from err
     return stacked.reshape(*infos.shape, *stacked.shape[1:])
 
 

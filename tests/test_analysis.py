@@ -10,7 +10,6 @@ import json
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -342,24 +341,24 @@ def test_sweep_in_one_process_writes_the_runs_one_process_per_setting_writes(tmp
     assert "2 of 2 settings already finished" in again
 
 
-def test_a_unit_in_a_running_train_many_process_is_busy(tmp_path: Path) -> None:
-    from ddpg_her.train_many import write_plan
+LOCK_HOLDER = ("import sys, time; from ddpg_her.runfolder import RunFolder; "
+               "RunFolder(sys.argv[1]).lock(); print('locked', flush=True); time.sleep(60)")
+"""A stand-in for a trainer: holds the lock of the run folder argv[1] (as `Trainer` does)."""
 
+
+def test_a_unit_whose_folder_another_process_holds_is_busy(tmp_path: Path) -> None:
     unit = sweep.Unit("box", 2, (0, 1), tmp_path, 10)
-    plan = tmp_path / "plan.json"
-    write_plan(plan, [unit.run_args()])
-    # a stand-in with train_many's command line (python -c ... ddpg_her.train_many --plan P)
-    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)",
-                             "ddpg_her.train_many", "--plan", str(plan)])
+    assert not sweep.busy(unit)
+    proc = subprocess.Popen([sys.executable, "-c", LOCK_HOLDER, str(unit.run_dir(1))],
+                            stdout=subprocess.PIPE, text=True, cwd=Path(__file__).parent.parent)
     try:
-        deadline = time.monotonic() + 10
-        while not sweep.busy(unit, sweep.training_outs()) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert sweep.busy(unit, sweep.training_outs())
-        assert not sweep.busy(sweep.Unit("box", 3, (0,), tmp_path, 10), sweep.training_outs())
+        assert proc.stdout.readline().strip() == "locked"
+        assert sweep.busy(unit)
+        assert not sweep.busy(sweep.Unit("box", 3, (0,), tmp_path, 10))
     finally:
         proc.kill()
         proc.wait()
+    assert not sweep.busy(unit)  # the holder has ended: its lock is stale
 
 
 def test_one_process_is_opt_in_and_contradicts_ray_and_workers() -> None:

@@ -9,7 +9,6 @@ import json
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ from scipy import stats
 
 from analysis import sensitivity as sens
 from analysis.report import Verdict
-from analysis.sweep import Unit, busy, training_outs
+from analysis.sweep import Unit, busy
 from ddpg_her.run import RunFolder
 from envs.spec import TaskSpec
 
@@ -145,17 +144,17 @@ def test_status_of_done_partial_and_new_units(tmp_path: Path) -> None:
 
 def test_a_unit_another_process_trains_is_busy(tmp_path: Path) -> None:
     unit = Unit("zheight", 3, (0, 1), tmp_path / "actor_penalty", 1000)
-    assert not busy(unit, training_outs())
-    # a stand-in with a trainer's command line (python -c ... ddpg_her.train --out OUT)
-    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)",
-                             "ddpg_her.train", "--out", unit.out])
+    assert not busy(unit)
+    # a stand-in for a trainer: it holds the run folder's lock, as ddpg_her.train does
+    code = ("import sys, time; from ddpg_her.runfolder import RunFolder; "
+            "RunFolder(sys.argv[1]).lock(); print('locked', flush=True); time.sleep(60)")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(unit.run_dir(0))],
+                            stdout=subprocess.PIPE, text=True, cwd=Path(__file__).parent.parent)
     try:
-        deadline = time.monotonic() + 10
-        while not busy(unit, training_outs()) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert busy(unit, training_outs())
+        assert proc.stdout.readline().strip() == "locked"
+        assert busy(unit)
         other = Unit("zheight", 3, (0, 1), tmp_path / "ours", 1000)
-        assert not busy(other, training_outs())
+        assert not busy(other)
     finally:
         proc.kill()
         proc.wait()

@@ -1,0 +1,131 @@
+"""Output files of the analysis commands: checked before any computing, written whole or not at
+all, and reported by the names they really have.
+
+A figure path must end in a suffix matplotlib can write (``.png``, ``.pdf``, ``.svg``, ...); one
+without a suffix gets ``.png`` (and the command reports that name); an existing folder is an
+error, not ``FOLDER.png`` beside it. Every output's folder must be creatable and writable before
+the work starts, and each file is written to a temporary name and moved into place.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+from pathlib import Path
+from typing import Any
+
+DEFAULT_FIGURE_SUFFIX = ".png"
+"""The suffix a figure path without one gets (matplotlib's own default format)."""
+
+
+class OutputError(ValueError):
+    """An output path that cannot be written; the message names it and says why."""
+
+
+def figure_suffixes() -> list[str]:
+    """The suffixes matplotlib can write, e.g. ``['.eps', '.jpg', ..., '.svg']``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    return sorted("." + s for s in FigureCanvasAgg(Figure()).get_supported_filetypes())
+
+
+def figure_path(path: str | os.PathLike, flag: str) -> Path:
+    """The figure file that ``path`` (given as ``flag``) names, checked for writing.
+
+    Raises
+    ------
+    OutputError
+        When ``path`` is an existing folder, has a suffix matplotlib cannot write, or cannot
+        be written (see `check_writable`).
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{flag} {path} is a folder; give a figure file, e.g. "
+                          f"{path / ('figure' + DEFAULT_FIGURE_SUFFIX)}")
+    if not path.suffix:
+        path = path.with_name(path.name + DEFAULT_FIGURE_SUFFIX)
+    elif path.suffix.lower() not in figure_suffixes():
+        raise OutputError(f"{flag} {path}: matplotlib cannot write {path.suffix!r} files; use "
+                          f"one of {', '.join(figure_suffixes())}")
+    check_writable(path, flag)
+    return path
+
+
+def check_writable(path: str | os.PathLike, flag: str) -> Path:
+    """Check that the file ``path`` (named by ``flag``) can be created or replaced: its
+    nearest existing ancestor is a writable folder, and it is not itself a folder.
+
+    Raises
+    ------
+    OutputError
+        Naming the path and the reason (a file where a folder should be, read-only, no
+        permission).
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{flag} {path} is a folder, expected a file")
+    check_folder(path.parent, flag, of=path)
+    return path
+
+
+def check_folder(folder: str | os.PathLike, flag: str, of: Path | None = None) -> Path:
+    """Check that ``folder`` exists as a writable folder or can be created.
+
+    Raises
+    ------
+    OutputError
+        When an ancestor is a file, or the nearest existing one is not writable.
+    """
+    folder = Path(folder)
+    what = f"{flag} {of if of is not None else folder}"
+    probe = folder.absolute()
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"{what}: {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        reason = "a read-only file system" if _read_only(probe) else "no write permission"
+        raise OutputError(f"{what}: cannot write in {probe} ({reason})")
+    return folder
+
+
+def _read_only(path: Path) -> bool:
+    try:
+        return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
+def write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` whole or not at all (a temporary name, then a move).
+
+    Raises
+    ------
+    OutputError
+        When the write fails (full disk, ...); nothing is left of it.
+    """
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise OutputError(f"cannot write {path}: {err.strerror or err}") from err
+
+
+def write_text(path: Path, text: str) -> None:
+    """`write_bytes` of text (UTF-8)."""
+    write_bytes(path, text.encode())
+
+
+def save_figure(fig: Any, path: Path, **kwargs: Any) -> None:
+    """``fig.savefig(path, **kwargs)``, rendered in memory and written by `write_bytes`; the
+    format is ``path``'s suffix."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", **kwargs)
+    write_bytes(path, buf.getvalue())

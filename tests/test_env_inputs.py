@@ -1,0 +1,55 @@
+"""Issue 23 on the env: ``reset(options=...)`` and ``compute_reward``'s arguments are checked
+as ``step``'s action is: a ValueError naming the argument and what was expected, never another
+exception type, numpy's bare message, or a string read as a sequence of keys."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+import envs  # noqa: F401 (registers UR5Reach-v0)
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = gymnasium.make("UR5Reach-v0", region="farbox", n_joints=3).unwrapped
+    yield env
+    env.close()
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"goal": "abc"}, "options['goal'] must be 3 finite numbers"),
+    ({"goal": [0.7 + 1j, 0.0, 0.1]}, "options['goal'] must be 3 finite numbers"),
+    ({"goal": [0.7, None, 0.1]}, "options['goal'] must be 3 finite numbers"),
+    ({"goal": [0.7, np.nan, 0.1]}, "options['goal'] must be 3 finite numbers"),
+    ({"goal": [[0.7, 0.0, 0.1]]}, "options['goal'] must be 3 finite numbers"),
+    (["goal"], "options must be a dict such as {'goal': (x, y, z)}; got ['goal']"),
+    ("goal", "options must be a dict such as {'goal': (x, y, z)}; got 'goal'"),
+    ({"gaol": [0.7, 0.0, 0.1]}, "unknown reset option(s) ['gaol']"),
+])
+def test_reset_options_are_checked_like_actions(env, options, message):
+    with pytest.raises(ValueError) as err:
+        env.reset(seed=0, options=options)
+    assert message in str(err.value)
+
+
+@pytest.mark.parametrize("info, message", [
+    ({"action": "abc"}, "info['action'] must be real numbers"),
+    ({"action": [0.0, np.inf, 0.0]}, "info['action'] must be finite"),
+    ([{"action": [0.0, 0.0, 0.0]}, {"action": "x"}], "info['action'] must be real numbers"),
+    ([{"action": [0.0, 0.0, 0.0]}, {"action": [0.0, 0.0]}], "must all have one shape"),
+    ("action", "the dense reward needs the action"),
+    ([{"act": [0.0, 0.0, 0.0]}], "the dense reward needs the action"),
+])
+def test_compute_reward_checks_the_actions_in_info(env, info, message):
+    obs, _ = env.reset(seed=0)
+    goals = np.stack([obs["achieved_goal"]] * 2), np.stack([obs["desired_goal"]] * 2)
+    with pytest.raises(ValueError) as err:
+        env.compute_reward(*goals, info)
+    assert message in str(err.value)
+
+
+def test_a_goal_given_to_reset_is_the_goal(env):
+    obs, _ = env.reset(seed=0, options={"goal": (0.7, 0.1, 0.2)})
+    np.testing.assert_array_equal(obs["desired_goal"], [0.7, 0.1, 0.2])

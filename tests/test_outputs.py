@@ -1,0 +1,113 @@
+"""Issue 23 on the analysis commands' outputs: every path that cannot be written is a usage
+error naming it and why, before any computing, and what is written is reported by its real
+name."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+COMMANDS = {
+    "analysis.curves": ("--out", ["RUNS"]),
+    "analysis.success_map": ("--out", ["RUNS"]),
+    "analysis.region_volumes": ("--plot", ["--regions", "farbox", "--joints", "3",
+                                           "--samples", "1000"]),
+}
+"""The commands that write a figure (and data files beside it): the flag naming it, and
+arguments that would otherwise run (RUNS: a folder, never read when the output is refused)."""
+
+
+def usage_error(capsys, module: str, args: list[str]) -> str:
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return err
+
+
+def command(module: str, out: Path, tmp_path: Path) -> list[str]:
+    flag, args = COMMANDS[module]
+    return [str(tmp_path) if a == "RUNS" else a for a in args] + [flag, str(out)]
+
+
+@pytest.mark.parametrize("module", sorted(COMMANDS))
+def test_a_figure_path_that_is_a_folder_is_refused_not_written_beside(tmp_path, capsys,
+                                                                      module):
+    folder = tmp_path / "figs"
+    folder.mkdir()
+    err = usage_error(capsys, module, command(module, folder, tmp_path))
+    assert f"{folder} is a folder; give a figure file, e.g. {folder / 'figure.png'}" in err
+    assert not (tmp_path / "figs.png").exists()
+
+
+@pytest.mark.parametrize("module", sorted(COMMANDS))
+def test_a_figure_suffix_matplotlib_cannot_write_is_refused_up_front(tmp_path, capsys,
+                                                                     module):
+    err = usage_error(capsys, module, command(module, tmp_path / "fig.xyz", tmp_path))
+    assert "matplotlib cannot write '.xyz' files; use one of" in err and ".png" in err
+
+
+@pytest.mark.parametrize("module", sorted(COMMANDS))
+def test_a_figure_under_a_file_is_refused_up_front(tmp_path, capsys, module):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    err = usage_error(capsys, module, command(module, blocker / "fig.png", tmp_path))
+    assert f"{blocker / 'fig.png'}: {blocker} is a file, not a folder" in err
+
+
+@pytest.mark.parametrize("module", sorted(COMMANDS))
+def test_a_figure_on_a_read_only_file_system_is_refused_up_front(tmp_path, capsys, module):
+    point = tmp_path / "ro"
+    point.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("a read-only file system needs a mount, which needs root")
+    try:
+        subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k,ro", "tmpfs", str(point)],
+                       check=True, capture_output=True, timeout=30)
+    except (OSError, subprocess.CalledProcessError) as err:
+        pytest.skip(f"cannot mount a tmpfs here ({err})")
+    try:
+        err = usage_error(capsys, module, command(module, point / "fig.png", tmp_path))
+        assert f"cannot write in {point} (a read-only file system)" in err
+    finally:
+        subprocess.run(["umount", str(point)], capture_output=True, timeout=30)
+
+
+def test_a_figure_path_without_suffix_is_written_and_reported_as_png(tmp_path, capsys):
+    """It was written as fig.png and reported as fig."""
+    from test_run_faults import CLI
+
+    from analysis.curves import main as curves
+    from ddpg_her.train import main as train
+
+    run = tmp_path / "runs" / "run"
+    assert train([*CLI, "--episodes", "2", "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert curves([str(tmp_path / "runs"), "--out", str(tmp_path / "fig")]) == 0
+    assert f"-> {tmp_path / 'fig.png'} and {tmp_path / 'fig.csv'}" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fig.csv", "fig.png", "runs"]
+
+
+@pytest.mark.parametrize("where", ["a file", "under a file"])
+def test_optimality_out_that_cannot_be_a_folder_is_refused_up_front(tmp_path, capsys, where):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    out = blocker if where == "a file" else blocker / "out"
+    err = usage_error(capsys, "analysis.optimality",
+                      ["--settings", "zheight:3", "--goals", "5", "--out", str(out)])
+    assert str(blocker) in err and ("is a file" in err), err
+
+
+def test_a_voxel_resolution_that_cannot_fit_is_refused_up_front(capsys):
+    """--resolution 1e-5 sampled the workspace, then failed allocating 2.4 PiB."""
+    err = usage_error(capsys, "analysis.region_volumes",
+                      ["--regions", "farbox", "--joints", "3", "--samples", "1000",
+                       "--resolution", "0.00001"])
+    assert "--resolution 1e-05 m: the workspace's voxel grids would need about" in err
+    assert "GiB of memory available" in err
