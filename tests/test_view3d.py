@@ -233,8 +233,12 @@ def test_region_volumes_view_draws_each_region_and_start(tmp_path):
     # zheight and zmax:0.3 share the constrained start with farbox: one arm
     starts = {p.split("/")[3] for p in objects if p.startswith("/meshcat/starts/")}
     assert starts == {"constrained", "constrained_tool0"}
-    slab = scene.region_mesh(regions.parse("zmax:0.3"), 0.1)  # a bare z-limit: cut to reach
-    assert slab.is_watertight and slab.bounds[1, 2] == pytest.approx(0.3)
+    # a bare z-limit (unbounded, no mesh of its own) is drawn cut to the reach ball, as
+    # regions.parse cuts zmax:Z
+    slab = scene.region_mesh(regions.ZLimit(0.0, 0.3, name="slab"), 0.1)
+    cut = regions.parse("zmax:0.3").mesh
+    assert slab.is_watertight and slab.volume == pytest.approx(cut.volume)
+    np.testing.assert_allclose(slab.bounds, cut.bounds)
 
 
 # --- a real browser --------------------------------------------------------------------------
