@@ -1,5 +1,5 @@
-"""Screenshots of a MeshCat page (``analysis.replay``, ``analysis.region_volumes --view``) in
-headless Chromium, at chosen times of its animation.
+"""Screenshots of a 3D page of analysis.replay or analysis.region_volumes --view, taken in
+headless Chromium at a chosen time of its animation.
 
     python -m analysis.browser replay.html --at 1.5 --out replay.png
 
@@ -316,8 +316,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("page", type=pathlib.Path, metavar="PAGE.html",
                         help="a page of analysis.replay or analysis.region_volumes --view")
     parser.add_argument("--at", type=float, default=None, metavar="T",
-                        help="time of the animation to show (s, >= 0; default: the page as "
-                        "loaded, its animation playing)")
+                        help="time of the animation to show (s, >= 0); None: the page as "
+                        "loaded, its animation playing")
     parser.add_argument("--size", type=int, nargs=2, default=list(DEFAULT_SIZE),
                         metavar=("W", "H"), help="viewport width and height (CSS pixels, >= 64)")
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("screenshot.png"),

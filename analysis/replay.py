@@ -186,12 +186,35 @@ def summary(run_dir: pathlib.Path, policy: Any, task: Any, episodes: Sequence[Ep
             f"{task.control_hz} Hz, real time")
 
 
+def serve_until_stopped(vis: Any) -> None:
+    """Keep a live MeshCat server up until Ctrl-C or SIGTERM, then end it (MeshCat ends its
+    server only at a normal exit, so a terminated command would leave it running)."""
+    import signal
+
+    def stop(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        server = vis.window.server_proc
+        if server is not None and server.poll() is None:
+            server.kill()
+            server.wait()
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line; every flag's help gives its unit or range."""
     parser = argparse.ArgumentParser(
         prog="python -m analysis.replay", description=__doc__.split("\n\n")[0],
-        epilog="Pages hold the arm's collision meshes by default (about 1.5 MB for 10 "
-        "episodes); --meshes visual embeds the COLLADA visual meshes (about 10 MB).",
+        epilog="Pages hold the arm's collision meshes by default (about 1.3 MB for 10 "
+        "episodes, most of it the viewer's script); --meshes visual embeds the COLLADA visual "
+        "meshes (about 10 MB).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("run", type=pathlib.Path, metavar="RUN_DIR",
                         help="run folder of python -m ddpg_her.train (spec.json and a "
@@ -199,10 +222,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=DEFAULT_EPISODES,
                         help=f"episodes replayed, one goal each, 1..{MAX_EPISODES}")
     parser.add_argument("--seed", type=int, default=0,
-                        help="seed of the goals (the episodes' env seeds derive from it)")
+                        help="seed of the goals, >= 0 (the episodes' env seeds derive from it)")
     parser.add_argument("--episode", type=int, default=None,
-                        help="training episode of the checkpoint whose policy acts (default: "
-                        "the latest)")
+                        help="training episode of the checkpoint whose policy acts; None: the "
+                        "latest")
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("replay.html"),
                         metavar="FILE.html", help="the page written (ignored with --serve)")
     parser.add_argument("--serve", action="store_true",
@@ -223,6 +246,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.episodes <= MAX_EPISODES:
         parser.error(f"--episodes must be a count in 1..{MAX_EPISODES}; got {args.episodes}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0; got {args.seed}")
     try:
         check_run(args.run)
     except ReplayError as err:
@@ -247,12 +272,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     draw(scene, task, episodes, args.meshes)
     print(text)
     if args.serve:
-        print(f"serving at {vis.url()} (Ctrl-C ends it)")
-        try:
-            while True:
-                time.sleep(3600)
-        except KeyboardInterrupt:
-            return 0
+        print(f"serving at {vis.url()} (Ctrl-C ends it)", flush=True)
+        serve_until_stopped(vis)
+        return 0
     size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)
     print(f"-> {args.out} ({size / 1e6:.1f} MB)", file=sys.stderr)
     return 0

@@ -299,3 +299,39 @@ def test_a_browser_draws_the_arm_and_plays_the_replay(replayed):
     assert moved.sum() > 500, "the arm did not move on screen between the two frames"
     assert _inside(moved, [box0, box1]) > 0.9 * moved.sum(), \
         "the frames differ away from the arm"
+
+
+def test_serve_shows_the_scene_live_and_ends_its_server(tiny_run):
+    """--serve: the printed address serves MeshCat's viewer while the command runs, and a
+    SIGTERM ends the command and its server (nothing left listening)."""
+    import re
+    import signal
+    import subprocess
+    import sys
+    import urllib.error
+    import urllib.request
+
+    from cli_tools import child_env
+
+    proc = subprocess.Popen([sys.executable, "-m", "analysis.replay", str(tiny_run),
+                             "--episodes", "1", "--serve", "--no-progress"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env())
+    try:
+        url = None
+        for line in proc.stdout:
+            found = re.search(r"serving at (\S+)", line)
+            if found:
+                url = found.group(1)
+                break
+        assert url is not None, proc.stderr.read()
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200 and b"MeshCat" in page.read()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+        with pytest.raises(urllib.error.URLError):
+            urllib.request.urlopen(url, timeout=5)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
