@@ -234,7 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--meshes", choices=("collision", "visual"), default="collision",
                         help="the arm's meshes: the URDF's collision meshes (5,300 triangles, "
                         "about 100 kB in the page) or its COLLADA visual meshes (96,000 "
-                        "triangles, about 9 MB)")
+                        "triangles, about 9 MB; MeshCat 0.3.2 leaves part of the shoulder out)")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar on stderr")
     return parser
