@@ -186,9 +186,10 @@ def summary(run_dir: pathlib.Path, policy: Any, task: Any, episodes: Sequence[Ep
             f"{task.control_hz} Hz, real time")
 
 
-def serve_until_stopped(vis: Any) -> None:
-    """Keep a live MeshCat server up until Ctrl-C or SIGTERM, then end it (MeshCat ends its
-    server only at a normal exit, so a terminated command would leave it running)."""
+def serve_until_stopped() -> None:
+    """Wait until Ctrl-C or SIGTERM, then return. MeshCat ends its server subprocess at a normal
+    exit of this process only (an exit hook), so SIGTERM is turned into one: a terminated
+    ``--serve`` would otherwise leave the server listening."""
     import signal
 
     def stop(signum: int, frame: Any) -> None:
@@ -202,10 +203,6 @@ def serve_until_stopped(vis: Any) -> None:
         pass
     finally:
         signal.signal(signal.SIGTERM, previous)
-        server = vis.window.server_proc
-        if server is not None and server.poll() is None:
-            server.kill()
-            server.wait()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -273,7 +270,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(text)
     if args.serve:
         print(f"serving at {vis.url()} (Ctrl-C ends it)", flush=True)
-        serve_until_stopped(vis)
+        serve_until_stopped()
         return 0
     size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)
     print(f"-> {args.out} ({size / 1e6:.1f} MB)", file=sys.stderr)
