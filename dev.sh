@@ -27,6 +27,21 @@ PY
   rm -f "$venv"/.installed-*
   touch "$stamp"
 fi
+# The browser test of the 3D views (tests/test_view3d.py) needs headless Chromium. Install
+# Debian's package where we can (root, apt-get, the package known); never fail the set-up for
+# it: without it that one test skips and says why. DEV_NO_APT=1 skips the attempt.
+browser_for_tests() {
+  if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 \
+     || [ -n "${DEV_NO_APT:-}" ]; then return 0; fi
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "dev.sh: installing chromium for the browser test (apt-get, a few minutes)" >&2
+    { apt-cache show chromium >/dev/null 2>&1 || apt-get update -qq; } >/dev/null 2>&1 || true
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1 \
+      || echo "dev.sh: could not install chromium; the browser test will skip" >&2
+  else
+    echo "dev.sh: no chromium; the browser test will skip (as root: apt-get install chromium)" >&2
+  fi
+}
 job=${1:-}
 shift || true
 case "$job" in
@@ -35,7 +50,9 @@ case "$job" in
     "$venv/bin/python" -m ddpg_her.train --region farbox --joints 3 --seed 0 --episodes 300 \
       --out runs/demo --resume "$@"
     exec "$venv/bin/python" -m analysis.curves runs/demo --out runs/demo/curves.png ;;
-  test) exec "$venv/bin/python" -m pytest "$@" ;;
+  test)
+    browser_for_tests
+    exec "$venv/bin/python" -m pytest "$@" ;;
   shell) echo "source $venv/bin/activate" ;;
   *) echo "usage: bash dev.sh demo|test|shell [args...]" >&2; exit 2 ;;
 esac

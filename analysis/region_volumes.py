@@ -5,8 +5,9 @@ joints: the region's volume, the reachable workspace of the sub-chain above the 
 estimate with its error bar), the part of it inside the region, the goal acceptance of the
 paper's joint-space sampler, the mean distance from the start's end effector to the goals, and
 whether the start's end effector lies in the region. ``--json`` prints the rows as JSON,
-``--plot FILE.png`` draws the regions over the workspace, ``--convergence`` shows the workspace
-estimate as the voxels shrink. Run with ``--help`` for every flag.
+``--plot FILE.png`` draws the regions over the workspace, ``--view FILE.html`` shows the regions
+and the start poses in 3D in the browser, ``--convergence`` shows the workspace estimate as the
+voxels shrink. Run with ``--help`` for every flag.
 """
 
 from __future__ import annotations
@@ -376,6 +377,51 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     return [path, data_json, data_csv]
 
 
+VIEW_CAMERA_OFFSET = (1.6, -2.8, 1.7)
+"""Camera position (m) of ``--view`` relative to the point it looks at: farther than the
+replay's, so that the reach ball (0.95 m radius) fits."""
+
+START_OPACITY = (1.0, 0.5)
+"""Opacity of the first start pose's arm, and of every further one's (translucent, so that
+both read where they overlap)."""
+
+
+def view(settings: Settings, path: pathlib.Path, meshes: str = "collision") -> int:
+    """Draw the regions and their start poses in the 3D viewer (``analysis.scene``) into one
+    self-contained HTML page; returns its size (bytes).
+
+    Each region is drawn as what it is (a box, a z-limit cut to the reach ball, a mesh) in its
+    own colour; each distinct start pose of the regions (``settings.start``) as the arm in that
+    pose with a dot at its tool0. Every drawn thing is a node of the viewer's scene tree
+    ("Open Controls", Scene), where it can be hidden.
+    """
+    from analysis import scene as scenes
+
+    scene = scenes.Scene(scenes.offline_visualizer(), settings.base_height)
+    scene.setup(offset=VIEW_CAMERA_OFFSET)
+    scene.ground()
+    names = []
+    starts: dict[tuple[float, ...], list[str]] = {}
+    for i, spec in enumerate(settings.regions):
+        region = regions.parse(spec, settings.base_height)
+        colour, colour_name = scenes.REGION_COLOURS[i % len(scenes.REGION_COLOURS)]
+        scene.region(region, f"regions/{region.name}", colour)
+        names.append(f"{region.name} ({colour_name})")
+        starts.setdefault(start_for(region.name, settings.start), []).append(region.name)
+    labels = []
+    for k, (start_q, owners) in enumerate(starts.items()):
+        label = start_label(start_q)
+        scene.arm(f"starts/{label}", start_q, meshes, START_OPACITY[min(k, 1)])
+        scene.marker(f"starts/{label}_tool0", ur5kin.fk_world(start_q, settings.base_height),
+                     scenes.START_COLOUR)
+        labels.append(f"{label} start ({', '.join(owners)})"
+                      + (", translucent" if k else ""))
+    caption = ("goal regions: " + ", ".join(names) + "\narm: " + "; ".join(labels)
+               + "; black dot: its tool0\n"
+               + f"world frame: plane z = 0, base at (0, 0, {settings.base_height}) m")
+    return scene.write_html(path, "UR5 goal regions", caption)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line; every flag's help gives its unit."""
     d = Settings()
@@ -416,6 +462,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--plot", type=pathlib.Path, metavar="FILE.png",
                         help="draw the regions over the workspace (x-z side and x-y top views); "
                         "writes FILE.json and FILE.csv with the drawn data beside it")
+    parser.add_argument("--view", type=pathlib.Path, metavar="FILE.html",
+                        help="write the regions and their start poses (the arm and its tool0) "
+                        "as a 3D page that opens offline in a browser (needs meshcat: pip "
+                        "install -e '.[view]'); written before the table is computed")
     parser.add_argument("--plot-joints", type=int, default=None, metavar="N",
                         help="joint count of the plotted workspace; None: 3 if listed in "
                         "--joints, else the largest")
@@ -508,6 +558,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 check_writable(args.plot.with_suffix(suffix), "--plot")
         except OutputError as err:
             parser.error(str(err))
+    if args.view is not None:
+        try:
+            check_writable(pathlib.Path(args.view), "--view")
+            size = view(settings, args.view)
+        except (ImportError, OutputError) as err:
+            parser.error(str(err))
+        print(f"wrote {args.view} ({size / 1e6:.1f} MB)", file=sys.stderr)
     study = run_study(settings, progress)
     if args.json:
         print(json.dumps([r.json_row() for r in study.rows], indent=1))

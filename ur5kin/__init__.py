@@ -1,5 +1,6 @@
 """UR5 kinematics on Pinocchio: forward kinematics, Jacobians, analytic inverse kinematics, and
-the arm's collision geometry with its clearance above the ground plane.
+the arm's collision geometry with its clearance above the ground plane, and its meshes placed for
+drawing (:func:`mesh_parts`, :func:`part_poses`).
 
 Every kinematic quantity is in the robot's ``base_link`` frame, SI units (m, rad); the end
 effector is the URDF frame ``tool0``. ``q`` is ``(..., 6)``: shoulder_pan, shoulder_lift, elbow,
@@ -26,6 +27,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("BASE_FRAME", "JOINT_LIMIT", "JOINT_NAMES", "LINK_NAMES", "TOOL_FRAME",
                      "UR5Geometry", "effort_limits", "geometry", "load_model",
                      "resolve_package_uri", "urdf_path", "velocity_limits"), "ur5kin.model"),
+    **dict.fromkeys(("MeshPart", "mesh_parts", "part_poses"), "ur5kin.meshes"),
     "SubChain": "ur5kin.subchain",
     **dict.fromkeys(("capsule_heights", "collision_geometry", "link_heights", "plane_clear"),
                     "ur5kin.collision"),

@@ -31,20 +31,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 import trimesh
 from scipy.optimize import minimize
 from scipy.spatial import ConvexHull
 
 from ur5kin.checks import joint_array
 from ur5kin.closed_form import chunked
+from ur5kin.meshes import geometry_model
 from ur5kin.model import (
     LINK_NAMES,
     UR5Geometry,
     geometry,
-    load_model,
-    resolve_package_uri,
-    urdf_path,
 )
 from ur5kin.world import check_base_height, height_to_world
 
@@ -205,11 +202,7 @@ def collision_geometry() -> tuple[LinkGeometry, ...]:
         base_link .. wrist_3_link, in the order of :data:`ur5kin.LINK_NAMES`. Geometry on links
         fixed to a joint's link (``ee_link``'s box on ``wrist_3_link``) joins that link.
     """
-    model = load_model()
-    package_root = resolve_package_uri("package://example-robot-data/").parent
-    geom = pin.buildGeomFromUrdf(
-        model, str(urdf_path()), pin.GeometryType.COLLISION, package_dirs=[str(package_root)]
-    )
+    geom = geometry_model("collision")
     per_link: list[list[np.ndarray]] = [[] for _ in range(N_LINKS)]
     for obj in geom.geometryObjects:
         per_link[obj.parentJoint].append(_geometry_vertices(obj))
