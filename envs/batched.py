@@ -172,14 +172,18 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         None keeps each copy's generator (fresh entropy on the first reset).
         ``options["goal"]``: ``(m, 3)`` m goals for the m copies reset, instead of drawing them.
         """
+        if options is not None and not isinstance(options, Mapping):
+            raise ValueError(f"options must be a dict such as {{'reset_mask': (N,) bool, 'goal': "
+                             f"(m, 3) m}}; got {options!r:.200}")
         options = dict(options or {})
         unknown = sorted(set(options) - {"reset_mask", "goal"})
         if unknown:
             raise ValueError(f"unknown reset option(s) {unknown}; known: 'reset_mask', 'goal'")
-        mask = np.asarray(options.get("reset_mask", self._true), dtype=bool)
-        if mask.shape != (self.num_envs,):
-            raise ValueError(f"options['reset_mask'] must be ({self.num_envs},) bool; got shape "
-                             f"{mask.shape}")
+        mask = np.asarray(options.get("reset_mask", self._true))
+        if mask.dtype != np.bool_ or mask.shape != (self.num_envs,):
+            # 0/1 integers would pass a cast to bool while meaning indices to a numpy user
+            raise ValueError(f"options['reset_mask'] must be a ({self.num_envs},) bool array; got "
+                             f"{mask.dtype} of shape {mask.shape}")
         if seed is None:
             seeds: list[int | None] = [None] * self.num_envs
         elif isinstance(seed, int | np.integer):
@@ -195,10 +199,11 @@ class BatchedReach(gymnasium.vector.VectorEnv):
                 self._rngs[i] = seeding.np_random(seeds[i])[0]
         goals = None
         if "goal" in options:
-            goals = np.asarray(options["goal"], dtype=np.float64)
-            if goals.shape != (len(index), 3) or not np.all(np.isfinite(goals)):
+            goals = real_actions(options["goal"])  # None for strings, complex, objects
+            if goals is None or goals.shape != (len(index), 3) or not np.all(np.isfinite(goals)):
                 raise ValueError(f"options['goal'] must be ({len(index)}, 3) finite goals (m, "
-                                 f"world frame), one per copy reset; got shape {goals.shape}")
+                                 f"world frame), one per copy reset; got "
+                                 f"{options['goal']!r:.200}")
         self._core.reset(index, [self._rngs[i] for i in index], goals)
         self._ended[index] = False
         return self._observation(), self._info()

@@ -34,6 +34,27 @@ def test_reset_options_are_checked_like_actions(env, options, message):
     assert message in str(err.value)
 
 
+@pytest.mark.parametrize("options, message", [
+    ("goal", "options must be a dict such as {'reset_mask'"),
+    ([True, False], "options must be a dict such as {'reset_mask'"),
+    ({"reset_mask": np.array([1, 0])}, "options['reset_mask'] must be a (2,) bool array; got int"),
+    ({"reset_mask": "yes"}, "options['reset_mask'] must be a (2,) bool array"),
+    ({"reset_mask": np.array([True])}, "options['reset_mask'] must be a (2,) bool array"),
+    ({"goal": "abc"}, "options['goal'] must be (2, 3) finite goals"),
+    ({"goal": [[1j, 0, 0], [0.7, 0, 0.1]]}, "options['goal'] must be (2, 3) finite goals"),
+    ({"reset_mask": np.array([True, False]), "goal": [[0.7, 0, 0.1]] * 2},
+     "options['goal'] must be (1, 3) finite goals"),
+])
+def test_vector_env_reset_options_are_checked_like_actions(options, message):
+    vec = envs.BatchedReach(2, region="farbox", n_joints=3)
+    with pytest.raises(ValueError) as err:
+        vec.reset(seed=0, options=options)
+    assert message in str(err.value)
+    obs, _ = vec.reset(seed=0, options={"reset_mask": np.array([True, True]),
+                                        "goal": [[0.7, 0.0, 0.1], [0.6, 0.1, 0.2]]})
+    np.testing.assert_array_equal(obs["desired_goal"], [[0.7, 0.0, 0.1], [0.6, 0.1, 0.2]])
+
+
 @pytest.mark.parametrize("info, message", [
     ({"action": "abc"}, "info['action'] must be real numbers"),
     ({"action": [0.0, np.inf, 0.0]}, "info['action'] must be finite"),
