@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import sys
 import time
@@ -143,9 +144,9 @@ def _parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     docs = {"region": "goal region (any TaskSpec region string)",
             "n_joints": "controlled joints, 2-6",
-            "goals": "goals per contact model for the reach share",
-            "steps": "random-action env steps per round (contact share and cost)",
-            "rounds": "interleaved timing rounds; the cost is the median over them",
+            "goals": "goals per contact model for the reach share, >= 1",
+            "steps": "random-action env steps per round (contact share and cost), >= 1",
+            "rounds": "interleaved timing rounds, >= 1; the cost is the median over them",
             "friction": "Coulomb coefficient mu of the compliant model (dimensionless, >= 0); "
                         "negative: the TaskSpec default",
             "seed": "seed of the goals and the actions",
@@ -162,7 +163,17 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    for name in ("goals", "steps", "rounds"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be >= 1; got {getattr(args, name)}")
+    if not math.isfinite(args.friction):
+        parser.error(f"--friction must be a finite number (dimensionless); got {args.friction}")
+    try:
+        TaskSpec(region=args.region, n_joints=args.n_joints)
+    except ValueError as err:
+        parser.error(str(err))
     config = ContactConfig(**vars(args))
     rows = measure(config)
     if config.json:

@@ -134,3 +134,20 @@ def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step(
         q = vec._core.dynamics.q
         np.testing.assert_allclose(info["clearance"], lowest_link(q, base), atol=1e-12)
         assert info["_clearance"].all()
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--goals", "0"], "--goals must be >= 1; got 0"),
+    (["--steps", "-1"], "--steps must be >= 1; got -1"),
+    (["--rounds", "0"], "--rounds must be >= 1; got 0"),
+    (["--friction", "nan"], "--friction must be a finite number"),
+    (["--n-joints", "7"], "n_joints must be an integer 2..6; got 7"),
+    (["--region", "nowhere"], "cannot read region 'nowhere'"),
+])
+def test_the_contact_study_refuses_what_it_cannot_measure(args, message, capsys):
+    from analysis import contact
+
+    with pytest.raises(SystemExit) as stop:
+        contact.main(args)
+    assert stop.value.code == 2
+    assert message in capsys.readouterr().err

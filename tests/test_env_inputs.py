@@ -8,7 +8,7 @@ import gymnasium
 import numpy as np
 import pytest
 
-import envs  # noqa: F401 (registers UR5Reach-v0)
+import envs
 
 
 @pytest.fixture(scope="module")
