@@ -179,6 +179,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = settings_of([[*u, *common] for u in units], resume=args.resume)
     except ValueError as err:
         parser.error(str(err))
+    writers: dict[Path, str] = {}  # a dry run refuses what the real one could not start
+    for s in settings:
+        for seed, folder in zip(s.seeds, s.run_dirs, strict=True):
+            key = Path(folder).resolve()
+            if key in writers:
+                parser.error(f"two runs would write one run folder {folder}: {writers[key]} and "
+                             f"{s.name} seed={seed}; give each unit its own --out")
+            writers[key] = f"{s.name} seed={seed}"
 
     import gymnasium
     import torch

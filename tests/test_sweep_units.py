@@ -48,3 +48,17 @@ def test_the_progress_bar_does_not_end_at_100_percent_over_a_failed_unit(tmp_pat
         assert "2/2 units, 1 FAILED" in bar.bar.postfix
     finally:
         bar.close()
+
+
+def test_train_many_refuses_two_runs_on_one_folder_before_anything_starts(tmp_path):
+    from cli_tools import run_module
+
+    folder = tmp_path / "one"
+    for extra in (["--dry-run"], []):
+        proc = run_module("ddpg_her.train_many",
+                          f"--unit=--region farbox --seeds 0 --episodes 100 --out {folder}",
+                          f"--unit=--region zheight --seeds 0 --episodes 100 --out {folder}",
+                          *extra, check=False, timeout=120)
+        assert proc.returncode == 2, proc.stderr
+        assert f"two runs would write one run folder {folder}" in proc.stderr
+        assert not folder.exists()
