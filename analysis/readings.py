@@ -38,7 +38,8 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
     Reading("ours", (),
             paper="eq. 2: R = -|fk - goal| - |a|^2 + 100 * 1{reached}, a the desired absolute "
                   "joint angles, no unit; Table I: exploration rate nu = 0.01, undefined; no "
-                  "warm-up stated; contact with the plane not described (ROS/Gazebo)",
+                  "warm-up stated; contact with the plane not described (simulated 'using "
+                  "ROS', the simulator not named)",
             ours="the defaults: |a|^2 in rad^2 with weight 1; Gaussian noise of std 0.01 in "
                  "actor units (0.031 rad); 100 warm-up episodes of random actions; any plane "
                  "contact stops the arm for the rest of the control step; the joints not "
@@ -48,8 +49,9 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
             ours="|a|^2 in the actor's units, (a / pi)^2 per joint (a tenth of the rad^2 "
                  "penalty); all else the defaults"),
     Reading("compliant", ("--task", "contact_model=compliant"),
-            paper="an impermeable plane, simulated with ROS (Gazebo, whose contact is "
-                  "compliant: the arm is pushed out and slides)",
+            paper="an impermeable plane, simulated 'using ROS' (the simulator is not named; "
+                  "Gazebo, ROS's usual one, has a compliant contact: the arm is pushed out and "
+                  "slides)",
             ours="a compliant penalty contact through the link Jacobians (the arm slides "
                  "along the plane), impermeable to a stated depth; all else the defaults"),
     Reading("gauss02_nowarmup",
