@@ -189,8 +189,9 @@ class DDPG:
         self.in_dim, self.act_dim = in_dim, act_dim
         self.device = torch.device(device)
         net = {"dtype": dtype, "device": self.device}
-        self.actor = Actor(k, in_dim, act_dim, config.hidden_sizes, **net)
-        self.critic = Critic(k, in_dim, act_dim, config.hidden_sizes, **net)
+        bn = config.batch_norm_momentum if config.batch_norm else None
+        self.actor = Actor(k, in_dim, act_dim, config.hidden_sizes, batch_norm=bn, **net)
+        self.critic = Critic(k, in_dim, act_dim, config.hidden_sizes, batch_norm=bn, **net)
         self.actor.init_(config.final_init, init_generators)
         self.critic.init_(config.final_init, init_generators)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
@@ -208,6 +209,12 @@ class DDPG:
         self._online = list(self.actor.parameters()) + list(self.critic.parameters())
         self._target = list(self.actor_target.parameters()) + list(
             self.critic_target.parameters())
+        # the soft target update moves batch normalisation's running statistics too (none
+        # without it, so these are the parameter lists)
+        self._lerp_online = self._online + [
+            b for m in (self.actor, self.critic) for b in m.buffers()]
+        self._lerp_target = self._target + [
+            b for m in (self.actor_target, self.critic_target) for b in m.buffers()]
         # `update` writes every gradient into these buffers, which the optimisers read
         for p in self._online:
             p.grad = torch.zeros_like(p)
@@ -236,9 +243,14 @@ class DDPG:
         of the critic's second-layer input: 144 instead of 160 MFLOP per agent-update at
         400-300, batch 64), fuses each ReLU's backward into one pass and reuses preallocated
         gradient buffers. `tests/test_ddpg_agent.py` checks it, on the fast and on the plain
-        path (`FastPaths`), against a plain autograd DDPG to 1e-10 in float64.
+        path (`FastPaths`), against a plain autograd DDPG to 1e-10 in float64. With
+        ``config.batch_norm`` the two steps go through autograd instead (`_update_autograd`).
         """
-        gamma, tau = self.config.gamma, self.config.tau
+        if self.config.batch_norm:
+            critic_loss, actor_loss = self._update_autograd(x, u, r, x2, terminated)
+            self._soft_update()
+            return critic_loss, actor_loss
+        gamma = self.config.gamma
         n = x.shape[1]
         h1 = self.config.hidden_sizes[0]
         x, x2 = self.normalizer(x), self.normalizer(x2)
@@ -282,14 +294,52 @@ class DDPG:
         torch.bmm(x.mT, da1, out=g[actor.l1.weight])
         torch.sum(da1, dim=1, keepdim=True, out=g[actor.l1.bias])
         self._actor_step()
-
-        # targets: theta' <- (1 - tau) theta' + tau theta
-        if self.fast.foreach_lerp:
-            torch._foreach_lerp_(self._target, self._online, tau)
-        else:
-            for target, online in zip(self._target, self._online, strict=True):
-                target.lerp_(online, tau)
+        self._soft_update()
         return critic_loss, actor_loss
+
+    def _soft_update(self) -> None:
+        """Targets: theta' <- (1 - tau) theta' + tau theta (and running statistics alike)."""
+        tau = self.config.tau
+        if self.fast.foreach_lerp:
+            torch._foreach_lerp_(self._lerp_target, self._lerp_online, tau)
+        else:
+            for target, online in zip(self._lerp_target, self._lerp_online, strict=True):
+                target.lerp_(online, tau)
+
+    def _update_autograd(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor,
+                         x2: torch.Tensor, terminated: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The critic and actor steps of `update` through autograd, for batch normalisation.
+
+        The same K stacked networks and Adam steps; the losses of the K agents are summed, so
+        agent k's gradient is that of its own loss (batch statistics are per agent too). Targets
+        and the target value use running statistics; the online networks the minibatch's. The
+        critic's running statistics move in the critic step, the actor's in the actor step;
+        the critic in the actor step normalises by the minibatch and leaves its statistics.
+        `tests/test_ddpg_agent.py` checks it against `ddpg_her.reference` with nn.BatchNorm1d.
+        """
+        gamma = self.config.gamma
+        x, x2 = self.normalizer(x), self.normalizer(x2)
+        actor, critic = self.actor, self.critic
+        q2 = self.critic_target(x2, self.actor_target(x2))
+        y = torch.addcmul(r, (1.0 - terminated) * gamma, q2)
+        with torch.enable_grad():
+            q = critic(x, u, batch_stats=True, update_stats=True)
+            critic_loss = (q - y).square().mean(dim=(1, 2))
+            self._set_grads(critic, critic_loss)
+            self._critic_step()
+            mu = actor(x, batch_stats=True, update_stats=True)
+            actor_loss = -critic(x, mu, batch_stats=True).mean(dim=(1, 2))
+            self._set_grads(actor, actor_loss)
+            self._actor_step()
+        return critic_loss.detach(), actor_loss.detach()
+
+    def _set_grads(self, net: torch.nn.Module, loss: torch.Tensor) -> None:
+        """Write d(sum of the K losses)/d(parameter) into the preallocated gradient buffers
+        of ``net``'s parameters (which the optimiser steps read)."""
+        params = list(net.parameters())
+        for p, g in zip(params, torch.autograd.grad(loss.sum(), params), strict=True):
+            self._grads[p].copy_(g)
 
     # --- per-agent state, for one checkpoint per agent ----------------------------------------
     def _modules(self) -> dict[str, torch.nn.Module]:

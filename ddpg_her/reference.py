@@ -11,37 +11,60 @@ the soft target update.
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
 
 import torch
 from torch import nn
 
 from ddpg_her.config import AgentConfig
+from ddpg_her.networks import BATCH_NORM_EPS
+
+
+def _norm(dim: int, config: AgentConfig, shift: bool = True) -> nn.Module:
+    """torch's own batch normalisation when the config asks for it, else the identity; without
+    ``shift`` its shift is held at 0 (the input's: the next normalisation cancels it)."""
+    if not config.batch_norm:
+        return nn.Identity()
+    bn = nn.BatchNorm1d(dim, eps=BATCH_NORM_EPS, momentum=config.batch_norm_momentum)
+    if not shift:
+        bn.bias.requires_grad_(False)
+    return bn
 
 
 class ReferenceCritic(nn.Module):
-    """Lillicrap's critic: Q(x, u) = l3 relu(l2 [relu(l1 x), u]), the action at layer 2.
+    """Lillicrap's critic: Q(x, u) = l3 relu(l2 [relu(bn1(l1 bn0(x))), u]), the action at
+    layer 2; bn0, bn1 are ``nn.BatchNorm1d`` with ``config.batch_norm`` (l1 then without
+    bias), else the identity.
 
     x : (B, in_dim) normalised input, u : (B, act_dim) in actor units -> (B, 1).
     """
 
-    def __init__(self, in_dim: int, act_dim: int, hidden: Sequence[int]):
+    def __init__(self, in_dim: int, act_dim: int, config: AgentConfig):
         super().__init__()
-        h1, h2 = hidden
-        self.l1 = nn.Linear(in_dim, h1)
+        h1, h2 = config.hidden_sizes
+        self.bn0, self.bn1 = _norm(in_dim, config, shift=False), _norm(h1, config)
+        self.l1 = nn.Linear(in_dim, h1, bias=not config.batch_norm)
         self.l2 = nn.Linear(h1 + act_dim, h2)
         self.l3 = nn.Linear(h2, 1)
 
     def forward(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        h = torch.relu(self.l1(x))
+        h = torch.relu(self.bn1(self.l1(self.bn0(x))))
         return self.l3(torch.relu(self.l2(torch.cat([h, u], -1))))
 
 
-def reference_actor(in_dim: int, act_dim: int, hidden: Sequence[int]) -> nn.Sequential:
-    """Lillicrap's actor: x (B, in_dim) -> tanh output (B, act_dim) in actor units [-1, 1]."""
-    h1, h2 = hidden
-    return nn.Sequential(nn.Linear(in_dim, h1), nn.ReLU(), nn.Linear(h1, h2), nn.ReLU(),
-                         nn.Linear(h2, act_dim), nn.Tanh())
+def reference_actor(in_dim: int, act_dim: int, config: AgentConfig) -> nn.Sequential:
+    """Lillicrap's actor: x (B, in_dim) -> tanh output (B, act_dim) in actor units [-1, 1];
+    with ``config.batch_norm``, ``nn.BatchNorm1d`` on the input and before each ReLU, and no
+    bias in the layers it follows."""
+    h1, h2 = config.hidden_sizes
+    bias = not config.batch_norm  # a layer that batch normalisation follows has none
+    return nn.Sequential(_norm(in_dim, config, shift=False), nn.Linear(in_dim, h1, bias=bias),
+                         _norm(h1, config), nn.ReLU(), nn.Linear(h1, h2, bias=bias),
+                         _norm(h2, config), nn.ReLU(), nn.Linear(h2, act_dim), nn.Tanh())
+
+
+def _float_buffers(net: nn.Module) -> list[torch.Tensor]:
+    """Running means and variances (not BatchNorm1d's integer batch counter)."""
+    return [b for b in net.buffers() if b.is_floating_point()]
 
 
 class ReferenceDDPG:
@@ -49,7 +72,8 @@ class ReferenceDDPG:
 
     mean, std : (in_dim,) tensors, default 0 and 1; ``fused`` picks torch's fused Adam kernel
     (what a tuned plain implementation uses) instead of its default per-tensor loop.
-    Weights get torch's default ``nn.Linear`` initialisation; a caller that copies other weights
+    Weights get torch's default ``nn.Linear`` initialisation (batch normalisation: scale 1,
+    shift 0, running mean 0 and variance 1, as ours); a caller that copies other weights
     in calls `reset_targets` afterwards.
     """
 
@@ -59,8 +83,8 @@ class ReferenceDDPG:
                  fused: bool = False):
         self.config = config
         net = {"dtype": dtype, "device": device}
-        self.actor = reference_actor(in_dim, act_dim, config.hidden_sizes).to(**net)
-        self.critic = ReferenceCritic(in_dim, act_dim, config.hidden_sizes).to(**net)
+        self.actor = reference_actor(in_dim, act_dim, config).to(**net)
+        self.critic = ReferenceCritic(in_dim, act_dim, config).to(**net)
         self.reset_targets()
         adam = {"fused": True} if fused else {}
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, **adam)
@@ -70,9 +94,18 @@ class ReferenceDDPG:
         self.std = torch.ones(in_dim, **net) if std is None else std.to(**net)
 
     def reset_targets(self) -> None:
-        """Targets := copies of the online networks."""
-        self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
-        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        """Targets := copies of the online networks, in eval mode (running statistics)."""
+        self.actor_target = copy.deepcopy(self.actor).requires_grad_(False).eval()
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False).eval()
+
+    @torch.no_grad()
+    def act(self, x: torch.Tensor) -> torch.Tensor:
+        """The deterministic action of raw inputs x (B, in_dim), the actor in eval mode."""
+        self.actor.eval()
+        try:
+            return self.actor(self.norm(x))
+        finally:
+            self.actor.train()
 
     def norm(self, x: torch.Tensor) -> torch.Tensor:
         c = self.config.obs_clip
@@ -90,13 +123,21 @@ class ReferenceDDPG:
         self.critic_opt.zero_grad()
         critic_loss.backward()
         self.critic_opt.step()
+        # the critic normalises this batch by its own statistics but, its step done, keeps
+        # the running statistics it had (restored after the backward, which saves them)
+        kept = [b.clone() for b in _float_buffers(self.critic)]
         actor_loss = -self.critic(x, self.actor(x)).mean()
         self.actor_opt.zero_grad()
         actor_loss.backward()
         self.actor_opt.step()
         with torch.no_grad():
+            for b, old in zip(_float_buffers(self.critic), kept, strict=True):
+                b.copy_(old)
+        with torch.no_grad():
             for net, target in ((self.actor, self.actor_target),
                                 (self.critic, self.critic_target)):
-                for p, pt in zip(net.parameters(), target.parameters(), strict=True):
+                pairs = zip(list(net.parameters()) + _float_buffers(net),
+                            list(target.parameters()) + _float_buffers(target), strict=True)
+                for p, pt in pairs:
                     pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
         return critic_loss.detach(), actor_loss.detach()

@@ -142,7 +142,8 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
         raise RunFolderError(f"{folder.spec_path} does not hold a valid run specification "
                              f"({type(err).__name__}: {err})") from err
     actor = Actor(1, in_dim, dims["act_dim"], config.hidden_sizes, dtype=torch.float32,
-                  device=torch.device(device))
+                  device=torch.device(device),
+                  batch_norm=config.batch_norm_momentum if config.batch_norm else None)
     load_agent_slices(actor, [state["actor"]])
     normalizer = RunningNormalizer(1, in_dim, eps=config.norm_eps, clip=config.obs_clip,
                                    enabled=config.normalize_obs, dtype=torch.float32,

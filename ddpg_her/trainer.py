@@ -41,7 +41,7 @@ from ddpg_her.buffer import (
     pack_tensors,
     relabel,
 )
-from ddpg_her.config import AgentConfig
+from ddpg_her.config import BEFORE, AgentConfig
 from ddpg_her.exploration import Explorer, TorchExplorer
 from ddpg_her.runfolder import FORMAT, RunFolder, RunFolderError, git_revision, versions
 from ddpg_her.spaces import goal_input
@@ -245,7 +245,8 @@ class Trainer:
         diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims",
                                  "env_backend")
                  if not json_equal(old.get(key), new.get(key))]
-        old_agent = {k: v for k, v in old.get("agent", {}).items()
+        # a field added after the run was written reads as what such runs did (config.BEFORE)
+        old_agent = {k: v for k, v in {**BEFORE, **old.get("agent", {})}.items()
                      if k not in cls.RESUMABLE_CHANGES}
         new_agent = {k: v for k, v in new["agent"].items() if k not in cls.RESUMABLE_CHANGES}
         diffs += [f"agent.{k}" for k in sorted(set(old_agent) | set(new_agent))

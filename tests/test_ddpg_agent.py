@@ -15,6 +15,14 @@ from ddpg_her.reference import ReferenceDDPG
 IN, ACT, HIDDEN = 7, 2, (32, 24)
 
 
+def batch_norms(stacked: nn.Module, ref: nn.Module) -> list[tuple[nn.Module, nn.Module]]:
+    """Our stacked batch normalisations beside nn.BatchNorm1d's, input first (none: [])."""
+    theirs = [m for m in ref.modules() if isinstance(m, nn.BatchNorm1d)]
+    mine = [] if stacked.norms is None else list(stacked.norms)
+    assert len(mine) == len(theirs)
+    return list(zip(mine, theirs, strict=True))
+
+
 def copy_slice(stacked: nn.Module, ref: nn.Module, k: int) -> None:
     """Our layer stores W as (K, in, out); nn.Linear as (out, in)."""
     ref_linears = [m for m in ref.modules() if isinstance(m, nn.Linear)]
@@ -22,14 +30,28 @@ def copy_slice(stacked: nn.Module, ref: nn.Module, k: int) -> None:
     with torch.no_grad():
         for mine, theirs in zip(ours, ref_linears, strict=True):
             theirs.weight.copy_(mine.weight[k].T)
-            theirs.bias.copy_(mine.bias[k, 0])
+            assert (mine.bias is None) == (theirs.bias is None)
+            if mine.bias is not None:
+                theirs.bias.copy_(mine.bias[k, 0])
+        for mine, theirs in batch_norms(stacked, ref):
+            for name in ("weight", "bias", "running_mean", "running_var"):
+                if getattr(mine, name) is not None:
+                    getattr(theirs, name).copy_(getattr(mine, name)[k, 0])
 
 
 def assert_slice_equal(stacked: nn.Module, ref: nn.Module, k: int, tol: float) -> None:
     ref_linears = [m for m in ref.modules() if isinstance(m, nn.Linear)]
     for mine, theirs in zip([stacked.l1, stacked.l2, stacked.l3], ref_linears, strict=True):
         torch.testing.assert_close(mine.weight[k].T, theirs.weight, atol=tol, rtol=0)
-        torch.testing.assert_close(mine.bias[k, 0], theirs.bias, atol=tol, rtol=0)
+        if mine.bias is not None:
+            torch.testing.assert_close(mine.bias[k, 0], theirs.bias, atol=tol, rtol=0)
+    for mine, theirs in batch_norms(stacked, ref):
+        if mine.bias is None:  # the input's normalisation has no shift: nn's stays at 0
+            assert not theirs.bias.any()
+        for name in ("weight", "bias", "running_mean", "running_var"):
+            if getattr(mine, name) is not None:
+                torch.testing.assert_close(getattr(mine, name)[k, 0], getattr(theirs, name),
+                                           atol=tol, rtol=0)
 
 
 def reference_agent(config: AgentConfig, stacked: DDPG, k: int, data: np.ndarray):
@@ -48,12 +70,17 @@ def make_agent(k: int, config: AgentConfig, seed0: int = 0) -> DDPG:
     return DDPG(config, IN, ACT, init_generators=gens, dtype=torch.float64)
 
 
-@pytest.mark.parametrize(("critic_l2", "path"), [(0.0, "fast"), (1e-2, "fast"), (1e-2, "plain")])
+@pytest.mark.parametrize(("critic_l2", "path", "batch_norm"), [
+    (0.0, "fast", False), (1e-2, "fast", False), (1e-2, "plain", False),
+    (0.0, "fast", True), (1e-2, "plain", True)])
 def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, path,
-                                                                    monkeypatch):
+                                                                    batch_norm, monkeypatch):
     """Our hand-written gradients against autograd through nn.Linear, agent by agent, on the
-    private-torch fast path and on the public-torch path a torch without it takes."""
-    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01, critic_l2=critic_l2)
+    private-torch fast path and on the public-torch path a torch without it takes; with batch
+    normalisation, our stacked autograd path against nn.BatchNorm1d (train mode online, eval
+    mode for the targets and the actions taken), running statistics included."""
+    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01, critic_l2=critic_l2,
+                         batch_norm=batch_norm, batch_norm_momentum=0.1)
     k, n = 3, 64
     monkeypatch.setattr(agent_module, "FAST", PLAIN if path == "plain" else FastPaths())
     agent = make_agent(k, config)
@@ -75,13 +102,54 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, p
             c, a = (v.item() for v in ref.update(*(b[i] for b in batch), term[i]))
             assert critic_loss[i].item() == pytest.approx(c, rel=1e-10, abs=1e-10)
             assert actor_loss[i].item() == pytest.approx(a, rel=1e-10, abs=1e-10)
+    probe = torch.from_numpy(rng.normal(size=(k, 5, IN)) * 3)
+    actions = agent.act(probe)
     for i, ref in enumerate(refs):
         assert_slice_equal(agent.actor, ref.actor, i, 1e-10)
         assert_slice_equal(agent.critic, ref.critic, i, 1e-10)
         assert_slice_equal(agent.actor_target, ref.actor_target, i, 1e-10)
         assert_slice_equal(agent.critic_target, ref.critic_target, i, 1e-10)
+        torch.testing.assert_close(actions[i], ref.act(probe[i]), atol=1e-10, rtol=0)
     # and they did move: the agents are not trivially equal to their initial weights
     assert not torch.allclose(agent.actor.l1.weight, make_agent(k, config).actor.l1.weight)
+
+
+def test_without_batch_norm_the_networks_and_update_are_the_hand_written_ones(monkeypatch):
+    """batch_norm off (the default) changes nothing: the parameters of before and the
+    hand-written update, never the autograd path (checked once bit for bit, weights, targets
+    and Adam moments after 50 updates in float32 and float64, against the commit before
+    batch normalisation existed)."""
+    def autograd_path(*args):
+        raise AssertionError("the autograd path ran without batch normalisation")
+
+    monkeypatch.setattr(DDPG, "_update_autograd", autograd_path)
+    agent = make_agent(2, AgentConfig(hidden_sizes=HIDDEN))
+    layers = [f"l{i}.{p}" for i in (1, 2, 3) for p in ("weight", "bias")]
+    for net in (agent.actor, agent.critic, agent.actor_target, agent.critic_target):
+        assert net.norms is None and list(net.state_dict()) == layers
+    batch = [torch.randn(2, 8, d, dtype=torch.float64) for d in (IN, ACT, 1, IN)]
+    agent.update(*batch, torch.zeros(2, 8, 1, dtype=torch.float64))
+    with_bn = make_agent(2, AgentConfig(hidden_sizes=HIDDEN, batch_norm=True))
+    with pytest.raises(AssertionError, match="autograd path ran"):
+        with_bn.update(*batch, torch.zeros(2, 8, 1, dtype=torch.float64))
+
+
+def test_batch_norm_layers_where_lillicrap_had_them():
+    """Input and every actor hidden layer; the critic's input and first layer (before the
+    action); no bias where a normalisation follows; scale 1, shift 0, statistics 0 and 1."""
+    agent = make_agent(1, AgentConfig(hidden_sizes=HIDDEN, batch_norm=True))
+    widths = {"actor": [IN, *HIDDEN], "critic": [IN, HIDDEN[0]]}
+    for name, net in (("actor", agent.actor), ("critic", agent.critic)):
+        assert [n.weight.shape[-1] for n in net.norms] == widths[name]
+        assert net.norms[0].bias is None and all(n.bias is not None for n in net.norms[1:])
+        for n in net.norms:
+            assert torch.equal(n.weight, torch.ones_like(n.weight))
+            assert torch.equal(n.running_mean, torch.zeros_like(n.running_mean))
+            assert torch.equal(n.running_var, torch.ones_like(n.running_var))
+    assert agent.actor.l1.bias is None and agent.actor.l2.bias is None
+    assert agent.critic.l1.bias is None and agent.critic.l2.bias is not None
+    plain = make_agent(1, AgentConfig(hidden_sizes=HIDDEN))
+    assert torch.equal(agent.actor.l1.weight, plain.actor.l1.weight)  # same draws
 
 
 def test_update_does_only_the_matrix_products_ddpg_needs():
@@ -141,8 +209,9 @@ def test_an_agents_initial_weights_depend_on_its_generator_alone():
         assert torch.equal(p_alone[0], p_batch[2])
 
 
-def test_agent_state_round_trip_continues_identically():
-    config = AgentConfig(hidden_sizes=HIDDEN)
+@pytest.mark.parametrize("batch_norm", [False, True])
+def test_agent_state_round_trip_continues_identically(batch_norm):
+    config = AgentConfig(hidden_sizes=HIDDEN, batch_norm=batch_norm)
     a, b = make_agent(2, config), make_agent(2, config, seed0=9)
     batches = [[torch.randn(2, 8, d, dtype=torch.float64) for d in (IN, ACT, 1, IN)]
                for _ in range(6)]

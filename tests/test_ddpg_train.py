@@ -161,6 +161,30 @@ def test_a_run_from_before_flush_denormals_resumes_and_records_it(tmp_path):
     assert json.loads(spec_path.read_text())["agent"]["flush_denormals"] is True
 
 
+def test_a_run_from_before_batch_norm_resumes_and_a_batch_norm_run_loads(tmp_path):
+    train([tmp_path / "r"])
+    spec_path = tmp_path / "r" / "spec.json"
+    spec = json.loads(spec_path.read_text())
+    for key in ("batch_norm", "batch_norm_momentum"):  # as written before the fields existed
+        del spec["agent"][key]
+    spec_path.write_text(json.dumps(spec))
+    longer = AgentConfig(**{**TINY.to_dict(), "episodes": 15})
+    train([tmp_path / "r"], config=longer, resume=True)
+    with pytest.raises(ValueError, match=r"agent\.batch_norm "):
+        train([tmp_path / "r"], config=AgentConfig(**{**longer.to_dict(), "batch_norm": True}),
+              resume=True)
+    bn = AgentConfig(**{**TINY.to_dict(), "batch_norm": True})
+    train([tmp_path / "bn"], config=bn)
+    policy = ddpg_her.load(tmp_path / "bn")
+    saved = RunFolder(tmp_path / "bn").load_checkpoint(policy.episode)["agent"]["actor"]
+    assert torch.equal(policy.actor.norms[1].running_var[0], saved["norms.1.running_var"])
+    assert not torch.equal(saved["norms.1.running_var"], torch.ones_like(
+        saved["norms.1.running_var"]))  # the statistics moved, and were loaded
+    env = policy.make_env()
+    obs, _ = env.reset(seed=0)
+    assert np.all(np.isfinite(policy(obs)))
+
+
 def trainer_eval_seed(seed: int, session: int, i: int) -> int:
     from ddpg_her.trainer import _EVAL_ENV, stream_seed
 
@@ -251,6 +275,20 @@ def test_learns_the_toy_task_in_seconds_and_her_is_what_makes_it_learn(tmp_path)
     control = [r["successes"] for r in train([tmp_path / "no-her"], seeds=[0],
                                              config=plain)[0]]
     assert np.mean(hits[-3:]) >= np.mean(control[-3:]) + 10, (hits, control)
+
+
+def test_learns_the_toy_task_with_lillicraps_batch_norm_and_weight_decay(tmp_path):
+    """The autograd path of batch normalisation learns too (measured: the last three of six
+    sessions score 26, 29, 25 of 30 with seed 0; seed 1 reaches 21-25 a session later)."""
+    config = AgentConfig(episodes=60, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
+                         updates_per_episode=40, actor_lr=1e-3, tau=0.05,
+                         exploration="epsilon", exploration_rate=0.3, warmup_episodes=0,
+                         batch_norm=True, critic_l2=1e-2)
+    rows = train([tmp_path / "bn"], seeds=[0], config=config)[0]
+    hits = [r["successes"] for r in rows]
+    assert hits[0] <= 3, hits
+    assert np.mean(hits[-3:]) >= 18, hits
+    assert rows[-1]["mean_final_distance_m"] < 0.3 * rows[0]["mean_final_distance_m"]
 
 
 # --- the command line -------------------------------------------------------------------------
