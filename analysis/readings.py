@@ -60,6 +60,17 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
                   "stated",
             ours="Gaussian noise of std 0.2 in actor units (0.63 rad), no warm-up episodes; "
                  "all else the defaults"),
+    Reading("lillicrap_nets", ("--batch-norm", "--critic-l2", "0.01"),
+            paper="\"the same actor and critic networks as [Lillicrap et al.] for "
+                  "low-dimensional experiments\"; those had batch normalisation (state input, "
+                  "all actor layers, critic layers before the action input) and L2 weight "
+                  "decay 1e-2 on the critic; Table I lists neither",
+            ours="Lillicrap's networks in full: batch normalisation on the input and before "
+                 "the ReLUs of the actor's hidden layers and the critic's first (minibatch "
+                 "statistics in the update, running statistics for the targets and every "
+                 "action taken) and critic weight decay 1e-2; 400-300 ReLU units, the action "
+                 "at the critic's second layer and final layers in +-3e-3 are the defaults "
+                 "already; all else the defaults"),
 )}
 """The study's built-in readings, in report order: ours today and one change each."""
 
@@ -78,6 +89,8 @@ CHOICES: tuple[tuple[str, str, str, str], ...] = (
     ("exploration", "agent", "exploration", "gaussian"),
     ("exploration rate (actor units)", "agent", "exploration_rate", "0.01"),
     ("warm-up episodes", "agent", "warmup_episodes", "100"),
+    ("batch normalisation", "agent", "batch_norm", "False"),
+    ("critic weight decay", "agent", "critic_l2", "0.0"),
 )
 """The paper's unstated choices a run's ``spec.json`` records: (name, spec section, field, value
 of runs written before the field existed). The last is what such runs did: the penalty in rad^2,

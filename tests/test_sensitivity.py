@@ -75,7 +75,7 @@ def test_dry_run_lists_every_reading_and_setting_with_its_command(tmp_path: Path
     lines = proc.stdout.strip().splitlines()
     has_contact = "contact_model" in {f.name for f in dataclasses.fields(TaskSpec)}
     readings = ["ours", "actor_penalty", *(["compliant"] if has_contact else []),
-                "gauss02_nowarmup", "tau01"]
+                "gauss02_nowarmup", "lillicrap_nets", "tau01"]
     assert len(lines) == len(readings) * len(sens.SETTINGS) * 5
     if not has_contact:
         assert "reading compliant: this code's TaskSpec has no field contact_model" in proc.stderr
@@ -255,7 +255,7 @@ def test_verdicts_on_hand_made_runs_follow_hand_computed_intervals(tmp_path: Pat
     _synthetic_study(tmp_path)
     result = sens.report(tmp_path, tmp_path / "out", reps=4000, worth_goals=0)
     assert result.readings == ["ours", "actor_penalty", "compliant", "gauss02_nowarmup",
-                               *sorted(FINALS)]
+                               "lillicrap_nets", *sorted(FINALS)]
     cells = {(c.reading, c.setting): c for c in result.cells}
     for reading, settings in FINALS.items():
         for setting, finals in settings.items():
@@ -281,7 +281,7 @@ def test_verdicts_on_hand_made_runs_follow_hand_computed_intervals(tmp_path: Pat
             assert row.t is Verdict[verdict], (claim, reading, row.detail_t)
             if verdict != "NOT_RUN":  # these data are clear enough for every interval
                 assert row.boot_mean is Verdict[verdict] and row.boot_iqm is Verdict[verdict]
-    for reading in ("ours", "actor_penalty", "compliant", "gauss02_nowarmup"):
+    for reading in ("ours", "actor_penalty", "compliant", "gauss02_nowarmup", "lillicrap_nets"):
         assert all(rows[(c, reading)].t is Verdict.NOT_RUN for c in CLAIMS)
     # Welch's p-value of the comparison, against its formula
     held = FINALS["holds"]
@@ -307,10 +307,10 @@ def test_verdicts_on_hand_made_runs_follow_hand_computed_intervals(tmp_path: Pat
     text = (tmp_path / "out" / "report.md").read_text()
     assert "every claim about where training ends is not judgeable" in text
     row = next(line for line in text.splitlines() if line.startswith(f"| {CLAIMS[0]} | not run"))
-    # readings: the 4 built-in ones (not run), then close, fails, holds, lonely, noise, short
-    assert row.startswith(f"| {CLAIMS[0]} | not run | not run | not run | not run | "
+    # readings: the 5 built-in ones (not run), then close, fails, holds, lonely, noise, short
+    assert row.startswith(f"| {CLAIMS[0]} | not run | not run | not run | not run | not run | "
                           "holds / holds / holds; p ")
-    assert row.split(" | ")[6].startswith("fails / fails / fails; p ")
+    assert row.split(" | ")[7].startswith("fails / fails / fails; p ")
     assert "| holds (partial) / holds / holds; p " in row
     assert "comparisons made" in text and "## Confounds" in text
     assert (tmp_path / "out" / "curves.png").stat().st_size > 1000
