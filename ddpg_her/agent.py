@@ -221,9 +221,10 @@ class DDPG:
         self._grads = {p: p.grad for p in self._online}
 
     @torch.no_grad()
-    def act(self, x: torch.Tensor) -> torch.Tensor:
+    def act(self, x: torch.Tensor, explore: bool = False) -> torch.Tensor:
         """Deterministic actions mu(x): x : (K, M, in_dim) raw input -> (K, M, act_dim) in
-        actor units [-1, 1]."""
+        actor units [-1, 1]. ``explore`` changes nothing: DDPG's exploration is the trainer's
+        noise on top (a stochastic policy, SAC's, samples itself)."""
         return self.actor(self.normalizer(x))
 
     @torch.no_grad()

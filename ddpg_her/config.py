@@ -41,6 +41,17 @@ class HERStrategy(str, enum.Enum):
     """``her_k`` copies, each with the achieved goal of a uniformly drawn step of the episode."""
 
 
+class Algo(str, enum.Enum):
+    """The off-policy algorithm of the stacked agents (issue 25); each is a module."""
+
+    DDPG = "ddpg"
+    """DDPG (Lillicrap et al. 2016), the paper's: `ddpg_her.agent`."""
+    TD3 = "td3"
+    """TD3 (Fujimoto et al. 2018): twin critics, target smoothing, delayed actor; `ddpg_her.td3`."""
+    SAC = "sac"
+    """SAC (Haarnoja et al. 2018) with automatic entropy tuning: `ddpg_her.sac`."""
+
+
 @dataclass(frozen=True)
 class AgentConfig:
     """DDPG + HER as in Lewis, Moll, Kavraki 2019 (Table I), with the open choices made explicit.
@@ -136,6 +147,27 @@ class AgentConfig:
     running <- (1 - m) running + m batch, the variance unbiased. Lillicrap et al. do not say;
     ours 0.01 (Keras's decay 0.99): about one episode of 100 updates."""
 
+    # --- other algorithms than the paper's DDPG (issue 25) -----------------------------------
+    algo: Algo = Algo.DDPG
+    """The algorithm: ddpg (the paper's) | td3 | sac. All share the replay, HER, normaliser,
+    exploration noise (SAC samples its policy besides; give it --exploration-rate 0 for SAC
+    alone), test protocol and Table I's gamma, tau, rates, batch and buffer; TD3 and SAC use
+    two critics of Lillicrap's form and are trained by autograd. A run resumes only with its
+    own algorithm."""
+    td3_target_noise: float = 0.2
+    """TD3's target policy smoothing: std of the Gaussian noise on the target action, actor
+    units (1 = half the action range), >= 0 (Fujimoto et al. 2018: 0.2)."""
+    td3_target_noise_clip: float = 0.5
+    """TD3's smoothing noise is clipped to +-this, actor units, >= 0 (Fujimoto et al.: 0.5)."""
+    td3_policy_delay: int = 2
+    """TD3 updates the actor and the targets every this many critic updates, >= 1 (Fujimoto
+    et al.: 2)."""
+    sac_init_alpha: float = 1.0
+    """SAC's initial temperature alpha, > 0 (Haarnoja et al.'s code: log alpha = 0). It is then
+    tuned so that the policy's entropy approaches -dim(A) (Haarnoja et al. 2018)."""
+    sac_alpha_lr: float = 3e-4
+    """Adam learning rate of SAC's log alpha, > 0 (Haarnoja et al. 2018: 3e-4)."""
+
     flush_denormals: bool = True
     """Flush subnormal floats (below 1.2e-38 in float32) to zero on the CPU while training. Adam's
     second moment of a weight whose gradient has gone to zero (a dead ReLU unit) decays through
@@ -144,7 +176,8 @@ class AgentConfig:
     of magnitude below the weights."""
 
     def __post_init__(self) -> None:
-        for name, kind in (("her_strategy", HERStrategy), ("exploration", Exploration)):
+        for name, kind in (("her_strategy", HERStrategy), ("exploration", Exploration),
+                           ("algo", Algo)):
             try:
                 object.__setattr__(self, name, kind(getattr(self, name)))
             except ValueError:
@@ -232,14 +265,27 @@ VALID: dict[str, tuple[str, Any]] = {
     "batch_norm": ("true or false", lambda c: isinstance(c.batch_norm, bool)),
     "batch_norm_momentum": ("a number in (0, 1]", lambda c: _real(c.batch_norm_momentum)
                             and 0.0 < c.batch_norm_momentum <= 1.0),
+    "td3_target_noise": ("a finite number >= 0", lambda c: _real(c.td3_target_noise)
+                         and 0.0 <= c.td3_target_noise < math.inf),
+    "td3_target_noise_clip": ("a finite number >= 0", lambda c: _real(c.td3_target_noise_clip)
+                              and 0.0 <= c.td3_target_noise_clip < math.inf),
+    "td3_policy_delay": ("an integer >= 1",
+                         lambda c: _integer(c.td3_policy_delay) and c.td3_policy_delay >= 1),
+    "sac_init_alpha": ("a finite number > 0", lambda c: _real(c.sac_init_alpha)
+                       and 0.0 < c.sac_init_alpha < math.inf),
+    "sac_alpha_lr": ("a finite number > 0", lambda c: _real(c.sac_alpha_lr)
+                     and 0.0 < c.sac_alpha_lr < math.inf),
 }
 """The valid values of the checked `AgentConfig` fields: {field: (the range in words, test)}.
 The words appear in the error message and in ``--help``."""
 
 
-BEFORE: dict[str, Any] = {"batch_norm": False, "batch_norm_momentum": 0.01}
-"""Fields added after run folders existed, with the value runs written before them had: a
-``spec.json`` without the field reads as this value (so such runs resume)."""
+BEFORE: dict[str, Any] = {"batch_norm": False, "batch_norm_momentum": 0.01, "algo": "ddpg",
+                          "td3_target_noise": 0.2, "td3_target_noise_clip": 0.5,
+                          "td3_policy_delay": 2, "sac_init_alpha": 1.0, "sac_alpha_lr": 3e-4}
+"""Fields added after run folders existed, with the value runs written before them had (for
+fields of another algorithm than ddpg, unused, the default): a ``spec.json`` without the field
+reads as this value (so such runs resume)."""
 
 
 @cache

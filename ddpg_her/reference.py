@@ -11,6 +11,7 @@ the soft target update.
 from __future__ import annotations
 
 import copy
+import math
 
 import torch
 from torch import nn
@@ -139,5 +140,139 @@ class ReferenceDDPG:
                 pairs = zip(list(net.parameters()) + _float_buffers(net),
                             list(target.parameters()) + _float_buffers(target), strict=True)
                 for p, pt in pairs:
+                    pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
+        return critic_loss.detach(), actor_loss.detach()
+
+
+class ReferenceTD3(ReferenceDDPG):
+    """One TD3 agent (Fujimoto et al. 2018) written plainly: twin ``ReferenceCritic``, a target
+    per network, one Adam over both critics. Arguments as `ReferenceDDPG`'s."""
+
+    def __init__(self, config: AgentConfig, in_dim: int, act_dim: int, **kwargs):
+        super().__init__(config, in_dim, act_dim, **kwargs)
+        net = {"dtype": self.std.dtype, "device": self.std.device}
+        self.critic2 = ReferenceCritic(in_dim, act_dim, config).to(**net)
+        params = list(self.critic.parameters()) + list(self.critic2.parameters())
+        self.critic_opt = torch.optim.Adam(params, lr=config.critic_lr,
+                                           weight_decay=config.critic_l2)
+        self.updates = 0
+        self.reset_targets()
+
+    def reset_targets(self) -> None:
+        super().reset_targets()
+        if hasattr(self, "critic2"):
+            self.critic2_target = copy.deepcopy(self.critic2).requires_grad_(False).eval()
+
+    def update(self, x, u, r, x2, terminated, noise):
+        """One TD3 step; ``noise`` (B, act_dim) the clipped smoothing noise. Returns the critic
+        loss (both critics' summed) and the actor loss (None on a step without the actor)."""
+        cfg = self.config
+        x, x2 = self.norm(x), self.norm(x2)
+        with torch.no_grad():
+            a2 = torch.clamp(self.actor_target(x2) + noise, -1.0, 1.0)
+            q2 = torch.min(self.critic_target(x2, a2), self.critic2_target(x2, a2))
+            y = r + cfg.gamma * (1 - terminated) * q2
+        critic_loss = (nn.functional.mse_loss(self.critic(x, u), y)
+                       + nn.functional.mse_loss(self.critic2(x, u), y))
+        self.critic_opt.zero_grad()
+        critic_loss.backward()
+        self.critic_opt.step()
+        self.updates += 1
+        actor_loss = None
+        if self.updates % cfg.td3_policy_delay == 0:
+            actor_loss = -self.critic(x, self.actor(x)).mean()
+            self.actor_opt.zero_grad()
+            actor_loss.backward()
+            self.actor_opt.step()
+            actor_loss = actor_loss.detach()
+            with torch.no_grad():
+                for net, target in ((self.actor, self.actor_target),
+                                    (self.critic, self.critic_target),
+                                    (self.critic2, self.critic2_target)):
+                    for p, pt in zip(net.parameters(), target.parameters(), strict=True):
+                        pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
+        return critic_loss.detach(), actor_loss
+
+
+class ReferenceSAC:
+    """One SAC agent (Haarnoja et al. 2018, automatic entropy tuning) written plainly: an
+    ``nn.Linear`` policy whose log-probabilities come from torch.distributions (a Normal through
+    a ``TanhTransform``), twin ``ReferenceCritic`` with targets, a scalar log alpha. Fixed input
+    statistics as `ReferenceDDPG`; weights are torch's defaults until a caller copies others in
+    and calls `reset_targets`."""
+
+    def __init__(self, config: AgentConfig, in_dim: int, act_dim: int, *,
+                 mean: torch.Tensor | None = None, std: torch.Tensor | None = None,
+                 dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu"):
+        from ddpg_her.sac import LOG_STD_MAX, LOG_STD_MIN
+
+        self.config, self.act_dim = config, act_dim
+        self.log_std_range = (LOG_STD_MIN, LOG_STD_MAX)
+        net = {"dtype": dtype, "device": device}
+        h1, h2 = config.hidden_sizes
+        self.actor = nn.Sequential(nn.Linear(in_dim, h1), nn.ReLU(), nn.Linear(h1, h2),
+                                   nn.ReLU(), nn.Linear(h2, 2 * act_dim)).to(**net)
+        self.critic = ReferenceCritic(in_dim, act_dim, config).to(**net)
+        self.critic2 = ReferenceCritic(in_dim, act_dim, config).to(**net)
+        self.log_alpha = torch.tensor(math.log(config.sac_init_alpha), **net,
+                                      requires_grad=True)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
+        self.critic_opt = torch.optim.Adam(
+            list(self.critic.parameters()) + list(self.critic2.parameters()),
+            lr=config.critic_lr, weight_decay=config.critic_l2)
+        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=config.sac_alpha_lr)
+        self.mean = torch.zeros(in_dim, **net) if mean is None else mean.to(**net)
+        self.std = torch.ones(in_dim, **net) if std is None else std.to(**net)
+        self.reset_targets()
+
+    def reset_targets(self) -> None:
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.critic2_target = copy.deepcopy(self.critic2).requires_grad_(False)
+
+    def norm(self, x: torch.Tensor) -> torch.Tensor:
+        c = self.config.obs_clip
+        return torch.clamp((x - self.mean) / self.std, -c, c)
+
+    def policy(self, x: torch.Tensor, eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparameterised draw a = tanh(m + s eps) and its log density (B, 1)."""
+        from torch.distributions import Independent, Normal, TransformedDistribution
+        from torch.distributions.transforms import TanhTransform
+
+        m, log_std = self.actor(x).split(self.act_dim, dim=-1)
+        log_std = log_std.clamp(*self.log_std_range)
+        z = m + log_std.exp() * eps
+        dist = TransformedDistribution(Independent(Normal(m, log_std.exp()), 1),
+                                       [TanhTransform(cache_size=1)])
+        a = dist.transforms[0](z)  # cached: log_prob inverts through z, not atanh(a)
+        return a, dist.log_prob(a).unsqueeze(-1)
+
+    def update(self, x, u, r, x2, terminated, eps2, eps1):
+        """One SAC step; ``eps2``, ``eps1`` (B, act_dim) the policy's draws for s' and s.
+        Returns the critic loss (both critics' summed) and the policy loss."""
+        cfg = self.config
+        x, x2 = self.norm(x), self.norm(x2)
+        alpha = self.log_alpha.detach().exp()
+        with torch.no_grad():
+            a2, logp2 = self.policy(x2, eps2)
+            q2 = torch.min(self.critic_target(x2, a2), self.critic2_target(x2, a2))
+            y = r + cfg.gamma * (1 - terminated) * (q2 - alpha * logp2)
+        critic_loss = (nn.functional.mse_loss(self.critic(x, u), y)
+                       + nn.functional.mse_loss(self.critic2(x, u), y))
+        self.critic_opt.zero_grad()
+        critic_loss.backward()
+        self.critic_opt.step()
+        a, logp = self.policy(x, eps1)
+        actor_loss = (alpha * logp - torch.min(self.critic(x, a), self.critic2(x, a))).mean()
+        self.actor_opt.zero_grad()
+        actor_loss.backward()
+        self.actor_opt.step()
+        alpha_loss = -(self.log_alpha * (logp.detach() - self.act_dim)).mean()
+        self.alpha_opt.zero_grad()
+        alpha_loss.backward()
+        self.alpha_opt.step()
+        with torch.no_grad():
+            for net, target in ((self.critic, self.critic_target),
+                                (self.critic2, self.critic2_target)):
+                for p, pt in zip(net.parameters(), target.parameters(), strict=True):
                     pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
         return critic_loss.detach(), actor_loss.detach()

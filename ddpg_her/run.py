@@ -36,7 +36,7 @@ class TrainedPolicy:
     UR5's joint angles); with a leading batch axis B on every array it returns ``(B, act_dim)``.
     """
 
-    def __init__(self, actor: Actor, normalizer: RunningNormalizer, scale: ActionScale,
+    def __init__(self, actor: torch.nn.Module, normalizer: RunningNormalizer, scale: ActionScale,
                  spec: dict[str, Any], episode: int):
         self.actor, self.normalizer, self.scale = actor, normalizer, scale
         self.spec, self.episode = spec, episode
@@ -141,10 +141,17 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
     except (KeyError, TypeError, ValueError) as err:
         raise RunFolderError(f"{folder.spec_path} does not hold a valid run specification "
                              f"({type(err).__name__}: {err})") from err
-    actor = Actor(1, in_dim, dims["act_dim"], config.hidden_sizes, dtype=torch.float32,
-                  device=torch.device(device),
-                  batch_norm=config.batch_norm_momentum if config.batch_norm else None)
-    load_agent_slices(actor, [state["actor"]])
+    net = {"dtype": torch.float32, "device": torch.device(device)}
+    if config.algo.value == "sac":
+        from ddpg_her.sac import GaussianActor, MeanPolicy
+
+        gaussian = GaussianActor(1, in_dim, dims["act_dim"], config.hidden_sizes, **net)
+        load_agent_slices(gaussian, [state["actor"]])
+        actor: torch.nn.Module = MeanPolicy(gaussian)
+    else:
+        actor = Actor(1, in_dim, dims["act_dim"], config.hidden_sizes, **net,
+                      batch_norm=config.batch_norm_momentum if config.batch_norm else None)
+        load_agent_slices(actor, [state["actor"]])
     normalizer = RunningNormalizer(1, in_dim, eps=config.norm_eps, clip=config.obs_clip,
                                    enabled=config.normalize_obs, dtype=torch.float32,
                                    device=torch.device(device))

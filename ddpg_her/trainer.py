@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ddpg_her.agent import DDPG
+from ddpg_her.algos import make_agent
 from ddpg_her.buffer import (
     Layout,
     ReplayBuffer,
@@ -185,7 +185,7 @@ class Trainer:
         self.folders = [RunFolder(d) for d in run_dirs]
         check_memory(config, self.layout, self.k, dtype, self.device)
 
-        self.agent = DDPG(
+        self.agent = make_agent(
             config, self.layout.in_dim, self.layout.act_dim, dtype=dtype, device=self.device,
             init_generators=[torch.Generator().manual_seed(stream_seed(s, _INIT)) for s in seeds])
         self.buffer = ReplayBuffer(self.k, config.buffer_size, self.layout, dtype=dtype,
@@ -446,7 +446,7 @@ class Trainer:
         def policy(obs):
             u = torch.zeros((self.k, self.scale.dim), dtype=torch.float64,
                             device=self.device) if warm else \
-                self.agent.act(self._tensor_inputs(obs, 1))[:, 0].double()
+                self.agent.act(self._tensor_inputs(obs, 1), explore=True)[:, 0].double()
             return self._to_env(explorer(u, uniform=warm))
 
         seeds = [stream_seed(s, _TRAIN_ENV, self.episode) for s in self.seeds]
@@ -513,7 +513,7 @@ class Trainer:
 
         def policy(obs, active):
             u = np.zeros((self.k, self.scale.dim)) if warm else \
-                self.agent.act(self._inputs(obs, 1))[:, 0].double().cpu().numpy()
+                self.agent.act(self._inputs(obs, 1), explore=True)[:, 0].double().cpu().numpy()
             return self.scale.to_env(self.explorer(u, active, uniform=warm))
 
         seeds = [stream_seed(s, _TRAIN_ENV, self.episode) for s in self.seeds]
@@ -531,7 +531,7 @@ class Trainer:
         return success
 
     def learn(self, updates: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """``updates`` DDPG steps of every agent; mean critic and actor losses (K,)."""
+        """``updates`` steps of every agent (its --algo); mean critic and actor losses (K,)."""
         losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
         for _ in range(updates):
             batch = self.buffer.sample(self.config.batch_size, self.sample_generators)

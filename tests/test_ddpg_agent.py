@@ -18,7 +18,8 @@ IN, ACT, HIDDEN = 7, 2, (32, 24)
 def batch_norms(stacked: nn.Module, ref: nn.Module) -> list[tuple[nn.Module, nn.Module]]:
     """Our stacked batch normalisations beside nn.BatchNorm1d's, input first (none: [])."""
     theirs = [m for m in ref.modules() if isinstance(m, nn.BatchNorm1d)]
-    mine = [] if stacked.norms is None else list(stacked.norms)
+    norms = getattr(stacked, "norms", None)
+    mine = [] if norms is None else list(norms)
     assert len(mine) == len(theirs)
     return list(zip(mine, theirs, strict=True))
 
