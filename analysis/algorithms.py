@@ -1,0 +1,112 @@
+"""The algorithm study (issue 25): is the goal region's effect DDPG's alone? DDPG, TD3 and SAC,
+each with HER, on the paper's 3-joint settings, resumable unit by unit.
+
+    python -m analysis.algorithms --dry-run                 # every unit, its state and command
+    python -m analysis.algorithms --workers 2 --threads 1   # train what is missing (resumable)
+    python -m analysis.algorithms --collect results/algorithms   # spec.json, eval.csv of units
+    python -m analysis.sensitivity report results/algorithms/runs --readings ddpg td3 sac \\
+        --out results/algorithms                            # curves and verdicts per algorithm
+
+A unit is one algorithm x one setting x all seeds in one ``ddpg_her.train`` process, into
+``ROOT/<algorithm>/<region>-j<joints>/s<seed>``: the layout, execution flags and report of
+`analysis.sensitivity`, whose readings here are the algorithms (`ALGORITHMS`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from analysis.readings import Reading
+from analysis.sensitivity import (
+    STUDY_EPISODES,
+    STUDY_SEEDS,
+    collect,
+    units_for,
+    write_reading,
+)
+from analysis.sweep import (
+    HelpFormatter,
+    add_execution_arguments,
+    check_execution_arguments,
+    execute,
+    one_process,
+    parse_setting,
+    print_dry_run,
+    split_passthrough,
+)
+
+ALGORITHMS: dict[str, Reading] = {r.name: r for r in (
+    Reading("ddpg", ("--algo", "ddpg"),
+            paper="DDPG + HER, Table I",
+            ours="the paper's agent, every default"),
+    Reading("td3", ("--algo", "td3"),
+            paper="the paper asks whether the effect is \"general across Deep RL algorithms\"",
+            ours="TD3 (Fujimoto et al. 2018: twin critics, target smoothing 0.2 clipped at 0.5, "
+                 "actor every 2nd update); Table I's gamma, tau, rates, batch, buffer and "
+                 "exploration noise; all else the defaults"),
+    Reading("sac", ("--algo", "sac", "--exploration-rate", "0"),
+            paper="the paper asks whether the effect is \"general across Deep RL algorithms\"",
+            ours="SAC (Haarnoja et al. 2018: squashed Gaussian, twin critics, alpha tuned to "
+                 "entropy -dim(A)), exploring by its own policy alone (no added noise); Table "
+                 "I's gamma, tau, rates, batch and buffer; all else the defaults"),
+)}
+"""The study's algorithms, as readings: the ``ddpg_her.train`` arguments of each."""
+
+SETTINGS: tuple[tuple[str, int], ...] = (
+    ("unconstrained", 3), ("zheight", 3), ("closebox", 3), ("farbox", 3))
+"""The paper's regions with 3 joints: every region claim, one joint count (no confound)."""
+
+DEFAULT_OUT = Path("runs/algorithms")
+"""Default root of the study's run folders."""
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.algorithms", description=__doc__.split("\n\n")[0],
+        epilog="Arguments after -- pass to every python -m ddpg_her.train (after the "
+               "algorithm's own). Algorithms: " + "; ".join(
+                   f"{r.name}: {' '.join(r.args)}" for r in ALGORITHMS.values()),
+        formatter_class=HelpFormatter)
+    parser.add_argument("--algos", nargs="+", choices=list(ALGORITHMS), default=list(ALGORITHMS),
+                        metavar="NAME", help="algorithms to run, of " + ", ".join(ALGORITHMS)
+                        + " (default: all)")
+    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
+                        help="a (region, joints) setting, joints in 2..6; repeatable (default: "
+                             + ", ".join(f"{r}:{j}" for r, j in SETTINGS) + ")")
+    add_execution_arguments(parser, DEFAULT_OUT, unit_word="unit")
+    parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
+    parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
+                        help="train nothing: copy each finished unit's spec.json and eval.csv to "
+                             "DEST/runs/<algorithm>/<region>-j<joints>/s<seed>")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv, extra = split_passthrough(list(sys.argv[1:] if argv is None else argv))
+    parser = make_parser()
+    args = parser.parse_args(argv)
+    threads = check_execution_arguments(parser, args)
+    algos = [ALGORITHMS[name] for name in dict.fromkeys(args.algos)]
+    units = units_for(algos, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
+    if args.dry_run:
+        print_dry_run(units, threads, extra, args.device, one_process(args), args.env_backend)
+        return 0
+    if args.collect is not None:
+        copied, skipped = collect(units, args.collect)
+        for algo in algos:
+            if (args.collect / "runs" / algo.name).is_dir():
+                write_reading(args.collect / "runs", algo)
+        print(f"copied {copied} finished unit(s) to {args.collect / 'runs'}; "
+              f"{len(skipped)} not finished" + (": " + ", ".join(skipped) if skipped else ""),
+              file=sys.stderr)
+        return 0
+    for algo in algos:
+        write_reading(args.out, algo)
+    return execute(units, args, threads, extra, unit_word="units")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
