@@ -1,0 +1,70 @@
+"""analysis.sb3: SB3's algorithms + HER under the paper's protocol, on the toy goal env."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+import toy_goal_env
+from cli_tools import run_module
+
+from analysis import sb3
+from ddpg_her.runfolder import EVAL_COLUMNS, read_run
+
+TINY = {"common": {"gamma": 0.98, "batch_size": 16, "buffer_size": 5000, "tau": 0.05,
+                   "learning_rate": 1e-3, "learning_starts": 40, "train_freq": [1, "episode"],
+                   "gradient_steps": -1, "policy_kwargs": {"net_arch": [16, 16]},
+                   "replay_buffer_kwargs": {"goal_selection_strategy": "final",
+                                            "n_sampled_goal": 1, "copy_info_dict": True}},
+        "ddpg": {"action_noise_std": 0.1}, "td3": {"action_noise_std": 0.1}, "sac": {}}
+
+
+def test_the_shipped_hyperparameters_are_table_one_where_sb3_has_the_knob():
+    for algo in sb3.ALGOS:
+        h = sb3.load_hyperparams(sb3.DEFAULT_HYPERPARAMS, algo)
+        assert (h["gamma"], h["batch_size"], h["buffer_size"], h["tau"]) == (
+            0.98, 64, 1_000_000, 0.001)
+        assert h["policy_kwargs"]["net_arch"] == [400, 300]
+        assert h["replay_buffer_kwargs"]["copy_info_dict"] is True  # the dense reward's action
+    assert sb3.load_hyperparams(sb3.DEFAULT_HYPERPARAMS, "td3")["policy_delay"] == 2
+
+
+@pytest.mark.parametrize("algo", ["ddpg", "sac"])
+def test_a_tiny_run_writes_the_eval_csv_every_analysis_reads(tmp_path: Path, algo: str):
+    params = tmp_path / "h.json"
+    params.write_text(json.dumps(TINY))
+    out = tmp_path / algo
+    run_module("analysis.sb3", "--algo", algo, "--env-id", "toy_goal_env:ToyReach-v0",
+               "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every", "3",
+               "--eval-episodes", "4", "--hyperparams", str(params), "--out", str(out))
+    run = read_run(out)
+    assert list(run.episode) == [3, 6] and list(run.tests) == [4, 4]
+    assert run.setting == ("box", 2) and run.spec["agent"]["algo"] == f"sb3-{algo}"
+    header = (out / "eval.csv").read_text().splitlines()[0]
+    assert tuple(header.split(",")) == EVAL_COLUMNS
+    steps = [int(line.split(",")[5]) for line in (out / "eval.csv").read_text().splitlines()[1:]]
+    assert steps[1] > 6  # episodes of more than one step (see the seeding test)
+    again = run_module("analysis.sb3", "--algo", algo, "--env-id", "toy_goal_env:ToyReach-v0",
+                       "--region", "box", "--joints", "2", "--hyperparams", str(params),
+                       "--out", str(out), check=False)
+    assert again.returncode != 0 and f"{out} exists" in again.stderr
+
+
+def test_warm_up_actions_do_not_replay_the_envs_goal_draws():
+    """SB3 seeds the action space and the env's reset alike: on the toy env each uniform warm-up
+    action was exactly twice the goal (every episode a success at step 1) until sb3 reseeded."""
+    env = gymnasium.make(toy_goal_env.ENV_ID, n_joints=2)
+    model = sb3.make_model("sac", env, sb3.load_hyperparams_dict(TINY, "sac"), seed=0)
+    goal = env.reset(seed=0)[0]["desired_goal"]
+    assert not np.allclose(model.action_space.sample(), 2 * goal)
+
+
+def test_bad_hyperparameter_files_are_named():
+    with pytest.raises(ValueError, match="no section 'sac'"):
+        sb3.load_hyperparams_dict({"ddpg": {}}, "sac")
+    proc = run_module("analysis.sb3", "--region", "farbox", "--hyperparams", "/nonexistent.json",
+                      check=False)
+    assert proc.returncode != 0 and "/nonexistent.json" in proc.stderr
