@@ -1,12 +1,13 @@
-"""DDPG + Hindsight Experience Replay in PyTorch (see docs/design.md).
+"""DDPG (and TD3, SAC) + Hindsight Experience Replay in PyTorch (see docs/design.md).
 
 K independent agents train in one process through stacked networks; ``python -m
 ddpg_her.train`` runs the paper's protocol, and `load` returns a trained policy for analysis.
 """
 
-from ddpg_her.config import AgentConfig, Exploration, HERStrategy
+from ddpg_her.config import AgentConfig, Algo, Exploration, HERStrategy
 
-__all__ = ["EVAL_COLUMNS", "AgentConfig", "Exploration", "HERStrategy", "TrainedPolicy", "load"]
+__all__ = ["EVAL_COLUMNS", "AgentConfig", "Algo", "Exploration", "HERStrategy", "TrainedPolicy",
+           "load"]
 
 
 def __getattr__(name: str):

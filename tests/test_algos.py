@@ -1,9 +1,11 @@
 """TD3 and SAC, stacked for K agents, against K plainly written agents of their own
 (`ddpg_her.reference`), and learning the toy goal env."""
 
+import gymnasium
 import numpy as np
 import pytest
 import torch
+import toy_goal_env
 from test_ddpg_agent import ACT, HIDDEN, IN, assert_slice_equal, copy_slice
 from test_ddpg_train import train
 
@@ -167,7 +169,7 @@ def test_spec_records_the_algo_a_resume_across_algos_is_refused_and_a_sac_run_lo
     with pytest.raises(ValueError, match=r"agent\.algo \(was 'sac', now 'td3'\)"):
         train([tmp_path / "r"], config=td3, resume=True)
     policy = ddpg_her.load(tmp_path / "r")
-    obs, _ = policy.make_env().reset(seed=0)
+    obs, _ = gymnasium.make(toy_goal_env.ENV_ID, region="box", n_joints=2).reset(seed=0)
     a = policy(obs)
     gaussian = policy.actor.actor
     x = torch.as_tensor(goal_input(obs["observation"], obs["achieved_goal"],
