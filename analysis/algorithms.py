@@ -4,12 +4,12 @@ each with HER, on the paper's 3-joint settings, resumable unit by unit.
     python -m analysis.algorithms --dry-run                 # every unit, its state and command
     python -m analysis.algorithms --workers 2 --threads 1   # train what is missing (resumable)
     python -m analysis.algorithms --collect results/algorithms   # spec.json, eval.csv of units
-    python -m analysis.sensitivity report results/algorithms/runs --readings ddpg td3 sac \\
-        --out results/algorithms                            # curves and verdicts per algorithm
+    python -m analysis.sensitivity report results/algorithms/runs --readings ddpg td3 sac
 
 A unit is one algorithm x one setting x all seeds in one ``ddpg_her.train`` process, into
 ``ROOT/<algorithm>/<region>-j<joints>/s<seed>``: the layout, execution flags and report of
-`analysis.sensitivity`, whose readings here are the algorithms (`ALGORITHMS`).
+`analysis.sensitivity`, whose readings here are the algorithms (`ALGORITHMS`); its report (the
+last line) draws the curves and judges the paper's claims per algorithm.
 """
 
 from __future__ import annotations
