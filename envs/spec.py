@@ -154,7 +154,8 @@ class TaskSpec:
     no unit or scale stated. ``command``: rad^2 in position mode (holding the constrained start
     costs 3.1 per step, comparable with the distance term); ``actor``: ``(a / pi)^2`` per
     joint in position mode (a tenth of that), the reading of an implementation whose actor
-    outputs [-1, 1]. Measured to change the paper's speeds several-fold (results/sensitivity)."""
+    outputs [-1, 1]. Measured to change the paper's speeds several-fold (results/sensitivity_pd,
+    and its re-run in results/sensitivity)."""
 
     success_reward: float = 100.0
     """Reward added when the goal is reached (paper: 100)."""
