@@ -22,7 +22,14 @@ from typing import Any
 import torch
 
 from ddpg_her.config import AgentConfig
-from ddpg_her.networks import Actor, Critic, agent_slice, load_agent_slices
+from ddpg_her.networks import (
+    Actor,
+    Critic,
+    agent_slice,
+    load_agent_slices,
+    load_optimizer_slices,
+    optimizer_slice,
+)
 from ddpg_her.normalizer import RunningNormalizer
 
 
@@ -123,7 +130,7 @@ FAST = probe_fast_paths()
 built (a test sets it to `PLAIN` to exercise the fallback)."""
 
 
-def _adam(params, lr: float, weight_decay: float) -> torch.optim.Adam:
+def make_adam(params, lr: float, weight_decay: float) -> torch.optim.Adam:
     """Adam with its fused kernel where torch has one for the device, else the foreach one."""
     params = list(params)
     try:
@@ -199,8 +206,8 @@ class DDPG:
         self.normalizer = RunningNormalizer(
             k, in_dim, eps=config.norm_eps, clip=config.obs_clip, enabled=config.normalize_obs,
             **net)
-        self.actor_opt = _adam(self.actor.parameters(), config.actor_lr, 0.0)
-        self.critic_opt = _adam(self.critic.parameters(), config.critic_lr, config.critic_l2)
+        self.actor_opt = make_adam(self.actor.parameters(), config.actor_lr, 0.0)
+        self.critic_opt = make_adam(self.critic.parameters(), config.critic_lr, config.critic_l2)
         self.fast = FAST
         self._actor_step = _AdamStep(self.actor_opt, self.fast.fused_adam)
         self._critic_step = _AdamStep(self.critic_opt, self.fast.fused_adam)
@@ -351,12 +358,7 @@ class DDPG:
         """Everything that defines agent k, without the agent axis, on the CPU."""
         state: dict[str, Any] = {n: agent_slice(m, k) for n, m in self._modules().items()}
         for name, opt in (("actor_opt", self.actor_opt), ("critic_opt", self.critic_opt)):
-            sd = opt.state_dict()
-            state[name] = {
-                i: {key: (v[k] if v.ndim > 0 else v).detach().cpu().clone()
-                    for key, v in s.items()}
-                for i, s in sd["state"].items()
-            }
+            state[name] = optimizer_slice(opt, k)
         state["normalizer"] = self.normalizer.state(k)
         return state
 
@@ -367,14 +369,7 @@ class DDPG:
         for name, module in self._modules().items():
             load_agent_slices(module, [s[name] for s in states])
         for name, opt in (("actor_opt", self.actor_opt), ("critic_opt", self.critic_opt)):
-            sd = opt.state_dict()
-            per_param = [s[name] for s in states]
-            sd["state"] = {
-                i: {key: (torch.stack([p[i][key] for p in per_param]) if v.ndim > 0 else v)
-                    for key, v in per_param[0][i].items()}
-                for i in per_param[0]
-            }
-            opt.load_state_dict(sd)
+            load_optimizer_slices(opt, [s[name] for s in states])
         self._actor_step.reset()
         self._critic_step.reset()
         for k, s in enumerate(states):

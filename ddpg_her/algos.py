@@ -8,13 +8,21 @@ Every algorithm keeps the trainer's interface of `ddpg_her.agent.DDPG`: ``act(x,
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any
 
 import torch
 
+from ddpg_her.agent import make_adam
 from ddpg_her.config import AgentConfig
-from ddpg_her.networks import agent_slice, load_agent_slices
+from ddpg_her.networks import (
+    Critic,
+    agent_slice,
+    load_agent_slices,
+    load_optimizer_slices,
+    optimizer_slice,
+)
 from ddpg_her.normalizer import RunningNormalizer
 
 
@@ -65,6 +73,35 @@ class StackedAgent:
     generators: list[torch.Generator]
     updates: int
 
+    def _set_up_twin_critics(self, config: AgentConfig, in_dim: int, act_dim: int,
+                             actor: type[torch.nn.Module],
+                             init_generators: Sequence[torch.Generator], dtype: torch.dtype,
+                             device: str | torch.device) -> None:
+        """What TD3 and SAC build alike: the actor (class ``actor``) and two critics, drawn
+        from the init generators in that order, the noise generators seeded after them, the
+        critics' targets, the normaliser, and Adam for the actor and for both critics."""
+        self.config = config
+        self.k = k = len(init_generators)
+        self.in_dim, self.act_dim = in_dim, act_dim
+        self.device = torch.device(device)
+        self.dtype = dtype
+        net = {"dtype": dtype, "device": self.device}
+        self.actor = actor(k, in_dim, act_dim, config.hidden_sizes, **net)
+        self.critic1 = Critic(k, in_dim, act_dim, config.hidden_sizes, **net)
+        self.critic2 = Critic(k, in_dim, act_dim, config.hidden_sizes, **net)
+        for m in (self.actor, self.critic1, self.critic2):
+            m.init_(config.final_init, init_generators)
+        self.generators = noise_generators(init_generators, self.device)
+        self.critic1_target = copy.deepcopy(self.critic1).requires_grad_(False)
+        self.critic2_target = copy.deepcopy(self.critic2).requires_grad_(False)
+        self.normalizer = RunningNormalizer(
+            k, in_dim, eps=config.norm_eps, clip=config.obs_clip, enabled=config.normalize_obs,
+            **net)
+        self.actor_opt = make_adam(self.actor.parameters(), config.actor_lr, 0.0)
+        self.critic_params = list(self.critic1.parameters()) + list(self.critic2.parameters())
+        self.critic_opt = make_adam(self.critic_params, config.critic_lr, config.critic_l2)
+        self.updates = 0
+
     def _modules(self) -> dict[str, torch.nn.Module]:
         raise NotImplementedError
 
@@ -79,11 +116,7 @@ class StackedAgent:
         """Everything that defines agent k, without the agent axis, on the CPU."""
         state: dict[str, Any] = {n: agent_slice(m, k) for n, m in self._modules().items()}
         for name, opt in self._optimizers().items():
-            state[name] = {
-                i: {key: (v[k] if v.ndim > 0 else v).detach().cpu().clone()
-                    for key, v in s.items()}
-                for i, s in opt.state_dict()["state"].items()
-            }
+            state[name] = optimizer_slice(opt, k)
         for name, t in self._extra().items():
             state[name] = t[k].detach().cpu().clone()
         state["normalizer"] = self.normalizer.state(k)
@@ -101,14 +134,7 @@ class StackedAgent:
             for name, t in self._extra().items():
                 t.copy_(torch.stack([s[name] for s in states]).to(t))
         for name, opt in self._optimizers().items():
-            sd = opt.state_dict()
-            per_param = [s[name] for s in states]
-            sd["state"] = {
-                i: {key: (torch.stack([p[i][key] for p in per_param]) if v.ndim > 0 else v)
-                    for key, v in per_param[0][i].items()}
-                for i in per_param[0]
-            }
-            opt.load_state_dict(sd)
+            load_optimizer_slices(opt, [s[name] for s in states])
         for k, s in enumerate(states):
             self.normalizer.load_state(k, s["normalizer"])
             self.generators[k].set_state(s["noise_rng"])

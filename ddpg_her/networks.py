@@ -219,3 +219,21 @@ def load_agent_slices(module: nn.Module, slices: Sequence[dict[str, torch.Tensor
     """Inverse of `agent_slice`: fill the K stacked parameters from K per-agent state dicts."""
     for name, p in module.state_dict().items():
         p.copy_(torch.stack([s[name] for s in slices]).to(p))
+
+
+def optimizer_slice(opt: torch.optim.Optimizer, k: int) -> dict[int, dict[str, torch.Tensor]]:
+    """Agent k's part of a stacked optimizer's state (Adam's moments of its slices; scalar
+    entries such as the step count whole), on the CPU."""
+    return {i: {key: (v[k] if v.ndim > 0 else v).detach().cpu().clone() for key, v in s.items()}
+            for i, s in opt.state_dict()["state"].items()}
+
+
+def load_optimizer_slices(opt: torch.optim.Optimizer,
+                          slices: Sequence[dict[int, dict[str, torch.Tensor]]]) -> None:
+    """Inverse of `optimizer_slice`: the stacked state from K agents' parts (the scalar entries
+    from the first)."""
+    sd = opt.state_dict()
+    sd["state"] = {i: {key: (torch.stack([p[i][key] for p in slices]) if v.ndim > 0 else v)
+                       for key, v in slices[0][i].items()}
+                   for i in slices[0]}
+    opt.load_state_dict(sd)

@@ -11,7 +11,6 @@ buffer apply. The update goes through autograd; ``tests/test_algos.py`` checks i
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Sequence
 
@@ -19,11 +18,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ddpg_her.agent import _adam
-from ddpg_her.algos import StackedAgent, noise_generators, set_grads, soft_update, stacked_normal
+from ddpg_her.agent import make_adam
+from ddpg_her.algos import StackedAgent, set_grads, soft_update, stacked_normal
 from ddpg_her.config import AgentConfig
-from ddpg_her.networks import Critic, StackedLinear
-from ddpg_her.normalizer import RunningNormalizer
+from ddpg_her.networks import StackedLinear
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 """The policy's log standard deviation is clamped to this range (Haarnoja et al.'s code)."""
@@ -72,31 +70,12 @@ class SAC(StackedAgent):
     def __init__(self, config: AgentConfig, in_dim: int, act_dim: int, *,
                  init_generators: Sequence[torch.Generator], dtype: torch.dtype = torch.float32,
                  device: str | torch.device = "cpu"):
-        self.config = config
-        self.k = k = len(init_generators)
-        self.in_dim, self.act_dim = in_dim, act_dim
-        self.device = torch.device(device)
-        self.dtype = dtype
-        net = {"dtype": dtype, "device": self.device}
-        self.actor = GaussianActor(k, in_dim, act_dim, config.hidden_sizes, **net)
-        self.critic1 = Critic(k, in_dim, act_dim, config.hidden_sizes, **net)
-        self.critic2 = Critic(k, in_dim, act_dim, config.hidden_sizes, **net)
-        for m in (self.actor, self.critic1, self.critic2):
-            m.init_(config.final_init, init_generators)
-        self.generators = noise_generators(init_generators, self.device)
-        self.critic1_target = copy.deepcopy(self.critic1).requires_grad_(False)
-        self.critic2_target = copy.deepcopy(self.critic2).requires_grad_(False)
-        self.log_alpha = torch.full((k, 1, 1), math.log(config.sac_init_alpha), **net,
-                                    requires_grad=True)
+        self._set_up_twin_critics(config, in_dim, act_dim, GaussianActor, init_generators, dtype,
+                                  device)
+        self.log_alpha = torch.full((self.k, 1, 1), math.log(config.sac_init_alpha),
+                                    dtype=dtype, device=self.device, requires_grad=True)
         self.target_entropy = -float(act_dim)
-        self.normalizer = RunningNormalizer(
-            k, in_dim, eps=config.norm_eps, clip=config.obs_clip, enabled=config.normalize_obs,
-            **net)
-        self.actor_opt = _adam(self.actor.parameters(), config.actor_lr, 0.0)
-        self.critic_params = list(self.critic1.parameters()) + list(self.critic2.parameters())
-        self.critic_opt = _adam(self.critic_params, config.critic_lr, config.critic_l2)
-        self.alpha_opt = _adam([self.log_alpha], config.sac_alpha_lr, 0.0)
-        self.updates = 0
+        self.alpha_opt = make_adam([self.log_alpha], config.sac_alpha_lr, 0.0)
 
     @torch.no_grad()
     def act(self, x: torch.Tensor, explore: bool = False) -> torch.Tensor:

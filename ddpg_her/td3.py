@@ -15,11 +15,9 @@ from collections.abc import Sequence
 
 import torch
 
-from ddpg_her.agent import _adam
-from ddpg_her.algos import StackedAgent, noise_generators, set_grads, soft_update, stacked_normal
+from ddpg_her.algos import StackedAgent, set_grads, soft_update, stacked_normal
 from ddpg_her.config import AgentConfig
-from ddpg_her.networks import Actor, Critic
-from ddpg_her.normalizer import RunningNormalizer
+from ddpg_her.networks import Actor
 
 
 class TD3(StackedAgent):
@@ -32,29 +30,9 @@ class TD3(StackedAgent):
     def __init__(self, config: AgentConfig, in_dim: int, act_dim: int, *,
                  init_generators: Sequence[torch.Generator], dtype: torch.dtype = torch.float32,
                  device: str | torch.device = "cpu"):
-        self.config = config
-        self.k = k = len(init_generators)
-        self.in_dim, self.act_dim = in_dim, act_dim
-        self.device = torch.device(device)
-        self.dtype = dtype
-        net = {"dtype": dtype, "device": self.device}
-        self.actor = Actor(k, in_dim, act_dim, config.hidden_sizes, **net)
-        self.critic1 = Critic(k, in_dim, act_dim, config.hidden_sizes, **net)
-        self.critic2 = Critic(k, in_dim, act_dim, config.hidden_sizes, **net)
-        for m in (self.actor, self.critic1, self.critic2):
-            m.init_(config.final_init, init_generators)
-        self.generators = noise_generators(init_generators, self.device)
+        self._set_up_twin_critics(config, in_dim, act_dim, Actor, init_generators, dtype, device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
-        self.critic1_target = copy.deepcopy(self.critic1).requires_grad_(False)
-        self.critic2_target = copy.deepcopy(self.critic2).requires_grad_(False)
-        self.normalizer = RunningNormalizer(
-            k, in_dim, eps=config.norm_eps, clip=config.obs_clip, enabled=config.normalize_obs,
-            **net)
-        self.actor_opt = _adam(self.actor.parameters(), config.actor_lr, 0.0)
-        self.critic_params = list(self.critic1.parameters()) + list(self.critic2.parameters())
-        self.critic_opt = _adam(self.critic_params, config.critic_lr, config.critic_l2)
-        self.updates = 0
-        self._actor_loss = torch.zeros(k, **net)
+        self._actor_loss = torch.zeros(self.k, dtype=dtype, device=self.device)
 
     @torch.no_grad()
     def act(self, x: torch.Tensor, explore: bool = False) -> torch.Tensor:
