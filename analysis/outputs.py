@@ -129,3 +129,15 @@ def save_figure(fig: Any, path: Path, **kwargs: Any) -> None:
     buf = io.BytesIO()
     fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", **kwargs)
     write_bytes(path, buf.getvalue())
+
+
+def available_bytes() -> int | None:
+    """The host's available memory (``MemAvailable``), or None where it cannot be read."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None

@@ -30,7 +30,14 @@ from tqdm import tqdm
 
 import regions
 import ur5kin
-from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_text
+from analysis.outputs import (
+    OutputError,
+    available_bytes,
+    check_writable,
+    figure_path,
+    save_figure,
+    write_text,
+)
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
 from regions.coverage import (
     DEFAULT_RESOLUTION,
@@ -490,18 +497,6 @@ def voxel_bytes(resolution: float, base_height: float) -> float:
     r = reach_radius()
     cells = (2 * r / resolution + 2) ** 2 * ((r + base_height + 0.1) / resolution + 2)
     return cells * VOXEL_GRID_COPIES
-
-
-def available_bytes() -> int | None:
-    """The host's available memory (``MemAvailable``), or None where it cannot be read."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
 
 
 def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Settings:

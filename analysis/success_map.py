@@ -23,7 +23,24 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_text
+from analysis.outputs import (
+    OutputError,
+    available_bytes,
+    check_writable,
+    figure_path,
+    save_figure,
+    write_text,
+)
+
+WORKSPACE_REACH_M = 1.1
+"""A bound (m) on tool0's distance from the shoulder axis (the reach ball's radius is under it):
+a slice of the workspace is at most twice this wide in x and y."""
+
+GOAL_BYTES = 64
+"""Memory per goal of a map (its position, configuration and outcome), a bound."""
+
+CELL_BYTES = 48
+"""Memory per grid cell of a map (two histograms, the rate, numpy's temporaries), a bound."""
 
 CELL = 0.1
 """Default edge (m) of the grid cells: the paper's "coarse tiling"."""
@@ -173,6 +190,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"{args.goals}, {args.batch}, {args.cell}")
     if not all(math.isfinite(v) for v in args.z):
         parser.error(f"--z needs two finite heights (m); got {args.z}")
+    # what a map holds: its goals and outcomes per run, and its grid (two histograms and the
+    # rate per cell over the slice, at most the reach ball's diameter wide)
+    cells = math.ceil(2 * WORKSPACE_REACH_M / args.cell) ** 2
+    need = len(args.runs) * args.goals * GOAL_BYTES + len(args.runs) * cells * CELL_BYTES
+    have = available_bytes()
+    if have is not None and need > have:
+        parser.error(f"--goals {args.goals} and --cell {args.cell} m would need about "
+                     f"{need / 2 ** 30:.3g} GiB ({args.goals} goals and {cells:.3g} grid cells "
+                     f"per run), more than the {have / 2 ** 30:.3g} GiB of memory available")
     try:  # before loading any policy or rolling out
         out = figure_path(args.out, "--out")
         csv_path = check_writable(out.with_suffix(".csv"), "--out")

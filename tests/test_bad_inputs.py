@@ -151,3 +151,19 @@ def test_the_contact_study_refuses_what_it_cannot_measure(args, message, capsys)
         contact.main(args)
     assert stop.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--cell", "1e-6"], "--cell 1e-06 m would need about"),
+    (["--goals", "100000000000"], "--goals 100000000000 and --cell 0.1 m would need about"),
+])
+def test_a_success_map_that_cannot_fit_is_refused_before_any_rollout(args, message, capsys,
+                                                                       tmp_path):
+    from analysis import success_map
+
+    with pytest.raises(SystemExit) as stop:
+        success_map.main([str(tmp_path / "no-run-needed"), *args,
+                          "--out", str(tmp_path / "map.png")])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "GiB of memory available" in err
