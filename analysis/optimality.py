@@ -52,7 +52,7 @@ import numpy as np
 from analysis.outputs import OutputError, check_folder, check_writable, save_figure, write_text
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
-from ddpg_her.train import task_option
+from ddpg_her.units import task_option
 
 DEFAULT_GAMMA = 0.98
 """The discount of the paper's Table I (and of :class:`ddpg_her.config.AgentConfig`)."""

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from ddpg_her.train import task_option
+from ddpg_her.units import task_option
 
 
 @dataclass(frozen=True)

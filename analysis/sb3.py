@@ -120,7 +120,7 @@ def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episode
     from stable_baselines3.common.callbacks import BaseCallback
 
     from ddpg_her.runfolder import FORMAT, RunFolder, git_revision, versions
-    from ddpg_her.trainer import _EVAL_ENV, stream_seed
+    from ddpg_her.trainer import EVAL_ENV_STREAM, stream_seed
     from ddpg_her.vecenv import register_env
 
     folder = RunFolder(out)
@@ -149,7 +149,7 @@ def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episode
     def session(episode: int) -> None:
         s = episode // eval_every
         row = test_session(model, make_env,
-                           [stream_seed(seed, _EVAL_ENV, s, i) for i in range(eval_episodes)])
+                           [stream_seed(seed, EVAL_ENV_STREAM, s, i) for i in range(eval_episodes)])
         rows.append({"episode": episode, **row, "env_steps": int(model.num_timesteps),
                      "wall_s": round(time.perf_counter() - start, 3)})
         folder.write_eval(rows)
@@ -203,7 +203,7 @@ def make_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from ddpg_her.train import task_fields, task_option
+    from ddpg_her.units import task_fields, task_option
 
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = make_parser()

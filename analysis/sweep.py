@@ -413,7 +413,7 @@ def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequ
     """Train the units in one ``ddpg_her.train_many`` process, whose plan (every unit's
     ``ddpg_her.train`` arguments) goes to ``root/logs/one-process-<time>.json``; 1 when the
     process failed, else 0."""
-    from ddpg_her.train_many import write_plan
+    from ddpg_her.units import write_plan
 
     stamp = time.strftime("%Y%m%d-%H%M%S")
     plan = root / "logs" / f"one-process-{stamp}.json"

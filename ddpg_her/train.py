@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import enum
-import json
 import re
 import sys
 import typing
@@ -20,52 +19,9 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ddpg_her.config import VALID, AgentConfig, field_docs
+from ddpg_her.units import DEFAULT_JOINTS, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
-DEFAULT_JOINTS = 3
-"""Controlled joints when neither --joints nor --task n_joints is given."""
-
-
-def task_fields(region: str, joints: int | None, overrides: Sequence[tuple[str, Any]]
-                ) -> dict[str, Any]:
-    """The env's keyword arguments from --region, --joints and the --task KEY=VALUE pairs.
-
-    Raises
-    ------
-    ValueError
-        When a field is given twice with different values (``--joints 3 --task n_joints=4``,
-        ``--region farbox --task region=zheight``, ``--task a=1 --task a=2``): the run folder
-        is named after --region and --joints, so a silent override would mislabel it.
-    """
-    given: dict[str, tuple[str, Any]] = {"region": ("--region", region)}
-    if joints is not None:
-        given["n_joints"] = ("--joints", joints)
-    for key, value in overrides:
-        flag = f"--task {key}={json.dumps(value)}"
-        if key in given and not _same(given[key][1], value):
-            raise ValueError(f"{given[key][0]} and {flag} give the task field {key!r} two "
-                             f"values ({given[key][1]!r}, {value!r}); give it once")
-        given.setdefault(key, (flag, value))
-    fields = {key: value for key, (_, value) in given.items()}
-    fields.setdefault("n_joints", DEFAULT_JOINTS)
-    return fields
-
-
-def _same(a: Any, b: Any) -> bool:
-    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
-
-
-def task_option(text: str) -> tuple[str, Any]:
-    """One ``--task KEY=VALUE``: VALUE read as JSON, else kept as a string."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value
-
-
 def _add_config_flags(group: argparse._ArgumentGroup) -> None:
     """One flag per AgentConfig field, its docstring as help."""
     docs = field_docs(AgentConfig)

@@ -17,77 +17,13 @@ Examples::
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from ddpg_her import train
-
-PLAN_KEY = "units"
-"""A plan file is a JSON object ``{"units": [[ARG, ...], ...]}``: each unit's ddpg_her.train
-arguments as a list of strings."""
-
-
-def read_plan(path: Path) -> list[list[str]]:
-    """The units of a plan file (see `PLAN_KEY`).
-
-    Raises
-    ------
-    ValueError
-        When the file is not JSON of that shape; the message names the file.
-    """
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise ValueError(f"{path} cannot be read as a plan ({err})") from err
-    units = data.get(PLAN_KEY) if isinstance(data, dict) else None
-    if not isinstance(units, list) or not all(
-            isinstance(u, list) and all(isinstance(a, str) for a in u) for u in units):
-        raise ValueError(f"{path}: expected {{\"{PLAN_KEY}\": [[ARG, ...], ...]}}, each unit a "
-                         "list of ddpg_her.train arguments")
-    return units
-
-
-def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
-    """Write a plan file that `read_plan` reads back as ``units``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
-
-
-def command_outs(argv: Sequence[str], cwd: Path) -> list[Path]:
-    """The ``--out`` folders (resolved against ``cwd``, ``{seed}`` left in) of the units of a
-    ``ddpg_her.train_many`` command line (its ``--unit`` strings and ``--plan`` files; an
-    unreadable plan gives none). For ``analysis.sweep``'s check of which units a running
-    process trains."""
-    own, common = split_passthrough(argv)
-    units: list[list[str]] = []
-    for flag, value in _flag_values(own, ("--unit", "--plan")):
-        if flag == "--unit":
-            units.append(shlex.split(value))
-            continue
-        try:
-            units += read_plan(Path(value) if Path(value).is_absolute() else cwd / value)
-        except ValueError:
-            continue
-    outs = []
-    for unit in units:
-        for _, out in _flag_values([*unit, *common], ("--out",))[-1:]:
-            outs.append((Path(out) if Path(out).is_absolute() else cwd / out).resolve())
-    return outs
-
-
-def _flag_values(argv: Sequence[str], flags: Sequence[str]) -> list[tuple[str, str]]:
-    """(flag, value) of every ``--flag VALUE`` or ``--flag=VALUE`` of ``flags`` in ``argv``."""
-    found = []
-    for i, arg in enumerate(argv):
-        name, eq, value = arg.partition("=")
-        if name in flags and eq:
-            found.append((name, value))
-        elif arg in flags and i + 1 < len(argv):
-            found.append((arg, argv[i + 1]))
-    return found
+from ddpg_her.units import read_plan
 
 
 def make_parser() -> argparse.ArgumentParser:

@@ -48,7 +48,10 @@ from ddpg_her.spaces import goal_input
 from ddpg_her.vecenv import GoalVecEnv, TorchGoalVecEnv, rollout, torch_rollout
 
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
-_INIT, _EXPLORE, _SAMPLE, _TRAIN_ENV, _EVAL_ENV = range(5)
+_INIT, _EXPLORE, _SAMPLE, _TRAIN_ENV, EVAL_ENV_STREAM = range(5)
+"""``EVAL_ENV_STREAM``: the key of the test sessions' goals, ``stream_seed(seed,
+EVAL_ENV_STREAM, session, i)`` for test episode i of a session (public: other trainers, such
+as ``analysis.sb3``, test on the same goals)."""
 
 ENV_BACKENDS = ("numpy", "batched", "torch")
 """``numpy``: the envs are Gymnasium's (numpy arrays on the host), one group of copies per
@@ -555,7 +558,7 @@ class Trainer:
             u = self.agent.act(self._inputs(obs, m)).reshape(self.k * m, -1)
             return self.scale.to_env(u.double().cpu().numpy())
 
-        seeds = [stream_seed(s, _EVAL_ENV, session, i) for s in self.seeds for i in range(m)]
+        seeds = [stream_seed(s, EVAL_ENV_STREAM, session, i) for s in self.seeds for i in range(m)]
         episodes, success = rollout(self.eval_envs, policy, seeds)
         rows = []
         for k in range(self.k):
@@ -577,7 +580,7 @@ class Trainer:
             u = self.agent.act(self._tensor_inputs(obs, m)).reshape(self.k * m, -1)
             return self._to_env(u.double())
 
-        seeds = [stream_seed(s, _EVAL_ENV, session, i) for s in self.seeds for i in range(m)]
+        seeds = [stream_seed(s, EVAL_ENV_STREAM, session, i) for s in self.seeds for i in range(m)]
         eps: TensorEpisodes = torch_rollout(self.eval_envs, policy, seeds)
         n = torch.arange(len(eps.length), device=self.device)
         final = eps.achieved_goal[n, eps.length]

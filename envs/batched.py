@@ -75,7 +75,7 @@ def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto",
     return ArmDynamics(task, num_copies)
 
 
-def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
+def as_autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
     """An AutoresetMode from itself, its value (``"NextStep"``) or its name (``"next_step"``)."""
     if isinstance(mode, AutoresetMode):
         return mode
@@ -132,7 +132,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
                  threads: int = 1, **overrides: Any) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
-        mode = _autoreset_mode(autoreset_mode)
+        mode = as_autoreset_mode(autoreset_mode)
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
                              f"{render_mode!r}")

@@ -27,7 +27,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 
 from envs import torchdyn
-from envs.batched import _autoreset_mode
+from envs.batched import as_autoreset_mode
 from envs.checks import validate
 from envs.core import single_spaces
 from envs.dynamics import command_bounds
@@ -224,7 +224,7 @@ class TorchReach:
         if not torchdyn.supports(self.task):
             raise ValueError(f"TorchReach implements the stop contact model only (as "
                              f"TorchArmDynamics); got contact_model={self.task.contact_model!r}")
-        self.num_envs, self.autoreset_mode = int(num_envs), _autoreset_mode(autoreset_mode)
+        self.num_envs, self.autoreset_mode = int(num_envs), as_autoreset_mode(autoreset_mode)
         self.metadata = {"autoreset_mode": self.autoreset_mode}
         self.spec: Any = None  # set by gymnasium.make_vec
         # host-side metadata (numpy boxes, as BatchedReach's); values stay tensors

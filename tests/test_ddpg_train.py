@@ -186,9 +186,9 @@ def test_a_run_from_before_batch_norm_resumes_and_a_batch_norm_run_loads(tmp_pat
 
 
 def trainer_eval_seed(seed: int, session: int, i: int) -> int:
-    from ddpg_her.trainer import _EVAL_ENV, stream_seed
+    from ddpg_her.trainer import EVAL_ENV_STREAM, stream_seed
 
-    return stream_seed(seed, _EVAL_ENV, session, i)
+    return stream_seed(seed, EVAL_ENV_STREAM, session, i)
 
 
 def test_run_folder_contents_and_load(tmp_path):

@@ -1,0 +1,85 @@
+"""What a unit of training is on the command line, for every command that builds one: the
+``--task KEY=VALUE`` pairs and the env fields they give (``ddpg_her.train``), and plan files of
+units (``ddpg_her.train_many --plan``, written by ``analysis.sweep``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+DEFAULT_JOINTS = 3
+"""Controlled joints when neither --joints nor --task n_joints is given."""
+
+
+def task_fields(region: str, joints: int | None, overrides: Sequence[tuple[str, Any]]
+                ) -> dict[str, Any]:
+    """The env's keyword arguments from --region, --joints and the --task KEY=VALUE pairs.
+
+    Raises
+    ------
+    ValueError
+        When a field is given twice with different values (``--joints 3 --task n_joints=4``,
+        ``--region farbox --task region=zheight``, ``--task a=1 --task a=2``): the run folder
+        is named after --region and --joints, so a silent override would mislabel it.
+    """
+    given: dict[str, tuple[str, Any]] = {"region": ("--region", region)}
+    if joints is not None:
+        given["n_joints"] = ("--joints", joints)
+    for key, value in overrides:
+        flag = f"--task {key}={json.dumps(value)}"
+        if key in given and not _same(given[key][1], value):
+            raise ValueError(f"{given[key][0]} and {flag} give the task field {key!r} two "
+                             f"values ({given[key][1]!r}, {value!r}); give it once")
+        given.setdefault(key, (flag, value))
+    fields = {key: value for key, (_, value) in given.items()}
+    fields.setdefault("n_joints", DEFAULT_JOINTS)
+    return fields
+
+
+def _same(a: Any, b: Any) -> bool:
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def task_option(text: str) -> tuple[str, Any]:
+    """One ``--task KEY=VALUE``: VALUE read as JSON, else kept as a string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+PLAN_KEY = "units"
+"""A plan file is a JSON object ``{"units": [[ARG, ...], ...]}``: each unit's ddpg_her.train
+arguments as a list of strings."""
+
+
+def read_plan(path: Path) -> list[list[str]]:
+    """The units of a plan file (see `PLAN_KEY`).
+
+    Raises
+    ------
+    ValueError
+        When the file is not JSON of that shape; the message names the file.
+    """
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path} cannot be read as a plan ({err})") from err
+    units = data.get(PLAN_KEY) if isinstance(data, dict) else None
+    if not isinstance(units, list) or not all(
+            isinstance(u, list) and all(isinstance(a, str) for a in u) for u in units):
+        raise ValueError(f"{path}: expected {{\"{PLAN_KEY}\": [[ARG, ...], ...]}}, each unit a "
+                         "list of ddpg_her.train arguments")
+    return units
+
+
+def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
+    """Write a plan file that `read_plan` reads back as ``units``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
