@@ -1,4 +1,4 @@
-"""The stacked agents by name (``AgentConfig.algo``) and what TD3 and SAC share: an autograd
+"""What TD3 and SAC share (`ddpg_her.agents.make_agent` picks an algorithm by name): an autograd
 update of K stacked agents, their per-agent state for checkpoints, their noise generators.
 
 Every algorithm keeps the trainer's interface of `ddpg_her.agent.DDPG`: ``act(x, explore=)``,
@@ -24,19 +24,6 @@ from ddpg_her.networks import (
     optimizer_slice,
 )
 from ddpg_her.normalizer import RunningNormalizer
-
-
-def make_agent(config: AgentConfig, in_dim: int, act_dim: int, *,
-               init_generators: Sequence[torch.Generator], dtype: torch.dtype = torch.float32,
-               device: str | torch.device = "cpu") -> Any:
-    """K stacked agents of ``config.algo`` (ddpg, td3, sac); arguments as `DDPG`'s."""
-    from ddpg_her.agent import DDPG
-    from ddpg_her.sac import SAC
-    from ddpg_her.td3 import TD3
-
-    cls = {"ddpg": DDPG, "td3": TD3, "sac": SAC}[config.algo.value]
-    return cls(config, in_dim, act_dim, init_generators=init_generators, dtype=dtype,
-               device=device)
 
 
 def noise_generators(init_generators: Sequence[torch.Generator],

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ddpg_her.algos import make_agent
+from ddpg_her.agents import make_agent
 from ddpg_her.buffer import (
     Layout,
     ReplayBuffer,

@@ -9,7 +9,7 @@ import toy_goal_env
 from test_ddpg_agent import ACT, HIDDEN, IN, assert_slice_equal, copy_slice
 from test_ddpg_train import train
 
-from ddpg_her.algos import make_agent
+from ddpg_her.agents import make_agent
 from ddpg_her.config import AgentConfig
 from ddpg_her.reference import ReferenceSAC, ReferenceTD3
 from ddpg_her.sac import SAC

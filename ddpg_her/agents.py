@@ -1,0 +1,29 @@
+"""The stacked agents by name: ``make_agent`` builds K agents of ``AgentConfig.algo``.
+
+Apart from `ddpg_her.algos`, which TD3 and SAC import, so that no module imports itself back
+through a lazy import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+
+from ddpg_her.agent import DDPG
+from ddpg_her.config import AgentConfig
+from ddpg_her.sac import SAC
+from ddpg_her.td3 import TD3
+
+ALGORITHMS = {"ddpg": DDPG, "td3": TD3, "sac": SAC}
+"""The classes of ``AgentConfig.algo``'s values."""
+
+
+def make_agent(config: AgentConfig, in_dim: int, act_dim: int, *,
+               init_generators: Sequence[torch.Generator], dtype: torch.dtype = torch.float32,
+               device: str | torch.device = "cpu") -> Any:
+    """K stacked agents of ``config.algo`` (ddpg, td3, sac); arguments as `DDPG`'s."""
+    return ALGORITHMS[config.algo.value](config, in_dim, act_dim,
+                                         init_generators=init_generators, dtype=dtype,
+                                         device=device)
