@@ -112,9 +112,16 @@ AGENT_FLAGS = {
     "warmup_episodes": (["5"], 5), "updates_per_episode": (["3"], 3),
     "normalize_obs": ([], False), "obs_clip": (["4"], 4.0), "norm_eps": (["0.02"], 0.02),
     "critic_l2": (["0.01"], 0.01), "flush_denormals": ([], False),
+    "batch_norm": ([], True), "batch_norm_momentum": (["0.1", "--batch-norm"], 0.1),
+    "algo": (["td3"], "td3"),
+    "td3_target_noise": (["0.1", "--algo", "td3"], 0.1),
+    "td3_target_noise_clip": (["0.3", "--algo", "td3"], 0.3),
+    "td3_policy_delay": (["3", "--algo", "td3"], 3),
+    "sac_init_alpha": (["0.5", "--algo", "sac"], 0.5),
+    "sac_alpha_lr": (["0.001", "--algo", "sac"], 0.001),
 }
 """For each AgentConfig flag, a value other than the default and what spec.json must record
-([]: the --no- form of a switch)."""
+([]: a switch, given as --FLAG where its default is off and as --no-FLAG where it is on)."""
 
 
 def test_the_tables_name_every_field():
@@ -157,7 +164,8 @@ def test_every_task_field_given_is_the_one_recorded(tmp_path, field):
 @pytest.mark.parametrize("field", sorted(AGENT_FLAGS))
 def test_every_agent_flag_given_is_the_one_recorded(tmp_path, field):
     values, expected = AGENT_FLAGS[field]
-    flag = "--" + ("no-" if not values else "") + field.replace("_", "-")
+    switch_off = not values and AgentConfig().to_dict()[field]
+    flag = "--" + ("no-" if switch_off else "") + field.replace("_", "-")
     spec = recorded_spec(tmp_path, "--env-id", f"toy_goal_env:{ENV_ID}", "--region", "box",
                          flag, *values)
     default = AgentConfig().to_dict()[field]
@@ -497,13 +505,16 @@ def test_a_diverging_run_says_it_diverged_and_keeps_its_last_finite_checkpoint(t
 BAD_AGENT_VALUES = {
     **{name: [float("nan"), True, "0.5"] for name in (
         "gamma", "exploration_rate", "tau", "actor_lr", "critic_lr", "final_init", "ou_theta",
-        "obs_clip", "norm_eps", "critic_l2")},
+        "obs_clip", "norm_eps", "critic_l2", "batch_norm_momentum", "td3_target_noise",
+        "td3_target_noise_clip", "sac_init_alpha", "sac_alpha_lr")},
     **{name: [float("nan"), 10.5, True, "10"] for name in (
         "buffer_size", "batch_size", "episodes", "eval_every", "eval_episodes", "her_k",
-        "warmup_episodes", "updates_per_episode")},
+        "warmup_episodes", "updates_per_episode", "td3_policy_delay")},
     "hidden_sizes": ["12", [400.5, 300], [400, True], [400], None],
     "normalize_obs": ["false", 0, None],
     "flush_denormals": ["true", 1, None],
+    "batch_norm": ["true", 1, None],
+    "algo": ["ddgp", 1],
     "her_strategy": ["finale", 1],
     "exploration": ["gauss", None],
 }
