@@ -448,16 +448,30 @@ def test_a_run_killed_at_random_moments_resumes_to_the_uninterrupted_eval_csv(tm
     import multiprocessing
     import random
 
-    out = tmp_path / "run"
+    import time
+
     fork = multiprocessing.get_context("fork")
+
+    def start(out: Path, resume: bool):
+        args = [*CLI, "--episodes", "6", "--out", str(out), *(["--resume"] if resume else [])]
+        child = fork.Process(target=_train_in_child, args=(args,))
+        child.start()
+        return child
+
+    # The moments are drawn as fractions of this machine's own uninterrupted run (a fast CI
+    # machine trains the 6 episodes in under 0.4 s): each kill comes before a quarter of a
+    # whole run has passed, so the first three tries cannot finish.
+    began = time.perf_counter()
+    whole = start(tmp_path / "whole", resume=False)
+    whole.join(timeout=120)
+    span = time.perf_counter() - began
+    assert whole.exitcode == 0 and eval_rows(tmp_path / "whole") == eval_rows(uninterrupted)
+    out = tmp_path / "run"
     rng = random.Random(23)
     kills = 0
     for attempt in range(12):
-        args = [*CLI, "--episodes", "6", "--out", str(out), *(["--resume"] if out.exists()
-                                                                else [])]
-        child = fork.Process(target=_train_in_child, args=(args,))
-        child.start()
-        child.join(timeout=rng.uniform(0.02, 0.4) if attempt < 6 else 120)
+        child = start(out, resume=out.exists())
+        child.join(timeout=rng.uniform(0.01, 0.25) * span if attempt < 6 else 120)
         if child.exitcode is None:
             child.kill()
             child.join()
