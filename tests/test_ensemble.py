@@ -246,9 +246,9 @@ def test_an_ensemble_of_ddpg_learns_the_toy_task(tmp_path):
     """Two members on the halves of the toy plane, each making the 40 updates per episode of
     DDPG's toy test (80 in all), learn it, though slower than one agent: measured, the last
     three of twelve sessions score 14, 16, 17 / 12, 15, 16 / 6, 15, 17 of 30 with seeds 0, 1,
-    2. At one agent's budget (40 in all, 20 each) they reach 3-5 of 30 by episode 160, where
-    one agent reaches 27 by 80: the toy's one linear policy fits the whole plane, and each
-    member sees half of the episodes."""
+    2. At one agent's budget (40 in all, 20 each) they score at most 5 of 30 in 160 episodes
+    (seed 0), where one agent scores 27 at episode 80: the toy's one linear policy fits the
+    whole plane, and each member sees only half of the episodes."""
     config = AgentConfig(episodes=120, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
                          updates_per_episode=80, actor_lr=1e-3, tau=0.05,
                          exploration="epsilon", exploration_rate=0.3, warmup_episodes=0,
