@@ -286,6 +286,30 @@ class Ensemble:
         self.members.load_agent_states([m for s in states for m in s["ensemble"]])
 
 
+class RoutedPolicy(torch.nn.Module):
+    """One seed's ensemble as the deterministic test policy of `ddpg_her.run.load`: raw inputs
+    x (1, B, in_dim) -> actions (1, B, act_dim) in actor units, each by the member of its
+    goal's cell, normalised by that member's statistics (``load`` gives it no normaliser of
+    its own). ``l1`` is the members' first layer (``load`` reads its dtype and device).
+
+    actor : the M members' test policy, stacked; normalizer : their M statistics;
+    centres : (M, goal_dim) the partition's.
+    """
+
+    def __init__(self, actor: torch.nn.Module, normalizer: Any, centres: torch.Tensor,
+                 in_dim: int):
+        super().__init__()
+        self.actor, self.normalizer, self.l1 = actor, normalizer, actor.l1
+        self.centres = centres.to(actor.l1.weight.device, torch.float64)
+        self.goal = slice(in_dim - self.centres.shape[1], in_dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        m, b = len(self.centres), x.shape[1]
+        out = self.actor(self.normalizer(x.expand(m, -1, -1)))  # (M, B, act_dim)
+        cells = goal_cells(x[..., self.goal], self.centres[None])  # (1, B)
+        return out.gather(0, cells[..., None].expand(1, b, out.shape[-1]))
+
+
 def make_buffer(config: AgentConfig, k: int, layout: Layout, agent: Any, *,
                 dtype: torch.dtype, device: torch.device) -> ReplayBuffer:
     """The trainer's replay buffer: a `CellBuffer` for an `Ensemble`, else a `ReplayBuffer`."""

@@ -267,3 +267,29 @@ def test_nearest_cell_of_the_partition_module_and_the_agents_routing_agree():
     goals = rng.uniform(-1, 1, (2, 200, GOAL)).astype(np.float32)
     assert np.array_equal(agent.cells(inputs(goals, rng)).numpy(),
                           nearest_cell(goals, HALVES.centres))
+
+
+def test_a_loaded_ensemble_policy_acts_as_the_trained_ensemble(tmp_path):
+    """`ddpg_her.load` of an ensemble run routes each goal to its member as the trainer did."""
+    import gymnasium
+
+    import ddpg_her
+    from ddpg_her.spaces import goal_input
+
+    trainer = Trainer(toy_goal_env.ENV_ID, TASK, ensemble_config(), [0], [str(tmp_path / "r")],
+                      progress=False, tensorboard=False)
+    try:
+        trainer.run()
+        env = gymnasium.make(toy_goal_env.ENV_ID, **TASK)
+        obs = [env.reset(seed=s)[0] for s in range(12)]
+        batch = {key: np.stack([o[key] for o in obs]) for key in obs[0]}
+        x = torch.as_tensor(goal_input(batch["observation"], batch["achieved_goal"],
+                                       batch["desired_goal"]))[None]
+        want = trainer.scale.to_env(trainer.agent.act(x)[0].double().numpy())
+        cells = trainer.agent.cells(x)[0]
+    finally:
+        trainer.close()
+    assert 0 < int(cells.sum()) < 12  # goals of both cells
+    policy = ddpg_her.load(tmp_path / "r")
+    assert np.allclose(policy(batch), want, atol=1e-6)
+    assert np.allclose(policy(obs[0]), want[0], atol=1e-6)
