@@ -293,3 +293,15 @@ def test_a_loaded_ensemble_policy_acts_as_the_trained_ensemble(tmp_path):
     policy = ddpg_her.load(tmp_path / "r")
     assert np.allclose(policy(batch), want, atol=1e-6)
     assert np.allclose(policy(obs[0]), want[0], atol=1e-6)
+
+
+def test_the_ensemble_timing_benchmark_prints_its_figures():
+    from cli_tools import run_module
+
+    proc = run_module("benchmarks.ensemble_episode", "--env-id", "toy_goal_env:ToyReach-v0",
+                      "--region", "box", "--joints", "2", "--seeds", "2", "--members", "2",
+                      "--warmup", "1", "--rounds", "2", "--hidden-sizes", "16", "16",
+                      "--updates-per-episode", "4")
+    out = json.loads(proc.stdout)
+    assert out["ensemble_over_plain"] > 0 and out["partition_fit_s"] >= 0
+    assert out["members"] == 2 and out["rounds"] == 2
