@@ -204,8 +204,10 @@ class Crash(Exception):
     pass
 
 
-def test_an_ensemble_run_resumes_to_the_uninterrupted_eval_csv(tmp_path, monkeypatch):
-    config = ensemble_config()
+@pytest.mark.parametrize("algo", ["ddpg", "sac"])
+def test_an_ensemble_run_resumes_to_the_uninterrupted_eval_csv(tmp_path, monkeypatch, algo):
+    """SAC too: its members sample their actions, so every member's generator must resume."""
+    config = ensemble_config(algo=algo)
     train([tmp_path / "whole"], config=config)
     original = Trainer.train_episode
 
