@@ -1,10 +1,11 @@
-"""The algorithm study (issue 25): is the goal region's effect DDPG's alone? DDPG, TD3 and SAC,
-each with HER, on the paper's 3-joint settings, resumable unit by unit.
+"""The algorithm study (issue 25): is the goal region's effect DDPG's alone, and does a regional
+ensemble help? DDPG, TD3, SAC (each with HER) and a regional ensemble of 4 DDPG agents, on the
+paper's 3-joint settings, resumable unit by unit.
 
     python -m analysis.algorithms --dry-run                 # every unit, its state and command
     python -m analysis.algorithms --workers 2 --threads 1   # train what is missing (resumable)
     python -m analysis.algorithms --collect results/algorithms   # spec.json, eval.csv of units
-    python -m analysis.sensitivity report results/algorithms/runs --readings ddpg td3 sac
+    python -m analysis.sensitivity report results/algorithms/runs --readings ddpg td3 sac ensemble
 
 A unit is one algorithm x one setting x all seeds in one ``ddpg_her.train`` process, into
 ``ROOT/<algorithm>/<region>-j<joints>/s<seed>``: the layout, execution flags and report of
@@ -52,6 +53,14 @@ ALGORITHMS: dict[str, Reading] = {r.name: r for r in (
             ours="SAC (Haarnoja et al. 2018: squashed Gaussian, twin critics, alpha tuned to "
                  "entropy -dim(A)), exploring by its own policy alone (no added noise); Table "
                  "I's gamma, tau, rates, batch and buffer; all else the defaults"),
+    Reading("ensemble", ("--algo", "ddpg", "--ensemble", "4"),
+            paper="\"a regional Deep RL ensemble algorithm may perform better\" (the paper's "
+                  "closing section, on the unconstrained task)",
+            ours="4 DDPG agents per seed, each owning one cell of a k-means partition of the "
+                 "task's goals; the desired goal picks the agent in training and at test; a "
+                 "transition, real or relabelled, trains the owner of its goal's cell; one "
+                 "agent's budget (buffer, episodes, 100 updates per episode in all, 25 each); "
+                 "all else the defaults"),
 )}
 """The study's algorithms, as readings: the ``ddpg_her.train`` arguments of each."""
 

@@ -168,6 +168,16 @@ class AgentConfig:
     sac_alpha_lr: float = 3e-4
     """Adam learning rate of SAC's log alpha, > 0 (Haarnoja et al. 2018: 3e-4)."""
 
+    # --- the regional ensemble (issue 25) ------------------------------------------------------
+    ensemble: int = 1
+    """Members M of the regional ensemble of --algo agents (1: none, a single agent). Each member
+    owns one cell of a k-means partition of the task's goals (4,096 goals of the task's own
+    distribution, a fixed seed; spec.json records the centres) and acts on the goals of its
+    cell, in training and at test. A stored transition, real or HER-relabelled, trains the
+    member whose cell holds its desired goal. The M members share one agent's budget: the same
+    episodes, replay buffer (one per seed) and updates_per_episode in all, updates_per_episode
+    / M each."""
+
     flush_denormals: bool = True
     """Flush subnormal floats (below 1.2e-38 in float32) to zero on the CPU while training. Adam's
     second moment of a weight whose gradient has gone to zero (a dead ReLU unit) decays through
@@ -227,6 +237,11 @@ def _real(x: Any) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool)
 
 
+MAX_ENSEMBLE = 64
+"""Most members of a regional ensemble: each acts on every input to be routed (M x the acting
+cost) and needs goals in its cell; 64 is far beyond what the task's budget feeds."""
+
+
 VALID: dict[str, tuple[str, Any]] = {
     "gamma": ("a number in [0, 1]", lambda c: _real(c.gamma) and 0.0 <= c.gamma <= 1.0),
     "buffer_size": ("an integer >= batch_size",
@@ -275,6 +290,9 @@ VALID: dict[str, tuple[str, Any]] = {
                        and 0.0 < c.sac_init_alpha < math.inf),
     "sac_alpha_lr": ("a finite number > 0", lambda c: _real(c.sac_alpha_lr)
                      and 0.0 < c.sac_alpha_lr < math.inf),
+    "ensemble": (f"an integer in 1..{MAX_ENSEMBLE} that divides updates_per_episode",
+                 lambda c: _integer(c.ensemble) and 1 <= c.ensemble <= MAX_ENSEMBLE
+                 and c.updates_per_episode % c.ensemble == 0),
 }
 """The valid values of the checked `AgentConfig` fields: {field: (the range in words, test)}.
 The words appear in the error message and in ``--help``."""
@@ -282,7 +300,8 @@ The words appear in the error message and in ``--help``."""
 
 BEFORE: dict[str, Any] = {"batch_norm": False, "batch_norm_momentum": 0.01, "algo": "ddpg",
                           "td3_target_noise": 0.2, "td3_target_noise_clip": 0.5,
-                          "td3_policy_delay": 2, "sac_init_alpha": 1.0, "sac_alpha_lr": 3e-4}
+                          "td3_policy_delay": 2, "sac_init_alpha": 1.0, "sac_alpha_lr": 3e-4,
+                          "ensemble": 1}
 """Fields added after run folders existed, with the value runs written before them had (for
 fields of another algorithm than ddpg, unused, the default): a ``spec.json`` without the field
 reads as this value (so such runs resume)."""

@@ -142,19 +142,33 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
         raise RunFolderError(f"{folder.spec_path} does not hold a valid run specification "
                              f"({type(err).__name__}: {err})") from err
     net = {"dtype": torch.float32, "device": torch.device(device)}
+    # an ensemble's state holds its M members and its partition (ddpg_her.ensemble)
+    members = state.get("ensemble", [state])
+    actor = _actor(config, members, in_dim, dims["act_dim"], net)
+    normalizer = RunningNormalizer(len(members), in_dim, eps=config.norm_eps,
+                                   clip=config.obs_clip, enabled=config.normalize_obs, **net)
+    for k, member in enumerate(members):
+        normalizer.load_state(k, member["normalizer"])
+    if "ensemble" in state:
+        from ddpg_her.ensemble import RoutedPolicy
+
+        actor = RoutedPolicy(actor, normalizer, torch.as_tensor(state["centres"]), in_dim)
+        normalizer = RunningNormalizer(1, in_dim, eps=config.norm_eps, clip=config.obs_clip,
+                                       enabled=False, **net)  # the members normalise
+    scale = ActionScale(np.array(dims["action_low"]), np.array(dims["action_high"]))
+    return TrainedPolicy(actor, normalizer, scale, spec, episode)
+
+
+def _actor(config: AgentConfig, states: list[dict[str, Any]], in_dim: int, act_dim: int,
+           net: dict[str, Any]) -> torch.nn.Module:
+    """The deterministic test policy of ``len(states)`` stacked agents (their ``actor``)."""
     if config.algo.value == "sac":
         from ddpg_her.sac import GaussianActor, MeanPolicy
 
-        gaussian = GaussianActor(1, in_dim, dims["act_dim"], config.hidden_sizes, **net)
-        load_agent_slices(gaussian, [state["actor"]])
-        actor: torch.nn.Module = MeanPolicy(gaussian)
-    else:
-        actor = Actor(1, in_dim, dims["act_dim"], config.hidden_sizes, **net,
-                      batch_norm=config.batch_norm_momentum if config.batch_norm else None)
-        load_agent_slices(actor, [state["actor"]])
-    normalizer = RunningNormalizer(1, in_dim, eps=config.norm_eps, clip=config.obs_clip,
-                                   enabled=config.normalize_obs, dtype=torch.float32,
-                                   device=torch.device(device))
-    normalizer.load_state(0, state["normalizer"])
-    scale = ActionScale(np.array(dims["action_low"]), np.array(dims["action_high"]))
-    return TrainedPolicy(actor, normalizer, scale, spec, episode)
+        gaussian = GaussianActor(len(states), in_dim, act_dim, config.hidden_sizes, **net)
+        load_agent_slices(gaussian, [s["actor"] for s in states])
+        return MeanPolicy(gaussian)
+    actor = Actor(len(states), in_dim, act_dim, config.hidden_sizes, **net,
+                  batch_norm=config.batch_norm_momentum if config.batch_norm else None)
+    load_agent_slices(actor, [s["actor"] for s in states])
+    return actor

@@ -42,6 +42,7 @@ from ddpg_her.buffer import (
     relabel,
 )
 from ddpg_her.config import BEFORE, AgentConfig
+from ddpg_her.ensemble import make_buffer, spec_entry, task_partitions
 from ddpg_her.exploration import Explorer, TorchExplorer
 from ddpg_her.runfolder import FORMAT, RunFolder, RunFolderError, git_revision, versions
 from ddpg_her.spaces import goal_input
@@ -190,9 +191,11 @@ class Trainer:
 
         self.agent = make_agent(
             config, self.layout.in_dim, self.layout.act_dim, dtype=dtype, device=self.device,
-            init_generators=[torch.Generator().manual_seed(stream_seed(s, _INIT)) for s in seeds])
-        self.buffer = ReplayBuffer(self.k, config.buffer_size, self.layout, dtype=dtype,
-                                   device=self.device)
+            init_generators=[torch.Generator().manual_seed(stream_seed(s, _INIT)) for s in seeds],
+            partitions=task_partitions(env_id, per_agent, config.ensemble)
+            if config.ensemble > 1 else None)
+        self.buffer: ReplayBuffer = make_buffer(config, self.k, self.layout, self.agent,
+                                                dtype=dtype, device=self.device)
         self.rngs = [np.random.default_rng(stream_seed(s, _EXPLORE)) for s in seeds]
         self.sample_generators = [
             torch.Generator(self.device).manual_seed(stream_seed(s, _SAMPLE)) for s in seeds]
@@ -224,7 +227,7 @@ class Trainer:
     def _spec(self, k: int, command: Sequence[str] | None) -> dict[str, Any]:
         """Agent k's ``spec.json``: the same whether it trains alone or beside others."""
         backend = {} if self.env_backend == "numpy" else {"env_backend": self.env_backend}
-        return {**backend,
+        return {**backend, **spec_entry(self.agent, k),
             "format": FORMAT,
             "env_id": self.env_id,
             "env_kwargs": self.env_kwargs[k],
@@ -536,6 +539,7 @@ class Trainer:
     def learn(self, updates: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``updates`` steps of every agent (its --algo); mean critic and actor losses (K,)."""
         losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
+        updates //= self.config.ensemble  # each steps all M members: the M share the budget
         for _ in range(updates):
             batch = self.buffer.sample(self.config.batch_size, self.sample_generators)
             critic_loss, actor_loss = self.agent.update(*batch)

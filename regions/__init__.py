@@ -23,6 +23,8 @@ from ur5kin.lazy import lazy_attributes
 _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("CoverageRow", "VoxelWorkspace", "WorkspaceSamples", "coverage_row",
                      "sample_workspace"), "regions.coverage"),
+    **dict.fromkeys(("KMEANS", "KMeansSettings", "Partition", "fit_partition", "kmeans",
+                     "nearest_cell"), "regions.partition"),
     **dict.fromkeys(("reach_ball", "reach_radius"), "regions.reach"),
     **dict.fromkeys(("CONSTRAINED_START", "DEFAULT_BASE_HEIGHT", "PAPER_REGIONS",
                      "UNCONSTRAINED_REGION", "UNCONSTRAINED_START", "default_start", "get",

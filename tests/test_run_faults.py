@@ -119,6 +119,7 @@ AGENT_FLAGS = {
     "td3_policy_delay": (["3", "--algo", "td3"], 3),
     "sac_init_alpha": (["0.5", "--algo", "sac"], 0.5),
     "sac_alpha_lr": (["0.001", "--algo", "sac"], 0.001),
+    "ensemble": (["2"], 2),
 }
 """For each AgentConfig flag, a value other than the default and what spec.json must record
 ([]: a switch, given as --FLAG where its default is off and as --no-FLAG where it is on)."""
@@ -523,7 +524,7 @@ BAD_AGENT_VALUES = {
         "td3_target_noise_clip", "sac_init_alpha", "sac_alpha_lr")},
     **{name: [float("nan"), 10.5, True, "10"] for name in (
         "buffer_size", "batch_size", "episodes", "eval_every", "eval_episodes", "her_k",
-        "warmup_episodes", "updates_per_episode", "td3_policy_delay")},
+        "warmup_episodes", "updates_per_episode", "td3_policy_delay", "ensemble")},
     "hidden_sizes": ["12", [400.5, 300], [400, True], [400], None],
     "normalize_obs": ["false", 0, None],
     "flush_denormals": ["true", 1, None],
