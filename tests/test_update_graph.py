@@ -239,3 +239,35 @@ def test_a_trainer_with_the_graph_step_records_it_and_resumes_exactly(tmp_path):
     c = RunFolder(tmp_path / "off").load_checkpoint(12)
     assert "sample_counter" not in c["rng"]
     assert not torch.equal(a["agent"]["actor"]["l1.weight"], c["agent"]["actor"]["l1.weight"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_on_cuda_the_replayed_graph_equals_the_same_step_run_eagerly():
+    """The graph (3 warm-up updates, a capture, replays) against UpdateStep's eager loop on
+    the same device, float64, across new rows stored between runs (read through
+    ReplayBuffer.filled by the captured kernels)."""
+    def on_cuda():
+        agent, buffer = stack()
+        agent2 = DDPG(agent.config, IN, ACT, init_generators=[torch.Generator().manual_seed(i)
+                                                              for i in range(3)],
+                      dtype=torch.float64, device="cuda")
+        buffer2 = ReplayBuffer(3, 40, LAYOUT, dtype=torch.float64, device="cuda")
+        for k in range(3):
+            first, rows = buffer.since(k, 0)
+            buffer2.put(k, first, rows)
+            agent2.normalizer.update(k, rows[:, :IN])
+        return agent2, buffer2
+
+    (a, abuf), (b, bbuf) = on_cuda(), on_cuda()
+    graphed = UpdateStep(a, abuf, [1, 2, 3], 16, graph=True)
+    eager = UpdateStep(b, bbuf, [1, 2, 3], 16, graph=False)
+    new = np.random.default_rng(1).normal(size=(12, LAYOUT.width))
+    for run in range(3):
+        la, lb = graphed.run(10), eager.run(10)
+        torch.testing.assert_close(la, lb, rtol=0, atol=1e-12)
+        for p, q in zip(a._lerp_online + a._lerp_target, b._lerp_online + b._lerp_target,
+                        strict=True):
+            torch.testing.assert_close(p, q, rtol=0, atol=1e-12)
+        for buf in (abuf, bbuf):
+            buf.add(run % 3, new)
+    assert graphed._cuda_graph is not None and int(graphed.sampler.counter) == 30
