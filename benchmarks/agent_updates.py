@@ -262,7 +262,8 @@ def measure_graph(k: int, env_id: str, env_kwargs: dict[str, Any], config: Agent
                   ) -> dict[str, Any]:
     """One stack of ``k`` agents under ``--update-graph on`` and ``off``, alternating rounds of
     ``updates`` updates (minibatch draws included): agent-updates/s of each (medians), and
-    ``graph_speedup``, the median of the rounds' off/on time ratios. The two stacks hold the
+    ``graph_speedup``, the median of the rounds' off/on time ratios (and their quartiles,
+    ``graph_speedup_quartiles``). The two stacks hold the
     same agents on the same buffers (same seeds); only the update's path differs."""
     paths = {mode: _Ours(k, env_id, env_kwargs, config, fill_episodes, device, mode)
              for mode in ("on", "off")}
@@ -274,13 +275,15 @@ def measure_graph(k: int, env_id: str, env_kwargs: dict[str, Any], config: Agent
     finally:
         for ours in paths.values():
             ours.close()
+    ratios = [off / on for on, off in zip(times["on"], times["off"], strict=True)]
     return {"graph_agents": k, "graph_rounds": rounds,
             "graph_agent_updates_per_s": k * updates / statistics.median(times["on"]),
             "eager_agent_updates_per_s": k * updates / statistics.median(times["off"]),
             "graph_ms_per_update": 1e3 * statistics.median(times["on"]) / updates,
             "eager_ms_per_update": 1e3 * statistics.median(times["off"]) / updates,
-            "graph_speedup": statistics.median(
-                off / on for on, off in zip(times["on"], times["off"], strict=True))}
+            "graph_speedup": statistics.median(ratios),
+            "graph_speedup_quartiles": statistics.quantiles(ratios, n=4)[::2]
+            if len(ratios) > 1 else [ratios[0], ratios[0]]}
 
 
 ROLLOUT_REGIONS = ("unconstrained", "zheight", "closebox", "farbox")
