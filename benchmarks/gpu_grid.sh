@@ -47,7 +47,8 @@ grid_command() {
 prepare() {
     [[ -f .devsite.tgz ]] || bash ../shared/tools/device-site.sh
     local tree carry
-    tree=$(git ls-files -z --cached --others --exclude-standard | du -cb --files0-from=- 2>/dev/null \
+    tree=$(git ls-files -z --cached --others --exclude-standard -- . ':!.devsite.tgz' \
+           | du -cb --files0-from=- 2>/dev/null \
            | tail -1 | cut -f1)
     carry=$(stat -c %s .devsite.tgz)
     echo "working tree $((tree / 1048576)) MiB + .devsite.tgz $((carry / 1048576)) MiB" \
