@@ -157,6 +157,25 @@ class _AdamStep:
                        and not group.get("decoupled_weight_decay", False)
                        and not torch.is_tensor(group["lr"]) and hasattr(torch, "_fused_adam_"))
         self._state: tuple[list[torch.Tensor], ...] | None = None
+        self.lr: float | torch.Tensor = group["lr"]
+        """The learning rate the kernel gets: the group's float, or after `capturable` a
+        0-dim tensor on the parameters' device that a captured graph reads at each replay."""
+
+    def capturable(self) -> None:
+        """Pass the learning rate as a device tensor from now on, so that a CUDA graph of the
+        step reads it rather than baking a Python float in (Adam's step counts already are
+        device tensors of the fused kernel). float64 on the CPU, where the kernel reads it
+        as the double it gets today (the same bits); float32 on CUDA, the only dtype of the
+        CUDA kernel's tensor learning rate (Table I's 1e-4 and 1e-3 move by 2.5e-8 and 4.7e-8
+        relative, below float32 parameters' own rounding of 6e-8)."""
+        if not self.direct:
+            raise ValueError(
+                "a capturable Adam step needs torch's fused Adam kernel (torch._fused_adam_, "
+                "one parameter group); this torch or optimiser takes opt.step() instead")
+        device = self.opt.param_groups[0]["params"][0].device
+        dtype = torch.float64 if device.type == "cpu" else torch.float32
+        self.lr = torch.tensor(float(self.opt.param_groups[0]["lr"]), dtype=dtype,
+                               device=device)
 
     def reset(self) -> None:
         self._state = None
@@ -176,7 +195,7 @@ class _AdamStep:
         beta1, beta2 = g["betas"]
         torch._foreach_add_(steps, 1)
         torch._fused_adam_(params, grads, exp_avg, exp_avg_sq, [], steps, amsgrad=False,
-                           lr=g["lr"], beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"],
+                           lr=self.lr, beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"],
                            eps=g["eps"], maximize=False, grad_scale=None, found_inf=None)
 
 
@@ -233,6 +252,23 @@ class DDPG:
         actor units [-1, 1]. ``explore`` changes nothing: DDPG's exploration is the trainer's
         noise on top (a stochastic policy, SAC's, samples itself)."""
         return self.actor(self.normalizer(x))
+
+    def capturable(self) -> None:
+        """Make `update` safe to capture as a CUDA graph: the Adam steps take their learning
+        rates as device tensors (`_AdamStep.capturable`). The rest of the hand-written update
+        already reads only device tensors (parameters, gradients, Adam's moments and step
+        counts, the normaliser's mean and std, all updated in place) and Python constants of
+        the config; ``tests/test_update_graph.py`` proves it by compiling the update with
+        ``torch.compile(fullgraph=True)``. On the CPU the update stays bit for bit the same.
+
+        Raises ValueError with ``batch_norm`` (its update goes through autograd) or without
+        torch's fused Adam kernel.
+        """
+        if self.config.batch_norm:
+            raise ValueError("a capturable update needs the hand-written DDPG update; "
+                             "batch_norm trains through autograd")
+        self._actor_step.capturable()
+        self._critic_step.capturable()
 
     @torch.no_grad()
     def update(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor, x2: torch.Tensor,

@@ -203,6 +203,10 @@ class ReplayBuffer:
         self.k, self.capacity, self.layout = k, capacity, layout
         self.rows = torch.empty(k, capacity, layout.width, dtype=dtype, device=device)
         self.total = np.zeros(k, dtype=np.int64)
+        self.filled = torch.zeros(k, dtype=torch.int64, device=device)
+        """(K,) rows stored per agent, ``min(total, capacity)``, on the device: what
+        `CounterSampler` reads, so a captured update sees each episode's new rows without a
+        host value baked into it."""
         self._agents = torch.arange(k, device=device)[:, None]
 
     def size(self, k: int) -> int:
@@ -217,6 +221,7 @@ class ReplayBuffer:
         self.rows[k, torch.from_numpy(pos).to(self.rows.device)] = torch.from_numpy(
             np.asarray(rows)).to(self.rows)
         self.total[k] = max(self.total[k], start + len(rows))
+        self.filled[k] = self.size(k)
 
     def put_tensor(self, k: int, start: int, rows: torch.Tensor) -> None:
         """`put` of rows already on the buffer's device; the positions are computed there."""
@@ -226,6 +231,7 @@ class ReplayBuffer:
         pos = (start + torch.arange(len(rows), device=self.rows.device)) % self.capacity
         self.rows[k, pos] = rows.to(self.rows)
         self.total[k] = max(self.total[k], start + len(rows))
+        self.filled[k] = self.size(k)
 
     def add(self, k: int, rows: np.ndarray) -> None:
         """Append ``rows : (L, width)`` to agent k's buffer."""
@@ -246,3 +252,100 @@ class ReplayBuffer:
             for k, g in enumerate(generators)
         ])
         return self.layout.split(self.rows[self._agents, idx])
+
+
+MASK32 = 0xFFFFFFFF
+"""The low 32 bits: `mix32` keeps every value below 2**32, so a product with a constant below
+2**31 stays below 2**63 and no int64 operation overflows (on any device, compiled or not)."""
+
+MIX32_CONSTANTS = (0x21F0AAAD, 0x735A2D97)
+"""The multipliers of `mix32` (C. Wellons's "lowbias32" of 2021, shifts 16, 15, 15), both
+below 2**31."""
+
+
+def mix32(x: torch.Tensor | int) -> torch.Tensor | int:
+    """A bijective 32-bit integer hash: x ^= x >> 16; x *= c1; x ^= x >> 15; x *= c2;
+    x ^= x >> 15, products taken mod 2**32. x : int64 values in [0, 2**32) (a tensor of any
+    shape, or a Python int: the tests' reference) -> the same shape and range."""
+    c1, c2 = MIX32_CONSTANTS
+    x = x ^ (x >> 16)
+    x = (x * c1) & MASK32
+    x = x ^ (x >> 15)
+    x = (x * c2) & MASK32
+    return x ^ (x >> 15)
+
+
+def counter_draws(keys: torch.Tensor | int, counter: torch.Tensor | int,
+                  slots: torch.Tensor | int) -> torch.Tensor | int:
+    """62 random bits for (key, counter, slot): a counter-based generator (as Philox is, but
+    built from `mix32`), so a draw is a pure function of its coordinates, the same on every
+    device, and its state is one integer.
+
+    ``h(j) = mix32(mix32(mix32(key) ^ counter) ^ j)`` for j = 2 slot and 2 slot + 1, and the
+    draw ``(h(2 slot) >> 2) << 32 | h(2 slot + 1)``, in [0, 2**62). keys, counter : int64 values
+    in [0, 2**32) (the counter taken mod 2**32), slots : in [0, 2**31), all broadcasting
+    together (or Python ints).
+    """
+    base = mix32(mix32(keys) ^ (counter & MASK32))
+    hi = mix32(base ^ (2 * slots))
+    lo = mix32(base ^ (2 * slots + 1))
+    return ((hi >> 2) << 32) | lo
+
+
+class CounterSampler:
+    """Uniform replay minibatches drawn on the buffer's device with no host value per draw.
+
+    Agent k's j-th index of update c is ``counter_draws(keys[k], c, j) % filled[k]`` (the
+    modulo's bias is below filled / 2**62). ``counter`` is a device tensor that every `sample`
+    advances in place, so a CUDA graph replays a fresh minibatch each time, and agent k's
+    draws depend on its key and the update count alone (not on K, nor on the device). This is
+    the minibatch stream of ``--update-graph on``; `ReplayBuffer.sample` (torch generators,
+    one per agent) stays the default's.
+
+    keys : one 32-bit key per agent (``ddpg_her.trainer`` derives them from the seeds).
+    """
+
+    def __init__(self, keys: Sequence[int], device: str | torch.device):
+        bad = [k for k in keys if not 0 <= int(k) <= MASK32]
+        if bad or not keys:
+            raise ValueError(f"need one key in [0, 2**32) per agent, got {list(keys)}")
+        self.keys = torch.tensor([int(k) for k in keys], dtype=torch.int64,
+                                 device=device)[:, None]
+        self._mixed_keys = mix32(self.keys)
+        self._pairs: dict[int, torch.Tensor] = {}
+        self.counter = torch.zeros((), dtype=torch.int64, device=device)
+        self.updates = 0
+        """The host's count of the draws made, kept equal to ``counter`` by its caller
+        (`ddpg_her.update_graph.UpdateStep`), so a checkpoint never reads the device."""
+
+    def indices(self, filled: torch.Tensor, batch_size: int) -> torch.Tensor:
+        """(K, batch_size) int64 row indices, row < filled[k], for the current counter (which
+        this does not advance). filled : (K,) int64 >= 1 on the device.
+
+        `counter_draws` with its two hashes of a slot in one pass over (K, 2 batch_size) and
+        the keys' first hash kept from the start: 27 small kernels instead of 52 (each costs
+        about as much as its arithmetic on the CPU, and is a node of a CUDA graph)."""
+        j = self._pairs.get(batch_size)
+        if j is None:  # 0, 1, ..., 2 batch_size - 1: the hashes' inputs 2 slot and 2 slot + 1
+            j = self._pairs[batch_size] = torch.arange(2 * batch_size, dtype=torch.int64,
+                                                       device=self.keys.device)
+        h = mix32(mix32(self._mixed_keys ^ (self.counter & MASK32)) ^ j).view(
+            len(self.keys), batch_size, 2)
+        return (((h[..., 0] >> 2) << 32) | h[..., 1]) % filled[:, None]
+
+    def sample(self, buffer: ReplayBuffer, batch_size: int) -> tuple[torch.Tensor, ...]:
+        """`ReplayBuffer.sample`'s x, u, r, x2, terminated (K, batch, ...) from this stream;
+        advances ``counter`` on the device only (a captured graph replays this without
+        Python: whoever replays it adds to ``updates``). Every agent needs a stored row (not
+        checked here: that would read the device)."""
+        idx = self.indices(buffer.filled, batch_size)
+        self.counter.add_(1)
+        return buffer.layout.split(buffer.rows[buffer._agents, idx])
+
+    def state(self) -> int:
+        """The update count, for a checkpoint (the keys come from the seeds)."""
+        return self.updates
+
+    def load_state(self, updates: int) -> None:
+        self.updates = int(updates)
+        self.counter.fill_(self.updates)

@@ -74,6 +74,16 @@ def add_process_flags(group: Any, what: str) -> None:
                             "rollout, HER and replay stay on the device. Its exploration "
                             "noise comes from torch generators: the same seed explores "
                             "otherwise than under 'numpy'")
+    group.add_argument("--update-graph", choices=["auto", "on", "off"], default="auto",
+                       help="how the updates run (default: auto, which is 'on' for --device "
+                            "cuda with --algo ddpg without --batch-norm, else 'off'): 'on', each "
+                            "stacked update (minibatch draw, critic and actor steps, target "
+                            "update) is one device step with no host synchronisation, captured "
+                            "once as a CUDA graph and replayed on cuda, run eagerly on the cpu; "
+                            "its minibatches come from a counter-based stream on the device, "
+                            "so a seed trains otherwise than under 'off', and spec.json "
+                            "records update_graph 'on' (a run resumes only with its own "
+                            "setting). 'off', the update loop of earlier runs")
     group.add_argument("--threads", type=int, default=None,
                        help="torch CPU threads (count, >= 1; default: torch's choice)")
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -158,7 +168,8 @@ class Request:
     """What the command should say about the request (a budget kept on resume), or None."""
 
 
-PROCESS_FLAGS = ("resume", "device", "env_backend", "threads", "no_progress", "no_tensorboard")
+PROCESS_FLAGS = ("resume", "device", "env_backend", "update_graph", "threads", "no_progress",
+                 "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
 
 
@@ -344,7 +355,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"({type(e).__name__}: {e})")
     trainer = build_trainer(parser, lambda: Trainer(
         args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
-        env_backend=args.env_backend, progress=not args.no_progress,
+        env_backend=args.env_backend, update_graph=args.update_graph,
+        progress=not args.no_progress,
         tensorboard=not args.no_tensorboard,
         command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
     rows = run_to_end(trainer)

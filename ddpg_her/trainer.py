@@ -46,6 +46,8 @@ from ddpg_her.ensemble import make_buffer, spec_entry, task_partitions
 from ddpg_her.exploration import Explorer, TorchExplorer
 from ddpg_her.runfolder import FORMAT, RunFolder, RunFolderError, git_revision, versions
 from ddpg_her.spaces import goal_input
+from ddpg_her.update_graph import UpdateStep
+from ddpg_her.update_graph import resolve as resolve_update_graph
 from ddpg_her.vecenv import GoalVecEnv, TorchGoalVecEnv, rollout, torch_rollout
 
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
@@ -140,13 +142,16 @@ class Trainer:
     `ENV_BACKENDS`. With ``torch``, exploration draws from torch generators on the device
     (`TorchExplorer`), so the same seed explores otherwise than with ``numpy``; with no
     exploration draws (no warm-up, rate 0) the two backends train alike to rounding (tested).
+    update_graph : ``auto``, ``on`` or ``off`` (`ddpg_her.update_graph.MODES`); on, the updates
+    run as one device step (`UpdateStep`, a CUDA graph on CUDA) with their own minibatch stream.
     """
 
     def __init__(self, env_id: str, env_kwargs: dict[str, Any] | Sequence[dict[str, Any]],
                  config: AgentConfig, seeds: Sequence[int], run_dirs: Sequence[str | Path], *,
                  resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
-                 command: Sequence[str] | None = None, env_backend: str = "numpy"):
+                 command: Sequence[str] | None = None, env_backend: str = "numpy",
+                 update_graph: str = "off"):
         if env_backend not in ENV_BACKENDS:
             raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
                              f"{env_backend!r}")
@@ -204,6 +209,12 @@ class Trainer:
             torch.Generator(self.device).manual_seed(stream_seed(s, _EXPLORE)) for s in seeds]
         self.torch_explorer = TorchExplorer(config, self.explore_generators, envs.scale.dim,
                                             self.device)
+        # --update-graph (ddpg_her.update_graph): the updates as one device step, minibatches
+        # from a counter-based stream keyed by the sampling seeds; None: `learn`'s own loop
+        self.update_step = UpdateStep(
+            self.agent, self.buffer, [stream_seed(s, _SAMPLE) for s in seeds],
+            config.batch_size) if resolve_update_graph(update_graph, self.device, config) \
+            else None
 
         self.episode = 0
         self.env_steps = np.zeros(self.k, dtype=np.int64)
@@ -227,7 +238,8 @@ class Trainer:
     def _spec(self, k: int, command: Sequence[str] | None) -> dict[str, Any]:
         """Agent k's ``spec.json``: the same whether it trains alone or beside others."""
         backend = {} if self.env_backend == "numpy" else {"env_backend": self.env_backend}
-        return {**backend, **spec_entry(self.agent, k),
+        graph = {} if self.update_step is None else {"update_graph": "on"}
+        return {**backend, **graph, **spec_entry(self.agent, k),
             "format": FORMAT,
             "env_id": self.env_id,
             "env_kwargs": self.env_kwargs[k],
@@ -249,7 +261,7 @@ class Trainer:
     def _differences(cls, old: dict[str, Any], new: dict[str, Any]) -> list[str]:
         """Keys that make two specs different tasks or agents."""
         diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims",
-                                 "env_backend")
+                                 "env_backend", "update_graph")
                  if not json_equal(old.get(key), new.get(key))]
         # a field added after the run was written reads as what such runs did (config.BEFORE)
         old_agent = {k: v for k, v in {**BEFORE, **old.get("agent", {})}.items()
@@ -260,14 +272,15 @@ class Trainer:
         return diffs
 
     CONFIG_KEYS = ("format", "env_id", "env_kwargs", "task", "seed", "agent", "dims",
-                   "env_backend")
+                   "env_backend", "update_graph")
     """Keys of the spec that each checkpoint carries as its ``config``: what it was trained
     with, compared with the command's on resume."""
 
     def _mismatch(self, where: Any, old: dict[str, Any], new: dict[str, Any]) -> None:
         """Raise ValueError if ``new`` may not continue the run ``old`` (a spec or config)."""
         # a spec records env_backend only when it is not the default; name the default too
-        old, new = ({"env_backend": ENV_BACKENDS[0], **x} for x in (old, new))
+        old, new = ({"env_backend": ENV_BACKENDS[0], "update_graph": "off", **x}
+                    for x in (old, new))
         diffs = self._differences(old, new)
         if diffs:
             raise ValueError(
@@ -379,6 +392,8 @@ class Trainer:
         for k, (f, s) in enumerate(zip(self.folders, states, strict=True)):
             self.rngs[k].bit_generator.state = s["rng"]["explore"]
             self.sample_generators[k].set_state(s["rng"]["sample"])
+            if self.update_step is not None:
+                self.update_step.load_state(s["rng"]["sample_counter"])
             if "explore_torch" in s["rng"]:
                 self.explore_generators[k].set_state(s["rng"]["explore_torch"])
             for start, rows in chunks[k]:
@@ -416,7 +431,9 @@ class Trainer:
                 "rng": {"explore": self.rngs[k].bit_generator.state,
                         "sample": self.sample_generators[k].get_state(),
                         **({"explore_torch": self.explore_generators[k].get_state()}
-                           if self.env_backend == "torch" else {})},
+                           if self.env_backend == "torch" else {}),
+                        **({"sample_counter": self.update_step.state()}
+                           if self.update_step is not None else {})},
             })
             f.write_eval(self.rows[k])
             oldest = int(self._kept_totals[0][k]) - self.config.buffer_size
@@ -538,6 +555,8 @@ class Trainer:
 
     def learn(self, updates: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``updates`` steps of every agent (its --algo); mean critic and actor losses (K,)."""
+        if self.update_step is not None:
+            return self.update_step.run(updates)
         losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
         updates //= self.config.ensemble  # each steps all M members: the M share the budget
         for _ in range(updates):
