@@ -83,7 +83,7 @@ def actions(box: Any, rng: np.random.Generator, shape: tuple[int, ...]) -> np.nd
     """Random commands: uniform over 1.5 times the action box (a third outside it)."""
     low, high = np.asarray(box.low, dtype=float), np.asarray(box.high, dtype=float)
     mid, half = (high + low) / 2, (high - low) / 2
-    return mid + 1.5 * half * rng.uniform(-1.0, 1.0, shape + (len(low),))
+    return mid + 1.5 * half * rng.uniform(-1.0, 1.0, (*shape, len(low)))
 
 
 def batched_rollout(fields: dict[str, Any], dynamics: str) -> str:
