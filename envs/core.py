@@ -14,12 +14,11 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-import ur5kin
-from envs.arm import Dynamics, moving_link_heights
 from envs.checks import validate
-from envs.dynamics import ArmDynamics, clip, command_bounds
+from envs.physics import Dynamics, make_dynamics
+from envs.physics.model import clip, moving_link_heights
 from envs.spec import TaskSpec
-from envs.task import ReachTask
+from envs.task import ReachTask, action_bounds, single_spaces
 
 
 class ReachCore:
@@ -31,8 +30,8 @@ class ReachCore:
     num_copies : int
         B.
     dynamics : Dynamics, optional
-        The arm's dynamics for the B copies: any backend of the :class:`envs.arm.Dynamics`
-        protocol (an :class:`envs.dynamics.ArmDynamics` is built when None).
+        The arm's dynamics for the B copies: any backend of the :class:`envs.physics.Dynamics`
+        protocol (the Pinocchio loop, :func:`envs.physics.make_dynamics`, when None).
 
     Attributes
     ----------
@@ -62,8 +61,9 @@ class ReachCore:
         self.task = validate(task)
         n, B = task.n_joints, num_copies
         self.rules = ReachTask(task)
-        self.dynamics = ArmDynamics(task, num_copies) if dynamics is None else dynamics
-        self.action_low, self.action_high = command_bounds(task)
+        self.dynamics: Dynamics = (make_dynamics(task, num_copies, "pinocchio")
+                                   if dynamics is None else dynamics)
+        self.action_low, self.action_high = action_bounds(task)
         self.goal = np.zeros((B, 3))
         self.achieved = np.zeros((B, 3))
         self.observation = np.zeros((B, 3 * n))
@@ -157,26 +157,3 @@ class ReachCore:
         return self.rules.info(action=self.action, distance=self.distance, success=self.success,
                                contact=dyn.contact, joint_limit=dyn.limit_stop,
                                clearance=self.clearance())
-
-
-def single_spaces(task: TaskSpec) -> tuple[gymnasium.spaces.Dict, gymnasium.spaces.Box]:
-    """Observation and action space of one copy of ``task``.
-
-    The observation is a goal-env Dict: ``observation (3n,)`` bounded by the URDF joint
-    position and velocity limits (the dynamics enforce both; the acceleration is
-    unbounded), ``achieved_goal`` and ``desired_goal`` ``(3,)`` unbounded; the action box is
-    :func:`envs.dynamics.command_bounds`. All float64.
-    """
-    model, n = ur5kin.load_model(), task.n_joints
-    vel = ur5kin.velocity_limits()[:n]
-    low = np.concatenate([model.lowerPositionLimit[:n], -vel, np.full(n, -np.inf)])
-    high = np.concatenate([model.upperPositionLimit[:n], vel, np.full(n, np.inf)])
-    box = gymnasium.spaces.Box
-    observation = gymnasium.spaces.Dict({
-        "observation": box(low, high, dtype=np.float64),
-        "achieved_goal": box(-np.inf, np.inf, (3,), np.float64),
-        "desired_goal": box(-np.inf, np.inf, (3,), np.float64),
-    })
-    action_low, action_high = command_bounds(task)
-    return observation, box(np.asarray(action_low, dtype=np.float64),
-                            np.asarray(action_high, dtype=np.float64), dtype=np.float64)
