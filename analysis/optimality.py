@@ -223,16 +223,16 @@ def discounted_returns(task: Any, achieved: np.ndarray, goals: np.ndarray,
     -------
     returns : (...) float
         ``sum_{t < end} gamma^t r_t``, ``r_t`` the reward of step t + 1 (the env's,
-        :meth:`envs.task.ReachTask.reward`), ``end`` the first step after which the episode is
+        :meth:`envs.task.TaskRules.reward`), ``end`` the first step after which the episode is
         terminated (success with ``terminate_on_success``) or T.
     reached : (...) bool
         Whether the episode had a success before it ended.
     steps : (...) int
         The episode's length ``end`` (steps, 1..T).
     """
-    from envs.task import ReachTask
+    from envs.task import TaskRules
 
-    rules = ReachTask(task)
+    rules = TaskRules(task)
     distance = rules.distance(achieved, np.asarray(goals)[..., None, :])  # (..., T)
     reward = rules.reward(distance, np.asarray(actions)[..., None, :])
     success = distance <= task.success_radius
@@ -294,9 +294,9 @@ def env_goals(task: Any, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]
     """
     from gymnasium.utils import seeding
 
-    from envs.task import ReachTask
+    from envs.task import TaskRules
 
-    sampler = ReachTask(task).sampler
+    sampler = TaskRules(task).sampler
     batches = [sampler.sample(1, seeding.np_random(seed + i)[0]) for i in range(count)]
     return (np.concatenate([b.goals for b in batches]).reshape(-1, 3),
             np.concatenate([b.q for b in batches]).reshape(-1, 6))

@@ -11,7 +11,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from envs.core import ReachCore
+from envs.core import TaskCopies
 from envs.physics import make_dynamics
 from envs.render import RENDER_MODES
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec, make_task
@@ -76,7 +76,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         self.render_mode = render_mode
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
                          "render_fps": self.task.control_hz}
-        self._core = ReachCore(self.task, self.num_envs,
+        self._core = TaskCopies(self.task, self.num_envs,
                                make_dynamics(self.task, self.num_envs, dynamics, device,
                                              threads))
         self.single_observation_space, self.single_action_space = self._core.single_spaces()
@@ -209,10 +209,10 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode")
             return None
-        from envs.render import ReachRenderer
+        from envs.render import ArmRenderer
 
         while len(self._renderers) < self.num_envs:
-            self._renderers.append(ReachRenderer(self.task, human=self.render_mode == "human"))
+            self._renderers.append(ArmRenderer(self.task, human=self.render_mode == "human"))
         core = self._core
         frames = tuple(r.draw(core.dynamics.q[i], core.goal[i], success=bool(core.success[i]),
                               contact=bool(core.dynamics.contact[i]))

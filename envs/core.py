@@ -3,7 +3,7 @@
 The single env (:class:`envs.reach.UR5ReachEnv`, B = 1) and the batched one
 (:class:`envs.batched.BatchedReach`) are thin Gymnasium faces over this one class, so they
 cannot drift apart. The task's rules (goals, reward, episode end, step information) are
-:class:`envs.task.ReachTask`'s; this class holds the arrays and calls it.
+:class:`envs.task.TaskRules`'s; this class holds the arrays and calls it.
 """
 
 from __future__ import annotations
@@ -14,14 +14,13 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from envs.checks import validate
 from envs.physics import Dynamics, make_dynamics
 from envs.physics.model import clip, moving_link_heights
 from envs.spec import TaskSpec
-from envs.task import ReachTask, action_bounds, single_spaces
+from envs.task import TaskRules, action_bounds, single_spaces
 
 
-class ReachCore:
+class TaskCopies:
     """B copies of the task, stepped together.
 
     Parameters
@@ -35,7 +34,7 @@ class ReachCore:
 
     Attributes
     ----------
-    rules : ReachTask
+    rules : TaskRules
         Goal sampling, reward, termination and the step information of ``task``.
     goal : (B, 3) float, m, world frame
         Desired goals.
@@ -58,11 +57,12 @@ class ReachCore:
 
     def __init__(self, task: TaskSpec, num_copies: int, dynamics: Dynamics | None = None
                  ) -> None:
-        self.task = validate(task)
         n, B = task.n_joints, num_copies
-        self.rules = ReachTask(task)
+        # first: the dynamics check the task against the robot (envs.validate, once per env)
         self.dynamics: Dynamics = (make_dynamics(task, num_copies, "pinocchio")
                                    if dynamics is None else dynamics)
+        self.task = task
+        self.rules = TaskRules(task)
         self.action_low, self.action_high = action_bounds(task)
         self.goal = np.zeros((B, 3))
         self.achieved = np.zeros((B, 3))
@@ -152,7 +152,7 @@ class ReachCore:
         return moving_link_heights(self.dynamics.q, self.task.base_height).min(axis=-1)
 
     def info_arrays(self) -> dict[str, Any]:
-        """Per-copy step information now, :meth:`envs.task.ReachTask.info` of the B copies."""
+        """Per-copy step information now, :meth:`envs.task.TaskRules.info` of the B copies."""
         dyn = self.dynamics
         return self.rules.info(action=self.action, distance=self.distance, success=self.success,
                                contact=dyn.contact, joint_limit=dyn.limit_stop,

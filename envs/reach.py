@@ -8,7 +8,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from envs.core import ReachCore
+from envs.core import TaskCopies
 from envs.physics import Dynamics
 from envs.render import RENDER_MODES
 from envs.spec import TaskSpec, make_task
@@ -155,7 +155,7 @@ class UR5ReachEnv(gymnasium.Env):
         task, n = self.task, self.task.n_joints
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": task.control_hz}
-        self._core = ReachCore(task, 1)
+        self._core = TaskCopies(task, 1)
         self.observation_space, self.action_space = self._core.single_spaces()
         self._n = n
         self._renderer: Any = None
@@ -253,9 +253,9 @@ class UR5ReachEnv(gymnasium.Env):
                                   "render_mode='rgb_array' or 'human' to gymnasium.make")
             return None
         if self._renderer is None:
-            from envs.render import ReachRenderer
+            from envs.render import ArmRenderer
 
-            self._renderer = ReachRenderer(self.task, human=self.render_mode == "human")
+            self._renderer = ArmRenderer(self.task, human=self.render_mode == "human")
         core, task = self._core, self.task
         title = (f"{self._renderer.region_name()}, {task.n_joints} joints: "
                  f"t = {core.elapsed[0] * task.dt:.2f} s, d = {core.distance[0]:.3f} m")

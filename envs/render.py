@@ -45,7 +45,7 @@ class RenderConfig:
     """Colour of the arm in a step that ended on the plane."""
 
 
-class ReachRenderer:
+class ArmRenderer:
     """Draws one copy of the task.
 
     Parameters

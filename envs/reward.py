@@ -68,18 +68,22 @@ def checked_goals(achieved_goal: Any, desired_goal: Any) -> tuple[np.ndarray, np
     return a, d
 
 
-def goal_distance(achieved_goal: Any, desired_goal: Any) -> np.ndarray:
-    """Euclidean distance between goals (unchecked: see :func:`checked_goals`).
+def goal_distance(achieved_goal: Any, desired_goal: Any) -> Any:
+    """Euclidean distance between goals (unchecked: see :func:`checked_goals`), for numpy
+    arrays and torch tensors alike.
 
     Parameters
     ----------
-    achieved_goal, desired_goal : (..., 3) float array_like, m, world frame
+    achieved_goal, desired_goal : (..., 3) float array_like or tensors, m, world frame
         Broadcast against each other.
 
     Returns
     -------
-    d : (...) float, m
+    d : (...) float64 array, or tensor of the goals' dtype and device, m
     """
+    if hasattr(achieved_goal, "sqrt"):  # a torch tensor: its dtype and device
+        diff = achieved_goal - desired_goal
+        return (diff * diff).sum(-1).sqrt()
     diff = np.subtract(achieved_goal, desired_goal, dtype=np.float64)
     return np.sqrt(np.square(diff).sum(axis=-1))
 
@@ -131,7 +135,7 @@ def _missing_action() -> ValueError:
 
 def reach_reward(distance: Any, action: Any, task: TaskSpec, scale: Any) -> Any:
     """The task's reward (eq. 2), unchecked, for numpy arrays and torch tensors alike: the one
-    definition the envs (:class:`envs.task.ReachTask`, :class:`envs.torchreach.TorchReach`),
+    definition the envs (:class:`envs.task.TaskRules`, :class:`envs.torchreach.TorchReach`),
     :func:`envs.task.compute_reward` and the studies read.
 
     Parameters

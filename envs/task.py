@@ -1,15 +1,17 @@
-"""The Reacher's task rules in one place: goal sampling, reward, termination, step information.
+"""The Reacher's task rules in one place: goal sampling, the action box and the spaces, reward,
+success and termination, step information, what an env does with an ended episode.
 
-:class:`ReachTask` is the task half of the env in panda-gym's sense (its ``Task`` beside the
+:class:`TaskRules` is the task half of the env in panda-gym's sense (its ``Task`` beside the
 ``Robot``): it knows the goal region, the reward and when an episode ends, and nothing of the
-arm's motion. :class:`envs.core.ReachCore` calls it on every reset and step, and the single
+arm's motion. :class:`envs.core.TaskCopies` calls it on every reset and step, and the single
 env (:class:`envs.reach.UR5ReachEnv`) and the batched one (:class:`envs.batched.BatchedReach`)
 take their GoalEnv functions (``compute_reward``, ``compute_terminated``) and their ``info``
-from it, so the rules are written once.
+from it, so the rules are written once; the torch env and the studies read the same functions.
 
-The step kernels (:meth:`ReachTask.is_success`, :meth:`ReachTask.reward`,
-:meth:`ReachTask.terminated`) take values the env made itself and do not check them; the GoalEnv
-functions check what a caller passes (see :mod:`envs.reward`).
+The step kernels (:meth:`TaskRules.is_success`, :meth:`TaskRules.reward`,
+:meth:`TaskRules.terminated`) take values the env made itself and do not check them; the GoalEnv
+functions (:func:`compute_reward`, :func:`compute_success`) check what a caller passes with
+:mod:`envs.reward`'s checks.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from envs.reward import (
 from envs.spec import TaskSpec
 
 INFO_KEYS = (ACTION_KEY, "distance", "is_success", "contact", "joint_limit", "clearance")
-"""Keys of the step information, in order (see :meth:`ReachTask.info`)."""
+"""Keys of the step information, in order (see :meth:`TaskRules.info`)."""
 
 RESET_INFO_KEYS = ("distance", "is_success", "clearance")
 """Keys of the single env's reset information (a subset of :data:`INFO_KEYS`)."""
@@ -192,13 +194,13 @@ def compute_success(achieved_goal: Any, desired_goal: Any, task: TaskSpec) -> np
     return goal_distance(*checked_goals(achieved_goal, desired_goal)) <= task.success_radius
 
 
-class ReachTask:
+class TaskRules:
     """Goals, reward, episode end and step information of one :class:`TaskSpec`.
 
     Parameters
     ----------
     spec : TaskSpec
-        The task (checked by the caller: :class:`envs.core.ReachCore` runs
+        The task (checked by the caller: :class:`envs.core.TaskCopies` runs
         :func:`envs.validate` before building this).
 
     Attributes
@@ -250,7 +252,7 @@ class ReachTask:
 
     def terminated(self, success: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Whether episodes end on this step, ``(...) bool``: a success, when the task has
-        ``terminate_on_success`` (truncation is the step count's, see :class:`ReachCore`)."""
+        ``terminate_on_success`` (truncation is the step count's, see :class:`TaskCopies`)."""
         return np.logical_and(success, self.spec.terminate_on_success, out=out)
 
     # ------------------------------------------------------------------ GoalEnv functions

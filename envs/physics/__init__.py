@@ -36,7 +36,7 @@ RENAMED_BACKENDS = {"fast": "numba", "torch-cuda": "torch"}
 
 
 class Dynamics(Protocol):
-    """What every dynamics backend of B arm copies offers the env (:class:`envs.core.ReachCore`).
+    """What every dynamics backend of B arm copies offers the env (:class:`envs.core.TaskCopies`).
 
     A backend is built as ``Backend(task, num_copies, ...)`` with the copies at rest at
     ``task.start_q``.
@@ -88,8 +88,9 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
                   threads: int = 1) -> Dynamics:
     """The arm dynamics of ``num_copies`` copies of ``task``: the one place a backend is chosen.
 
-    ``task`` is checked by the caller (:func:`envs.validate`, once per env). The backends are
-    imported here, on first use: torch only for ``torch``, numba only for ``numba``.
+    Every backend checks ``task`` against the robot (:func:`envs.validate`): the one check of
+    an env. The backends are imported here, on first use: torch only for ``torch``, numba only
+    for ``numba``.
 
     Parameters
     ----------

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
+from envs.checks import validate
 from envs.physics.model import (
     NJ,
     arm_model,
@@ -377,7 +378,7 @@ def _link_heights(q, vh, bounds, lift, wrist, base_height, feat, out
                   ):  # pragma: no cover - compiled
     """``out[k - 1]``: exact lowest point (m, world z) of moving link k = 1..6 at ``q``.
 
-    The features and the product of :func:`ur5kin.collision._exact`, written out.
+    The features and the product of :func:`ur5kin.link_heights`, written out.
     """
     a = q[1] + lift
     b = a + q[2]
@@ -640,7 +641,7 @@ class NumbaDynamics:
                              f"machine); got {threads!r}")
         name = _dtype_name(dtype)
         cast = DTYPES[name]
-        self.task, self.num_copies, self.dtype = task, int(num_copies), name
+        self.task, self.num_copies, self.dtype = validate(task), int(num_copies), name
         self.threads = int(threads)
         B = self.num_copies
         arm = self.arm = arm_model(task)

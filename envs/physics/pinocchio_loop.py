@@ -26,6 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 import ur5kin
+from envs.checks import validate
 from envs.physics.model import (
     arm_model,
     clip,
@@ -197,7 +198,7 @@ class PinocchioDynamics:
     def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-        self.task = task
+        self.task = validate(task)
         B, S, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
         self.num_copies = B
         base = ur5kin.load_model()

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 import ur5kin
+from envs.checks import validate
 from envs.physics.model import (
     NJ,
     ChainModel,
@@ -299,7 +300,7 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
 
 def plane_heights(q: torch.Tensor, plane: TorchPlane, base_height: float) -> torch.Tensor:
     """Lowest point ``(B, 6)`` (m, world z) of each moving link at ``q (B, 6)`` rad: the 13
-    trigonometric features of :func:`ur5kin.collision._features` times the vertex table, the
+    trigonometric features (:data:`ur5kin.collision.FEATURES`) times the vertex table, the
     minimum per link (the numba kernel's ``_link_heights``)."""
     a = q[:, 1] + plane.lift_offset
     b = a + q[:, 2]
@@ -452,7 +453,8 @@ class TorchDynamics:
             raise ValueError(f"cuda_graph=True needs a CUDA device and compile=False; got "
                              f"device {str(device)!r}, compile={compile!r}")
         cast = _dtype(dtype)
-        self.task, self.num_copies, self.device, self.dtype = task, int(num_copies), device, cast
+        self.task, self.num_copies = validate(task), int(num_copies)
+        self.device, self.dtype = device, cast
         B = self.num_copies
         arm = self.arm = arm_model(task)
         # time-scaled units (envs.physics.model): gravity and torques * h^2, velocities w = h v
@@ -643,7 +645,7 @@ class TorchDynamics:
 class HostMirror:
     """A :class:`TorchDynamics` behind NumbaDynamics' numpy interface, for the env.
 
-    :class:`envs.core.ReachCore` reads ``q``, ``v``, ``acceleration``, ``contact`` and
+    :class:`envs.core.TaskCopies` reads ``q``, ``v``, ``acceleration``, ``contact`` and
     ``limit_stop`` as numpy arrays and has ``tool_positions`` write into one; this view copies
     the state to float64 host arrays after every step and reset (on CUDA a device-to-host copy,
     hence a sync, per step: the price of a numpy env around GPU dynamics).
