@@ -152,41 +152,14 @@ class TorchReach:
     (``dynamics="numba"``) to floating-point rounding (tested to 1e-9 in float64); with
     ``goal_source="per_copy"`` the same seed gives the same goals too.
 
-    Action Space
-    ------------
-    ``(N, n)`` tensor, the commands of joints 1..n in the control mode's unit (rad, rad/s or
-    N m; :func:`envs.task.action_bounds`), clipped to that box. Must be finite (unchecked).
-
-    Observation Space
-    -----------------
-    A dict of tensors, BatchedReach's layout:
-
-    ===============  =========  ==========================================================
-    key              shape      meaning (unit)
-    ===============  =========  ==========================================================
-    observation      (N, 3n)    joint angles (rad), velocities (rad/s), accelerations
-                                (rad/s^2) of joints 1..n
-    achieved_goal    (N, 3)     tool0 position (m, world frame)
-    desired_goal     (N, 3)     goal (m, world frame)
-    ===============  =========  ==========================================================
-
-    Rewards
-    -------
-    :func:`reach_reward` of the distance and the action as applied (eq. 2 dense, or the
-    success bonus alone if sparse); ``compute_reward`` recomputes it for relabelled goals.
-
-    Starting State
-    --------------
-    The arm at rest at ``task.start_q``; the goal from :class:`GoalPool`.
-
-    Episode End
-    -----------
-    Terminated on success (``distance <= success_radius`` m) when ``terminate_on_success``;
-    truncated after ``max_episode_steps`` steps. Autoreset as BatchedReach's ``next_step``
-    (default), ``same_step`` (the ended episodes' last observation and info in
-    ``info["final_obs"]`` / ``info["final_info"]`` as dicts of (N, ...) tensors, masks
-    ``info["_final_obs"]`` / ``info["_final_info"]``) or ``disabled`` (call
-    ``reset(options={"reset_mask": done})``).
+    Spaces, reward, start and episode end are those of ``UR5Reach-v0``
+    (:class:`envs.reach.UR5ReachEnv`, whose docstring documents them) with a leading ``(N,)``
+    axis, as tensors on the device (the spaces stay numpy boxes, BatchedReach's). Where they
+    differ: actions must be finite (unchecked: a check would read the device); the goals come
+    from :class:`GoalPool`; the autoreset modes are BatchedReach's (``next_step`` by default,
+    ``same_step``, ``disabled``), ``same_step``'s ``info["final_obs"]`` / ``info["final_info"]``
+    being dicts of (N, ...) tensors with the masks ``info["_final_obs"]`` /
+    ``info["_final_info"]``.
 
     Parameters
     ----------
