@@ -20,6 +20,7 @@ import json
 import subprocess
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -182,20 +183,22 @@ def record(train: bool) -> dict[str, str]:
     return result
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    verbs = parser.add_subparsers(dest="verb", required=True)
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.fingerprint",
+                                     description=__doc__.split("\n\n")[0])
+    verbs = parser.add_subparsers(dest="verb", required=True,
+                                  help="record: hash this tree's behaviour; compare: two records")
     rec = verbs.add_parser("record", help="record the fingerprints into a JSON file")
-    rec.add_argument("out", type=Path)
+    rec.add_argument("out", type=Path, help="the JSON file to write")
     rec.add_argument("--train", action="store_true",
                      help="also the short training runs' eval.csv (minutes)")
     cmp_ = verbs.add_parser("compare", help="compare two recorded files")
-    cmp_.add_argument("a", type=Path)
-    cmp_.add_argument("b", type=Path)
-    args = parser.parse_args()
+    cmp_.add_argument("a", type=Path, help="a recorded JSON file (the reference)")
+    cmp_.add_argument("b", type=Path, help="another recorded JSON file")
+    args = parser.parse_args(argv)
     if args.verb == "record":
         args.out.write_text(json.dumps(record(args.train), indent=1, sort_keys=True) + "\n")
-        return
+        return 0
     a, b = json.loads(args.a.read_text()), json.loads(args.b.read_text())
     differ = sorted(k for k in set(a) & set(b) if a[k] != b[k])
     only = sorted(set(a) ^ set(b))
@@ -205,8 +208,8 @@ def main() -> None:
         print(f"ONLY IN ONE {key}")
     print(f"{len(set(a) & set(b)) - len(differ)} equal, {len(differ)} differ, {len(only)} in one "
           "file only")
-    sys.exit(1 if differ or only else 0)
+    return 1 if differ or only else 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

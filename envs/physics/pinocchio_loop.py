@@ -49,10 +49,10 @@ threshold cost about the same per configuration either way."""
 class PlaneContact:
     """The compliant model's ground reaction: penalty forces at the links' deepest points.
 
-    Forces and torques are in :class:`PinocchioDynamics`'s time-scaled units (``h^2`` times N and
-    N m), velocities ``w = h v``; the equations are in the module docstring. One configuration
-    at a time, through Pinocchio's kinematics and joint Jacobians (tested against a closed-form
-    Jacobian and the contact potential's gradient).
+    Forces and torques are in :class:`PinocchioDynamics`'s time-scaled units (``h^2`` times N
+    and N m), velocities ``w = h v``; the equations are in ``results/dynamics/README.md``. One
+    configuration at a time, through Pinocchio's kinematics and joint Jacobians (tested against a
+    closed-form Jacobian and the contact potential's gradient).
 
     Parameters
     ----------
