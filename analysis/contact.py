@@ -28,7 +28,8 @@ import gymnasium
 import numpy as np
 
 import ur5kin
-from envs.dynamics import ArmDynamics
+from envs.checks import validate
+from envs.physics import make_dynamics
 from envs.spec import CONTACT_MODELS, TaskSpec
 from envs.task import task_sampler
 
@@ -76,12 +77,13 @@ class ContactRow:
 def reach_share(task: TaskSpec, goals: int, seed: int) -> float:
     """Share of ``goals`` goals reached by commanding their own sampled configuration.
 
-    All goals run as one batch of :class:`envs.dynamics.ArmDynamics` copies for
-    ``max_episode_steps`` steps; a goal counts when tool0 comes within ``success_radius`` (m)
-    of it at the end of some step (the episode's success).
+    All goals run as one batch of the Pinocchio loop's copies
+    (:func:`envs.physics.make_dynamics`) for ``max_episode_steps`` steps; a goal counts when
+    tool0 comes within ``success_radius`` (m) of it at the end of some step (the episode's
+    success).
     """
     batch = task_sampler(task).sample(goals, np.random.default_rng(seed))
-    dyn = ArmDynamics(task, goals)
+    dyn = make_dynamics(validate(task), goals, "pinocchio")
     command = batch.q[:, : task.n_joints]
     tool = np.zeros((goals, 3))
     reached = np.zeros(goals, dtype=bool)
@@ -98,7 +100,7 @@ def random_steps(task: TaskSpec, steps: int, seed: int) -> tuple[float, float, f
     env = gymnasium.make("UR5Reach-v0", spec=task)
     space = env.action_space
     actions = np.random.default_rng(seed).uniform(space.low, space.high, (steps, *space.shape))
-    dyn = env.unwrapped._core.dynamics
+    dyn = env.unwrapped.dynamics
     env.reset(seed=seed)
     contacts = stops = 0
     deepest = 0.0
@@ -108,7 +110,7 @@ def random_steps(task: TaskSpec, steps: int, seed: int) -> tuple[float, float, f
         contacts += info["contact"]
         stops += bool(dyn.depth_stop[0])
         if info["contact"]:
-            heights = ur5kin.link_heights(dyn.q[0], task.base_height)[1:]
+            heights = ur5kin.link_heights(env.unwrapped.joint_angles, task.base_height)[1:]
             deepest = max(deepest, task.plane_margin - float(heights.min()))
         if terminated or truncated:
             env.reset()

@@ -183,7 +183,7 @@ def rollout(task: Any, commands: np.ndarray, goals: np.ndarray | None = None
     actions : (B, n) float, rad
         The commands as the env applied them (after clipping).
     """
-    from envs.core import ReachCore
+    from envs import BatchedReach
 
     commands = np.asarray(commands, dtype=float)
     B, T = len(commands), task.max_episode_steps
@@ -191,15 +191,15 @@ def rollout(task: Any, commands: np.ndarray, goals: np.ndarray | None = None
     actions = np.empty_like(commands)
     for lo in range(0, B, CHUNK):
         part = commands[lo : lo + CHUNK]
-        core = ReachCore(task, len(part))
+        env = BatchedReach(len(part), task, dynamics="pinocchio", autoreset_mode="disabled")
         part_goals = None if goals is None else np.asarray(goals, dtype=float)[lo : lo + CHUNK]
         if part_goals is None:
             part_goals = np.zeros((len(part), 3))
-        core.reset(np.arange(len(part)), [], goals=part_goals)
+        env.reset(options={"goal": part_goals})
         for t in range(T):
-            core.step(part)
-            achieved[lo : lo + len(part), t] = core.achieved
-        actions[lo : lo + len(part)] = core.action
+            obs, *_, info = env.step(part)
+            achieved[lo : lo + len(part), t] = obs["achieved_goal"]
+        actions[lo : lo + len(part)] = info["action"]
     return achieved, actions
 
 
@@ -222,18 +222,19 @@ def discounted_returns(task: Any, achieved: np.ndarray, goals: np.ndarray,
     Returns
     -------
     returns : (...) float
-        ``sum_{t < end} gamma^t r_t``, ``r_t`` the reward of step t + 1 (:func:`envs.reward.
-        reach_reward`), ``end`` the first step after which the episode is terminated (success
-        with ``terminate_on_success``) or T.
+        ``sum_{t < end} gamma^t r_t``, ``r_t`` the reward of step t + 1 (the env's,
+        :meth:`envs.task.TaskRules.reward`), ``end`` the first step after which the episode is
+        terminated (success with ``terminate_on_success``) or T.
     reached : (...) bool
         Whether the episode had a success before it ended.
     steps : (...) int
         The episode's length ``end`` (steps, 1..T).
     """
-    from envs.reward import goal_distance, reach_reward
+    from envs.task import TaskRules
 
-    distance = goal_distance(achieved, np.asarray(goals)[..., None, :])  # (..., T)
-    reward = reach_reward(distance, np.asarray(actions)[..., None, :], task)
+    rules = TaskRules(task)
+    distance = rules.distance(achieved, np.asarray(goals)[..., None, :])  # (..., T)
+    reward = rules.reward(distance, np.asarray(actions)[..., None, :])
     success = distance <= task.success_radius
     T = distance.shape[-1]
     if task.terminate_on_success:
@@ -293,9 +294,9 @@ def env_goals(task: Any, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]
     """
     from gymnasium.utils import seeding
 
-    from envs.task import task_sampler
+    from envs.task import TaskRules
 
-    sampler = task_sampler(task)
+    sampler = TaskRules(task).sampler
     batches = [sampler.sample(1, seeding.np_random(seed + i)[0]) for i in range(count)]
     return (np.concatenate([b.goals for b in batches]).reshape(-1, 3),
             np.concatenate([b.q for b in batches]).reshape(-1, 6))

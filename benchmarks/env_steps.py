@@ -1,9 +1,9 @@
 """Steps per second of ``UR5Reach-v0`` next to a peer env (FetchReach-v4) measured in the same run.
 
 Rows: the single env (``gymnasium.make``), the batched path (:class:`envs.BatchedReach`, N
-copies in one call, on the compiled kernel of :mod:`envs.fastdyn`), the same batched env on the
-reference Pinocchio dynamics, Gymnasium's ``SyncVectorEnv`` of N single envs (the Python loop
-the batched path replaces) and the peer. Every env gets the same protocol: uniform random
+copies in one call, on the compiled kernel of :mod:`envs.physics.numba_kernel`), the same batched
+env on the reference Pinocchio dynamics, Gymnasium's ``SyncVectorEnv`` of N single envs (the Python
+loop the batched path replaces) and the peer. Every env gets the same protocol: uniform random
 actions drawn before the clock starts, an episode restarted whenever one ends, and several
 rounds interleaved across the envs so that the load of a shared machine hits all of them alike.
 The table gives each env's median over the rounds, the median over rounds of its ratio to the
@@ -13,10 +13,10 @@ copy-steps (N per call).
 With ``--device``, two more rows time the batched dynamics alone (no env around them), on the
 same protocol (uniform random commands of the control mode drawn before the clock, every copy
 restarted at the start pose each ``max_episode_steps`` steps): the vectorised torch path of
-:mod:`envs.torchdyn` on that device, and the numba kernel of :mod:`envs.fastdyn` on the CPU
-beside it; a third times the whole torch env (:class:`envs.torchreach.TorchReach`, actions
-on the device, autoreset and goal-pool top-ups on the clock). On CUDA the clock is read after
-``torch.cuda.synchronize()``.
+:mod:`envs.physics.torch_kernel` on that device, and the numba kernel of
+:mod:`envs.physics.numba_kernel` on the CPU beside it; a third times the whole torch env
+(:class:`envs.torchreach.TorchReach`, actions on the device, autoreset and goal-pool top-ups on the
+clock). On CUDA the clock is read after ``torch.cuda.synchronize()``.
 
     python -m benchmarks.env_steps                 # the table
     python -m benchmarks.env_steps --json          # machine-readable
@@ -43,8 +43,8 @@ import gymnasium
 import numpy as np
 
 import envs
-from envs.dynamics import command_bounds
 from envs.spec import TaskSpec
+from envs.task import action_bounds
 
 
 @dataclass(frozen=True)
@@ -59,8 +59,8 @@ class BenchConfig:
     num_envs: int = 64
     """Copies N of the batched and sync-vector rows (0 skips both)."""
     device: str | None = None
-    """Where to also time the torch dynamics (:mod:`envs.torchdyn`): ``cpu`` or ``cuda``, next
-    to the numba dynamics on the CPU; None: neither dynamics row."""
+    """Where to also time the torch dynamics (:mod:`envs.physics.torch_kernel`): ``cpu`` or
+    ``cuda``, next to the numba dynamics on the CPU; None: neither dynamics row."""
     torch_dtype: str = "float64"
     """Arithmetic of the torch dynamics: float64 (the env's) or float32."""
     compile: str = "none"
@@ -150,16 +150,16 @@ def vector_runner(env: gymnasium.vector.VectorEnv, copy_steps: int, seed: int
 
 def dynamics_runner(dyn: Any, task: TaskSpec, copy_steps: int, seed: int,
                     device: str | None = None) -> Callable[[], float]:
-    """A round of random control steps of a batched dynamics (``envs.fastdyn`` or
-    ``envs.torchdyn``); returns copy-steps/s.
+    """A round of random control steps of a batched dynamics (``envs.physics.numba_kernel`` or
+    ``envs.physics.torch_kernel``); returns copy-steps/s.
 
-    Commands are uniform in :func:`envs.dynamics.command_bounds`, drawn before the clock (on
+    Commands are uniform in :func:`envs.task.action_bounds`, drawn before the clock (on
     ``device`` for the torch path, as a trainer on that device would hand them over); every
     copy goes back to the start pose each ``task.max_episode_steps`` steps, as the env's
     episodes end at the latest. With ``device`` "cuda" the clock waits for the GPU.
     """
     calls = max(1, copy_steps // dyn.num_copies)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands: Any = np.random.default_rng(seed).uniform(low, high,
                                                         (calls, dyn.num_copies, len(low)))
     synchronize = None
@@ -190,7 +190,7 @@ def torch_env_runner(env: Any, copy_steps: int, seed: int) -> Callable[[], float
     import torch
 
     calls = max(1, copy_steps // env.num_envs)
-    low, high = command_bounds(env.task)
+    low, high = action_bounds(env.task)
     actions = torch.as_tensor(np.random.default_rng(seed).uniform(
         low, high, (calls, env.num_envs, len(low))), device=env.device, dtype=env.dtype)
     synchronize = torch.cuda.synchronize if env.device.type == "cuda" else None
@@ -228,17 +228,18 @@ def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int, notes: d
     dynamics on the CPU (a note in ``notes`` where numba is missing)."""
     import torch
 
-    from envs import fastdyn, torchdyn, torchreach
+    from envs import torchreach
+    from envs.physics import numba_kernel, torch_kernel
 
     N = config.num_envs
     if config.device == "cpu":
         torch.set_num_threads(config.threads)
     rows = {}
     compiled = config.compile != "none"
-    dyn = torchdyn.TorchArmDynamics(task, N, device=config.device, dtype=config.torch_dtype,
+    dyn = torch_kernel.TorchDynamics(task, N, device=config.device, dtype=config.torch_dtype,
                                     compile=config.compile if compiled else False,
                                     cuda_graph=config.cuda_graph)
-    name = (f"TorchArmDynamics (N={N}, {config.device}, {config.torch_dtype}"
+    name = (f"TorchDynamics (N={N}, {config.device}, {config.torch_dtype}"
             f"{', ' + config.compile if compiled else ''}"
             f"{', CUDA graph' if config.cuda_graph else ''})")
     rows[name] = dynamics_runner(dyn, task, copy_steps, config.seed, config.device)
@@ -247,9 +248,9 @@ def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int, notes: d
     env_name = (f"TorchReach (N={N}, {config.device}, {config.torch_dtype}"
                 f"{', CUDA graph' if config.cuda_graph else ''})")
     rows[env_name] = torch_env_runner(env, copy_steps, config.seed)
-    numba_row = f"FastArmDynamics (N={N}, numba, cpu)"
-    if fastdyn.available():
-        fast = fastdyn.FastArmDynamics(task, N, threads=config.threads)
+    numba_row = f"NumbaDynamics (N={N}, numba, cpu)"
+    if numba_kernel.available():
+        fast = numba_kernel.NumbaDynamics(task, N, threads=config.threads)
         rows[numba_row] = dynamics_runner(fast, task, copy_steps, config.seed)
     else:
         notes[numba_row] = "numba is not installed"
@@ -359,9 +360,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--num-envs", type=int, default=d.num_envs,
                         help="copies N of the batched and sync-vector rows (0 skips them)")
     parser.add_argument("--device", default=d.device, choices=("cpu", "cuda"),
-                        help="also time the torch dynamics (envs.torchdyn) on this device, "
-                        "next to the numba dynamics on the CPU, in copy-steps/s (default: "
-                        "neither)")
+                        help="also time the torch dynamics (envs.physics.torch_kernel) on this "
+                        "device, next to the numba dynamics on the CPU, in copy-steps/s "
+                        "(default: neither)")
     parser.add_argument("--torch-dtype", default=d.torch_dtype, choices=("float64", "float32"),
                         help="arithmetic of the torch dynamics (with --device)")
     parser.add_argument("--compile", default=d.compile,

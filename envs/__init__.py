@@ -47,7 +47,7 @@ _LAZY: dict[str, str] = {
     "BatchedReach": "envs.batched",
     "FlatObservation": "envs.wrappers",
     "UR5ReachEnv": "envs.reach",
-    "compute_reward": "envs.reward",
+    "compute_reward": "envs.task",
 }
 """Public names that load their module (and with it Pinocchio) on first use."""
 

@@ -11,80 +11,11 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from envs import fastdyn
-from envs.arm import Dynamics
-from envs.core import ReachCore
-from envs.dynamics import ArmDynamics
-from envs.reach import RENDER_MODES, make_task, real_actions
-from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
-from envs.task import INFO_KEYS
-
-DYNAMICS = ("auto", "pinocchio", "numba", "torch")
-"""Dynamics backends, named for their tool (BatchedReach's ``dynamics`` option; the device is
-its own option): ``pinocchio`` the reference :class:`envs.dynamics.ArmDynamics` (Pinocchio's
-``abaInParallel`` in a Python substep loop), ``numba`` :class:`envs.fastdyn.FastArmDynamics`
-(one compiled call per step), ``torch`` :class:`envs.torchdyn.TorchArmDynamics` on ``device``
-(its state copied to the host every step, :class:`envs.torchdyn.HostArrays`; never chosen by
-``auto``: on the CPU it is far slower than ``numba``), ``auto`` numba for N > 1 where it is
-available and implements the task, else pinocchio."""
-
-RENAMED_DYNAMICS = {"fast": "numba", "torch-cuda": "torch"}
-"""Former backend names, for the message that gives the new spelling."""
-
-
-def make_dynamics(task: TaskSpec, num_copies: int, dynamics: str = "auto",
-                  device: str = "cpu", threads: int = 1) -> Dynamics:
-    """The arm dynamics of ``num_copies`` copies of ``task``: the one place a backend is chosen.
-
-    Parameters
-    ----------
-    dynamics : one of :data:`DYNAMICS`
-        The backend, named for its tool.
-    device : str
-        Where the ``torch`` backend runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``); the others run
-        on the CPU and accept ``"cpu"`` only.
-    threads : int
-        CPU threads of the numba backend (the Pinocchio loop uses one).
-
-    Raises
-    ------
-    ValueError
-        When ``dynamics`` is not one of :data:`DYNAMICS` (a former name gets its new one), a
-        CPU backend is given another device, or the backend cannot run the task here (numba
-        missing, a contact model it does not implement, no GPU).
-    """
-    if dynamics in RENAMED_DYNAMICS:
-        raise ValueError(f"dynamics={dynamics!r} is now dynamics="
-                         f"{RENAMED_DYNAMICS[dynamics]!r}" + (", device='cuda'"
-                                                              if dynamics == "torch-cuda" else ""))
-    if dynamics not in DYNAMICS:
-        raise ValueError(f"dynamics must be one of {list(DYNAMICS)}; got {dynamics!r}")
-    if dynamics == "torch":
-        from envs import torchdyn  # torch is loaded only for this choice
-
-        return torchdyn.HostArrays(torchdyn.TorchArmDynamics(task, num_copies, device=device))
-    if str(device) != "cpu":
-        raise ValueError(f"dynamics={dynamics!r} runs on the CPU only; got device={device!r} "
-                         "(dynamics='torch' runs on other devices)")
-    fast_ok = fastdyn.available() and fastdyn.supports(task)
-    if dynamics == "numba" and not fast_ok:
-        raise ValueError("dynamics='numba' needs numba and the stop contact model; use "
-                         "'pinocchio' (or 'auto')")
-    if dynamics == "numba" or (dynamics == "auto" and fast_ok and num_copies > 1):
-        return fastdyn.FastArmDynamics(task, num_copies, threads=threads)
-    return ArmDynamics(task, num_copies)
-
-
-def as_autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
-    """An AutoresetMode from itself, its value (``"NextStep"``) or its name (``"next_step"``)."""
-    if isinstance(mode, AutoresetMode):
-        return mode
-    for member in AutoresetMode:
-        if mode in (member.value, member.name.lower()):
-            return member
-    raise ValueError(f"autoreset_mode must be one of "
-                     f"{[m.name.lower() for m in AutoresetMode]} (or a gymnasium.vector."
-                     f"AutoresetMode); got {mode!r}")
+from envs.core import TaskCopies
+from envs.physics import make_dynamics
+from envs.render import RENDER_MODES
+from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec, make_task
+from envs.task import INFO_KEYS, as_autoreset_mode, real_actions
 
 
 class BatchedReach(gymnasium.vector.VectorEnv):
@@ -92,8 +23,8 @@ class BatchedReach(gymnasium.vector.VectorEnv):
 
     Copy i behaves exactly like ``gymnasium.make("UR5Reach-v0", ...)`` reset with seed
     ``seed + i`` (same goals; same trajectories up to floating-point rounding, since the batch
-    goes through the compiled kernel of :mod:`envs.fastdyn` or Pinocchio's ``abaInParallel``).
-    ``gymnasium.make_vec("UR5Reach-v0", num_envs=N)`` builds this class.
+    goes through the compiled kernel of :mod:`envs.physics.numba_kernel` or Pinocchio's
+    ``abaInParallel``). ``gymnasium.make_vec("UR5Reach-v0", num_envs=N)`` builds this class.
 
     Parameters
     ----------
@@ -114,7 +45,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
     render_mode : {"rgb_array", "human"}, optional
         ``render()`` draws every copy (one frame each).
     dynamics : {"auto", "pinocchio", "numba", "torch"}
-        Which backend advances the arms (:data:`DYNAMICS`); the same physics to
+        Which backend advances the arms (:data:`envs.physics.BACKENDS`); the same physics to
         floating-point rounding. ``auto`` (default) takes the compiled numba path for N > 1.
     device : str
         Where the ``torch`` backend runs (default ``"cpu"``; ``"cuda"`` for a GPU).
@@ -145,7 +76,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         self.render_mode = render_mode
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
                          "render_fps": self.task.control_hz}
-        self._core = ReachCore(self.task, self.num_envs,
+        self._core = TaskCopies(self.task, self.num_envs,
                                make_dynamics(self.task, self.num_envs, dynamics, device,
                                              threads))
         self.single_observation_space, self.single_action_space = self._core.single_spaces()
@@ -278,10 +209,10 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode")
             return None
-        from envs.render import ReachRenderer
+        from envs.render import ArmRenderer
 
         while len(self._renderers) < self.num_envs:
-            self._renderers.append(ReachRenderer(self.task, human=self.render_mode == "human"))
+            self._renderers.append(ArmRenderer(self.task, human=self.render_mode == "human"))
         core = self._core
         frames = tuple(r.draw(core.dynamics.q[i], core.goal[i], success=bool(core.success[i]),
                               contact=bool(core.dynamics.contact[i]))

@@ -2,8 +2,8 @@
 
 :func:`validate` asks the robot model whether a task can run: its start pose within the URDF
 joint limits and clear of the plane, its PD gains and its compliant contact (if any) stable
-under its integrator. The env and
-:class:`envs.dynamics.ArmDynamics` call it; reading a task from JSON does not.
+under its integrator. Every dynamics backend (:mod:`envs.physics`) calls it when built, once
+per env; reading a task from JSON does not.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The single env (:class:`envs.reach.UR5ReachEnv`, B = 1) and the batched one
 (:class:`envs.batched.BatchedReach`) are thin Gymnasium faces over this one class, so they
 cannot drift apart. The task's rules (goals, reward, episode end, step information) are
-:class:`envs.task.ReachTask`'s; this class holds the arrays and calls it.
+:class:`envs.task.TaskRules`'s; this class holds the arrays and calls it.
 """
 
 from __future__ import annotations
@@ -14,15 +14,13 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-import ur5kin
-from envs.arm import Dynamics, moving_link_heights
-from envs.checks import validate
-from envs.dynamics import ArmDynamics, clip, command_bounds
+from envs.physics import Dynamics, make_dynamics
+from envs.physics.model import clip, moving_link_heights
 from envs.spec import TaskSpec
-from envs.task import ReachTask
+from envs.task import TaskRules, action_bounds, single_spaces
 
 
-class ReachCore:
+class TaskCopies:
     """B copies of the task, stepped together.
 
     Parameters
@@ -31,12 +29,12 @@ class ReachCore:
     num_copies : int
         B.
     dynamics : Dynamics, optional
-        The arm's dynamics for the B copies: any backend of the :class:`envs.arm.Dynamics`
-        protocol (an :class:`envs.dynamics.ArmDynamics` is built when None).
+        The arm's dynamics for the B copies: any backend of the :class:`envs.physics.Dynamics`
+        protocol (the Pinocchio loop, :func:`envs.physics.make_dynamics`, when None).
 
     Attributes
     ----------
-    rules : ReachTask
+    rules : TaskRules
         Goal sampling, reward, termination and the step information of ``task``.
     goal : (B, 3) float, m, world frame
         Desired goals.
@@ -59,11 +57,13 @@ class ReachCore:
 
     def __init__(self, task: TaskSpec, num_copies: int, dynamics: Dynamics | None = None
                  ) -> None:
-        self.task = validate(task)
         n, B = task.n_joints, num_copies
-        self.rules = ReachTask(task)
-        self.dynamics = ArmDynamics(task, num_copies) if dynamics is None else dynamics
-        self.action_low, self.action_high = command_bounds(task)
+        # first: the dynamics check the task against the robot (envs.validate, once per env)
+        self.dynamics: Dynamics = (make_dynamics(task, num_copies, "pinocchio")
+                                   if dynamics is None else dynamics)
+        self.task = task
+        self.rules = TaskRules(task)
+        self.action_low, self.action_high = action_bounds(task)
         self.goal = np.zeros((B, 3))
         self.achieved = np.zeros((B, 3))
         self.observation = np.zeros((B, 3 * n))
@@ -152,31 +152,8 @@ class ReachCore:
         return moving_link_heights(self.dynamics.q, self.task.base_height).min(axis=-1)
 
     def info_arrays(self) -> dict[str, Any]:
-        """Per-copy step information now, :meth:`envs.task.ReachTask.info` of the B copies."""
+        """Per-copy step information now, :meth:`envs.task.TaskRules.info` of the B copies."""
         dyn = self.dynamics
         return self.rules.info(action=self.action, distance=self.distance, success=self.success,
                                contact=dyn.contact, joint_limit=dyn.limit_stop,
                                clearance=self.clearance())
-
-
-def single_spaces(task: TaskSpec) -> tuple[gymnasium.spaces.Dict, gymnasium.spaces.Box]:
-    """Observation and action space of one copy of ``task``.
-
-    The observation is a goal-env Dict: ``observation (3n,)`` bounded by the URDF joint
-    position and velocity limits (the dynamics enforce both; the acceleration is
-    unbounded), ``achieved_goal`` and ``desired_goal`` ``(3,)`` unbounded; the action box is
-    :func:`envs.dynamics.command_bounds`. All float64.
-    """
-    model, n = ur5kin.load_model(), task.n_joints
-    vel = ur5kin.velocity_limits()[:n]
-    low = np.concatenate([model.lowerPositionLimit[:n], -vel, np.full(n, -np.inf)])
-    high = np.concatenate([model.upperPositionLimit[:n], vel, np.full(n, np.inf)])
-    box = gymnasium.spaces.Box
-    observation = gymnasium.spaces.Dict({
-        "observation": box(low, high, dtype=np.float64),
-        "achieved_goal": box(-np.inf, np.inf, (3,), np.float64),
-        "desired_goal": box(-np.inf, np.inf, (3,), np.float64),
-    })
-    action_low, action_high = command_bounds(task)
-    return observation, box(np.asarray(action_low, dtype=np.float64),
-                            np.asarray(action_high, dtype=np.float64), dtype=np.float64)

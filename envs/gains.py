@@ -1,4 +1,5 @@
-"""Gain design of the joint PD controller: the default gains, and when gains are stable.
+"""Gain design of the joint PD controller (:data:`envs.spec.DEFAULT_KP` came from it), and when
+gains are stable.
 
 The gains are designed per joint, each taken alone at a bound of its diagonal inertia over the
 joint space (:func:`joint_inertia_bounds`). Importing this module is cheap: Pinocchio loads only
@@ -11,12 +12,6 @@ import functools
 from typing import Any
 
 import numpy as np
-
-DEFAULT_KP = (3920.0, 3600.0, 781.0, 232.0, 228.0, 15.4)
-"""Default proportional gains (N m/rad) of joints 1-6; see :attr:`envs.spec.TaskSpec.kp`."""
-
-DEFAULT_KD = (261.0, 240.0, 52.0, 15.5, 15.2, 1.03)
-"""Default derivative gains (N m s/rad) of joints 1-6; see :attr:`envs.spec.TaskSpec.kp`."""
 
 INERTIA_SAMPLES = 4096
 """Configurations sampled (uniform in [-pi, pi]^6) to bound the diagonal of the mass matrix."""

@@ -8,48 +8,11 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from envs.core import ReachCore
-from envs.spec import TaskSpec
-from envs.task import RESET_INFO_KEYS
-
-RENDER_MODES = ("human", "rgb_array")
-"""Render modes of the env: a matplotlib window, or frames as ``(H, W, 3) uint8`` arrays."""
-
-
-def real_actions(action: Any) -> np.ndarray | None:
-    """``action`` as a float64 array, or None when it is not real numbers (strings, complex,
-    None, objects): the step methods turn None into their ValueError."""
-    arr = np.asarray(action)
-    if arr.dtype.kind in "biuf":
-        return arr.astype(np.float64, copy=False)
-    if arr.dtype.kind == "O":
-        try:
-            return np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            return None
-    return None
-
-
-def make_task(spec: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str, Any]
-              ) -> TaskSpec:
-    """The task from a :class:`TaskSpec` (or its dict form) and field overrides.
-
-    ``region`` may be a name, a region string or a :class:`regions.Region`; a changed region
-    brings its default start pose unless ``start_q`` is given too.
-
-    Raises
-    ------
-    ValueError
-        For an unknown field name or a bad value (see :class:`TaskSpec`).
-    """
-    if spec is None:
-        return TaskSpec.from_dict(dict(overrides))
-    if isinstance(spec, Mapping):  # a to_dict() form: a record, perhaps of an older version
-        spec = TaskSpec.from_record(spec)
-    elif not isinstance(spec, TaskSpec):
-        raise ValueError(f"spec must be a TaskSpec, its to_dict() form or None; got "
-                         f"{type(spec).__name__}")
-    return spec.replace(**overrides) if overrides else spec
+from envs.core import TaskCopies
+from envs.physics import Dynamics
+from envs.render import RENDER_MODES
+from envs.spec import TaskSpec, make_task
+from envs.task import RESET_INFO_KEYS, real_actions
 
 
 class UR5ReachEnv(gymnasium.Env):
@@ -86,7 +49,8 @@ class UR5ReachEnv(gymnasium.Env):
     point, ``f_n = max(0, k d - c dz/dt)`` N with ``k`` = 2e5 N/m, ``c`` = 2000 N s/m, and
     Coulomb friction ``mu`` = 1 against the point's sliding (the arm slides along the plane, as
     in Gazebo; about 1 mm deep under the arm's weight). No link ends a step more than
-    ``contact_max_depth`` = 0.02 m below the plane in either model; see :mod:`envs.dynamics`.
+    ``contact_max_depth`` = 0.02 m below the plane in either model; see
+    :mod:`envs.physics.pinocchio_loop`.
 
     Under ``held_joints="pd"`` the held joints give way under load: this URDF gives each wrist
     link the inertia of a cylinder of radius 0.6 m (izz = 0.219 kg m^2 for 1.219 kg), and the
@@ -191,7 +155,7 @@ class UR5ReachEnv(gymnasium.Env):
         task, n = self.task, self.task.n_joints
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": task.control_hz}
-        self._core = ReachCore(task, 1)
+        self._core = TaskCopies(task, 1)
         self.observation_space, self.action_space = self._core.single_spaces()
         self._n = n
         self._renderer: Any = None
@@ -200,6 +164,13 @@ class UR5ReachEnv(gymnasium.Env):
     def dt(self) -> float:
         """Duration of one step (s): 1 / control_hz = 0.02 by default."""
         return self.task.dt
+
+    @property
+    def dynamics(self) -> Dynamics:
+        """The arm's dynamics (:class:`envs.physics.Dynamics`, one copy), for studies that read
+        more of the arm than the observation (its ``depth_stop`` under the compliant contact);
+        read it, never step it."""
+        return self._core.dynamics
 
     @property
     def joint_angles(self) -> np.ndarray:
@@ -282,9 +253,9 @@ class UR5ReachEnv(gymnasium.Env):
                                   "render_mode='rgb_array' or 'human' to gymnasium.make")
             return None
         if self._renderer is None:
-            from envs.render import ReachRenderer
+            from envs.render import ArmRenderer
 
-            self._renderer = ReachRenderer(self.task, human=self.render_mode == "human")
+            self._renderer = ArmRenderer(self.task, human=self.render_mode == "human")
         core, task = self._core, self.task
         title = (f"{self._renderer.region_name()}, {task.n_joints} joints: "
                  f"t = {core.elapsed[0] * task.dt:.2f} s, d = {core.distance[0]:.3f} m")

@@ -17,6 +17,9 @@ import numpy as np
 import ur5kin
 from envs.spec import TaskSpec
 
+RENDER_MODES = ("human", "rgb_array")
+"""Render modes of the envs: a matplotlib window, or frames as ``(H, W, 3) uint8`` arrays."""
+
 
 @dataclass(frozen=True)
 class RenderConfig:
@@ -42,7 +45,7 @@ class RenderConfig:
     """Colour of the arm in a step that ended on the plane."""
 
 
-class ReachRenderer:
+class ArmRenderer:
     """Draws one copy of the task.
 
     Parameters

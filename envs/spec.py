@@ -30,7 +30,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from envs.gains import DEFAULT_KD, DEFAULT_KP
 from regions import registry
 from regions.registry import UNCONSTRAINED_REGION, default_start
 from regions.samplers import CartesianSampler
@@ -55,18 +54,25 @@ ACTION_PENALTY_UNITS = ("command", "actor")
 ``actor``: in the actor's unit, each joint divided by its command bound (``a / pi`` in position
 mode), so ``|a|^2 <= n``."""
 
+DEFAULT_KP = (3920.0, 3600.0, 781.0, 232.0, 228.0, 15.4)
+"""Default proportional gains (N m/rad) of joints 1-6 (:func:`envs.gains.pd_gains`, rounded);
+see :attr:`TaskSpec.kp`."""
+
+DEFAULT_KD = (261.0, 240.0, 52.0, 15.5, 15.2, 1.03)
+"""Default derivative gains (N m s/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
+
 CONTACT_MODELS = ("stop", "compliant")
-"""How the ground plane acts on the arm (docs/design.md open point 6; :mod:`envs.dynamics`).
-``stop``: any plane contact stops the whole arm dead for the rest of the control step (the default);
-``compliant``: a penalty contact (spring-damper with Coulomb friction) pushes each link out of the
-plane, so the arm can slide along it, as in Gazebo (ROS's usual simulator; the paper names ROS,
-not the simulator)."""
+"""How the ground plane acts on the arm (docs/design.md open point 6;
+:mod:`envs.physics.pinocchio_loop`). ``stop``: any plane contact stops the whole arm dead for the
+rest of the control step (the default); ``compliant``: a penalty contact (spring-damper with Coulomb
+friction) pushes each link out of the plane, so the arm can slide along it, as in Gazebo (ROS's
+usual simulator; the paper names ROS, not the simulator)."""
 
 HELD_JOINTS = ("locked", "pd")
 """What holds the joints the agent does not control (n+1..6) at their start angles.
 ``locked``: they are not in the dynamics at all, as if welded at the start angles (the arm's
-inertia and gravity are those of the whole arm in that pose; :mod:`envs.dynamics`), so they
-never move; ``pd``: the joint PD controller holds them, and they give way under load (the
+inertia and gravity are those of the whole arm in that pose; :mod:`envs.physics.pinocchio_loop`), so
+they never move; ``pd``: the joint PD controller holds them, and they give way under load (the
 behaviour of runs recorded before this field existed)."""
 
 RECORD_DEFAULTS: dict[str, Any] = {"held_joints": "pd"}
@@ -206,8 +212,9 @@ class TaskSpec:
     pushed out and slides. ``stop`` (the default, as before): any contact
     stops the whole arm dead for the rest of the control step. ``compliant``: a penalty force
     ``f_n = max(0, k d - c dz/dt)`` at each link's deepest point ``d`` m below
-    ``z = plane_margin`` with Coulomb friction (the ``contact_*`` fields; :mod:`envs.dynamics`).
-    Either way no link ends a step more than ``contact_max_depth`` below the plane."""
+    ``z = plane_margin`` with Coulomb friction (the ``contact_*`` fields;
+    :mod:`envs.physics.pinocchio_loop`). Either way no link ends a step more than
+    ``contact_max_depth`` below the plane."""
 
     contact_stiffness: float = 2.0e5
     """Normal stiffness k (N/m) of the compliant contact, per link. 2e5 N/m: the arm's weight
@@ -234,7 +241,7 @@ class TaskSpec:
     """Depth (m) below ``z = plane_margin`` that no link may reach at the end of a control step,
     in every contact model (the plane stays impermeable). The compliant contact keeps links far
     shallower (about 2 mm under a stalled joint); a copy whose step would end deeper falls back
-    to the stop model for that step (``ArmDynamics.depth_stop``). The stop model never enters
+    to the stop model for that step (``PinocchioDynamics.depth_stop``). The stop model never enters
     the plane."""
 
     def __post_init__(self) -> None:
@@ -446,3 +453,26 @@ def _region_string(region: Any, base_height: float) -> str:
     if region not in registry.names():
         registry.parse(region, base_height)  # raises ValueError naming the accepted forms
     return region
+
+
+def make_task(spec: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str, Any]
+              ) -> TaskSpec:
+    """The task from a :class:`TaskSpec` (or its dict form) and field overrides: what every
+    env does with its ``spec=`` and ``**overrides`` keywords.
+
+    ``region`` may be a name, a region string or a :class:`regions.Region`; a changed region
+    brings its default start pose unless ``start_q`` is given too.
+
+    Raises
+    ------
+    ValueError
+        For an unknown field name or a bad value (see :class:`TaskSpec`).
+    """
+    if spec is None:
+        return TaskSpec.from_dict(dict(overrides))
+    if isinstance(spec, Mapping):  # a to_dict() form: a record, perhaps of an older version
+        spec = TaskSpec.from_record(spec)
+    elif not isinstance(spec, TaskSpec):
+        raise ValueError(f"spec must be a TaskSpec, its to_dict() form or None; got "
+                         f"{type(spec).__name__}")
+    return spec.replace(**overrides) if overrides else spec

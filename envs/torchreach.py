@@ -1,7 +1,7 @@
 """B copies of the Reacher whose whole state lives in torch tensors on one device (issue 14).
 
 :class:`TorchReach` is :class:`envs.batched.BatchedReach` with torch in and out: the arm is
-:class:`envs.torchdyn.TorchArmDynamics`, and goals, observations, reward, episode ends and
+:class:`envs.physics.torch_kernel.TorchDynamics`, and goals, observations, reward, episode ends and
 autoreset are tensor operations on the same device, so that on a GPU a training step moves no
 data between host and device. Goals come from :class:`GoalPool`, a device-resident stock of
 goals drawn on the host by the task's own sampler (:func:`envs.task.task_sampler`) and topped up
@@ -26,15 +26,18 @@ import torch
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 
-from envs import torchdyn
-from envs.batched import as_autoreset_mode
-from envs.checks import validate
-from envs.core import single_spaces
-from envs.dynamics import command_bounds
-from envs.reach import make_task
-from envs.reward import ACTION_KEY, GOAL_DIM, action_penalty_scale, reach_reward
-from envs.spec import TaskSpec
-from envs.task import INFO_KEYS, task_sampler
+from envs.physics.model import supports_kernels
+from envs.physics.torch_kernel import TorchDynamics
+from envs.reward import ACTION_KEY, GOAL_DIM, goal_distance, reach_reward
+from envs.spec import TaskSpec, make_task
+from envs.task import (
+    INFO_KEYS,
+    action_bounds,
+    action_penalty_scale,
+    as_autoreset_mode,
+    single_spaces,
+    task_sampler,
+)
 
 GOAL_SOURCES = ("batched", "per_copy")
 """How :class:`GoalPool` draws goals on the host: ``batched`` from one generator in one
@@ -44,12 +47,6 @@ same goals; about 0.6 ms a goal on the 2-core machine)."""
 
 DEFAULT_POOL_DEPTH = 64
 """Goals stocked per copy; also the ``step`` calls between two top-ups at most."""
-
-
-# ---------------------------------------------------------------------------- the reward
-def goal_distance(achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> torch.Tensor:
-    """Euclidean distance ``(...)`` m of goals ``(..., 3)`` m, world frame (broadcast)."""
-    return torch.sqrt(torch.square(achieved_goal - desired_goal).sum(-1))
 
 
 # ---------------------------------------------------------------------------- the goals
@@ -155,41 +152,14 @@ class TorchReach:
     (``dynamics="numba"``) to floating-point rounding (tested to 1e-9 in float64); with
     ``goal_source="per_copy"`` the same seed gives the same goals too.
 
-    Action Space
-    ------------
-    ``(N, n)`` tensor, the commands of joints 1..n in the control mode's unit (rad, rad/s or
-    N m; :func:`envs.dynamics.command_bounds`), clipped to that box. Must be finite (unchecked).
-
-    Observation Space
-    -----------------
-    A dict of tensors, BatchedReach's layout:
-
-    ===============  =========  ==========================================================
-    key              shape      meaning (unit)
-    ===============  =========  ==========================================================
-    observation      (N, 3n)    joint angles (rad), velocities (rad/s), accelerations
-                                (rad/s^2) of joints 1..n
-    achieved_goal    (N, 3)     tool0 position (m, world frame)
-    desired_goal     (N, 3)     goal (m, world frame)
-    ===============  =========  ==========================================================
-
-    Rewards
-    -------
-    :func:`reach_reward` of the distance and the action as applied (eq. 2 dense, or the
-    success bonus alone if sparse); ``compute_reward`` recomputes it for relabelled goals.
-
-    Starting State
-    --------------
-    The arm at rest at ``task.start_q``; the goal from :class:`GoalPool`.
-
-    Episode End
-    -----------
-    Terminated on success (``distance <= success_radius`` m) when ``terminate_on_success``;
-    truncated after ``max_episode_steps`` steps. Autoreset as BatchedReach's ``next_step``
-    (default), ``same_step`` (the ended episodes' last observation and info in
-    ``info["final_obs"]`` / ``info["final_info"]`` as dicts of (N, ...) tensors, masks
-    ``info["_final_obs"]`` / ``info["_final_info"]``) or ``disabled`` (call
-    ``reset(options={"reset_mask": done})``).
+    Spaces, reward, start and episode end are those of ``UR5Reach-v0``
+    (:class:`envs.reach.UR5ReachEnv`, whose docstring documents them) with a leading ``(N,)``
+    axis, as tensors on the device (the spaces stay numpy boxes, BatchedReach's). Where they
+    differ: actions must be finite (unchecked: a check would read the device); the goals come
+    from :class:`GoalPool`; the autoreset modes are BatchedReach's (``next_step`` by default,
+    ``same_step``, ``disabled``), ``same_step``'s ``info["final_obs"]`` / ``info["final_info"]``
+    being dicts of (N, ...) tensors with the masks ``info["_final_obs"]`` /
+    ``info["_final_info"]``.
 
     Parameters
     ----------
@@ -207,7 +177,7 @@ class TorchReach:
         Goals stocked per copy (:class:`GoalPool`): a top-up (one sync) every this many steps
         at most.
     cuda_graph : bool
-        Passed to :class:`envs.torchdyn.TorchArmDynamics`.
+        Passed to :class:`envs.physics.torch_kernel.TorchDynamics`.
 
     ``info`` holds :data:`envs.task.INFO_KEYS` as (N, ...) tensors (``clearance`` from the
     plane check's exact heights), each with an all-True ``_key`` mask.
@@ -220,17 +190,17 @@ class TorchReach:
                  cuda_graph: bool = False, **overrides: Any) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
-        self.task = validate(make_task(spec, overrides))
-        if not torchdyn.supports(self.task):
+        self.task = make_task(spec, overrides)  # checked by its dynamics (envs.validate)
+        if not supports_kernels(self.task):
             raise ValueError(f"TorchReach implements the stop contact model only (as "
-                             f"TorchArmDynamics); got contact_model={self.task.contact_model!r}")
+                             f"TorchDynamics); got contact_model={self.task.contact_model!r}")
         self.num_envs, self.autoreset_mode = int(num_envs), as_autoreset_mode(autoreset_mode)
         self.metadata = {"autoreset_mode": self.autoreset_mode}
         self.spec: Any = None  # set by gymnasium.make_vec
         # host-side metadata (numpy boxes, as BatchedReach's); values stay tensors
         self.single_observation_space, self.single_action_space = single_spaces(self.task)
-        self.dynamics = torchdyn.TorchArmDynamics(self.task, self.num_envs, device=device,
-                                                  dtype=dtype, cuda_graph=cuda_graph)
+        self.dynamics = TorchDynamics(self.task, self.num_envs, device=device, dtype=dtype,
+                                      cuda_graph=cuda_graph)
         self.device, self.dtype = self.dynamics.device, self.dynamics.dtype
         B, n, dev = self.num_envs, self.task.n_joints, self.device
         self.goals = GoalPool(self.task, B, goal_pool, goal_source, dev, self.dtype)
@@ -240,7 +210,7 @@ class TorchReach:
             return torch.as_tensor(np.asarray(x, dtype=np.float64)).to(device=dev,
                                                                       dtype=self.dtype)
 
-        low, high = command_bounds(self.task)
+        low, high = action_bounds(self.task)
         self.action_low, self.action_high = t(low), t(high)
         self._penalty_scale = t(action_penalty_scale(self.task))
         self._start_q = t(self.task.start_q)
@@ -352,7 +322,7 @@ class TorchReach:
 
         ``achieved_goal``, ``desired_goal``: ``(..., 3)`` m, world frame (broadcast);
         ``info["action"]``: ``(..., n)`` the actions as applied (unused if sparse). Equals
-        :func:`envs.reward.compute_reward`; checks shapes only (a value check would sync).
+        :func:`envs.task.compute_reward`; checks shapes only (a value check would sync).
         """
         for name, g in (("achieved_goal", achieved_goal), ("desired_goal", desired_goal)):
             if not isinstance(g, torch.Tensor) or g.ndim == 0 or g.shape[-1] != GOAL_DIM:
@@ -360,7 +330,7 @@ class TorchReach:
                                  f"{getattr(g, 'shape', type(g).__name__)}")
         distance = goal_distance(achieved_goal, desired_goal)
         if self.task.reward_type == "sparse":
-            return reach_reward(distance, None, self.task)
+            return reach_reward(distance, None, self.task, None)
         action = info.get(ACTION_KEY) if isinstance(info, Mapping) else None
         n = self.task.n_joints
         if not isinstance(action, torch.Tensor) or action.ndim == 0 or action.shape[-1] != n:
@@ -395,7 +365,7 @@ class TorchReach:
         self.action.masked_fill_(mask.unsqueeze(-1), 0.0)
 
     def _distance(self) -> torch.Tensor:
-        return goal_distance(self.dynamics._tool, self.goal)
+        return goal_distance(self.dynamics.tool, self.goal)
 
     def _observation(self) -> dict[str, torch.Tensor]:
         d, n = self.dynamics, self.task.n_joints

@@ -71,9 +71,9 @@ def test_bench_times_the_torch_dynamics_beside_the_numba_ones():
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     rows = {row["env"]: row for row in result["results"]}
-    assert rows["TorchArmDynamics (N=4, cpu, float64)"]["steps_per_s"] > 0
+    assert rows["TorchDynamics (N=4, cpu, float64)"]["steps_per_s"] > 0
     assert rows["TorchReach (N=4, cpu, float64)"]["steps_per_s"] > 0
-    assert rows["FastArmDynamics (N=4, numba, cpu)"]["steps_per_s"] > 0
+    assert rows["NumbaDynamics (N=4, numba, cpu)"]["steps_per_s"] > 0
     assert result["device"] == "cpu"
 
 

@@ -1,7 +1,8 @@
-"""The ground-contact models of envs.dynamics (TaskSpec.contact_model), against independent checks.
+"""The ground-contact models of envs.physics.pinocchio_loop (TaskSpec.contact_model), against
+independent checks.
 
-The references here share no code with envs.dynamics.PlaneContact: link heights come from
-ur5kin.link_heights (the closed-form clearance kernel) or from Pinocchio's geometry placements
+The references here share no code with envs.physics.pinocchio_loop.PlaneContact: link heights come
+from ur5kin.link_heights (the closed-form clearance kernel) or from Pinocchio's geometry placements
 (test_env_dynamics.brute_force_heights), point Jacobians from ur5kin.link_poses' closed form.
 """
 
@@ -14,15 +15,16 @@ from arm_geometry import brute_force_heights
 from stepping import record
 
 import ur5kin
-from envs.dynamics import ArmDynamics, PlaneContact, link_hulls
 from envs.gains import CONTACT_MIN_EFFECTIVE_MASS, contact_stability_violations
+from envs.physics.model import link_hulls
+from envs.physics.pinocchio_loop import PinocchioDynamics, PlaneContact
 from envs.spec import TaskSpec
 from ur5kin.closed_form import JOINT_AXES
 
 COMPLIANT = {"contact_model": "compliant"}
 
 
-def run(dyn: ArmDynamics, commands: np.ndarray) -> dict[str, np.ndarray]:
+def run(dyn: PinocchioDynamics, commands: np.ndarray) -> dict[str, np.ndarray]:
     """Step through ``commands (T, B, n)``; the state after each step, stacked."""
     return record(dyn, commands, ("q", "v", "contact", "limit_stop", "depth_stop"))
 
@@ -163,7 +165,7 @@ def test_the_default_contact_is_stable_with_the_pd_on_the_coupled_arm():
 def test_an_unstable_contact_is_refused():
     task = TaskSpec(**COMPLIANT, contact_stiffness=5e7)
     with pytest.raises(ValueError, match="contact is unstable"):
-        ArmDynamics(task)
+        PinocchioDynamics(task)
 
 
 def energy(q: np.ndarray, v: np.ndarray, task: TaskSpec) -> tuple[float, float]:
@@ -185,7 +187,7 @@ than the URDF velocity limits (whose per-joint clip is not energy-conserving).""
 def test_a_dropped_arm_never_gains_energy_and_comes_to_rest():
     task = TaskSpec(region="unconstrained", n_joints=6, control_mode="torque",
                     gravity_compensation=False, start_q=DROP_START, **COMPLIANT)
-    dyn = ArmDynamics(task)
+    dyn = PinocchioDynamics(task)
     log = run(dyn, np.zeros((150, 1, 6)))  # 3 s, no motor torque at all
     assert log["contact"].any() and not (log["limit_stop"].any() or log["depth_stop"].any())
     assert np.all(np.abs(log["v"]) < 0.9 * ur5kin.velocity_limits())  # no velocity clip
@@ -208,7 +210,7 @@ def test_no_link_ends_a_step_deeper_than_the_bound(region, n_joints):
     # random position commands; the bound made tight enough that the fallback is exercised
     for depth, seed in ((0.02, 0), (0.002, 1)):
         task = TaskSpec(region=region, n_joints=n_joints, contact_max_depth=depth, **COMPLIANT)
-        dyn = ArmDynamics(task, 8)
+        dyn = PinocchioDynamics(task, 8)
         commands = np.random.default_rng(seed).uniform(-np.pi, np.pi, (120, 8, n_joints))
         log = run(dyn, commands)
         heights = ur5kin.link_heights(log["q"], task.base_height)[..., 1:].min(axis=-1)
@@ -226,7 +228,7 @@ def tool_track(contact_model: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     task = TaskSpec(region="zheight", n_joints=3, contact_model=contact_model)
     # pan 1.5 rad sideways to a pose whose wrist is 2 mm into the plane, from the start that
     # the lift and elbow bring down onto it first
-    log = run(ArmDynamics(task), np.repeat(np.array([[[1.5, -0.6, 2.2]]]), 60, axis=0))
+    log = run(PinocchioDynamics(task), np.repeat(np.array([[[1.5, -0.6, 2.2]]]), 60, axis=0))
     tool = ur5kin.fk(log["q"][:, 0]) + np.array([0.0, 0.0, task.base_height])
     return tool, log
 
@@ -246,15 +248,15 @@ def test_the_compliant_arm_slides_along_the_plane_where_the_stop_sticks():
 @pytest.mark.parametrize("mode", ["position", "torque"])
 def test_batched_copies_match_single_copies_in_contact(mode):
     task = TaskSpec(region="zheight", n_joints=3, control_mode=mode, **COMPLIANT)
-    from envs.dynamics import command_bounds
+    from envs.task import action_bounds
 
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(6).uniform(low, high, (100, 4, 3))
-    batch = run(ArmDynamics(task, 4), commands)
+    batch = run(PinocchioDynamics(task, 4), commands)
     # measured 0.015 (torque) to 0.4 (position) with the wrists locked; 0.04 to 0.4 under pd
     assert batch["contact"].mean() > 0.01
     for i in range(4):
-        one = run(ArmDynamics(task), commands[:, i : i + 1])
+        one = run(PinocchioDynamics(task), commands[:, i : i + 1])
         np.testing.assert_array_equal(one["contact"][:, 0], batch["contact"][:, i])
         np.testing.assert_allclose(one["q"][:, 0], batch["q"][:, i], atol=1e-9)
         np.testing.assert_allclose(one["v"][:, 0], batch["v"][:, i], atol=1e-7)
@@ -263,8 +265,8 @@ def test_batched_copies_match_single_copies_in_contact(mode):
 def test_the_screens_never_change_the_compliant_answer():
     task = TaskSpec(region="unconstrained", n_joints=6, **COMPLIANT)
     commands = np.random.default_rng(4).uniform(-np.pi, np.pi, (150, 1, 6))
-    screened = run(ArmDynamics(task), commands)
-    exact = ArmDynamics(task)
+    screened = run(PinocchioDynamics(task), commands)
+    exact = PinocchioDynamics(task)
     # every link of every substep gets the exact force test: the clearance bounds say nothing
     exact._plane_screen = np.full(6, np.inf)
     exact._lipschitz = np.full((6, 6), 1e9)  # m/rad
@@ -276,10 +278,10 @@ def test_the_screens_never_change_the_compliant_answer():
 
 def test_the_stop_model_ignores_the_compliant_fields():
     commands = np.random.default_rng(8).uniform(-np.pi, np.pi, (100, 3, 3))
-    plain = run(ArmDynamics(TaskSpec(region="zheight"), 3), commands)
+    plain = run(PinocchioDynamics(TaskSpec(region="zheight"), 3), commands)
     other = TaskSpec(region="zheight", contact_stiffness=1e4, contact_damping=10.0,
                      contact_friction=0.0, contact_max_depth=0.5)
-    tuned = run(ArmDynamics(other, 3), commands)
+    tuned = run(PinocchioDynamics(other, 3), commands)
     assert plain["contact"].any()
     for key, value in plain.items():
         np.testing.assert_array_equal(value, tuned[key], err_msg=key)
@@ -300,6 +302,6 @@ def test_bad_contact_fields_are_refused(field, value):
 def test_velocities_stay_within_the_urdf_limits_in_contact(n_joints):
     task = TaskSpec(region="zheight", n_joints=n_joints, **COMPLIANT)
     commands = np.random.default_rng(9).uniform(-np.pi, np.pi, (150, 4, n_joints))
-    log = run(ArmDynamics(task, 4), commands)
+    log = run(PinocchioDynamics(task, 4), commands)
     assert log["contact"].mean() > 0.1
     assert np.all(np.abs(log["v"]) <= ur5kin.velocity_limits())

@@ -1,4 +1,4 @@
-"""The arm's physics (envs.dynamics), checked against Pinocchio and first principles.
+"""The arm's physics (envs.physics.pinocchio_loop), checked against Pinocchio and first principles.
 
 The plane checks use ``arm_geometry.brute_force_heights``: Pinocchio's geometry placements (oMg)
 applied to the URDF's collision meshes, with none of ur5kin.collision's closed forms.
@@ -13,19 +13,20 @@ from arm_geometry import brute_force_heights
 from stepping import record
 
 import ur5kin
-from envs.dynamics import ArmDynamics, height_lipschitz
+from envs.physics.model import height_lipschitz
+from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.spec import TaskSpec
 
 H = 1e-3  # s, the default substep
 
 
-def run(dyn: ArmDynamics, commands: np.ndarray) -> dict[str, np.ndarray]:
+def run(dyn: PinocchioDynamics, commands: np.ndarray) -> dict[str, np.ndarray]:
     """Step through ``commands (T, B, n)``; the state after each step, stacked."""
     return record(dyn, commands, ("q", "v", "acceleration", "contact", "limit_stop"))
 
 
 def test_time_scaled_model_gives_pinocchios_dynamics():
-    dyn = ArmDynamics(TaskSpec())
+    dyn = PinocchioDynamics(TaskSpec())
     base = ur5kin.load_model()
     data = base.createData()
     rng = np.random.default_rng(0)
@@ -57,7 +58,7 @@ def test_pd_gains_are_stable_on_the_coupled_arm():
 @pytest.mark.parametrize("mode", ["position", "torque"])
 def test_a_held_pose_stays_still(mode):
     task = TaskSpec(region="zheight", n_joints=3, control_mode=mode)
-    dyn = ArmDynamics(task)
+    dyn = PinocchioDynamics(task)
     start = np.asarray(task.start_q)
     hold = start[None, :3] if mode == "position" else np.zeros((1, 3))
     log = run(dyn, np.repeat(hold[None], 100, axis=0))
@@ -69,7 +70,7 @@ def test_a_held_pose_stays_still(mode):
 def test_without_gravity_compensation_the_arm_falls_at_pinocchios_rate():
     task = TaskSpec(region="unconstrained", n_joints=6, control_mode="torque",
                     gravity_compensation=False)
-    dyn = ArmDynamics(task)
+    dyn = PinocchioDynamics(task)
     q0 = np.asarray(task.start_q)  # all zeros: the arm stretched horizontally
     model = ur5kin.load_model()
     data = model.createData()
@@ -88,7 +89,7 @@ def test_a_free_arm_conserves_energy():
     start = (0.0, -1.2, 0.6, 0.3, 0.2, 0.1)
     task = TaskSpec(region="unconstrained", n_joints=6, control_mode="torque",
                     gravity_compensation=False, start_q=start)
-    dyn = ArmDynamics(task)
+    dyn = PinocchioDynamics(task)
     model = ur5kin.load_model()
     data = model.createData()
 
@@ -115,7 +116,7 @@ def test_a_commanded_pose_is_tracked_within_an_episode(region, n_joints):
     errors = []
     for _ in range(16):
         target = rng.uniform(-np.pi, np.pi, (1, n_joints))
-        log = run(ArmDynamics(task), np.repeat(target[None], 100, axis=0))
+        log = run(PinocchioDynamics(task), np.repeat(target[None], 100, axis=0))
         if log["contact"].any() or log["limit_stop"].any():
             continue  # the straight path went through the plane: nothing to track
         errors.append(np.abs(log["q"][-1, 0, :n_joints] - target[0]).max())
@@ -126,7 +127,7 @@ def test_a_commanded_pose_is_tracked_within_an_episode(region, n_joints):
 
 def test_velocity_mode_tracks_a_commanded_velocity():
     task = TaskSpec(region="unconstrained", n_joints=3, control_mode="velocity")
-    log = run(ArmDynamics(task), np.repeat(np.array([[[1.0, 0.0, 0.0]]]), 10, axis=0))
+    log = run(PinocchioDynamics(task), np.repeat(np.array([[[1.0, 0.0, 0.0]]]), 10, axis=0))
     np.testing.assert_allclose(log["v"][-1, 0, :3], [1.0, 0.0, 0.0], atol=1e-3)
     # the pan joint follows a first-order lag of time constant I / kd: after t = 0.2 s at
     # 1 rad/s it trails by tau (1 - exp(-t / tau)) rad
@@ -140,10 +141,10 @@ def test_velocity_mode_tracks_a_commanded_velocity():
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
 def test_velocities_stay_within_the_urdf_limits(mode):
     task = TaskSpec(region="unconstrained", n_joints=6, control_mode=mode)
-    dyn = ArmDynamics(task)
-    from envs.dynamics import command_bounds
+    dyn = PinocchioDynamics(task)
+    from envs.task import action_bounds
 
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     log = run(dyn, np.random.default_rng(3).uniform(low, high, (150, 1, 6)))
     assert np.all(np.abs(log["v"]) <= ur5kin.velocity_limits() + 1e-12)
     assert np.all(np.isfinite(log["q"])) and np.all(np.isfinite(log["acceleration"]))
@@ -151,7 +152,7 @@ def test_velocities_stay_within_the_urdf_limits(mode):
 
 def test_the_plane_stops_the_arm_dead():
     task = TaskSpec(region="zheight", n_joints=3)
-    dyn = ArmDynamics(task)
+    dyn = PinocchioDynamics(task)
     down = np.array([[[0.0, 1.2, 0.3]]])  # lowers the arm into the plane
     log = run(dyn, np.repeat(down, 60, axis=0))
     hits = np.flatnonzero(log["contact"][:, 0])
@@ -165,8 +166,8 @@ def test_the_plane_stops_the_arm_dead():
 def test_the_screen_never_changes_the_answer():
     task = TaskSpec(region="unconstrained", n_joints=6)
     commands = np.random.default_rng(4).uniform(-np.pi, np.pi, (300, 1, 6))
-    screened = run(ArmDynamics(task), commands)
-    exact = ArmDynamics(task)
+    screened = run(PinocchioDynamics(task), commands)
+    exact = PinocchioDynamics(task)
     exact._plane_screen = np.full(6, np.inf)  # every step gets the exact clearance check
     checked = run(exact, commands)
     assert screened["contact"].any()
@@ -189,14 +190,14 @@ def test_the_clearance_bound_holds():
 @pytest.mark.parametrize("mode", ["position", "velocity", "torque"])
 def test_batched_copies_match_single_copies(mode):
     task = TaskSpec(region="unconstrained", n_joints=3, control_mode=mode)
-    from envs.dynamics import command_bounds
+    from envs.task import action_bounds
 
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(6).uniform(low, high, (120, 4, 3))
-    batch = run(ArmDynamics(task, 4), commands)
+    batch = run(PinocchioDynamics(task, 4), commands)
     assert batch["contact"].any()
     for i in range(4):
-        one = run(ArmDynamics(task), commands[:, i : i + 1])
+        one = run(PinocchioDynamics(task), commands[:, i : i + 1])
         np.testing.assert_array_equal(one["contact"][:, 0], batch["contact"][:, i])
         np.testing.assert_allclose(one["q"][:, 0], batch["q"][:, i], atol=1e-9)
         np.testing.assert_allclose(one["v"][:, 0], batch["v"][:, i], atol=1e-7)
@@ -204,7 +205,7 @@ def test_batched_copies_match_single_copies(mode):
 
 def test_joint_limits_stop_the_arm():
     task = TaskSpec(region="zheight", n_joints=3, control_mode="velocity")
-    dyn = ArmDynamics(task)
+    dyn = PinocchioDynamics(task)
     log = run(dyn, np.repeat(np.array([[[0.0, 0.0, 3.0]]]), 40, axis=0))  # elbow to +pi
     stops = np.flatnonzero(log["limit_stop"][:, 0])
     assert stops.size > 0
@@ -214,6 +215,6 @@ def test_joint_limits_stop_the_arm():
 
 
 def test_reset_refuses_a_pose_in_the_plane():
-    dyn = ArmDynamics(TaskSpec())
+    dyn = PinocchioDynamics(TaskSpec())
     with pytest.raises(ValueError, match="below the plane"):
         dyn.reset(np.array([0.0, np.pi / 2, 0.0, 0.0, 0.0, 0.0]))

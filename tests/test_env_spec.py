@@ -17,10 +17,10 @@ from hypothesis import strategies as st
 
 import regions
 from envs.checks import validate
-from envs.dynamics import ArmDynamics
-from envs.gains import DEFAULT_KD, DEFAULT_KP, joint_inertia_bounds, pd_gains
+from envs.gains import joint_inertia_bounds, pd_gains
+from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.reach import UR5ReachEnv
-from envs.spec import TaskSpec
+from envs.spec import DEFAULT_KD, DEFAULT_KP, TaskSpec
 
 
 def test_defaults_are_the_papers_task():
@@ -134,7 +134,7 @@ def test_invalid_values_raise_at_construction_naming_the_field(fields, message):
 def test_unrunnable_tasks_are_records_that_validate_and_the_dynamics_refuse(fields, message):
     task = TaskSpec(**fields)  # a record: reading it checks no physics
     assert TaskSpec.from_json(task.to_json()) == task
-    for check in (validate, ArmDynamics, lambda t: UR5ReachEnv(spec=t)):
+    for check in (validate, PinocchioDynamics, lambda t: UR5ReachEnv(spec=t)):
         with pytest.raises(ValueError, match=re.escape(message)):
             check(task)
 

@@ -1,4 +1,4 @@
-"""envs.task.ReachTask owns the task's rules: the single and the batched env give the same step
+"""envs.task.TaskRules owns the task's rules: the single and the batched env give the same step
 information key by key, and it agrees with the rules recomputed here from the task's numbers."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from envs import BatchedReach, TaskSpec, UR5ReachEnv
-from envs.task import INFO_KEYS, RESET_INFO_KEYS, ReachTask
+from envs.task import INFO_KEYS, RESET_INFO_KEYS, TaskRules
 
 SCALAR_TYPES = {"distance": float, "is_success": bool, "contact": bool, "joint_limit": bool,
                 "clearance": float}
@@ -86,11 +86,11 @@ def test_single_and_batched_infos_match_key_by_key_and_follow_the_rules(terminat
 
 
 def test_goal_env_functions_are_the_tasks():
-    """compute_reward / compute_terminated of both envs equal ReachTask's on relabelled goals,
+    """compute_reward / compute_terminated of both envs equal TaskRules's on relabelled goals,
     and compute_terminated is success and terminate_on_success from the task's numbers."""
     for terminate_on_success in (True, False):
         task = TaskSpec(region="farbox", n_joints=3, terminate_on_success=terminate_on_success)
-        rules = ReachTask(task)
+        rules = TaskRules(task)
         rng = np.random.default_rng(3)
         achieved = rng.normal(0.5, 0.1, (64, 3))
         desired = achieved + rng.normal(0.0, 0.08, (64, 3))
@@ -105,7 +105,7 @@ def test_goal_env_functions_are_the_tasks():
 
 
 def test_sample_goals_draws_each_goal_from_its_own_generator():
-    rules = ReachTask(TaskSpec(region="closebox", n_joints=3))
+    rules = TaskRules(TaskSpec(region="closebox", n_joints=3))
     together = rules.sample_goals([np.random.default_rng(s) for s in (4, 5, 6)])
     alone = np.concatenate([rules.sample_goals([np.random.default_rng(s)]) for s in (4, 5, 6)])
     assert together.shape == (3, 3)
@@ -121,7 +121,7 @@ def test_info_puts_each_value_under_its_key_as_a_copy():
               "distance": np.array([0.25, 0.05]), "success": np.array([False, True]),
               "contact": np.array([True, False]), "joint_limit": np.array([False, True]),
               "clearance": np.array([0.0, 0.3])}
-    info = ReachTask.info(**inputs)
+    info = TaskRules.info(**inputs)
     assert list(info) == list(INFO_KEYS)
     renamed = {"is_success": "success"}
     for key in INFO_KEYS:
@@ -129,7 +129,7 @@ def test_info_puts_each_value_under_its_key_as_a_copy():
     for value in inputs.values():
         value[...] = 7  # the env overwrites its arrays on the next step
     assert info["distance"].tolist() == [0.25, 0.05] and info["contact"].tolist() == [True, False]
-    row = ReachTask.copy_info(info, 1)
+    row = TaskRules.copy_info(info, 1)
     assert row == {"action": row["action"], "distance": 0.05, "is_success": True,
                    "contact": False, "joint_limit": True, "clearance": 0.3}
     assert [type(row[k]) for k in SCALAR_TYPES] == list(SCALAR_TYPES.values())

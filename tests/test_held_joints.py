@@ -12,13 +12,13 @@ import pinocchio as pin
 import pytest
 
 import ur5kin
-from envs import fastdyn, torchdyn
-from envs.dynamics import ArmDynamics
+from envs.physics import numba_kernel, torch_kernel
+from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.spec import TaskSpec
 from envs.task import task_sampler
 
-BACKENDS = {"pinocchio": ArmDynamics, "numba": fastdyn.FastArmDynamics,
-            "torch": torchdyn.TorchArmDynamics}
+BACKENDS = {"pinocchio": PinocchioDynamics, "numba": numba_kernel.NumbaDynamics,
+            "torch": torch_kernel.TorchDynamics}
 
 
 def free_block_reference(q: np.ndarray, v: np.ndarray, tau: np.ndarray, free: int
@@ -50,19 +50,19 @@ def random_state(free: int, seed: int, count: int = 40
 def test_locked_aba_of_the_kernels_is_the_full_models_free_block(free):
     q, v, tau = random_state(free, seed=free)
     ref = free_block_reference(q, v, tau, free)
-    np.testing.assert_allclose(fastdyn.aba(q, v, tau, free=free), ref, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(torchdyn.aba(q, v, tau, free=free).numpy(), ref, rtol=0,
+    np.testing.assert_allclose(numba_kernel.aba(q, v, tau, free=free), ref, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(torch_kernel.aba(q, v, tau, free=free).numpy(), ref, rtol=0,
                                atol=1e-9)
-    assert np.all(fastdyn.aba(q, v, tau, free=free)[:, free:] == 0.0)
+    assert np.all(numba_kernel.aba(q, v, tau, free=free)[:, free:] == 0.0)
 
 
 @pytest.mark.parametrize("num_copies", [1, 3])
 @pytest.mark.parametrize("n", [2, 3, 5])
 def test_locked_aba_of_the_pinocchio_loop_is_the_full_models_free_block(n, num_copies):
     # The loop's own kernel (Pinocchio's reduced model at the start pose) in its time-scaled
-    # units: w = h v, tau and gravity scaled by h^2, so it returns h^2 a (envs.dynamics).
+    # units: w = h v, tau and gravity scaled by h^2, so it returns h^2 a (envs.physics.model).
     task = TaskSpec(region="zheight", n_joints=n)
-    dyn = ArmDynamics(task, num_copies)
+    dyn = PinocchioDynamics(task, num_copies)
     h = task.sim_dt
     q, v, tau = random_state(n, seed=10 + n, count=num_copies)
     q[:, n:] = task.start_q[n:]  # welded where the task starts them
@@ -99,7 +99,7 @@ def test_locked_joints_never_move_over_long_random_rollouts_with_contacts(backen
 
 def test_locked_joints_never_move_under_the_compliant_contact():
     task = TaskSpec(region="zheight", n_joints=3, contact_model="compliant")
-    dyn = ArmDynamics(task, 3)
+    dyn = PinocchioDynamics(task, 3)
     commands = np.random.default_rng(4).uniform(-np.pi, np.pi, (150, 3, 3))
     q, contact = rollout(dyn, commands)
     assert contact.sum() > 20
@@ -112,7 +112,7 @@ def test_pd_held_joints_give_way_where_locked_ones_do_not():
     swing = {}
     for held in ("pd", "locked"):
         task = TaskSpec(region="zheight", n_joints=3, held_joints=held)
-        q, _ = rollout(fastdyn.FastArmDynamics(task, 4), commands)
+        q, _ = rollout(numba_kernel.NumbaDynamics(task, 4), commands)
         swing[held] = np.abs(q[..., 3:]).max()
     assert swing["pd"] > 0.3  # rad
     assert swing["locked"] == 0.0
@@ -145,7 +145,7 @@ def test_a_sampled_goal_is_reached_by_its_configuration_with_the_held_joints_at_
     # the locked arm commanded to the configuration's controlled angles gets there (goals
     # whose straight joint-space path the plane blocks stop short: measured 35-60 % of these
     # low goals are not blocked)
-    dyn = fastdyn.FastArmDynamics(task, len(batch.q))
+    dyn = numba_kernel.NumbaDynamics(task, len(batch.q))
     contact = np.zeros(len(batch.q), dtype=bool)
     for _ in range(task.max_episode_steps):
         dyn.step(batch.q[:, :n])
@@ -163,11 +163,11 @@ def test_a_reset_that_moves_a_locked_joint_is_refused():
     for backend in BACKENDS.values():
         with pytest.raises(ValueError, match=r"joints 4\.\.6 are locked at their start angles"):
             backend(task, 2).reset(moved)
-    ArmDynamics(task.replace(held_joints="pd"), 2).reset(moved)  # pd takes any pose
+    PinocchioDynamics(task.replace(held_joints="pd"), 2).reset(moved)  # pd takes any pose
     with pytest.raises(ValueError, match=r"free must be an integer in 1\.\.6"):
-        fastdyn.aba(np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 6)), free=0)
+        numba_kernel.aba(np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 6)), free=0)
     with pytest.raises(ValueError, match="zero velocity"):
-        fastdyn.aba(np.zeros((1, 6)), np.ones((1, 6)), np.zeros((1, 6)), free=3)
+        numba_kernel.aba(np.zeros((1, 6)), np.ones((1, 6)), np.zeros((1, 6)), free=3)
 
 
 def test_held_joints_is_a_checked_recorded_field():

@@ -27,9 +27,9 @@ physics)."""
 def _modules() -> dict[str, pathlib.Path]:
     out = {}
     for package in LAYERS:
-        for path in sorted((ROOT / package).glob("*.py")):
-            name = package if path.stem == "__init__" else f"{package}.{path.stem}"
-            out[name] = path
+        for path in sorted((ROOT / package).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
     return out
 
 
@@ -67,6 +67,8 @@ def _imports(path: pathlib.Path, module: str, top_level_only: bool,
                 base = child.module or ""
                 if child.level:
                     parent = module if path.stem == "__init__" else module.rpartition(".")[0]
+                    for _ in range(child.level - 1):
+                        parent = parent.rpartition(".")[0]
                     base = ".".join(filter(None, [parent, base]))
                 names = [f"{base}.{alias.name}" for alias in child.names] + [base]
             else:
@@ -83,7 +85,7 @@ def _imports(path: pathlib.Path, module: str, top_level_only: bool,
 
 def test_no_import_cycle_even_through_lazy_imports():
     # an import inside a function or for type checking hides a cycle from the interpreter,
-    # not from the design (envs.spec <-> envs.dynamics was one)
+    # not from the design (envs.spec <-> envs.physics.pinocchio_loop was one)
     graph = {m: _imports(p, m, top_level_only=False, type_checking=True)
              for m, p in MODULES.items()}
     state: dict[str, int] = {}  # 1: on the stack, 2: done
@@ -118,8 +120,9 @@ def test_the_arm_geometry_belongs_to_ur5kin_and_the_physics_ignores_the_goal_lay
             source = path.read_text()
             for name in ("def link_heights", "def collision_geometry", "class Capsule"):
                 assert name not in source, f"{module} defines {name}"
-    dynamics = _imports(MODULES["envs.dynamics"], "envs.dynamics", top_level_only=False)
-    assert not any(t.startswith("regions") for t in dynamics), dynamics
+    for module in (m for m in MODULES if m.startswith("envs.physics")):
+        dynamics = _imports(MODULES[module], module, top_level_only=False)
+        assert not any(t.startswith("regions") for t in dynamics), (module, dynamics)
 
 
 @pytest.mark.parametrize("module", LIGHT_MODULES)
@@ -143,3 +146,35 @@ def test_lazy_exports_stay_the_exported_objects_once_every_submodule_is_loaded(p
             importlib.import_module(module)
     for name in pkg.__all__:
         assert not isinstance(getattr(pkg, name), types.ModuleType), f"{package}.{name}"
+
+
+ENVS_FLOORS = 6
+"""Most floors of envs' import graph (issue 27): a module stands one floor above everything in
+envs it imports, anywhere in it (in functions and for type checking too)."""
+
+
+def test_envs_stands_on_at_most_six_floors():
+    graph = {m: {t for t in _imports(p, m, top_level_only=False, type_checking=True)
+                 if t.startswith("envs.") or t == "envs"}
+             for m, p in MODULES.items() if m.startswith("envs.")}
+    floor: dict[str, int] = {}
+
+    def height(module: str) -> int:
+        if module not in floor:
+            floor[module] = 1 + max((height(t) for t in graph.get(module, ()) if t != "envs"),
+                                    default=0)
+        return floor[module]
+
+    tops = {m: height(m) for m in graph}
+    assert max(tops.values()) <= ENVS_FLOORS, sorted(tops.items(), key=lambda kv: -kv[1])
+
+
+def test_no_module_imports_a_private_name_of_another_module():
+    private = []
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                private += [f"{module}: from {node.module} import {a.name}" for a in node.names
+                            if a.name.startswith("_") and not a.name.startswith("__")]
+    assert not private, private
+

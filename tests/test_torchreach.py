@@ -1,6 +1,6 @@
 """The torch env (envs.torchreach.TorchReach) against the numpy one (envs.batched.BatchedReach).
 
-Two paths: the tensor reward against envs.reward.compute_reward on random values, and whole
+Two paths: the tensor reward against envs.task.compute_reward on random values, and whole
 rollouts (autoresets, plane contacts, successes, goal-pool top-ups) step for step against
 BatchedReach(dynamics="numba") with the same goals and actions. The goals are the task sampler's
 own draws (same generator, same goals), a seed fixes everything, and ``step`` reads nothing back
@@ -16,10 +16,8 @@ import pytest
 from gymnasium.utils import seeding
 
 from envs.batched import BatchedReach
-from envs.dynamics import command_bounds
-from envs.reward import compute_reward
 from envs.spec import TaskSpec
-from envs.task import INFO_KEYS, task_sampler
+from envs.task import INFO_KEYS, action_bounds, compute_reward, task_sampler
 
 torch = pytest.importorskip("torch")
 torchreach = pytest.importorskip("envs.torchreach")
@@ -48,7 +46,7 @@ def host(x) -> np.ndarray:
 
 def random_actions(task: TaskSpec, steps: int, num: int, seed: int) -> np.ndarray:
     """Actions ``(steps, num, n)`` up to 1.3 times beyond the command box (the clip is tested)."""
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     return np.random.default_rng(seed).uniform(1.3 * low, 1.3 * high, (steps, num, len(low)))
 
 

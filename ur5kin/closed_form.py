@@ -28,11 +28,11 @@ def array_module(x: Any) -> ModuleType:
     """``numpy`` for numpy input, ``torch`` for a torch tensor (imported only then)."""
     if isinstance(x, np.ndarray):
         return np
-    torch = _torch_if_tensor(x)
+    torch = torch_if_tensor(x)
     return torch if torch is not None else np
 
 
-def _torch_if_tensor(x: Any) -> ModuleType | None:
+def torch_if_tensor(x: Any) -> ModuleType | None:
     mod = type(x).__module__
     if mod.startswith("torch"):
         import torch

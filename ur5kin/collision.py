@@ -350,6 +350,18 @@ def _kernels() -> _Kernels:
     return _Kernels(*_stack(vertices), *_stack(witnesses), end_heights, radii)
 
 
+def height_table() -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The exact check's constants, for code that evaluates :func:`link_heights` itself (the
+    compiled dynamics): ``vertex_heights (V, 13)`` m, the height above ``base_link`` of every
+    vertex that can be a link's lowest as a product with the :data:`FEATURES` of ``q``;
+    ``bounds (8,) int``, link k's rows ``bounds[k]:bounds[k + 1]``; and the pitch offsets
+    ``lift, wrist`` (rad) the features use (``a = q2 + lift``, ``c = q2 + q3 + q4 + lift +
+    wrist``)."""
+    kernels = _kernels()
+    lift, wrist = _angle_offsets()
+    return kernels.vertex_heights, kernels.bounds, float(lift), float(wrist)
+
+
 def link_z_rows(q: Any) -> np.ndarray:
     """Third row of each link's pose in ``base_link``: what a link point's height depends on.
 

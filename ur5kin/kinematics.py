@@ -50,7 +50,7 @@ def _check_tensor(q: Any) -> Any:
 def _dispatch(q: Any, batched: Any, tail: tuple[int, ...], single: Any = None) -> Any:
     """Route ``q``: a tensor or a numpy batch to the closed form ``batched`` (in cache-sized
     blocks), one numpy configuration to Pinocchio's ``single(model, data, frame, q)`` if given."""
-    if closed_form._torch_if_tensor(q) is not None:
+    if closed_form.torch_if_tensor(q) is not None:
         return closed_form.chunked(batched, _check_tensor(q), tail)
     q = joint_array(q)
     if q.ndim == 1 and single is not None:

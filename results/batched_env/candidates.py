@@ -3,9 +3,9 @@
     python results/batched_env/candidates.py            # from the repository root
 
 Rows: the forward dynamics alone (B calls of ABA) through Pinocchio (a Python loop over
-``pin.aba``; ``abaInParallel`` on one thread, what ArmDynamics uses) and the numba kernel of
-envs.fastdyn; then a whole control step (20 substeps, PD + gravity, clips, plane and limit
-stops) of ArmDynamics against FastArmDynamics. Times are per copy (per copy-step for the
+``pin.aba``; ``abaInParallel`` on one thread, what PinocchioDynamics uses) and the numba kernel of
+envs.physics.numba_kernel; then a whole control step (20 substeps, PD + gravity, clips, plane and
+limit stops) of PinocchioDynamics against NumbaDynamics. Times are per copy (per copy-step for the
 steps), medians over the rounds, with each row's ratio to the Pinocchio reference.
 """
 
@@ -19,9 +19,10 @@ import numpy as np
 import pinocchio as pin
 
 import ur5kin
-from envs import fastdyn
-from envs.dynamics import ArmDynamics, command_bounds
+from envs.physics import numba_kernel
+from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.spec import TaskSpec
+from envs.task import action_bounds
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -38,10 +39,10 @@ def main(argv: list[str] | None = None) -> None:
     tau = rng.uniform(-1, 1, (B, 6)) * ur5kin.effort_limits()
     qT, vT, tT, out = q.T.copy(), v.T.copy(), tau.T.copy(), np.zeros((6, B))
     task = TaskSpec(region="unconstrained", n_joints=3)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = rng.uniform(low, high, (args.steps, B, 3))
-    arms = {"ArmDynamics (pinocchio)": ArmDynamics(task, B),
-            "FastArmDynamics (numba)": fastdyn.FastArmDynamics(task, B)}
+    arms = {"PinocchioDynamics (pinocchio)": PinocchioDynamics(task, B),
+            "NumbaDynamics (numba)": numba_kernel.NumbaDynamics(task, B)}
 
     def aba_loop() -> None:
         for i in range(B):
@@ -55,7 +56,7 @@ def main(argv: list[str] | None = None) -> None:
         "aba: pin.aba Python loop": (aba_loop, B),
         "aba: pin.abaInParallel (1 thread)": (
             lambda: pin.abaInParallel(1, pool, qT, vT, tT, out), B),
-        "aba: fastdyn.aba (numba)": (lambda: fastdyn.aba(q, v, tau), B),
+        "aba: numba_kernel.aba (numba)": (lambda: numba_kernel.aba(q, v, tau), B),
         **{f"step: {name}": (lambda d=dyn: steps(d), B * args.steps)
            for name, dyn in arms.items()},
     }
@@ -68,7 +69,7 @@ def main(argv: list[str] | None = None) -> None:
             func()
             samples[name].append((time.perf_counter() - start) / count * 1e6)
     reference = {"aba": statistics.median(samples["aba: pin.abaInParallel (1 thread)"]),
-                 "step": statistics.median(samples["step: ArmDynamics (pinocchio)"])}
+                 "step": statistics.median(samples["step: PinocchioDynamics (pinocchio)"])}
     print(f"B = {B}, {args.rounds} rounds; microseconds per copy (median, min-max)")
     for name, values in samples.items():
         med = statistics.median(values)

@@ -1,9 +1,10 @@
-"""The compiled batched dynamics (envs.fastdyn), checked against Pinocchio and ArmDynamics.
+"""The compiled batched dynamics (envs.physics.numba_kernel), checked against Pinocchio and the
+Pinocchio loop.
 
 Two paths everywhere: the kernel's ABA and gravity against ``pin.aba`` /
 ``pin.computeGeneralizedGravity`` row by row, its plane check against ur5kin.link_heights and
 the brute-force mesh check of test_env_dynamics, its tool position against ur5kin.fk, and whole
-control steps against ArmDynamics (Pinocchio in a Python loop, numpy stops).
+control steps against PinocchioDynamics (Pinocchio in a Python loop, numpy stops).
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ from arm_geometry import brute_force_heights
 
 import envs
 import ur5kin
-from envs import fastdyn
-from envs.batched import make_dynamics
-from envs.dynamics import ArmDynamics, command_bounds
+from envs.physics import make_dynamics, numba_kernel
+from envs.physics.model import ChainModel
+from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.spec import TaskSpec
+from envs.task import action_bounds
 
 numba = pytest.importorskip("numba")  # the fast path is optional
 
@@ -49,13 +51,13 @@ def pinocchio_rows(func, *arrays: np.ndarray) -> np.ndarray:
 def test_aba_is_pinocchios_in_float64():
     q, v, tau = random_states(200, seed=0)
     reference = pinocchio_rows(pin.aba, q, v, tau)
-    np.testing.assert_allclose(fastdyn.aba(q, v, tau), reference, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(numba_kernel.aba(q, v, tau), reference, rtol=1e-9, atol=1e-9)
 
 
 def test_aba_in_float32_within_the_stated_bound():
     q, v, tau = random_states(200, seed=1)
     reference = pinocchio_rows(pin.aba, q, v, tau)
-    a32 = fastdyn.aba(q, v, tau, dtype=np.float32)
+    a32 = numba_kernel.aba(q, v, tau, dtype=np.float32)
     assert a32.dtype == np.float32
     assert np.abs(a32 - reference).max() <= F32_ACCEL_RTOL * (1.0 + np.abs(reference).max())
 
@@ -63,7 +65,7 @@ def test_aba_in_float32_within_the_stated_bound():
 def test_gravity_torque_is_pinocchios():
     q, _, _ = random_states(200, seed=2)
     reference = pinocchio_rows(pin.computeGeneralizedGravity, q)
-    np.testing.assert_allclose(fastdyn.generalized_gravity(q), reference, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(numba_kernel.generalized_gravity(q), reference, rtol=1e-9, atol=1e-9)
 
 
 def test_the_chain_is_read_from_pinocchio():
@@ -71,18 +73,18 @@ def test_the_chain_is_read_from_pinocchio():
     heavier = pin.Model(model)
     heavier.inertias[3] = pin.Inertia(2.0 * model.inertias[3].mass, model.inertias[3].lever,
                                       2.0 * model.inertias[3].inertia)
-    chain = fastdyn.ChainModel.from_pinocchio(heavier)
+    chain = ChainModel.from_pinocchio(heavier)
     np.testing.assert_array_equal(chain.inertia[2], heavier.inertias[3].matrix())
     np.testing.assert_array_equal(chain.translation[1], model.jointPlacements[2].translation)
     damped = pin.Model(model)
     damped.damping = np.full(6, 0.1)
     with pytest.raises(ValueError, match="damping"):
-        fastdyn.ChainModel.from_pinocchio(damped)
+        ChainModel.from_pinocchio(damped)
 
 
 def test_plane_heights_are_regions_and_the_meshes():
     q = np.random.default_rng(3).uniform(-np.pi, np.pi, (300, 6))
-    heights = fastdyn.link_heights(q, 0.5)
+    heights = numba_kernel.link_heights(q, 0.5)
     np.testing.assert_allclose(heights, ur5kin.link_heights(q, 0.5)[:, 1:], atol=1e-12)
     np.testing.assert_allclose(heights[:40].min(axis=1), brute_force_heights(q[:40], 0.5),
                                atol=1e-9)
@@ -90,27 +92,27 @@ def test_plane_heights_are_regions_and_the_meshes():
 
 def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match=r"\(B, 6\)"):
-        fastdyn.aba(np.zeros((2, 5)), np.zeros((2, 5)), np.zeros((2, 5)))
+        numba_kernel.aba(np.zeros((2, 5)), np.zeros((2, 5)), np.zeros((2, 5)))
     with pytest.raises(ValueError, match="dtype"):
-        fastdyn.aba(np.zeros((2, 6)), np.zeros((2, 6)), np.zeros((2, 6)), dtype=np.float16)
+        numba_kernel.aba(np.zeros((2, 6)), np.zeros((2, 6)), np.zeros((2, 6)), dtype=np.float16)
     with pytest.raises(ValueError, match="num_copies"):
-        fastdyn.FastArmDynamics(TaskSpec(), 0)
+        numba_kernel.NumbaDynamics(TaskSpec(), 0)
     with pytest.raises(ValueError, match="dynamics must be one of"):
         make_dynamics(TaskSpec(), 2, "mujoco")
     with pytest.raises(ValueError, match="dynamics='fast' is now dynamics='numba'"):
         make_dynamics(TaskSpec(), 2, "fast")
     with pytest.raises(ValueError, match="runs on the CPU only"):
         make_dynamics(TaskSpec(), 2, "numba", device="cuda")
-    assert isinstance(make_dynamics(TaskSpec(), 2, "numba"), fastdyn.FastArmDynamics)
-    assert isinstance(make_dynamics(TaskSpec(), 2, "pinocchio"), ArmDynamics)
+    assert isinstance(make_dynamics(TaskSpec(), 2, "numba"), numba_kernel.NumbaDynamics)
+    assert isinstance(make_dynamics(TaskSpec(), 2, "pinocchio"), PinocchioDynamics)
 
 
 # ------------------------------------------------------------------ whole control steps
 def run_both(task: TaskSpec, commands: np.ndarray, start: np.ndarray | None = None,
              dtype: str = "float64") -> tuple[dict, dict]:
-    """Step ArmDynamics and FastArmDynamics through ``commands (T, B, n)``; both logs."""
+    """Step PinocchioDynamics and NumbaDynamics through ``commands (T, B, n)``; both logs."""
     B = commands.shape[1]
-    pair = (ArmDynamics(task, B), fastdyn.FastArmDynamics(task, B, dtype=dtype))
+    pair = (PinocchioDynamics(task, B), numba_kernel.NumbaDynamics(task, B, dtype=dtype))
     logs: tuple[dict, dict] = ({}, {})
     for dyn, log in zip(pair, logs, strict=True):
         if start is not None:
@@ -139,7 +141,7 @@ def assert_same_steps(ref: dict, fast: dict, atol: float) -> None:
 def test_control_steps_are_armdynamics(mode, n_joints, gravity_compensation):
     task = TaskSpec(region="unconstrained", n_joints=n_joints, control_mode=mode,
                     gravity_compensation=gravity_compensation)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(4).uniform(low, high, (40, 16, n_joints))
     ref, fast = run_both(task, commands)
     assert ref["contact"].any()  # random commands drive the arm into the plane
@@ -148,7 +150,7 @@ def test_control_steps_are_armdynamics(mode, n_joints, gravity_compensation):
 
 def test_joint_limit_stops_are_armdynamics():
     task = TaskSpec(region="unconstrained", n_joints=3, control_mode="velocity")
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     model = ur5kin.load_model()
     start = np.tile(np.asarray(task.start_q), (8, 1))
     start[:, 0] = np.linspace(-1.0, 1.0, 8) * (model.upperPositionLimit[0] - 0.05)
@@ -183,9 +185,9 @@ def rollout(env: envs.BatchedReach, steps: int, seed: int) -> np.ndarray:
 def test_batched_env_takes_the_fast_path_and_matches_the_reference():
     task = TaskSpec(region="unconstrained", n_joints=3)
     fast = envs.BatchedReach(8, task)
-    assert isinstance(fast._core.dynamics, fastdyn.FastArmDynamics)
+    assert isinstance(fast._core.dynamics, numba_kernel.NumbaDynamics)
     reference = envs.BatchedReach(8, task, dynamics="pinocchio")
-    assert isinstance(reference._core.dynamics, ArmDynamics)
+    assert isinstance(reference._core.dynamics, PinocchioDynamics)
     first = rollout(fast, 30, seed=5)
     np.testing.assert_array_equal(rollout(envs.BatchedReach(8, task), 30, seed=5), first)
     np.testing.assert_allclose(first, rollout(reference, 30, seed=5), atol=1e-6)
@@ -193,14 +195,94 @@ def test_batched_env_takes_the_fast_path_and_matches_the_reference():
 
 def test_threads_do_not_change_the_result():
     task = TaskSpec(region="unconstrained", n_joints=3)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(6).uniform(low, high, (10, 12, 3))
     logs = []
     for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
-        dyn = fastdyn.FastArmDynamics(task, 12, threads=threads)
+        dyn = numba_kernel.NumbaDynamics(task, 12, threads=threads)
         for command in commands:
             dyn.step(command)
         logs.append(np.concatenate([dyn.q, dyn.v, dyn.acceleration]))
     np.testing.assert_array_equal(logs[1], logs[0])
     with pytest.raises(ValueError, match="threads"):
-        fastdyn.FastArmDynamics(task, 2, threads=0)
+        numba_kernel.NumbaDynamics(task, 2, threads=0)
+
+
+CUDASIM_STEPS = r'''
+import numpy as np
+from numba import cuda
+
+from envs.physics import numba_kernel
+from envs.spec import TaskSpec
+from envs.task import action_bounds
+
+body = numba_kernel.compile_step_body(cuda.jit(device=True))
+f8 = np.float64
+
+
+@cuda.jit
+def kernel(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half, vh, bounds,
+           lift, wrist, lipschitz, base_height, margin, clearance, rot0, p, axis, inertia,
+           armature, grav, tool_pos, dW, contact, limit_stop, tool, free):
+    b = cuda.grid(1)
+    if b >= Q.shape[0]:
+        return
+    R = cuda.local.array((6, 3, 3), f8)
+    vel, acc = cuda.local.array((7, 6), f8), cuda.local.array((7, 6), f8)
+    cb, pA, U = (cuda.local.array((6, 6), f8), cuda.local.array((6, 6), f8),
+                 cuda.local.array((6, 6), f8))
+    IA = cuda.local.array((6, 6, 6), f8)
+    X, Y, force = (cuda.local.array((6, 6), f8), cuda.local.array((6, 6), f8),
+                   cuda.local.array((6, 6), f8))
+    D, u, tau, g, a = (cuda.local.array(6, f8), cuda.local.array(6, f8),
+                       cuda.local.array(6, f8), cuda.local.array(6, f8),
+                       cuda.local.array(6, f8))
+    q1, w1, q_ref, heights = (cuda.local.array(6, f8), cuda.local.array(6, f8),
+                              cuda.local.array(6, f8), cuda.local.array(6, f8))
+    feat = cuda.local.array(13, f8)
+    contact[b], limit_stop[b] = body(
+        Q[b], W[b], clearance[b], bias[b], kp, kd, effort, w_max, gravity_comp, substeps, q_mid,
+        q_half, vh, bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia,
+        armature, grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a,
+        force, q1, w1, q_ref, heights, feat, tool[b])
+
+
+rng = np.random.default_rng(3)
+for fields in (dict(region="unconstrained", n_joints=3, held_joints="pd"),
+               dict(region="zheight", n_joints=6)):
+    task = TaskSpec(**fields)
+    cpu = numba_kernel.NumbaDynamics(task, 4)
+    low, high = action_bounds(task)
+    stops = 0
+    for _ in range(4):
+        command = rng.uniform(1.5 * low, 1.5 * high, (4, task.n_joints)).clip(low, high)
+        command[:2, 1] = high[1]  # the shoulder down: into the plane
+        args = [np.copy(x) if isinstance(x, np.ndarray) else x for x in cpu.kernel_arguments()]
+        np.multiply(cpu.arm.command_gain, command, out=args[2][:, : task.n_joints])
+        kernel[1, 4](*args)
+        cpu.step(command)
+        want = cpu.kernel_arguments()
+        for i in (0, 1, 18, 27, 28, 29):  # q, w, the height bounds, the stop flags, the tool
+            np.testing.assert_allclose(args[i], want[i], rtol=1e-12, atol=1e-12)
+        stops += int(cpu.contact.sum() + cpu.limit_stop.sum())
+    print(fields["region"], "stops", stops)
+    assert stops > 0 or fields["region"] != "unconstrained", "no stop: the test misses them"
+'''
+
+
+def test_the_step_body_compiles_for_a_gpu_thread_and_gives_the_cpu_kernels_numbers():
+    # numba's CUDA simulator runs the body as one thread's code, with the scratch a GPU kernel
+    # lends it (cuda.local.array); every state array after each step equals the CPU kernel's
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
+    probe = subprocess.run([sys.executable, "-c", "from numba import cuda; cuda.jit"], env=env,
+                           capture_output=True)
+    if probe.returncode:
+        pytest.skip("numba.cuda is not importable here")
+    run = subprocess.run([sys.executable, "-c", CUDASIM_STEPS], env=env, capture_output=True,
+                         text=True, cwd=os.path.dirname(os.path.dirname(__file__)))
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "unconstrained stops" in run.stdout, run.stdout

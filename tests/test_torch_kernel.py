@@ -1,11 +1,12 @@
-"""The vectorised torch dynamics (envs.torchdyn), checked against Pinocchio and the numba path.
+"""The vectorised torch dynamics (envs.physics.torch_kernel), checked against Pinocchio and the
+numba path.
 
 Two paths everywhere: the batched ABA and gravity against ``pin.aba`` /
 ``pin.computeGeneralizedGravity`` row by row, the plane check against ur5kin.link_heights, the
 tool position against ur5kin.fk, and whole control steps (plane contacts and joint-limit stops
-included) against envs.fastdyn.FastArmDynamics, or against ArmDynamics (the Pinocchio reference
-that FastArmDynamics is tested against) where numba is missing, as on the GPU machine. Every
-test runs on the CPU, and again on CUDA where torch sees a GPU.
+included) against envs.physics.numba_kernel.NumbaDynamics, or against PinocchioDynamics (the
+Pinocchio reference that NumbaDynamics is tested against) where numba is missing, as on the GPU
+machine. Every test runs on the CPU, and again on CUDA where torch sees a GPU.
 """
 
 from __future__ import annotations
@@ -16,12 +17,14 @@ import pytest
 from stepping import record
 
 import ur5kin
-from envs import fastdyn
-from envs.dynamics import ArmDynamics, command_bounds
+from envs.physics import numba_kernel
+from envs.physics.model import ChainModel
+from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.spec import TaskSpec
+from envs.task import action_bounds
 
 torch = pytest.importorskip("torch")
-torchdyn = pytest.importorskip("envs.torchdyn")
+torch_kernel = pytest.importorskip("envs.physics.torch_kernel")
 
 DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not torch.cuda.is_available(), reason="torch sees no CUDA device"))]
@@ -63,7 +66,7 @@ def host(x) -> np.ndarray:
 def test_aba_is_pinocchios_in_float64(device):
     q, v, tau = random_states(200, seed=0)
     reference = pinocchio_rows(pin.aba, q, v, tau)
-    a = torchdyn.aba(q, v, tau, device=device)
+    a = torch_kernel.aba(q, v, tau, device=device)
     assert a.dtype == torch.float64 and a.device.type == device
     np.testing.assert_allclose(host(a), reference, rtol=1e-9, atol=1e-9)
 
@@ -72,7 +75,7 @@ def test_aba_is_pinocchios_in_float64(device):
 def test_aba_in_float32_within_the_stated_bound(device):
     q, v, tau = random_states(200, seed=1)
     reference = pinocchio_rows(pin.aba, q, v, tau)
-    a32 = torchdyn.aba(q, v, tau, device=device, dtype="float32")
+    a32 = torch_kernel.aba(q, v, tau, device=device, dtype="float32")
     assert a32.dtype == torch.float32
     assert np.abs(host(a32) - reference).max() <= F32_ACCEL_RTOL * (1.0 + np.abs(reference).max())
 
@@ -81,7 +84,7 @@ def test_aba_in_float32_within_the_stated_bound(device):
 def test_gravity_torque_is_pinocchios(device):
     q, _, _ = random_states(200, seed=2)
     reference = pinocchio_rows(pin.computeGeneralizedGravity, q)
-    np.testing.assert_allclose(host(torchdyn.generalized_gravity(q, device=device)), reference,
+    np.testing.assert_allclose(host(torch_kernel.generalized_gravity(q, device=device)), reference,
                                rtol=1e-9, atol=1e-9)
 
 
@@ -94,41 +97,41 @@ def test_a_changed_pinocchio_model_is_followed(device):
     changed.inertias[3] = pin.Inertia(2.0 * model.inertias[3].mass, model.inertias[3].lever,
                                       2.0 * model.inertias[3].inertia)
     changed.armature = np.linspace(0.05, 0.3, 6)
-    chain = torchdyn.TorchChain.from_chain(fastdyn.ChainModel.from_pinocchio(changed), device,
-                                           torch.float64)
+    chain = torch_kernel.TorchChain.from_chain(ChainModel.from_pinocchio(changed), device,
+                                               torch.float64)
     q, v, tau = random_states(50, seed=10)
     data = changed.createData()
     reference = np.array([pin.aba(changed, data, *row).copy() for row in zip(q, v, tau,
                                                                            strict=True)])
     q_t, v_t, tau_t = (torch.as_tensor(x, device=device) for x in (q, v, tau))
-    X = torchdyn.motion_transforms(torchdyn.placements(q_t, chain), chain)
-    np.testing.assert_allclose(host(torchdyn.articulated_body(X, v_t, tau_t, chain)), reference,
+    X = torch_kernel.motion_transforms(torch_kernel.placements(q_t, chain), chain)
+    np.testing.assert_allclose(host(torch_kernel.articulated_body(X, v_t, tau_t, chain)), reference,
                                rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("device", DEVICES)
 def test_plane_heights_and_tool_are_ur5kins(device):
     q = np.random.default_rng(3).uniform(-np.pi, np.pi, (300, 6))
-    heights = torchdyn.link_heights(q, 0.5, device=device)
+    heights = torch_kernel.link_heights(q, 0.5, device=device)
     np.testing.assert_allclose(host(heights), ur5kin.link_heights(q, 0.5)[:, 1:], atol=1e-12)
-    chain, _ = torchdyn._ur5_models(device, torch.float64)
-    R = torchdyn.placements(torch.as_tensor(q, device=device), chain)
+    chain, _ = torch_kernel._ur5_models(device, torch.float64)
+    R = torch_kernel.placements(torch.as_tensor(q, device=device), chain)
     model = ur5kin.load_model()
     tool = model.frames[model.getFrameId(ur5kin.TOOL_FRAME)].placement.translation
-    world = torchdyn.tool_position(R, chain, torch.as_tensor(tool, device=device), 0.5)
+    world = torch_kernel.tool_position(R, chain, torch.as_tensor(tool, device=device), 0.5)
     np.testing.assert_allclose(host(world), ur5kin.to_world(ur5kin.fk(q), 0.5), atol=1e-12)
 
 
 def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match=r"\(B, 6\)"):
-        torchdyn.aba(np.zeros((2, 5)), np.zeros((2, 5)), np.zeros((2, 5)))
+        torch_kernel.aba(np.zeros((2, 5)), np.zeros((2, 5)), np.zeros((2, 5)))
     with pytest.raises(ValueError, match="dtype"):
-        torchdyn.aba(np.zeros((2, 6)), np.zeros((2, 6)), np.zeros((2, 6)), dtype="float16")
+        torch_kernel.aba(np.zeros((2, 6)), np.zeros((2, 6)), np.zeros((2, 6)), dtype="float16")
     with pytest.raises(ValueError, match="num_copies"):
-        torchdyn.TorchArmDynamics(TaskSpec(), 0)
+        torch_kernel.TorchDynamics(TaskSpec(), 0)
     with pytest.raises(ValueError, match="stop contact model"):
-        torchdyn.TorchArmDynamics(TaskSpec(contact_model="compliant"), 2)
-    dyn = torchdyn.TorchArmDynamics(TaskSpec(n_joints=3), 2)
+        torch_kernel.TorchDynamics(TaskSpec(contact_model="compliant"), 2)
+    dyn = torch_kernel.TorchDynamics(TaskSpec(n_joints=3), 2)
     with pytest.raises(ValueError, match=r"\(2, 3\)"):
         dyn.step(np.zeros((2, 4)))
     q = np.random.default_rng(8).uniform(-np.pi, np.pi, (50, 6))
@@ -142,10 +145,10 @@ def test_bad_inputs_are_refused():
 
 # ------------------------------------------------------------------ whole control steps
 def reference(task: TaskSpec, num_copies: int):
-    """The numba path (float64) where numba is installed, else ArmDynamics."""
-    if fastdyn.available():
-        return fastdyn.FastArmDynamics(task, num_copies)
-    return ArmDynamics(task, num_copies)
+    """The numba path (float64) where numba is installed, else PinocchioDynamics."""
+    if numba_kernel.available():
+        return numba_kernel.NumbaDynamics(task, num_copies)
+    return PinocchioDynamics(task, num_copies)
 
 
 class OnHost:
@@ -166,17 +169,17 @@ class OnHost:
 
 def tool_of(dyn) -> np.ndarray:
     """tool0's world positions ``(B, 3)`` m of any of the dynamics, as numpy."""
-    if isinstance(dyn, torchdyn.TorchArmDynamics):
+    if isinstance(dyn, torch_kernel.TorchDynamics):
         return host(dyn.tool_positions())
     return dyn.tool_positions(np.zeros((dyn.num_copies, 3)))
 
 
 def run_both(task: TaskSpec, commands: np.ndarray, start: np.ndarray | None = None,
              device: str = "cpu", dtype: str = "float64") -> tuple[dict, dict]:
-    """Step the reference and TorchArmDynamics through ``commands (T, B, n)``; both logs."""
+    """Step the reference and TorchDynamics through ``commands (T, B, n)``; both logs."""
     B = commands.shape[1]
     logs = []
-    for dyn in (reference(task, B), torchdyn.TorchArmDynamics(task, B, device=device,
+    for dyn in (reference(task, B), torch_kernel.TorchDynamics(task, B, device=device,
                                                               dtype=dtype)):
         if start is not None:
             dyn.reset(start)
@@ -198,10 +201,10 @@ def assert_same_steps(ref: dict, got: dict, atol: float) -> None:
                          [("position", 3, True, None), ("velocity", 6, True, None),
                           ("torque", 2, True, None), ("torque", 3, False, None),
                           ("position", 5, True, None), ("position", 2, True, HELD_START)])
-def test_control_steps_are_fastdyns(mode, n_joints, gravity_compensation, start_q, device):
+def test_control_steps_are_the_numba_kernels(mode, n_joints, gravity_compensation, start_q, device):
     task = TaskSpec(region="unconstrained", n_joints=n_joints, control_mode=mode,
                     gravity_compensation=gravity_compensation, start_q=start_q)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(4).uniform(low, high, (40, 16, n_joints))
     ref, got = run_both(task, commands, device=device)
     assert ref["contact"].any()  # random commands drive the arm into the plane
@@ -209,9 +212,9 @@ def test_control_steps_are_fastdyns(mode, n_joints, gravity_compensation, start_
 
 
 @pytest.mark.parametrize("device", DEVICES)
-def test_joint_limit_stops_are_fastdyns(device):
+def test_joint_limit_stops_are_the_numba_kernels(device):
     task = TaskSpec(region="unconstrained", n_joints=3, control_mode="velocity")
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     model = ur5kin.load_model()
     start = np.tile(np.asarray(task.start_q), (8, 1))
     start[:, 0] = np.linspace(-1.0, 1.0, 8) * (model.upperPositionLimit[0] - 0.05)
@@ -235,10 +238,10 @@ def test_float32_steps_within_the_stated_bound(device):
 @pytest.mark.parametrize("device", DEVICES)
 def test_reset_of_some_copies_is_fastdyns(device):
     task = TaskSpec(region="unconstrained", n_joints=3)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(7).uniform(low, high, (6, 5, 3))
     pose = np.asarray(task.start_q) + np.array([0.3, -0.2, 0.1, 0.0, 0.0, 0.0])
-    pair = (reference(task, 5), torchdyn.TorchArmDynamics(task, 5, device=device))
+    pair = (reference(task, 5), torch_kernel.TorchDynamics(task, 5, device=device))
     mask = np.array([True, False, True, False, False])
     for d in pair:
         for command in commands[:3]:
@@ -257,18 +260,18 @@ def test_reset_of_some_copies_is_fastdyns(device):
 
 def test_compile_modes_are_checked():
     with pytest.raises(ValueError, match="compile must be"):
-        torchdyn.TorchArmDynamics(TaskSpec(), 2, compile="fastest")
+        torch_kernel.TorchDynamics(TaskSpec(), 2, compile="fastest")
     with pytest.raises(ValueError, match="cuda_graph=True needs a CUDA device"):
-        torchdyn.TorchArmDynamics(TaskSpec(), 2, cuda_graph=True)
+        torch_kernel.TorchDynamics(TaskSpec(), 2, cuda_graph=True)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="torch sees no CUDA device")
 def test_cuda_graph_steps_are_the_eager_ones():
     task = TaskSpec(region="unconstrained", n_joints=3)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(11).uniform(low, high, (12, 16, 3))
-    eager = torchdyn.TorchArmDynamics(task, 16, device="cuda")
-    graphed = torchdyn.TorchArmDynamics(task, 16, device="cuda", cuda_graph=True)
+    eager = torch_kernel.TorchDynamics(task, 16, device="cuda")
+    graphed = torch_kernel.TorchDynamics(task, 16, device="cuda", cuda_graph=True)
     contacts = 0
     for t, command in enumerate(commands):
         if t == 6:  # a reset between replays writes the same storage the graph reads
@@ -289,10 +292,10 @@ def test_cuda_graph_steps_are_the_eager_ones():
 @pytest.mark.parametrize("device", DEVICES)
 def test_compiled_steps_are_the_eager_ones(device):
     task = TaskSpec(region="unconstrained", n_joints=3)
-    low, high = command_bounds(task)
+    low, high = action_bounds(task)
     commands = np.random.default_rng(9).uniform(low, high, (4, 8, 3))
-    eager = torchdyn.TorchArmDynamics(task, 8, device=device)
-    compiled = torchdyn.TorchArmDynamics(task, 8, device=device, compile=True)
+    eager = torch_kernel.TorchDynamics(task, 8, device=device)
+    compiled = torch_kernel.TorchDynamics(task, 8, device=device, compile=True)
     for command in commands:
         eager.step(command)
         compiled.step(command)
@@ -319,7 +322,7 @@ def test_batched_env_on_the_torch_path_is_the_default_one(device):
 
     task = TaskSpec(region="unconstrained", n_joints=3)
     env = envs.BatchedReach(8, task, dynamics="torch", device=device)
-    assert isinstance(env._core.dynamics, torchdyn.HostArrays)
+    assert isinstance(env._core.dynamics, torch_kernel.HostMirror)
     assert env._core.dynamics.dyn.device.type == device
     default = rollout(envs.BatchedReach(8, task), 30, seed=5)
     np.testing.assert_allclose(rollout(env, 30, seed=5), default, atol=1e-6)

@@ -1,50 +1,40 @@
-"""The arm's batched dynamics as vectorised torch: one control step of B copies on any device.
+"""The torch backend: one control step of B arm copies as vectorised tensor operations, any device.
 
-The physics is :class:`envs.fastdyn.FastArmDynamics`' (hence :class:`envs.dynamics.ArmDynamics`';
-its module docstring has the equations, the stop model and the time-scaled units): per substep
-PD + gravity compensation, effort clip, Featherstone's articulated-body algorithm, velocity clip,
-semi-implicit Euler, then the joint-limit and plane stops; the tool position after the step.
-Where the numba kernel loops over copies with scalar code, this module loops over the six joints
-in Python and over nothing else: every operation acts on tensors of shape ``(B, ...)``, so the
-same code runs on the CPU (tested here against the numba path and Pinocchio) and on CUDA, where
-the batch is the parallelism (the GPU half of issue 14; numba-cuda and Warp are not on the GPU
-machine, torch is).
-
-Pinocchio stays the source: the chain is :class:`envs.fastdyn.ChainModel` (read from
-:func:`ur5kin.load_model`) and the plane check's constants :class:`envs.fastdyn.PlaneModel`
-(read from :mod:`ur5kin.collision`), converted to tensors once.
-
-No host-device synchronisation inside a step: no ``.item()``, no data-dependent shapes. A copy
-that stops (plane or joint limit) keeps being integrated with the others and its results are
-discarded by ``torch.where`` masks, exactly as ArmDynamics computes every substep and then
-rolls a stopped copy back; the numba kernel's Lipschitz screen (which skips exact plane checks)
-is replaced by the exact check at every substep, a branch-free matrix product. The step is thus
-a fixed graph of tensor operations, ready for a CUDA graph or ``torch.compile``
-(:class:`TorchArmDynamics`' ``compile`` option). The syncs are at the edges: :meth:`reset`
-checks the reset configurations against the plane on the host, and a numpy command is copied
-to the device.
+The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynamics/README.md``)
+with a loop over the six joints in Python and over nothing else: every operation acts on
+tensors of shape ``(B, ...)``, so the same code runs on the CPU and on CUDA. A copy that stops
+keeps being integrated and its results are discarded by ``torch.where`` masks, and the plane is
+checked exactly at every substep, so a step is a fixed graph of tensor operations with no
+host-device synchronisation (ready for a CUDA graph or ``torch.compile``); :meth:`TorchDynamics.
+reset` checks the configurations on the host. The chain and plane tables are
+:mod:`envs.physics.model`'s, as tensors.
 """
 
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from dataclasses import replace as dataclasses_replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
 import ur5kin
-from envs import fastdyn
-from envs.arm import arm_model, moving_link_heights
-from envs.dynamics import check_held
+from envs.checks import validate
+from envs.physics.model import (
+    NJ,
+    ChainModel,
+    PlaneModel,
+    arm_model,
+    rest_heights,
+    supports_kernels,
+    tool_offset,
+    ur5_chain,
+    ur5_plane,
+)
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
-
-NJ = fastdyn.NJ
-"""Joints of the chain (the UR5's six revolute joints)."""
 
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
 """Floating-point types of the tensors."""
@@ -55,13 +45,7 @@ CUDA_GRAPH_WARMUP_STEPS = 3
 lazy initialisations, cuBLAS workspaces, out of the recording)."""
 
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
-"""``torch.compile`` modes :class:`TorchArmDynamics` accepts for its ``compile`` option."""
-
-
-def supports(task: TaskSpec) -> bool:
-    """Whether :class:`TorchArmDynamics` implements ``task``'s physics: the numba path's set
-    (:func:`envs.fastdyn.supports`, the stop contact model)."""
-    return fastdyn.supports(task)
+"""``torch.compile`` modes :class:`TorchDynamics` accepts for its ``compile`` option."""
 
 
 def _dtype(dtype: Any) -> torch.dtype:
@@ -94,7 +78,7 @@ def _mv(M: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 # ---------------------------------------------------------------------------- the model
 @dataclass(frozen=True)
 class TorchChain:
-    """:class:`envs.fastdyn.ChainModel` as tensors on one device, with the constants the
+    """:class:`envs.physics.model.ChainModel` as tensors on one device, with the constants the
     vectorised algorithms use. Spatial vectors are Pinocchio's: motions ``[v; w]``, forces
     ``[f; n]`` (linear part first).
 
@@ -139,7 +123,7 @@ class TorchChain:
     base_acceleration: torch.Tensor
 
     @classmethod
-    def from_chain(cls, chain: fastdyn.ChainModel, device: torch.device | str,
+    def from_chain(cls, chain: ChainModel, device: torch.device | str,
                    dtype: torch.dtype) -> TorchChain:
         """The tensors of ``chain`` on ``device`` as ``dtype`` (derived constants in float64
         first, then cast)."""
@@ -166,7 +150,7 @@ class TorchChain:
 
 @dataclass(frozen=True)
 class TorchPlane:
-    """:class:`envs.fastdyn.PlaneModel` as tensors, laid out for one matrix product.
+    """:class:`envs.physics.model.PlaneModel` as tensors, laid out for one matrix product.
 
     Attributes
     ----------
@@ -186,7 +170,7 @@ class TorchPlane:
     wrist_offset: float
 
     @classmethod
-    def from_plane(cls, plane: fastdyn.PlaneModel, device: torch.device | str,
+    def from_plane(cls, plane: PlaneModel, device: torch.device | str,
                    dtype: torch.dtype) -> TorchPlane:
         """The table of ``plane`` (float64 there) without base_link's rows, on ``device`` as
         ``dtype``."""
@@ -200,8 +184,8 @@ class TorchPlane:
 @functools.cache
 def _ur5_models(device: str, dtype: torch.dtype) -> tuple[TorchChain, TorchPlane]:
     """The UR5's chain (real gravity) and plane tensors (cached per device and dtype)."""
-    return (TorchChain.from_chain(fastdyn.ur5_chain("float64"), device, dtype),
-            TorchPlane.from_plane(fastdyn.ur5_plane("float64"), device, dtype))
+    return (TorchChain.from_chain(ur5_chain(), device, dtype),
+            TorchPlane.from_plane(ur5_plane(), device, dtype))
 
 
 # ---------------------------------------------------------------------------- algorithms
@@ -257,7 +241,8 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
         Joint torques, in the units of the chain's gravity times inertia.
     free : int, 1..6
         Joints 1..free move; free+1..6 are locked (welded at their angles, zero ``qd``): as
-        :func:`envs.fastdyn._aba`, they carry their articulated inertia to the parent whole
+        :func:`envs.physics.numba_kernel.aba`, they carry their articulated inertia to the
+        parent whole
         and get ``qdd = 0``.
 
     Returns
@@ -315,7 +300,7 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
 
 def plane_heights(q: torch.Tensor, plane: TorchPlane, base_height: float) -> torch.Tensor:
     """Lowest point ``(B, 6)`` (m, world z) of each moving link at ``q (B, 6)`` rad: the 13
-    trigonometric features of :func:`ur5kin.collision._features` times the vertex table, the
+    trigonometric features (:data:`ur5kin.collision.FEATURES`) times the vertex table, the
     minimum per link (the numba kernel's ``_link_heights``)."""
     a = q[:, 1] + plane.lift_offset
     b = a + q[:, 2]
@@ -367,7 +352,7 @@ def aba(q: Any, v: Any, tau: Any, device: Any = "cpu", dtype: Any = "float64",
     device : str or torch.device
     dtype : float64 or float32
     free : int, 1..6
-        Joints 1..free move, the others are locked (as :func:`envs.fastdyn.aba`; their
+        Joints 1..free move, the others are locked (as :func:`envs.physics.numba_kernel.aba`; their
         velocities must be zero).
 
     Returns
@@ -412,20 +397,14 @@ def link_heights(q: Any, base_height: float, device: Any = "cpu", dtype: Any = "
 
 
 # ---------------------------------------------------------------------------- the class
-class TorchArmDynamics:
-    """B copies of the UR5 under the task's controller, one vectorised torch step per call.
-
-    The same parameters, attributes and methods as :class:`envs.fastdyn.FastArmDynamics` (and
-    the same physics to rounding; tested against it), with tensors for arrays: the state lives
-    on ``device``, a step is a fixed graph of tensor operations.
+class TorchDynamics:
+    """B copies of the UR5 under the task's controller, one vectorised torch step per call: an
+    :class:`envs.physics.Dynamics` with tensors for arrays (the same physics as the numba kernel
+    to rounding; tested against it). The state lives on ``device``; a step is a fixed graph of
+    tensor operations.
 
     Parameters
     ----------
-    task : TaskSpec
-        Start pose, controlled joints, control mode, gains, rates, base height, plane margin.
-        Only the stop contact model (:func:`supports`).
-    num_copies : int
-        B, the number of independent arms.
     device : str or torch.device
         Where the tensors live and the step runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``).
     dtype : {"float64", "float32"}
@@ -447,16 +426,10 @@ class TorchArmDynamics:
 
     Attributes
     ----------
-    q : (B, 6) tensor, rad
-        Joint angles now.
-    v : (B, 6) tensor, rad/s
-        Joint velocities now.
-    acceleration : (B, 6) tensor, rad/s^2
-        Mean realised acceleration over the last step (zero after a reset).
-    contact : (B,) bool tensor
-        Whether the last step stopped on the plane.
-    limit_stop : (B,) bool tensor
-        Whether the last step stopped at a URDF joint position limit.
+    w : (B, 6) tensor, rad per substep
+        The integrator's velocity ``h v``.
+    tool : (B, 3) tensor, m, world frame
+        tool0's position now.
 
     The tensors are owned by this object and overwritten in place by every step (their storage
     never changes, as a CUDA graph needs); clone what you keep.
@@ -467,10 +440,9 @@ class TorchArmDynamics:
                  cuda_graph: bool = False) -> None:
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-        if not supports(task):
-            raise ValueError(f"TorchArmDynamics implements the stop contact model (as envs."
-                             f"fastdyn does); got contact_model="
-                             f"{getattr(task, 'contact_model', None)!r}")
+        if not supports_kernels(task):
+            raise ValueError(f"TorchDynamics implements the stop contact model (as the numba "
+                             f"kernel does); got contact_model={task.contact_model!r}")
         device = torch.device(device)
         if compile is not False and compile is not True and compile not in COMPILE_MODES:
             raise ValueError(f"compile must be a bool or one of {list(COMPILE_MODES)}; got "
@@ -481,43 +453,33 @@ class TorchArmDynamics:
             raise ValueError(f"cuda_graph=True needs a CUDA device and compile=False; got "
                              f"device {str(device)!r}, compile={compile!r}")
         cast = _dtype(dtype)
-        self.task, self.num_copies, self.device, self.dtype = task, int(num_copies), device, cast
-        B, h, n = self.num_copies, task.sim_dt, task.n_joints
-        model = ur5kin.load_model()
-        chain = fastdyn.ChainModel.from_pinocchio(model)
-        # time-scaled units (envs.dynamics): gravity and torques * h^2, velocities w = h v
-        self._chain = TorchChain.from_chain(
-            dataclasses_replace(chain, gravity=chain.gravity * h * h), device, cast)
-        self._plane = TorchPlane.from_plane(fastdyn.ur5_plane("float64"), device, cast)
-        tool = model.frames[model.getFrameId(ur5kin.TOOL_FRAME)]
-        if tool.parentJoint != NJ:
-            raise ValueError(f"{ur5kin.TOOL_FRAME} hangs on joint {tool.parentJoint}; the torch "
-                             f"path expects joint {NJ}")
+        self.task, self.num_copies = validate(task), int(num_copies)
+        self.device, self.dtype = device, cast
+        B = self.num_copies
+        arm = self.arm = arm_model(task)
+        # time-scaled units (envs.physics.model): gravity and torques * h^2, velocities w = h v
+        self._chain = TorchChain.from_chain(arm.chain, device, cast)
+        self._plane = TorchPlane.from_plane(ur5_plane(), device, cast)
 
         def t(x: Any) -> torch.Tensor:
             return torch.as_tensor(np.array(x, dtype=np.float64)).to(device=device, dtype=cast)
 
-        self._tool_pos = t(tool.placement.translation)
-        arm = self.arm = arm_model(task)
+        self._tool_pos = t(tool_offset())
         self._kp, self._kd = t(arm.kp_eff), t(arm.kd_eff)
         self._command_gain = t(arm.command_gain)
         self._effort, self._w_max = t(arm.effort), t(arm.w_max)
         self._q_mid, self._q_half = t(arm.q_mid), t(arm.q_half)
-        self._start_q = arm.start_q
-        self._bias = torch.zeros((B, NJ), device=device, dtype=cast)
-        self._bias[:, n:] = t(arm.held_bias)  # held joints: PD to the start (pd)
-        self._free = arm.free  # locked held joints: out of the dynamics
-        self._w_to_v, self._w_to_accel = arm.w_to_v, arm.w_to_accel
+        self._bias = t(arm.initial_bias(B))
         self._gravity_comp = bool(task.gravity_compensation)
         self._base_height, self._margin = float(task.base_height), float(task.plane_margin)
 
-        self.q = t(self._start_q).repeat(B, 1)
-        self._w = torch.zeros((B, NJ), device=device, dtype=cast)
-        self.v = torch.zeros_like(self._w)
-        self.acceleration = torch.zeros_like(self._w)
+        self.q = t(arm.start_q).repeat(B, 1)
+        self.w = torch.zeros((B, NJ), device=device, dtype=cast)
+        self.v = torch.zeros_like(self.w)
+        self.acceleration = torch.zeros_like(self.w)
         self.contact = torch.zeros(B, dtype=torch.bool, device=device)
         self.limit_stop = torch.zeros_like(self.contact)
-        self._tool = tool_position(placements(self.q, self._chain), self._chain, self._tool_pos,
+        self.tool = tool_position(placements(self.q, self._chain), self._chain, self._tool_pos,
                                    self._base_height)
         # the compiled unit is the substep: a graph of a few hundred operations (the whole
         # step unrolls to substeps times as many, and compiles for as much longer)
@@ -538,7 +500,7 @@ class TorchArmDynamics:
         if self._gravity_comp:
             tau = tau + gravity_torque(X, chain)
         tau = torch.minimum(torch.maximum(tau, -self._effort), self._effort)
-        w1 = w + articulated_body(X, w, tau, chain, self._free)
+        w1 = w + articulated_body(X, w, tau, chain, self.arm.free)
         w1 = torch.minimum(torch.maximum(w1, -self._w_max), self._w_max)
         q1 = q + w1
         beyond = ((q1 - self._q_mid).abs() > self._q_half).any(-1)
@@ -552,7 +514,7 @@ class TorchArmDynamics:
 
         A substep that leaves the joint limits or brings a link below the plane margin is not
         taken: the copy stays where it is with ``w = 0`` (stopped dead) and stops running; the
-        substeps it has left are computed and discarded by the masks, as ArmDynamics computes
+        substeps it has left are computed and discarded by the masks, as PinocchioDynamics computes
         and discards them. Returns the new ``q, w, running, contact, limit``.
         """
         q1, w1, beyond, below = self._substep(q, w, bias)
@@ -576,15 +538,8 @@ class TorchArmDynamics:
         return q, w, contact, limit, tool
 
     def step(self, command: Any) -> None:
-        """Advance every copy by one control step of ``task.substeps`` substeps.
-
-        Parameters
-        ----------
-        command : (B, n) float tensor or array
-            Per copy, the command of joints 1..n in the control mode's unit (rad, rad/s or
-            N m), already within :func:`envs.dynamics.command_bounds`. A tensor on ``device``
-            avoids a host-to-device copy.
-        """
+        """:meth:`envs.physics.Dynamics.step`; ``command`` a tensor or an array (a tensor on
+        ``device`` avoids a host-to-device copy)."""
         n = self.task.n_joints
         command = torch.as_tensor(command, device=self.device, dtype=self.dtype)
         if command.shape != (self.num_copies, n):
@@ -600,20 +555,20 @@ class TorchArmDynamics:
 
     def _state(self) -> tuple[torch.Tensor, ...]:
         """Every tensor a step writes."""
-        return (self.q, self._w, self.v, self.acceleration, self.contact, self.limit_stop,
-                self._tool)
+        return (self.q, self.w, self.v, self.acceleration, self.contact, self.limit_stop,
+                self.tool)
 
     def _advance(self) -> None:
         """One control step from the state tensors into them, in place, with the command in
         ``_bias``: the work a CUDA graph captures (it reads and writes fixed storage only)."""
-        q, w, contact, limit, tool = self._control_step(self.q, self._w, self._bias)
-        torch.mul(w - self._w, self._w_to_accel, out=self.acceleration)
+        q, w, contact, limit, tool = self._control_step(self.q, self.w, self._bias)
+        torch.mul(w - self.w, self.arm.w_to_accel, out=self.acceleration)
         self.q.copy_(q)
-        self._w.copy_(w)
-        torch.mul(w, self._w_to_v, out=self.v)
+        self.w.copy_(w)
+        torch.mul(w, self.arm.w_to_v, out=self.v)
         self.contact.copy_(contact)
         self.limit_stop.copy_(limit)
-        self._tool.copy_(tool)
+        self.tool.copy_(tool)
 
     def _capture(self) -> Any:
         """A ``torch.cuda.CUDAGraph`` of :meth:`_advance`, recorded after warm-up steps on a
@@ -636,45 +591,27 @@ class TorchArmDynamics:
         """tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)), written into
         ``out`` (a tensor, or a numpy array, which costs a device-to-host copy) when given."""
         if out is None:
-            return self._tool.clone()
+            return self.tool.clone()
         if isinstance(out, np.ndarray):
-            out[:] = self._tool.cpu().numpy()
+            out[:] = self.tool.cpu().numpy()
         else:
-            out.copy_(self._tool)
+            out.copy_(self.tool)
         return out
 
     def reset(self, q: Any, index: Any = None) -> None:
-        """Put copies at rest at configurations ``q`` (as :meth:`envs.dynamics.ArmDynamics.reset`).
-
-        Parameters
-        ----------
-        q : (6,) or (m, 6) float, rad
-            Configurations, clear of the plane and within the joint limits.
-        index : None, int, slice, (m,) int or (B,) bool
-            Which copies (all when None).
-
-        Raises
-        ------
-        ValueError
-            When a configuration is not clear of the plane by the task's margin (checked on
-            the host: a reset synchronises).
-        """
+        """:meth:`envs.physics.Dynamics.reset` (the configurations checked on the host: a reset
+        synchronises)."""
         q = np.asarray(q.cpu() if isinstance(q, torch.Tensor) else q, dtype=float)
-        check_held(self.task, q)
-        heights = moving_link_heights(q, self.task.base_height)  # on the host
-        if np.any(heights < self.task.plane_margin):
-            raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
-                             f"{heights.min():.4f} m, below the plane margin "
-                             f"{self.task.plane_margin} m")
+        rest_heights(self.task, q)  # on the host
         sel = slice(None) if index is None else index
         if isinstance(sel, np.ndarray):
             sel = torch.as_tensor(sel, device=self.device)
         self.q[sel] = torch.as_tensor(q, device=self.device, dtype=self.dtype)
-        for state in (self.v, self._w, self.acceleration):
+        for state in (self.v, self.w, self.acceleration):
             state[sel] = 0.0
         self.contact[sel] = False
         self.limit_stop[sel] = False
-        self._tool.copy_(tool_position(placements(self.q, self._chain), self._chain,
+        self.tool.copy_(tool_position(placements(self.q, self._chain), self._chain,
                                        self._tool_pos, self._base_height))
 
     def reset_where(self, mask: torch.Tensor, q: torch.Tensor) -> None:
@@ -691,13 +628,13 @@ class TorchArmDynamics:
         """
         rows = mask.unsqueeze(-1)
         self.q.copy_(torch.where(rows, q, self.q))
-        for state in (self.v, self._w, self.acceleration):
+        for state in (self.v, self.w, self.acceleration):
             state.masked_fill_(rows, 0.0)
         self.contact.masked_fill_(mask, False)
         self.limit_stop.masked_fill_(mask, False)
         start_tool = tool_position(placements(q.unsqueeze(0), self._chain), self._chain,
                                    self._tool_pos, self._base_height)
-        self._tool.copy_(torch.where(rows, start_tool, self._tool))
+        self.tool.copy_(torch.where(rows, start_tool, self.tool))
 
     def clearance(self) -> torch.Tensor:
         """Lowest point ``(B,)`` (m, world z) of the moving links now, on the device (the
@@ -705,46 +642,46 @@ class TorchArmDynamics:
         return plane_heights(self.q, self._plane, self._base_height).amin(-1)
 
 
-class HostArrays:
-    """A :class:`TorchArmDynamics` behind FastArmDynamics' numpy interface, for the env.
+class HostMirror:
+    """A :class:`TorchDynamics` behind NumbaDynamics' numpy interface, for the env.
 
-    :class:`envs.core.ReachCore` reads ``q``, ``v``, ``acceleration``, ``contact`` and
+    :class:`envs.core.TaskCopies` reads ``q``, ``v``, ``acceleration``, ``contact`` and
     ``limit_stop`` as numpy arrays and has ``tool_positions`` write into one; this view copies
     the state to float64 host arrays after every step and reset (on CUDA a device-to-host copy,
     hence a sync, per step: the price of a numpy env around GPU dynamics).
 
     Parameters
     ----------
-    dyn : TorchArmDynamics
+    dyn : TorchDynamics
         The dynamics; stepped through this view.
     """
 
-    def __init__(self, dyn: TorchArmDynamics) -> None:
+    def __init__(self, dyn: TorchDynamics) -> None:
         self.dyn, self.task, self.num_copies = dyn, dyn.task, dyn.num_copies
         B = dyn.num_copies
         self.q, self.v, self.acceleration = np.zeros((B, NJ)), np.zeros((B, NJ)), np.zeros((B, NJ))
         self.contact, self.limit_stop = np.zeros(B, dtype=bool), np.zeros(B, dtype=bool)
-        self._tool = np.zeros((B, 3))
+        self.tool = np.zeros((B, 3))
         self._pull()
 
     def _pull(self) -> None:
         d = self.dyn
         for host, tensor in ((self.q, d.q), (self.v, d.v), (self.acceleration, d.acceleration),
                              (self.contact, d.contact), (self.limit_stop, d.limit_stop),
-                             (self._tool, d._tool)):
+                             (self.tool, d.tool)):
             np.copyto(host, tensor.cpu().numpy())
 
     def step(self, command: np.ndarray) -> None:
-        """:meth:`TorchArmDynamics.step`, then the state to the host."""
+        """:meth:`TorchDynamics.step`, then the state to the host."""
         self.dyn.step(command)
         self._pull()
 
     def reset(self, q: Any, index: Any = None) -> None:
-        """:meth:`TorchArmDynamics.reset`, then the state to the host."""
+        """:meth:`TorchDynamics.reset`, then the state to the host."""
         self.dyn.reset(q, index)
         self._pull()
 
     def tool_positions(self, out: np.ndarray) -> np.ndarray:
         """Write tool0's world position ``(B, 3)`` m into ``out``."""
-        out[:] = self._tool
+        out[:] = self.tool
         return out

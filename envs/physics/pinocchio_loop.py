@@ -1,95 +1,19 @@
-"""The arm's physics: Pinocchio forward dynamics of the UR5 under a joint PD controller.
+"""The reference backend: Pinocchio's forward dynamics of B arm copies in a Python substep loop.
 
-One job: advance B copies of the 6-joint arm by one control step. Per substep of length
-``h = 1 / sim_hz``, in this order (semi-implicit Euler)::
+Per substep of ``h = 1 / sim_hz`` (semi-implicit Euler, the time-scaled units of
+:mod:`envs.physics.model`: ``w = h v`` rad per substep, torques and gravity times ``h^2``)::
 
-    tau   = clip(kp_e (q_ref - q) + kd_e (v_ref - v) + tau_ff + g(q),  -effort, effort)
-    a     = ABA(q, v, tau)                          # Pinocchio's articulated-body algorithm
-    v'    = clip(v + h a,  -v_max, v_max)           # URDF velocity limits
-    q'    = q + h v'
+    tau = clip(b - kp_e q - kd_e w + g(q), -effort, effort)    # b: the command's constant part
+    w'  = clip(w + ABA(q, w, tau), -w_max, w_max)
+    q'  = q + w'
 
-``g(q)`` is the gravity torque (gravity compensation, optional); the effort and velocity limits
-are the URDF's. The controlled joints 1..n follow the command, whose meaning depends on the
-control mode. Joints n+1..6 stay at their start angles (``task.held_joints``). ``locked`` (the
-default) takes them out of the dynamics: ABA runs on Pinocchio's reduced model
-(``buildReducedModel``, joints n+1..6 welded at the start pose, so the last moving body is the
-rigid composite of the links beyond it and the arm's inertia and gravity are the whole arm's in
-that pose); their velocity and acceleration are zero and they never move. ``pd`` holds them
-by the same PD, as in this table, and they give way under load:
-
-============  ====================================  ===========================================
-mode          controlled joints 1..n                held joints n+1..6
-============  ====================================  ===========================================
-position      PD to the commanded angles (rad)      PD to the start angles
-velocity      ``kd (v_cmd - v)``, v_cmd in rad/s    PD to the start angles
-torque        the commanded torque (N m)            PD to the start angles
-============  ====================================  ===========================================
-
-Stops (inelastic, the same model for both): after the substeps, every substep configuration is
-checked for plane clearance (one batched :func:`ur5kin.link_heights` call) and against the URDF
-joint position limits. If some substep violates either, the copy goes back to the last valid
-substep state with all its joint velocities set to zero: the whole arm stops dead for the rest
-of the control step, the way an arm hitting a rigid table or an end stop with no bounce would
-(it does not slide along the plane; a command that pulls away frees it the next step).
-``contact`` / ``limit_stop`` report it for the step. This is the plane's ``stop`` contact model
-(``task.contact_model``, the default).
-
-The ``compliant`` contact model (:class:`PlaneContact`) replaces the plane stop by a penalty
-contact, as in Gazebo (ROS's usual simulator; the paper says it simulated "using ROS"): the
-arm is pushed out of the plane and slides on it.
-At every substep, for each moving link l whose lowest collision point (its URDF collision
-geometry's convex hull, the same geometry as the clearance check) lies ``d_l > 0`` m below
-``z = plane_margin`` (world frame), a force acts at that deepest point ``p_l``::
-
-    f_n   = max(0, k d_l - c dz_l/dt)                          # N, along +z (world)
-    f_t   = -min(mu f_n, c |u_t|) u_t / |u_t|                  # N, in the plane
-    tau_c = sum_l J_l^T [f_t, f_n]                             # N m, joints 1-6
-
-with ``u = J_l v`` the point's velocity (m/s, world axes), ``u_t`` its x, y part, ``dz_l/dt`` its
-z part, ``J_l (3, 6)`` the point's translational Jacobian (LOCAL_WORLD_ALIGNED) and k, c, mu the
-task's ``contact_stiffness`` (N/m), ``contact_damping`` (N s/m) and ``contact_friction``. The
-elastic part is minus the gradient of the potential ``sum_l k d_l(q)^2 / 2`` (``d_l`` is
-continuous in q, the deepest vertex may change), so it stores and returns energy; the damping
-and the friction only dissipate. The friction is Coulomb's, regularised: below its bound it is
-a viscous drag of slope c (a point under a tangential load F creeps at F / c m/s instead of
-sticking), which keeps it stable under the explicit integrator. ``tau_c`` is the ground's
-reaction, not bound by the motors' effort or velocity limits; a substep in contact is::
-
-    v'    = clip(v + h ABA(q, v, tau),  -v_max, v_max) + h M(q)^-1 tau_c     # tau: the motors'
-    v'    = v' / max(1, max_i |v'_i| / v_max_i)                               # the governor
-    q'    = q + h v'
-
-The URDF velocity limits are the motors'; clipping the ground's reaction joint by joint lets a
-joint held at its limit drive a link 10 cm and more through the plane, so the reaction is added
-after the clip, and the governor scales the whole velocity back into the limits: that keeps its
-direction (a point leaving the plane still leaves it) and only removes kinetic energy. Stability:
-one contact on an effective mass m is the loop of :func:`envs.gains.pd_stability_violations`
-with ``a = k h^2 / m`` and ``b = c h / m``; :func:`envs.gains.contact_stability_violations`
-checks it at the smallest effective mass a touching point has
-(:data:`envs.gains.CONTACT_MIN_EFFECTIVE_MASS`).
-The plane stays impermeable in this model too: after the substeps, a copy that put a link more
-than ``contact_max_depth`` below ``z = plane_margin`` at some substep falls back to the stop (to
-the last substep within that depth, velocities zero); ``depth_stop`` reports it, and
-``contact`` reports any step in which a contact force acted (or that stop).
-
-The clearance check (and, in the compliant model, the contact force) is skipped when it provably
-cannot fail: the lowest point of link k moves by at most ``sum_i R[i, k] |dq_i|`` between two
-configurations (:func:`height_lipschitz`; joint 1's axis is vertical, so it never changes a
-height), so a copy whose known clearance exceeds a step's worth of that bound is clear without
-looking. The skip changes the cost, never the
-answer (tested against the exact check on every step).
-
-Time-scaled units: the integrator state is ``(q, w)`` with ``w = h v`` (rad per substep) and
-Pinocchio sees a model whose gravity is scaled by ``h^2``, with torques scaled by ``h^2``. The
-equations of motion are quadratic in velocity and linear in torque and gravity, so ABA then
-returns ``h^2 a`` exactly, and each Euler substep is two additions. With the constant part of
-the PD torque stored next to ``(q, w)``, the PD torque is one matrix product. Gravity is
-computed at every substep. Each substep is then two Pinocchio calls and six small array
-operations, the floor of a Python loop around Pinocchio.
-
-The reported acceleration is the mean over the control step of the acceleration the integrator
-realised, ``(v(t + dt) - v(t)) / dt``; it equals the mean of ABA's accelerations when no
-velocity limit or stop acted during the step.
+then the stops: a copy whose substep left the URDF joint limits or put a moving link below
+``z = plane_margin`` (world frame, m) goes back to its last valid substep with ``w = 0``. Held
+joints (``task.held_joints``) are welded at the start pose (``locked``: ABA on Pinocchio's
+reduced model) or held by the PD (``pd``). The compliant contact (:class:`PlaneContact`, this
+backend only) adds penalty forces at the links' deepest points. The equations, the Lipschitz
+screen that skips provably clear checks, and the measurements are in
+``results/dynamics/README.md``.
 """
 
 from __future__ import annotations
@@ -102,8 +26,15 @@ import numpy as np
 import pinocchio as pin
 
 import ur5kin
-from envs.arm import arm_model, moving_joints, moving_link_heights
 from envs.checks import validate
+from envs.physics.model import (
+    arm_model,
+    clip,
+    height_lipschitz,
+    link_hulls,
+    moving_link_heights,
+    put_at_rest,
+)
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -115,54 +46,13 @@ thread on a loaded two-core machine (15 ms instead of 0.6 ms at B = 840); blocks
 threshold cost about the same per configuration either way."""
 
 
-def _clip_fallback(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, out: np.ndarray) -> np.ndarray:
-    return np.minimum(np.maximum(x, lo, out=out), hi, out=out)
-
-
-clip = getattr(getattr(np, "_core", np).umath, "clip", _clip_fallback)
-"""``clip(x, lo, hi, out=out)``: numpy's clip ufunc itself. ``np.clip`` wraps it in Python
-argument handling that costs several times the ufunc call on 6-vectors, in the hot loop."""
-
-
-@functools.cache
-def link_hulls() -> tuple[np.ndarray, ...]:
-    """Convex-hull vertices ``(n_k, 3)`` (m, link frame) of the six moving links.
-
-    shoulder_link .. wrist_3_link (``ee_link``'s box joins wrist_3_link): the URDF collision
-    geometry of :func:`ur5kin.collision_geometry`, which the clearance check uses too. The one
-    place this module reads the collision geometry.
-    """
-    return tuple(link.hull for link in ur5kin.collision_geometry()[1:])
-
-
-@functools.cache
-def height_lipschitz() -> np.ndarray:
-    """Bounds ``R (6, 6)`` (m/rad): ``|dz/dq_i| <= R[i, k]`` for every collision point of link k.
-
-    Rows are joints 1-6, columns the moving links shoulder_link .. wrist_3_link. A point of link
-    k (moved by joints 1..k) lies at most ``sum_{j=i+1..k} |t_j| + max|p|`` from joint i's
-    origin, ``t_j`` being joint j's placement offset and ``p`` the link's convex-hull vertices
-    in its own frame; that bounds its distance from joint i's axis, hence its speed per rad of
-    joint i. Joint 1 turns about the vertical axis and never changes a height (row 0 is zero),
-    and joint i does not move links before it.
-    """
-    model = ur5kin.load_model()
-    offsets = [float(np.linalg.norm(model.jointPlacements[j].translation)) for j in range(7)]
-    reach = [0.0] + [float(np.linalg.norm(hull, axis=1).max()) for hull in link_hulls()]
-    R = np.zeros((6, 6))
-    for i in range(2, 7):  # joint i (1-based) moves links i..6; link k is the child of joint k
-        for k in range(i, 7):
-            R[i - 1, k - 1] = sum(offsets[i + 1 : k + 1]) + reach[k]
-    return R
-
-
 class PlaneContact:
     """The compliant model's ground reaction: penalty forces at the links' deepest points.
 
-    Forces and torques are in :class:`ArmDynamics`'s time-scaled units (``h^2`` times N and
-    N m), velocities ``w = h v``; the equations are in the module docstring. One configuration
-    at a time, through Pinocchio's kinematics and joint Jacobians (tested against a closed-form
-    Jacobian and the contact potential's gradient).
+    Forces and torques are in :class:`PinocchioDynamics`'s time-scaled units (``h^2`` times N
+    and N m), velocities ``w = h v``; the equations are in ``results/dynamics/README.md``. One
+    configuration at a time, through Pinocchio's kinematics and joint Jacobians (tested against a
+    closed-form Jacobian and the contact potential's gradient).
 
     Parameters
     ----------
@@ -195,7 +85,7 @@ class PlaneContact:
         self._moving = self._free.nv
         self._rest = np.zeros(self._moving)
         self._response = np.zeros(model.nv)  # locked columns stay 0
-        self._w_max = ur5kin.velocity_limits() * h
+        self._w_max = arm_model(task).w_max
 
     def response(self, q: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """The change ``M(q)^-1 tau`` of the scaled velocity ``w`` (rad per substep) that a scaled
@@ -283,97 +173,23 @@ def _last_valid(invalid: np.ndarray) -> np.ndarray:
     return np.where(invalid.any(axis=0), first - 1, invalid.shape[0] - 1)
 
 
-def command_bounds(task: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
-    """The box of valid commands for the controlled joints in the task's control mode.
-
-    Returns
-    -------
-    low, high : (n,) float
-        Position: the joint-space goal range ``[-pi, pi]`` (rad, :data:`ur5kin.JOINT_LIMIT`);
-        velocity: the URDF velocity limits (rad/s); torque: the URDF effort
-        limits (N m).
-    """
-    n = task.n_joints
-    if task.control_mode == "position":
-        high = np.full(n, ur5kin.JOINT_LIMIT)
-    elif task.control_mode == "velocity":
-        high = ur5kin.velocity_limits()[:n]
-    else:
-        high = ur5kin.effort_limits()[:n]
-    return -high, high.copy()
-
-
-def check_held(task: TaskSpec, q: np.ndarray) -> None:
-    """Refuse configurations ``q (..., 6)`` rad whose locked joints are not at their start
-    angles (the locked dynamics weld them there; ``pd`` accepts any)."""
-    n = moving_joints(task)
-    if n < 6 and np.any(np.asarray(q)[..., n:] != np.asarray(task.start_q)[n:]):
-        raise ValueError(f"joints {n + 1}..6 are locked at their start angles "
-                         f"{list(task.start_q[n:])} rad (held_joints='locked'); got "
-                         f"configuration(s) {np.asarray(q).tolist()} rad")
-
-
-def put_at_rest(dyn: Any, q: Any, index: Any) -> Any:
-    """The reset every dynamics shares: copies ``index`` of ``dyn`` at rest at ``q``.
-
-    ``dyn`` is :class:`ArmDynamics` or :class:`envs.fastdyn.FastArmDynamics` (the same state
-    arrays, ``_w`` and ``_clearance`` included: this function is their shared reset).
-    Returns the selection, so the caller can reset its own state too.
-
-    Raises
-    ------
-    ValueError
-        When a configuration is not clear of the plane by the task's margin, or moves a
-        locked joint from its start angle (:func:`check_held`).
-    """
-    sel = slice(None) if index is None else index
-    q = np.asarray(q, dtype=float)
-    check_held(dyn.task, q)
-    heights = moving_link_heights(q, dyn.task.base_height)
-    if np.any(heights < dyn.task.plane_margin):
-        raise ValueError(f"reset configuration(s) {q.tolist()} rad reach z = "
-                         f"{heights.min():.4f} m, below the plane margin "
-                         f"{dyn.task.plane_margin} m")
-    dyn.q[sel] = q
-    dyn.v[sel] = 0.0
-    dyn._w[sel] = 0.0
-    dyn.acceleration[sel] = 0.0
-    dyn.contact[sel] = False
-    dyn.limit_stop[sel] = False
-    dyn._clearance[sel] = heights
-    return sel
-
-
-class ArmDynamics:
-    """B copies of the UR5 under the task's controller, advanced one control step at a time.
-
-    Parameters
-    ----------
-    task : TaskSpec
-        Start pose, controlled joints, control mode, gains, rates, base height, plane margin;
-        checked against the robot model (:func:`envs.checks.validate`).
-    num_copies : int
-        B, the number of independent arms.
+class PinocchioDynamics:
+    """B copies of the UR5 under the task's controller, advanced one control step at a time:
+    the reference :class:`envs.physics.Dynamics` (its parameters and attributes), and the only
+    backend of the compliant contact.
 
     Attributes
     ----------
-    q : (B, 6) float, rad
-        Joint angles now.
-    v : (B, 6) float, rad/s
-        Joint velocities now.
-    acceleration : (B, 6) float, rad/s^2
-        Mean realised acceleration over the last step (zero after a reset).
-    contact : (B,) bool
-        Whether the plane acted in the last step: it stopped the arm (``stop`` model), or a
-        contact force acted or the depth bound stopped it (``compliant``).
-    limit_stop : (B,) bool
-        Whether the last step stopped at a URDF joint position limit.
+    w : (B, 6) float, rad per substep
+        The integrator's velocity ``h v``.
+    height_bound : (B, 6) float, m, world z
+        A lower bound of each moving link's height now (exact after a reset), kept valid by
+        :func:`envs.physics.model.height_lipschitz`.
     depth_stop : (B,) bool
         Whether the last step fell back to the stop because a link would have ended deeper
         than ``contact_max_depth`` below the plane (``compliant`` only; always False under
         ``stop``, whose stops are all in ``contact``).
 
-    The arrays are owned by this object and overwritten by every step; copy what you keep.
     One copy (B = 1) calls Pinocchio's ``aba`` and ``computeGeneralizedGravity`` directly;
     more go through ``abaInParallel`` and ``rneaInParallel`` (one thread: measured faster than
     two on small batches, and it leaves the other core to the learner).
@@ -392,26 +208,21 @@ class ArmDynamics:
                                         np.asarray(base.gravity.angular))
         self.data = self.model.createData()
         self._pool = pin.ModelPool(self.model, 1) if B > 1 else None
-        self._tool = self.model.getFrameId(ur5kin.TOOL_FRAME)
+        self._tool_frame = self.model.getFrameId(ur5kin.TOOL_FRAME)
+        arm = self.arm = arm_model(task)
         # locked held joints: Pinocchio's reduced model, joints free+1..6 welded at the start
-        self._free = arm_model(task).free
         self._reduced = None
-        if self._free < 6:
+        if arm.free < 6:
             self._reduced = pin.buildReducedModel(
-                self.model, list(range(self._free + 1, 7)), np.asarray(task.start_q, float))
+                self.model, list(range(arm.free + 1, 7)), np.asarray(task.start_q, float))
             self._reduced.gravity = self.model.gravity
 
-        arm = self.arm = arm_model(task)
-        self._command_gain = arm.command_gain
-        self._effort, self._w_max = arm.effort, arm.w_max
-        self._q_mid, self._q_half = arm.q_mid, arm.q_half
-        self._start_q = arm.start_q
         self._lipschitz = height_lipschitz()
         # no point of link k falls more than S w_max . R[:, k] within one step (after substep
         # s, |q_s - q_0| <= s w_max): links with more clearance than that skip the exact check
-        self._plane_screen = task.plane_margin + S * (self._w_max @ self._lipschitz)
+        self._plane_screen = task.plane_margin + S * (arm.w_max @ self._lipschitz)
         # likewise a joint farther than S w_max from its limits cannot pass them in one step
-        self._limit_screen = self._q_half - S * self._w_max
+        self._limit_screen = arm.q_half - S * arm.w_max
         self._limit_flags = np.zeros(6, dtype=bool)
         # the compliant contact (None: the stop model); a substep is deeper than allowed, and
         # stops, below _stop_level
@@ -421,7 +232,6 @@ class ArmDynamics:
                                                 else task.contact_max_depth)
         self._touched = np.zeros(B, dtype=bool)  # a contact force acted in this step
         self._contact_tau = np.zeros(6)
-        self._w_to_v, self._w_to_accel = arm.w_to_v, arm.w_to_accel
 
         # Substep history of the rows x = [q, w, b] (w = h v; b the constant part of the
         # scaled torque within a step: kp q_ref of position control, the torque command, ...).
@@ -429,7 +239,7 @@ class ArmDynamics:
         # tau = x @ gains = b - kp_e q - kd_e w.
         self._X = np.zeros((S + 1, B, 18))
         self._Q, self._W = self._X[..., :6], self._X[..., 6:12]
-        self._X[..., 12 + n : 18] = arm.held_bias  # held joints: PD to the start (pd)
+        self._X[..., 12:18] = arm.initial_bias(B)  # held joints: PD to the start (pd)
         self._command_bias = self._X[..., 12 : 12 + n]
         gains = np.zeros((18, 6))
         gains[:6] = -np.diag(arm.kp_eff)
@@ -443,15 +253,15 @@ class ArmDynamics:
 
         # the state is the last history row: a step starts by copying it to row 0
         self.q = self._Q[S]
-        self._w = self._W[S]
-        self.q[:] = self._start_q
+        self.w = self._W[S]
+        self.q[:] = arm.start_q
         self.v = np.zeros((B, 6))
         self.acceleration = np.zeros((B, 6))
         self.contact = np.zeros(B, dtype=bool)
         self.limit_stop = np.zeros(B, dtype=bool)
         self.depth_stop = np.zeros(B, dtype=bool)
-        self._clearance = np.tile(moving_link_heights(self._start_q, task.base_height),
-                                  (B, 1))  # (B, 6) lower bounds
+        self.height_bound = np.tile(moving_link_heights(arm.start_q, task.base_height),
+                                    (B, 1))  # (B, 6) lower bounds
 
         X = self._X[:, 0] if B == 1 else self._X  # 1-D rows for Pinocchio's single calls
         self._rows = [(X[s], X[s, ..., :6], X[s, ..., 6:12], X[s + 1, ..., :6],
@@ -490,7 +300,7 @@ class ArmDynamics:
         for joints 1..free (its gravity is the whole arm's in the held pose, the generalized
         gravity of joints 1..free equals the full model's) and 0 for the locked joints, so
         their ``w`` stays 0 and they never move."""
-        m, reduced = self._free, self._reduced
+        m, reduced = self.arm.free, self._reduced
         if self._pool is None:
             data, out = reduced.createData(), np.zeros(6)
 
@@ -515,60 +325,38 @@ class ArmDynamics:
 
     # ------------------------------------------------------------------ public API
     def reset(self, q: Any, index: Any = None) -> None:
-        """Put copies at rest at configurations ``q``.
-
-        Parameters
-        ----------
-        q : (6,) or (m, 6) float, rad
-            Configurations, clear of the plane and within the joint limits.
-        index : None, int, slice, (m,) int or (B,) bool
-            Which copies (all when None).
-
-        Raises
-        ------
-        ValueError
-            When a configuration is not clear of the plane by the task's margin.
-        """
+        """:meth:`envs.physics.Dynamics.reset`."""
         sel = put_at_rest(self, q, index)
         self.depth_stop[sel] = False
 
     def step(self, command: np.ndarray) -> None:
-        """Advance every copy by one control step of ``task.substeps`` substeps.
-
-        Parameters
-        ----------
-        command : (B, n) float
-            Per copy, the command of joints 1..n in the control mode's unit (rad, rad/s or
-            N m), already within :func:`command_bounds`.
-        """
+        """:meth:`envs.physics.Dynamics.step`."""
         task, S = self.task, self.task.substeps
         # b of the controlled joints, in every row of the step (scaled: module docstring)
-        np.multiply(self._command_gain, command, out=self._command_bias)
+        np.multiply(self.arm.command_gain, command, out=self._command_bias)
         X = self._X
         X[0, :, :12] = X[S, :, :12]
 
         # Positional ``out`` arguments: keyword parsing costs ~10 % of a 6-vector ufunc call.
         dot, add, clip_ = np.dot, np.add, clip
         gains, tau = self._gains, self._tau_row
-        effort, neg_effort = self._effort, -self._effort
-        w_max, neg_w_max = self._w_max, -self._w_max
+        effort, neg_effort = self.arm.effort, -self.arm.effort
+        w_max, neg_w_max = self.arm.w_max, -self.arm.w_max
         gravity, accel = self._gravity, self._accel
         if not task.gravity_compensation:
             def gravity(q: np.ndarray) -> np.ndarray:
                 return self._zeros_row
         near = None if self._contact is None else self._near_plane()
-        if near is None or not len(near):
-            for x, q, w, q1, w1 in self._rows:
-                dot(x, gains, tau)
-                add(tau, gravity(q), tau)
-                clip_(tau, neg_effort, effort, tau)
-                add(w, accel(q, w, tau), w1)
-                clip_(w1, neg_w_max, w_max, w1)
-                add(q, w1, q1)
-        elif self.num_copies == 1:
-            self._compliant_one(gravity)
-        else:
-            self._compliant_many(gravity, near)
+        contact = None if near is None or not len(near) else self._contact_forces(near)
+        for x, q, w, q1, w1 in self._rows:
+            dot(x, gains, tau)
+            add(tau, gravity(q), tau)
+            clip_(tau, neg_effort, effort, tau)
+            add(w, accel(q, w, tau), w1)
+            clip_(w1, neg_w_max, w_max, w1)
+            if contact is not None:
+                contact(q, w, w1)
+            add(q, w1, q1)
         self._finish_step()
 
     # ------------------------------------------------------------------ compliant contact
@@ -576,13 +364,13 @@ class ArmDynamics:
         """Copies ``(m,) int`` that a contact force may reach within this step (the screen of
         ``__init__``); clears the step's contact flags."""
         self._touched[:] = False
-        return np.flatnonzero((self._clearance < self._plane_screen).any(axis=-1))
+        return np.flatnonzero((self.height_bound < self._plane_screen).any(axis=-1))
 
     def _reach_screen(self, r: int) -> Any:
         """``links(q) -> list``: the moving links (1-6) of copy r that may touch the plane at a
         substep configuration q of this step: the step's start clearance less ``|q - q_0| @ R``
         (:func:`height_lipschitz`) is below it. Changes the cost, never the answer."""
-        q0, clear0 = self._Q[0, r].copy(), self._clearance[r].copy()
+        q0, clear0 = self._Q[0, r].copy(), self.height_bound[r].copy()
         margin, lipschitz = self.task.plane_margin, self._lipschitz
         if (clear0 >= self._plane_screen).all():
             return lambda q: []
@@ -599,55 +387,27 @@ class ArmDynamics:
 
         return links
 
-    def _compliant_one(self, gravity: Any) -> None:
-        """The substeps of one copy with the contact torque (:meth:`PlaneContact.torque`)
-        of the links that the screen of ``__init__`` cannot rule out for this step."""
-        dot, add, clip_, accel = np.dot, np.add, clip, self._accel
-        gains, tau, tau_c = self._gains, self._tau_row, self._contact_tau
-        effort, neg_effort = self._effort, -self._effort
-        w_max, neg_w_max = self._w_max, -self._w_max
+    def _contact_forces(self, near: np.ndarray) -> Any:
+        """``contact(q, w, w1)``: the compliant contact of one substep, added to its new velocity
+        ``w1`` in place for the copies ``near`` the plane (:meth:`_near_plane`), copy by copy
+        (Pinocchio's single-configuration calls; :meth:`PlaneContact.torque` of the links the
+        screen of :meth:`_reach_screen` cannot rule out)."""
+        add, tau_c, touched = np.add, self._contact_tau, self._touched
         torque, response, governor = (self._contact.torque, self._contact.response,
                                       self._contact.governor)
-        reach = self._reach_screen(0)
-        touched = False
-        for x, q, w, q1, w1 in self._rows:
-            dot(x, gains, tau)
-            add(tau, gravity(q), tau)
-            clip_(tau, neg_effort, effort, tau)
-            add(w, accel(q, w, tau), w1)
-            clip_(w1, neg_w_max, w_max, w1)
-            links = reach(q)
-            if links and torque(q, w, links, tau_c):
-                add(w1, response(q, tau_c), w1)
-                governor(w1)
-                touched = True
-            add(q, w1, q1)
-        self._touched[0] = touched
-
-    def _compliant_many(self, gravity: Any, near: np.ndarray) -> None:
-        """The substeps of B copies; the copies ``near`` the plane get the contact of
-        :meth:`_compliant_one`, copy by copy (Pinocchio's single-configuration calls)."""
-        dot, add, clip_, accel = np.dot, np.add, clip, self._accel
-        gains, tau, tau_c = self._gains, self._tau_row, self._contact_tau
-        effort, neg_effort = self._effort, -self._effort
-        w_max, neg_w_max = self._w_max, -self._w_max
-        torque, response, governor = (self._contact.torque, self._contact.response,
-                                      self._contact.governor)
-        touched = self._touched
         screens = [(r, self._reach_screen(r)) for r in near.tolist()]
-        for x, q, w, q1, w1 in self._rows:
-            dot(x, gains, tau)
-            add(tau, gravity(q), tau)
-            clip_(tau, neg_effort, effort, tau)
-            add(w, accel(q, w, tau), w1)
-            clip_(w1, neg_w_max, w_max, w1)
+        one = self.num_copies == 1  # the rows are the copy's own (6,) arrays
+
+        def contact(q: np.ndarray, w: np.ndarray, w1: np.ndarray) -> None:
             for r, reach in screens:
-                links = reach(q[r])
-                if links and torque(q[r], w[r], links, tau_c):
-                    add(w1[r], response(q[r], tau_c), w1[r])
-                    governor(w1[r])
+                qr, wr, w1r = (q, w, w1) if one else (q[r], w[r], w1[r])
+                links = reach(qr)
+                if links and torque(qr, wr, links, tau_c):
+                    add(w1r, response(qr, tau_c), w1r)
+                    governor(w1r)
                     touched[r] = True
-            add(q, w1, q1)
+
+        return contact
 
     # ------------------------------------------------------------------ stops
     def _finish_step(self) -> None:
@@ -668,18 +428,18 @@ class ArmDynamics:
             np.logical_or(self.contact, self._touched, out=self.contact)
         W, S = self._W, self.task.substeps
         np.subtract(W[S], W[0], out=self.acceleration)
-        self.acceleration *= self._w_to_accel
-        np.multiply(W[S], self._w_to_v, out=self.v)
+        self.acceleration *= self.arm.w_to_accel
+        np.multiply(W[S], self.arm.w_to_v, out=self.v)
 
     def _finish_one(self) -> None:
         Q, W, S, level = self._Q[:, 0], self._W[:, 0], self.task.substeps, self._stop_level
         stop_limit = stop_plane = S  # the last valid substep
-        if np.greater(np.abs(Q[0] - self._q_mid), self._limit_screen, self._limit_flags).any():
-            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (S+1,)
+        if np.greater(np.abs(Q[0] - self.arm.q_mid), self._limit_screen, self._limit_flags).any():
+            beyond = (np.abs(Q - self.arm.q_mid) > self.arm.q_half).any(axis=-1)  # (S+1,)
             if beyond.any():
                 stop_limit = int(np.argmax(beyond)) - 1
         heights = None
-        if (self._clearance[0] < self._plane_screen).any():
+        if (self.height_bound[0] < self._plane_screen).any():
             heights = moving_link_heights(Q, self.task.base_height)  # (S+1, 6): one call
             below = heights.min(axis=-1) < level
             below[0] = False  # the step's start state is clear by construction
@@ -692,18 +452,18 @@ class ArmDynamics:
             Q[S] = Q[stop]  # back to the last valid substep ...
             W[S] = 0.0  # ... and stopped dead
         if heights is not None:
-            self._clearance[0] = heights[stop]
+            self.height_bound[0] = heights[stop]
         else:  # link heights change by at most |dq| @ R (height_lipschitz)
-            self._clearance[0] -= np.abs(Q[S] - Q[0]) @ self._lipschitz
+            self.height_bound[0] -= np.abs(Q[S] - Q[0]) @ self._lipschitz
 
     def _finish_many(self) -> None:
         Q, W, S, B = self._Q, self._W, self.task.substeps, self.num_copies
         stop_limit = stop_plane = None  # per copy: the last valid substep, S if none failed
-        if np.greater(np.abs(Q[0] - self._q_mid), self._limit_screen).any():
-            beyond = (np.abs(Q - self._q_mid) > self._q_half).any(axis=-1)  # (S+1, B)
+        if np.greater(np.abs(Q[0] - self.arm.q_mid), self._limit_screen).any():
+            beyond = (np.abs(Q - self.arm.q_mid) > self.arm.q_half).any(axis=-1)  # (S+1, B)
             if beyond.any():
                 stop_limit = _last_valid(beyond)
-        risky = (self._clearance < self._plane_screen).any(axis=-1)
+        risky = (self.height_bound < self._plane_screen).any(axis=-1)
         heights = None
         if risky.any():
             idx = np.flatnonzero(risky)
@@ -731,16 +491,16 @@ class ArmDynamics:
             W[S, rows] = 0.0  # ... and stopped dead
         # link heights change by at most |dq| @ R (height_lipschitz): new lower bounds, or the
         # exact heights where they were just computed
-        self._clearance -= np.abs(Q[S] - Q[0]) @ self._lipschitz
+        self.height_bound -= np.abs(Q[S] - Q[0]) @ self._lipschitz
         if heights is not None:
-            self._clearance[idx] = heights[stop[idx], np.arange(len(idx))]
+            self.height_bound[idx] = heights[stop[idx], np.arange(len(idx))]
 
     # ------------------------------------------------------------------ kinematics
     def tool_positions(self, out: np.ndarray) -> np.ndarray:
         """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``."""
         if self._pool is None:
             pin.forwardKinematics(self.model, self.data, self.q[0])
-            out[0] = pin.updateFramePlacement(self.model, self.data, self._tool).translation
+            out[0] = pin.updateFramePlacement(self.model, self.data, self._tool_frame).translation
         else:
             out[:] = ur5kin.fk(self.q)
         return ur5kin.to_world(out, self.task.base_height, out=out)

@@ -1,55 +1,42 @@
-"""A compiled batched path for the arm's dynamics: a whole control step of B copies in one call.
+"""The numba backend: a whole control step of B arm copies in one compiled call.
 
-The physics is :class:`envs.dynamics.ArmDynamics`' (its module docstring has the equations,
-the stop model and the time-scaled units); only the tool differs. ArmDynamics calls Pinocchio
-twice per substep from a Python loop (``abaInParallel`` / ``rneaInParallel`` over the batch),
-then checks the stops with batched numpy; here one numba kernel runs, per copy, every substep of
-the step (PD + gravity compensation, effort clip, the articulated-body algorithm, velocity clip,
-semi-implicit Euler) and the stop checks, and stops a copy at its first invalid substep.
-
-Pinocchio stays the source and the reference: :class:`ChainModel` reads the joint placements,
-axes, spatial inertias, armature and gravity from the pinocchio model that
-:func:`ur5kin.load_model` returns, and the tests compare :func:`aba` with ``pin.aba`` and
-:class:`FastArmDynamics` with ArmDynamics. The plane check is the same math as
-:func:`ur5kin.link_heights` (every link height is linear in 13 trigonometric features of ``q``;
-the coefficient matrix is read from :mod:`ur5kin.collision`), screened per substep by the
-Lipschitz bound of :func:`envs.dynamics.height_lipschitz`: an exact check runs only where the
-bound cannot prove the arm clear, which changes the cost, never the answer.
-
-Why numba: one kernel of scalar loops over a whole step, measured against Pinocchio's
-``abaInParallel`` path (3.5x faster per control step, 7x the single env's steps/s in the
-batched env at N = 64; ``results/batched_env/README.md``). The kernels are compiled on first
-use and cached on disk (``cache=True``): the first process pays the compile time stated there,
-later ones load the cache.
+The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynamics/README.md``)
+written as scalar loops: per copy, every substep (PD + gravity compensation, effort clip,
+Featherstone's articulated-body algorithm, velocity clip, semi-implicit Euler) and the stop
+checks, stopping a copy at its first invalid substep. :func:`_step_copy` is one copy's step
+(no allocation, no Python object: the body a GPU thread can run); :func:`_control_step` the
+CPU batch loop around it. The chain and plane tables are :mod:`envs.physics.model`'s; the tests
+compare :func:`aba` with ``pin.aba`` and :class:`NumbaDynamics` with the Pinocchio loop. The
+kernels are compiled on first use and cached on disk (``cache=True``).
 """
 
 from __future__ import annotations
 
-import functools
-from dataclasses import dataclass
-from dataclasses import replace as dataclasses_replace
+import types
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 import ur5kin
-from envs.arm import arm_model, moving_link_heights
-from envs.dynamics import height_lipschitz, put_at_rest
+from envs.checks import validate
+from envs.physics.model import (
+    NJ,
+    arm_model,
+    moving_link_heights,
+    put_at_rest,
+    supports_kernels,
+    tool_offset,
+    ur5_chain,
+    ur5_plane,
+)
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
 
 try:
     import numba
-except ImportError:  # the fast path is optional: envs.batched falls back to ArmDynamics
+except ImportError:  # the fast path is optional: envs.batched falls back to PinocchioDynamics
     numba = None
-
-NJ = 6
-"""Joints of the chain (the UR5's six revolute joints)."""
-
-AXES = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
-        "JointModelRZ": (0.0, 0.0, 1.0)}
-"""Joint axes (joint frame) of Pinocchio's axis-aligned revolute joints."""
 
 DTYPES = {"float64": np.float64, "float32": np.float32}
 """Floating-point types the kernels are compiled for."""
@@ -62,134 +49,6 @@ plane) finish sooner, and smaller blocks even the threads' loads out."""
 def available() -> bool:
     """Whether the compiled path can run (numba is installed)."""
     return numba is not None
-
-
-def supports(task: TaskSpec) -> bool:
-    """Whether :class:`FastArmDynamics` implements ``task``'s physics.
-
-    It implements the rigid stop model; another contact model (a ``contact_model`` field other
-    than ``"stop"``, when TaskSpec has one) goes through ArmDynamics.
-    """
-    return getattr(task, "contact_model", "stop") == "stop"
-
-
-# ---------------------------------------------------------------------------- the model
-@dataclass(frozen=True)
-class ChainModel:
-    """The UR5's serial chain as flat arrays, read from a Pinocchio model.
-
-    Attributes
-    ----------
-    rotation : (6, 3, 3) float
-        Joint placement rotations ``R`` of ``jointPlacements[i]`` (joint frame in its parent's).
-    translation : (6, 3) float, m, parent frame
-        Joint placement translations.
-    axis : (6, 3) float
-        Unit rotation axis of each joint, in its joint frame.
-    inertia : (6, 6, 6) float
-        Spatial inertia of each body in its joint frame (Pinocchio's ``Inertia.matrix()``,
-        ``[linear; angular]`` order), kg and kg m^2.
-    armature : (6,) float, kg m^2
-        Rotor inertia added to each joint's diagonal.
-    gravity : (3,) float, m/s^2, world frame
-        The model's gravity (linear part).
-    """
-
-    rotation: np.ndarray
-    translation: np.ndarray
-    axis: np.ndarray
-    inertia: np.ndarray
-    armature: np.ndarray
-    gravity: np.ndarray
-
-    @classmethod
-    def from_pinocchio(cls, model: Any) -> ChainModel:
-        """Read the chain from ``model`` (a ``pinocchio.Model``).
-
-        Raises
-        ------
-        ValueError
-            When the model is not a serial chain of 6 revolute joints (joint i the parent of
-            joint i + 1), or has joint damping or friction (the kernels model neither).
-        """
-        if model.njoints != NJ + 1 or model.nq != NJ or model.nv != NJ:
-            raise ValueError(f"the fast dynamics need a 6-joint chain (njoints = 7, nq = nv = "
-                             f"6); got njoints = {model.njoints}, nq = {model.nq}, nv = "
-                             f"{model.nv}")
-        rotation, translation, axis, inertia = [], [], [], []
-        for j in range(1, NJ + 1):
-            joint = model.joints[j]
-            if model.parents[j] != j - 1:
-                raise ValueError(f"joint {j}'s parent is {model.parents[j]}, expected {j - 1}: "
-                                 "the fast dynamics handle a serial chain only")
-            kind = joint.shortname()
-            if kind in AXES:
-                axis.append(AXES[kind])
-            elif kind == "JointModelRevoluteUnaligned":
-                axis.append(np.asarray(joint.extract().axis, dtype=float))
-            else:
-                raise ValueError(f"joint {j} is a {kind}; the fast dynamics handle revolute "
-                                 f"joints ({sorted(AXES)} or JointModelRevoluteUnaligned)")
-            placement = model.jointPlacements[j]
-            rotation.append(np.asarray(placement.rotation))
-            translation.append(np.asarray(placement.translation))
-            inertia.append(np.asarray(model.inertias[j].matrix()))
-        for name in ("damping", "friction"):
-            values = np.asarray(getattr(model, name), dtype=float)
-            if np.any(values != 0.0):
-                raise ValueError(f"the model's joint {name} is {values.tolist()}; the fast "
-                                 "dynamics model neither damping nor friction (expected zeros)")
-        return cls(np.array(rotation), np.array(translation), np.array(axis), np.array(inertia),
-                   np.asarray(model.armature, dtype=float).copy(),
-                   np.asarray(model.gravity.linear, dtype=float).copy())
-
-    def astype(self, dtype: Any) -> ChainModel:
-        """The same arrays as ``dtype`` (contiguous, for the kernels)."""
-        return ChainModel(*(np.ascontiguousarray(getattr(self, f), dtype=dtype)
-                            for f in ("rotation", "translation", "axis", "inertia", "armature",
-                                      "gravity")))
-
-
-@functools.cache
-def ur5_chain(dtype: str = "float64") -> ChainModel:
-    """:class:`ChainModel` of :func:`ur5kin.load_model` as ``dtype`` (cached)."""
-    return ChainModel.from_pinocchio(ur5kin.load_model()).astype(DTYPES[dtype])
-
-
-@dataclass(frozen=True)
-class PlaneModel:
-    """The plane check's constants, from :mod:`ur5kin.collision` (same math, same numbers).
-
-    Attributes
-    ----------
-    vertex_heights : (V, 13) float, m
-        Height above base_link of every vertex that can be a link's lowest, per feature.
-    bounds : (8,) int
-        Rows ``bounds[k]:bounds[k + 1]`` belong to link k (0 = base_link, never checked).
-    lift_offset, wrist_offset : float, rad
-        Offsets of the pitches the features use (:func:`ur5kin.collision._features`).
-    lipschitz : (6, 6) float, m/rad
-        :func:`envs.dynamics.height_lipschitz`: ``|dz_k| <= sum_i R[i, k] |dq_i|``.
-    """
-
-    vertex_heights: np.ndarray
-    bounds: np.ndarray
-    lift_offset: float
-    wrist_offset: float
-    lipschitz: np.ndarray
-
-
-@functools.cache
-def ur5_plane(dtype: str = "float64") -> PlaneModel:
-    """:class:`PlaneModel` of the UR5 as ``dtype`` (cached)."""
-    from ur5kin import collision as clearance
-
-    kernels = clearance._kernels()
-    lift, wrist = clearance._angle_offsets()
-    cast = DTYPES[dtype]
-    return PlaneModel(np.ascontiguousarray(kernels.vertex_heights, dtype=cast),
-                      np.ascontiguousarray(kernels.bounds, dtype=np.int64), float(lift),
-                      float(wrist), np.ascontiguousarray(height_lipschitz(), dtype=cast))
 
 
 # ---------------------------------------------------------------------------- kernels
@@ -401,18 +260,23 @@ def _aba(R, p, axis, inertia, armature, grav, qd, tau, vel, cb, IA, pA, U, D, u,
 
 
 @_njit
+def _aba_scratch(dt):  # pragma: no cover - compiled
+    """The scratch of :func:`_aba` and :func:`_gravity_torque` in type ``dt``: ``R (6, 3, 3)``,
+    ``vel, acc (7, 6)``, ``cb, pA, U (6, 6)``, ``IA (6, 6, 6)``, ``X, Y (6, 6)``, ``D, u (6,)``,
+    ``force (6, 6)``."""
+    return (np.empty((6, 3, 3), dt), np.empty((7, 6), dt), np.empty((7, 6), dt),
+            np.empty((6, 6), dt), np.empty((6, 6), dt), np.empty((6, 6), dt),
+            np.empty((6, 6, 6), dt), np.empty((6, 6), dt), np.empty((6, 6), dt), np.empty(6, dt),
+            np.empty(6, dt), np.empty((6, 6), dt))
+
+
+@_njit
 def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torque, out, free
                ):  # pragma: no cover - compiled
     """``out[b] = aba(q[b], qd[b], tau[b])`` (plus ``g(q[b])`` in tau when gravity_torque),
     joints ``free ..`` locked (:func:`_aba`)."""
-    dt = q.dtype
-    R = np.empty((6, 3, 3), dt)
-    vel, acc = np.empty((7, 6), dt), np.empty((7, 6), dt)
-    cb, pA, U = np.empty((6, 6), dt), np.empty((6, 6), dt), np.empty((6, 6), dt)
-    IA = np.empty((6, 6, 6), dt)
-    X, Y = np.empty((6, 6), dt), np.empty((6, 6), dt)
-    D, u, t, g = np.empty(6, dt), np.empty(6, dt), np.empty(6, dt), np.empty(6, dt)
-    force = np.empty((6, 6), dt)
+    R, vel, acc, cb, pA, U, IA, X, Y, D, u, force = _aba_scratch(q.dtype)
+    t, g = np.empty(6, q.dtype), np.empty(6, q.dtype)
     for b in range(q.shape[0]):
         _placements(q[b], rot0, axis, R)
         for k in range(6):
@@ -482,7 +346,8 @@ def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np
     if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
         raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
     name = _dtype_name(dtype)
-    chain, cast = ur5_chain(name), DTYPES[name]
+    cast = DTYPES[name]
+    chain = ur5_chain().astype(cast)
     q, v, tau = _batch(q, "q", cast), _batch(v, "v", cast), _batch(tau, "tau", cast)
     if not q.shape == v.shape == tau.shape:
         raise ValueError(f"q, v and tau must have one shape; got {q.shape}, {v.shape}, "
@@ -500,7 +365,7 @@ def generalized_gravity(q: Any, dtype: Any = np.float64) -> np.ndarray:
     """Gravity torques ``g(q) (B, 6)`` N m of B copies (Pinocchio's
     ``computeGeneralizedGravity`` for each row ``q (B, 6)`` rad), batched."""
     name = _dtype_name(dtype)
-    chain = ur5_chain(name)
+    chain = ur5_chain().astype(DTYPES[name])
     q = _batch(q, "q", DTYPES[name])
     out = np.empty_like(q)
     _gravity_batch(q, chain.rotation, chain.translation, chain.axis, chain.inertia,
@@ -513,7 +378,7 @@ def _link_heights(q, vh, bounds, lift, wrist, base_height, feat, out
                   ):  # pragma: no cover - compiled
     """``out[k - 1]``: exact lowest point (m, world z) of moving link k = 1..6 at ``q``.
 
-    The features and the product of :func:`ur5kin.collision._exact`, written out.
+    The features and the product of :func:`ur5kin.link_heights`, written out.
     """
     a = q[1] + lift
     b = a + q[2]
@@ -569,33 +434,125 @@ def _tool_position(R, p, tool_pos, base_height, out):  # pragma: no cover - comp
 
 
 @_njit
-def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
-                  vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
-                  rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
-                  tool, free, first, stop):  # pragma: no cover - compiled
-    """One control step of copies ``first .. stop - 1``, in the time-scaled units of
-    ArmDynamics.
+def _step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+               vh, bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis,
+               inertia, armature, grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u,
+               tau, g, a, force, q1, w1, q_ref, heights, feat, tool
+               ):  # pragma: no cover - compiled
+    """One control step of one copy, in place, in the time-scaled units of
+    :mod:`envs.physics.model`: the step body, pure scalar and array arithmetic on the arrays it
+    is given (no allocation, no Python object), so that the same function can be compiled for a
+    GPU thread (``numba.cuda.jit(device=True)``) as well as for the CPU loop
+    :func:`_control_step`.
 
-    Per copy b: ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
+    ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
     ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'`` (joints ``free ..`` locked:
     their ``aba`` is 0 and their ``w`` stays 0, so they never move); a substep that leaves the
     joint limits ``|q - q_mid| > q_half`` or brings a moving link below ``margin`` (m, world
     z) is not taken: the copy stays at the last valid substep with ``w = 0`` and the rest of
-    the step is skipped (ArmDynamics computes and discards it: the same answer).
-    ``clearance[b]`` (m) is a lower bound of each moving link's height at ``Q[b]``, kept
-    valid; the exact heights are computed only when the Lipschitz bound of the substep cannot
-    prove the link clear. Writes ``Q, W`` (the new state), ``dW = W_new - W_old``, the stop
-    flags and the tool's world position.
+    the step is skipped (the Pinocchio loop computes and discards it: the same answer).
+
+    Parameters
+    ----------
+    q, w : (6,) float
+        The copy's state (rad, rad per substep), advanced in place.
+    known : (6,) float, m
+        A lower bound of each moving link's height at ``q``, kept valid in place; the exact
+        heights are computed only when the Lipschitz bound of a substep cannot prove the link
+        clear.
+    bias : (6,) float
+        The constant part of the scaled PD torque (command and held joints).
+    tool : (3,) float
+        Written: tool0's world position (m) after the step.
+    R .. feat
+        Scratch of :func:`_aba`, :func:`_gravity_torque` and :func:`_link_heights`.
+
+    Returns
+    -------
+    hit_plane, hit_limit : bool
+        Whether the step stopped on the plane, at a joint limit.
+    """
+    for k in range(6):
+        q_ref[k] = q[k]
+    hit_plane = False
+    hit_limit = False
+    for _ in range(substeps):
+        _placements(q, rot0, axis, R)
+        for k in range(6):
+            tau[k] = bias[k] - kp[k] * q[k] - kd[k] * w[k]
+        if gravity_comp:
+            _gravity_torque(R, p, axis, inertia, grav, acc, force, g)
+            for k in range(6):
+                tau[k] += g[k]
+        for k in range(6):
+            tau[k] = min(max(tau[k], -effort[k]), effort[k])
+        _aba(R, p, axis, inertia, armature, grav, w, tau, vel, cb, IA, pA, U, D, u, X, Y,
+             acc, a, free)
+        for k in range(6):
+            w1[k] = min(max(w[k] + a[k], -w_max[k]), w_max[k])
+            q1[k] = q[k] + w1[k]
+            if abs(q1[k] - q_mid[k]) > q_half[k]:
+                hit_limit = True
+        # the plane: exact heights only where the bound from the last exact ones fails
+        unsure = False
+        for k in range(6):
+            bound = known[k]
+            for i in range(6):
+                bound -= lipschitz[i, k] * abs(q1[i] - q_ref[i])
+            if bound < margin:
+                unsure = True
+        if unsure:
+            _link_heights(q1, vh, bounds, lift, wrist, base_height, feat, heights)
+            for k in range(6):
+                known[k] = heights[k]
+                q_ref[k] = q1[k]
+                if heights[k] < margin:
+                    hit_plane = True
+        if hit_plane or hit_limit:
+            for k in range(6):
+                w[k] = 0.0  # stopped dead at the last valid substep
+            break
+        for k in range(6):
+            q[k] = q1[k]
+            w[k] = w1[k]
+    for k in range(6):
+        bound = known[k]
+        for i in range(6):
+            bound -= lipschitz[i, k] * abs(q[i] - q_ref[i])
+        known[k] = bound
+    _placements(q, rot0, axis, R)
+    _tool_position(R, p, tool_pos, base_height, tool)
+    return hit_plane, hit_limit
+
+
+STEP_BODY = ("_placements", "_motion_inv", "_force_act", "_gravity_torque", "_rotate_blocks",
+             "_shift_into", "_aba", "_link_heights", "_tool_position", "_step_copy")
+"""The functions of one copy's step, callees first: :func:`_step_copy` and all it calls."""
+
+
+def compile_step_body(jit: Any) -> Any:
+    """:func:`_step_copy` and its callees compiled anew by ``jit`` (such as
+    ``numba.cuda.jit(device=True)``, for the body of a GPU kernel): each of :data:`STEP_BODY`
+    rebuilt from its Python source, its calls bound to the others' new versions."""
+    space = dict(globals())
+    for name in STEP_BODY:
+        func = getattr(space[name], "py_func", space[name])
+        space[name] = jit(types.FunctionType(func.__code__, space, name, func.__defaults__))
+    return space["_step_copy"]
+
+
+@_njit
+def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+                  vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
+                  rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
+                  tool, free, first, stop):  # pragma: no cover - compiled
+    """One control step of copies ``first .. stop - 1`` (:func:`_step_copy` each): the batch
+    loop and the scratch it lends the body. Writes ``Q, W`` (the new state), ``dW = W_new -
+    W_old``, ``clearance`` (the height bounds), the stop flags and the tool's world position.
     """
     dt = Q.dtype
-    R = np.empty((6, 3, 3), dt)
-    vel, acc = np.empty((7, 6), dt), np.empty((7, 6), dt)
-    cb, pA, U = np.empty((6, 6), dt), np.empty((6, 6), dt), np.empty((6, 6), dt)
-    IA = np.empty((6, 6, 6), dt)
-    X, Y = np.empty((6, 6), dt), np.empty((6, 6), dt)
-    D, u, tau, g, a = (np.empty(6, dt), np.empty(6, dt), np.empty(6, dt), np.empty(6, dt),
-                       np.empty(6, dt))
-    force = np.empty((6, 6), dt)
+    R, vel, acc, cb, pA, U, IA, X, Y, D, u, force = _aba_scratch(dt)
+    tau, g, a = np.empty(6, dt), np.empty(6, dt), np.empty(6, dt)
     q, w, q1, w1, q_ref = (np.empty(6, dt), np.empty(6, dt), np.empty(6, dt), np.empty(6, dt),
                            np.empty(6, dt))
     known, heights, feat = np.empty(6, dt), np.empty(6, dt), np.empty(13, dt)
@@ -603,61 +560,17 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
         for k in range(6):
             q[k] = Q[b, k]
             w[k] = W[b, k]
-            q_ref[k] = q[k]
             known[k] = clearance[b, k]
-        hit_plane = False
-        hit_limit = False
-        for _ in range(substeps):
-            _placements(q, rot0, axis, R)
-            for k in range(6):
-                tau[k] = bias[b, k] - kp[k] * q[k] - kd[k] * w[k]
-            if gravity_comp:
-                _gravity_torque(R, p, axis, inertia, grav, acc, force, g)
-                for k in range(6):
-                    tau[k] += g[k]
-            for k in range(6):
-                tau[k] = min(max(tau[k], -effort[k]), effort[k])
-            _aba(R, p, axis, inertia, armature, grav, w, tau, vel, cb, IA, pA, U, D, u, X, Y,
-                 acc, a, free)
-            for k in range(6):
-                w1[k] = min(max(w[k] + a[k], -w_max[k]), w_max[k])
-                q1[k] = q[k] + w1[k]
-                if abs(q1[k] - q_mid[k]) > q_half[k]:
-                    hit_limit = True
-            # the plane: exact heights only where the bound from the last exact ones fails
-            unsure = False
-            for k in range(6):
-                bound = known[k]
-                for i in range(6):
-                    bound -= lipschitz[i, k] * abs(q1[i] - q_ref[i])
-                if bound < margin:
-                    unsure = True
-            if unsure:
-                _link_heights(q1, vh, bounds, lift, wrist, base_height, feat, heights)
-                for k in range(6):
-                    known[k] = heights[k]
-                    q_ref[k] = q1[k]
-                    if heights[k] < margin:
-                        hit_plane = True
-            if hit_plane or hit_limit:
-                for k in range(6):
-                    w[k] = 0.0  # stopped dead at the last valid substep
-                break
-            for k in range(6):
-                q[k] = q1[k]
-                w[k] = w1[k]
+        contact[b], limit_stop[b] = _step_copy(
+            q, w, known, bias[b], kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+            vh, bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia,
+            armature, grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a,
+            force, q1, w1, q_ref, heights, feat, tool[b])
         for k in range(6):
             dW[b, k] = w[k] - W[b, k]
             Q[b, k] = q[k]
             W[b, k] = w[k]
-            bound = known[k]
-            for i in range(6):
-                bound -= lipschitz[i, k] * abs(q[i] - q_ref[i])
-            clearance[b, k] = bound
-        contact[b] = hit_plane
-        limit_stop[b] = hit_limit
-        _placements(q, rot0, axis, R)
-        _tool_position(R, p, tool_pos, base_height, tool[b])
+            clearance[b, k] = known[k]
 
 
 def _parallel_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
@@ -687,18 +600,14 @@ def _tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma:
 
 
 # ---------------------------------------------------------------------------- the class
-class FastArmDynamics:
-    """B copies of the UR5 under the task's controller, one compiled call per control step.
-
-    A drop-in for :class:`envs.dynamics.ArmDynamics` (same parameters, attributes and
-    methods, same physics to rounding; tested against it), built for B > 1.
+class NumbaDynamics:
+    """B copies of the UR5 under the task's controller, one compiled call per control step: an
+    :class:`envs.physics.Dynamics` (its parameters and attributes, and
+    :class:`envs.physics.pinocchio_loop.PinocchioDynamics`' ``w`` and ``height_bound``; the
+    same physics to rounding, tested against it), built for B > 1.
 
     Parameters
     ----------
-    task : TaskSpec
-        Start pose, controlled joints, control mode, gains, rates, base height, plane margin.
-    num_copies : int
-        B, the number of independent arms.
     dtype : {"float64", "float32"}
         The kernel's arithmetic and the state's type. float32 trajectories drift from float64
         ones (the bounds are in the tests); the env uses float64.
@@ -708,113 +617,94 @@ class FastArmDynamics:
 
     Attributes
     ----------
-    q : (B, 6) float, rad
-        Joint angles now.
-    v : (B, 6) float, rad/s
-        Joint velocities now.
-    acceleration : (B, 6) float, rad/s^2
-        Mean realised acceleration over the last step (zero after a reset).
-    contact : (B,) bool
-        Whether the last step stopped on the plane.
-    limit_stop : (B,) bool
-        Whether the last step stopped at a URDF joint position limit.
-
-    The arrays are owned by this object and overwritten by every step; copy what you keep.
+    tool : (B, 3) float, m, world frame
+        tool0's position now.
+    bias : (B, 6) float
+        The constant part of each copy's scaled PD torque in this step (the command's and the
+        held joints').
     """
 
     def __init__(self, task: TaskSpec, num_copies: int = 1, dtype: str = "float64",
                  threads: int = 1) -> None:
         if not available():
-            raise RuntimeError("FastArmDynamics needs numba (pip install numba); "
-                               "envs.dynamics.ArmDynamics is the path without it")
+            raise RuntimeError("NumbaDynamics needs numba (pip install numba); "
+                               "envs.physics.pinocchio_loop.PinocchioDynamics is the path "
+                               "without it")
         if not isinstance(num_copies, int | np.integer) or num_copies < 1:
             raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-        if not supports(task):
-            raise ValueError(f"FastArmDynamics implements the stop contact model; got "
-                             f"contact_model={getattr(task, 'contact_model', None)!r}")
+        if not supports_kernels(task):
+            raise ValueError(f"NumbaDynamics implements the stop contact model; got "
+                             f"contact_model={task.contact_model!r}")
         pool = numba.config.NUMBA_NUM_THREADS
         if not isinstance(threads, int | np.integer) or not 1 <= threads <= pool:
             raise ValueError(f"threads must be an integer in [1, {pool}] (numba's pool on this "
                              f"machine); got {threads!r}")
         name = _dtype_name(dtype)
         cast = DTYPES[name]
-        self.task, self.num_copies, self.dtype = task, int(num_copies), name
+        self.task, self.num_copies, self.dtype = validate(task), int(num_copies), name
         self.threads = int(threads)
-        B, h, n = self.num_copies, task.sim_dt, task.n_joints
-        model = ur5kin.load_model()
-        chain = ChainModel.from_pinocchio(model)
-        # time-scaled units (envs.dynamics): gravity and torques * h^2, velocities w = h v
-        self._chain = dataclasses_replace(chain, gravity=chain.gravity * h * h).astype(cast)
-        self._plane = ur5_plane(name)
-        tool = model.frames[model.getFrameId(ur5kin.TOOL_FRAME)]
-        if tool.parentJoint != NJ:
-            raise ValueError(f"{ur5kin.TOOL_FRAME} hangs on joint {tool.parentJoint}; the fast "
-                             f"path expects joint {NJ}")
-        self._tool_pos = np.ascontiguousarray(tool.placement.translation, dtype=cast)
-
+        B = self.num_copies
         arm = self.arm = arm_model(task)
-        self._kp, self._kd = arm.kp_eff.astype(cast), arm.kd_eff.astype(cast)
-        self._command_gain = arm.command_gain.astype(cast)
-        self._effort, self._w_max = arm.effort.astype(cast), arm.w_max.astype(cast)
-        self._q_mid, self._q_half = arm.q_mid.astype(cast), arm.q_half.astype(cast)
-        self._start_q = arm.start_q
-        self._bias = np.zeros((B, NJ), dtype=cast)
-        self._bias[:, n:] = arm.held_bias  # held joints: PD to the start (pd)
-        self._free = arm.free  # locked held joints: out of the dynamics
-        self._w_to_v, self._w_to_accel = arm.w_to_v, arm.w_to_accel
+        self._chain, self._plane = arm.chain.astype(cast), ur5_plane(name)
+        self._tool_pos = tool_offset().astype(cast)
+        # the controller's arrays in the kernel's type, in its argument order
+        self._controller = tuple(x.astype(cast) for x in (arm.kp_eff, arm.kd_eff, arm.effort,
+                                                          arm.w_max))
+        self._limits = arm.q_mid.astype(cast), arm.q_half.astype(cast)
+        self.bias = arm.initial_bias(B, cast)
 
-        self.q = np.tile(self._start_q, (B, 1)).astype(cast)
-        self._w = np.zeros((B, NJ), dtype=cast)
+        self.q = np.tile(arm.start_q, (B, 1)).astype(cast)
+        self.w = np.zeros((B, NJ), dtype=cast)
         self._dw = np.zeros((B, NJ), dtype=cast)
         self.v = np.zeros((B, NJ), dtype=cast)
         self.acceleration = np.zeros((B, NJ), dtype=cast)
         self.contact = np.zeros(B, dtype=bool)
         self.limit_stop = np.zeros(B, dtype=bool)
-        self._clearance = np.tile(moving_link_heights(self._start_q, task.base_height),
-                                  (B, 1)).astype(cast)
-        self._tool = np.zeros((B, 3), dtype=cast)
+        self.height_bound = np.tile(moving_link_heights(arm.start_q, task.base_height),
+                                    (B, 1)).astype(cast)
+        self.tool = np.zeros((B, 3), dtype=cast)
         self._update_tools(np.arange(B))
 
     def _update_tools(self, rows: np.ndarray) -> None:
         c = self._chain
         _tool_batch(self.q, rows.astype(np.int64), c.rotation, c.translation, c.axis,
-                    self._tool_pos, float(self.task.base_height), self._tool)
+                    self._tool_pos, float(self.task.base_height), self.tool)
 
     def reset(self, q: Any, index: Any = None) -> None:
-        """Put copies at rest at configurations ``q`` (as :meth:`envs.dynamics.ArmDynamics.reset`:
-        ``q (6,)`` or ``(m, 6)`` rad, ``index`` the copies; ``ValueError`` below the plane)."""
+        """Put copies at rest at configurations ``q`` (``q (6,)`` or ``(m, 6)`` rad, ``index``
+        the copies; ``ValueError`` below the plane: :func:`envs.physics.model.rest_heights`)."""
         sel = put_at_rest(self, q, index)
         self._update_tools(np.arange(self.num_copies)[sel].reshape(-1))
 
     def step(self, command: np.ndarray) -> None:
-        """Advance every copy by one control step of ``task.substeps`` substeps.
-
-        Parameters
-        ----------
-        command : (B, n) float
-            Per copy, the command of joints 1..n in the control mode's unit (rad, rad/s or
-            N m), already within :func:`envs.dynamics.command_bounds`.
-        """
-        task, c, pl = self.task, self._chain, self._plane
-        np.multiply(self._command_gain, command, out=self._bias[:, : task.n_joints])
-        args = (self.q, self._w, self._bias, self._kp, self._kd, self._effort, self._w_max,
-                bool(task.gravity_compensation), task.substeps, self._q_mid, self._q_half,
-                pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
-                float(task.base_height), float(task.plane_margin), self._clearance, c.rotation,
-                c.translation, c.axis, c.inertia, c.armature, c.gravity, self._tool_pos,
-                self._dw, self.contact, self.limit_stop, self._tool, self._free)
+        """:meth:`envs.physics.Dynamics.step`."""
+        arm = self.arm
+        np.multiply(arm.command_gain, command, out=self.bias[:, : self.task.n_joints])
+        args = self.kernel_arguments()
         if self.threads == 1:
             _control_step(*args, 0, self.num_copies)
         else:
             numba.set_num_threads(self.threads)
             _parallel_step(*args, min(self.num_copies, PARALLEL_CHUNKS_PER_THREAD
                                       * self.threads))
-        np.multiply(self._dw, self._w_to_accel, out=self.acceleration)
-        np.multiply(self._w, self._w_to_v, out=self.v)
+        np.multiply(self._dw, arm.w_to_accel, out=self.acceleration)
+        np.multiply(self.w, arm.w_to_v, out=self.v)
+
+    def kernel_arguments(self) -> tuple[Any, ...]:
+        """The arguments of :func:`_control_step` before ``first, stop``: the state arrays
+        (written in place) and the model's, in the order :func:`_step_copy` reads them per
+        copy (row b of each ``(B, ...)`` array), for a kernel that runs the body elsewhere."""
+        task, c, pl = self.task, self._chain, self._plane
+        return (self.q, self.w, self.bias, *self._controller,
+                bool(task.gravity_compensation), task.substeps, *self._limits,
+                pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
+                float(task.base_height), float(task.plane_margin), self.height_bound,
+                c.rotation, c.translation, c.axis, c.inertia, c.armature, c.gravity,
+                self._tool_pos, self._dw, self.contact, self.limit_stop, self.tool, self.arm.free)
 
     def tool_positions(self, out: np.ndarray) -> np.ndarray:
         """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``."""
-        out[:] = self._tool
+        out[:] = self.tool
         return out
 
 
