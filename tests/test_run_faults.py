@@ -447,7 +447,6 @@ def test_a_run_killed_at_random_moments_resumes_to_the_uninterrupted_eval_csv(tm
     a start costs no imports."""
     import multiprocessing
     import random
-
     import time
 
     fork = multiprocessing.get_context("fork")
