@@ -60,16 +60,21 @@ def runs() -> dict[str, list[list[str]]]:
     return out
 
 
-def record(out: Path, tree: Path, python: str) -> None:
-    """Train every run of `runs` with the code in ``tree`` into ``out/NAME``."""
+def record(out: Path, tree: Path, python: str, only: Sequence[str] = ()) -> None:
+    """Train every run of `runs` (those whose name starts with one of ``only``, if given; the
+    ``train_many`` stack is named so) with the code in ``tree`` into ``out/NAME``."""
     out.mkdir(parents=True, exist_ok=False)
     for name, commands in runs().items():
+        if only and not name.startswith(tuple(only)):
+            continue
         start = time.perf_counter()
         for argv in commands:
             cmd = [python, "-m", "ddpg_her.train", *BASE, *argv, "--out",
                    str(out.resolve() / name / "s{seed}")]
             subprocess.run(cmd, cwd=tree, check=True, stdout=subprocess.DEVNULL)
         print(f"{name}: {time.perf_counter() - start:.1f} s", flush=True)
+    if only and not "train_many".startswith(tuple(only)):
+        return
     many = out.resolve() / "train_many"
     units = [f"--region {r} --joints 3 --seeds 0 1 --out {many}/{r}/s{{seed}}"
              for r in ("zheight", "farbox")]
@@ -139,11 +144,12 @@ def compare_run(a: Path, b: Path) -> list[str]:
 
 
 def compare(a: Path, b: Path) -> int:
-    """Print one line per run folder; 0 when all are the same, 1 otherwise."""
-    folders = sorted(p.parent.relative_to(a) for p in a.rglob("eval.csv"))
-    others = sorted(p.parent.relative_to(b) for p in b.rglob("eval.csv"))
-    if folders != others or not folders:
-        print(f"the run folders differ: {folders} / {others}")
+    """Print one line per run folder of ``b`` (all of which ``a`` must have: ``b`` may be a
+    recording ``--only`` some runs); 0 when all are the same, 1 otherwise."""
+    folders = sorted(p.parent.relative_to(b) for p in b.rglob("eval.csv"))
+    missing = [f for f in folders if not (a / f / "eval.csv").exists()]
+    if missing or not folders:
+        print(f"{a} lacks the run folders {missing} of {b}" if missing else f"{b}: no runs")
         return 1
     bad = 0
     for rel in folders:
@@ -165,12 +171,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                      help="the checkout whose code trains (default: this one)")
     rec.add_argument("--python", default=sys.executable,
                      help="the interpreter (default: this one)")
+    rec.add_argument("--only", nargs="+", default=[], metavar="PREFIX",
+                     help="only the runs whose name starts so (e.g. numpy- torch-ddpg)")
     cmp = sub.add_parser("compare", help="compare two recorded folders")
     cmp.add_argument("a", type=Path)
     cmp.add_argument("b", type=Path)
     args = parser.parse_args(argv)
     if args.command == "record":
-        record(args.out, args.tree, args.python)
+        record(args.out, args.tree, args.python, args.only)
         return 0
     return compare(args.a, args.b)
 
