@@ -294,19 +294,20 @@ def measure_rollouts(k: int, joints: int, rounds: int) -> dict[str, float]:
     """Seconds per training episode of ``k`` agents (random actions, one copy each) under the
     ``numpy`` and ``batched`` env backends, alternating rounds; medians, and the median of the
     rounds' ratios as ``rollout_speedup``."""
-    import numpy as np
+    import torch
 
-    from ddpg_her.vecenv import GoalVecEnv, rollout
+    from ddpg_her.collect import make_envs, rollout
 
     groups = [{"region": ROLLOUT_REGIONS[i % len(ROLLOUT_REGIONS)], "n_joints": joints}
               for i in range(k)]
-    envs = {name: GoalVecEnv("UR5Reach-v0", groups, 1, merge=name == "batched")
+    envs = {name: make_envs(name, "UR5Reach-v0", groups, 1, torch.device("cpu"))
             for name in ("numpy", "batched")}
     scale = envs["numpy"].scale
-    rng = np.random.default_rng(0)
+    generator = torch.Generator().manual_seed(0)
 
-    def policy(obs: dict, active: np.ndarray) -> np.ndarray:
-        return rng.uniform(scale.low, scale.high, (k, scale.dim))
+    def policy(obs: dict, active: torch.Tensor) -> torch.Tensor:
+        u = torch.rand((k, scale.dim), generator=generator, dtype=torch.float64)
+        return scale.to_env(2.0 * u - 1.0)
 
     times: dict[str, list[float]] = {name: [] for name in envs}
     for r in range(rounds + 1):  # round 0 warms up (the compiled kernel's first call)

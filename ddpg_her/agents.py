@@ -1,5 +1,6 @@
 """The stacked agents by name: ``make_agent`` builds K agents of ``AgentConfig.algo`` (or K
-regional ensembles of them, `ddpg_her.ensemble`).
+regional ensembles of them, `ddpg_her.ensemble`), and ``check_memory`` refuses a stack (with
+its replay buffers) larger than the device's memory.
 
 Apart from `ddpg_her.algos`, which TD3 and SAC import, so that no module imports itself back
 through a lazy import.
@@ -7,12 +8,14 @@ through a lazy import.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from typing import Any
 
 import torch
 
 from ddpg_her.agent import DDPG
+from ddpg_her.buffer import Layout
 from ddpg_her.config import AgentConfig
 from ddpg_her.ensemble import Ensemble
 from ddpg_her.sac import SAC
@@ -39,3 +42,59 @@ def make_agent(config: AgentConfig, in_dim: int, act_dim: int, *,
                         init_generators=init_generators, dtype=dtype, device=device)
     return member(config, in_dim, act_dim, init_generators=init_generators, dtype=dtype,
                   device=device)
+
+
+BYTES_PER_PARAMETER = 6
+"""Copies of each network parameter in memory: the weight, its target, its gradient, Adam's
+two moments, and one for the update's scratch (an upper estimate)."""
+
+
+def check_memory(config: AgentConfig, layout: Layout, k: int, dtype: torch.dtype,
+                 device: torch.device) -> None:
+    """Refuse, before allocating, replay buffers and networks larger than the memory of
+    ``device`` (the host's available memory for the CPU, the GPU's free memory).
+
+    Raises
+    ------
+    ValueError
+        Naming --buffer-size or --hidden-sizes and the memory they would need.
+    """
+    size = torch.empty((), dtype=dtype).element_size()
+    buffer = k * config.buffer_size * layout.width * size
+    h1, h2 = config.hidden_sizes
+    params = (layout.in_dim * h1 + h1 + h1 * h2 + h2 + h2 * layout.act_dim + layout.act_dim
+              + layout.in_dim * h1 + h1 + (h1 + layout.act_dim) * h2 + h2 + h2 + 1)
+    networks = k * params * size * BYTES_PER_PARAMETER
+    available = available_memory(device)
+    if available is None:
+        return
+    gib = 2.0 ** 30
+    for flag, need in (("--buffer-size", buffer), ("--hidden-sizes", networks),
+                       ("--buffer-size and --hidden-sizes", buffer + networks)):
+        if need > available:
+            raise ValueError(
+                f"{flag}: {k} agent(s) would need {need / gib:.3g} GiB ({buffer / gib:.3g} GiB "
+                f"of replay buffers: {config.buffer_size} transitions x {layout.width} "
+                f"values x {size} bytes each; {networks / gib:.3g} GiB of networks "
+                f"{config.hidden_sizes}), more than the {available / gib:.3g} GiB available "
+                f"on {device}")
+
+
+def available_memory(device: torch.device) -> int | None:
+    """Bytes that can still be allocated on ``device``, or None when it cannot be told."""
+    if device.type == "cuda":
+        try:
+            return int(torch.cuda.mem_get_info(device)[0])
+        except (RuntimeError, AssertionError):
+            return None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None

@@ -62,17 +62,6 @@ class TensorEpisodes:
     length: torch.Tensor
     success: torch.Tensor
 
-    def episode(self, i: int, length: int) -> Episode:
-        """Episode i (of ``length`` steps) as numpy arrays (reads the device: for tests)."""
-        def host(x: torch.Tensor) -> np.ndarray:
-            return x.cpu().numpy()
-        return Episode(observation=host(self.observation[i, :length + 1]),
-                       achieved_goal=host(self.achieved_goal[i, :length + 1]),
-                       desired_goal=host(self.desired_goal[i]),
-                       action=host(self.action[i, :length]),
-                       reward=host(self.reward[i, :length]),
-                       terminated=host(self.terminated[i, :length]))
-
 
 def her_goal_steps(strategy: HERStrategy, length: int, her_k: int,
                    rng: np.random.Generator) -> np.ndarray:
@@ -89,7 +78,8 @@ def her_goal_steps(strategy: HERStrategy, length: int, her_k: int,
 
 
 def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, terminated_fn: GoalFn) -> Episode:
-    """A copy of ``ep`` that pursues ``ep.achieved_goal[goal_step]``, cut where it terminates.
+    """A copy of ``ep`` that pursues ``ep.achieved_goal[goal_step]``, cut where it terminates
+    (`her_tensors` of the one episode; ``reward_fn`` and ``terminated_fn`` take arrays).
 
     The copy's transition t keeps (s_t, a_t, s_t+1) and gets the reward and the termination
     (``terminated_fn``, the env's ``compute_terminated``: a success, in the paper's task) of
@@ -99,20 +89,21 @@ def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, terminated_fn: GoalF
     """
     if not 1 <= goal_step <= len(ep):
         raise ValueError(f"goal_step must be in 1..{len(ep)}, got {goal_step}")
-    goal = ep.achieved_goal[goal_step]
-    goals = np.broadcast_to(goal, ep.achieved_goal[1:].shape)
-    terminated = np.asarray(terminated_fn(ep.achieved_goal[1:], goals, ep.action), dtype=bool)
-    n = int(np.argmax(terminated)) + 1 if terminated.any() else len(ep)
-    reward = np.asarray(reward_fn(ep.achieved_goal[1:n + 1], goals[:n], ep.action[:n]),
-                        dtype=np.float64)
-    return Episode(
-        observation=ep.observation[:n + 1],
-        achieved_goal=ep.achieved_goal[:n + 1],
-        desired_goal=goal.copy(),
-        action=ep.action[:n],
-        reward=reward,
-        terminated=terminated[:n].copy(),
-    )
+    one = TensorEpisodes(**{f: torch.as_tensor(np.asarray(getattr(ep, f)))[None] for f in (
+        "observation", "achieved_goal", "desired_goal", "action", "reward", "terminated")},
+        length=torch.tensor([len(ep)]), success=torch.zeros(1, dtype=torch.bool))
+
+    def on_arrays(fn: GoalFn) -> GoalFn:
+        return lambda *x: torch.as_tensor(np.asarray(fn(*(v.numpy() for v in x))))
+
+    goal, reward, terminated, length = her_tensors(one, np.zeros(1, dtype=int),
+                                                   np.array([goal_step]), on_arrays(reward_fn),
+                                                   on_arrays(terminated_fn))
+    n = int(length[0])
+    return Episode(observation=ep.observation[:n + 1], achieved_goal=ep.achieved_goal[:n + 1],
+                   desired_goal=goal[0].numpy(), action=ep.action[:n],
+                   reward=reward[0, :n].numpy().astype(np.float64),
+                   terminated=terminated[0, :n].numpy())
 
 
 @dataclass(frozen=True)
@@ -139,27 +130,25 @@ class Layout:
 
 
 def pack(ep: Episode, scale: ActionScale) -> np.ndarray:
-    """The episode's transitions as packed rows, ``(L, layout.width)`` float32."""
-    x = goal_input(ep.observation, ep.achieved_goal, ep.desired_goal)
-    u = scale.to_actor(ep.action)
-    return np.concatenate(
-        [x[:-1], u, ep.reward[:, None], x[1:], ep.terminated[:, None]], axis=1
-    ).astype(np.float32)
+    """The episode's transitions as packed rows, ``(L, layout.width)`` float32 (`pack_tensors`
+    of its arrays)."""
+    arrays = (ep.observation, ep.achieved_goal, ep.desired_goal, ep.action, ep.reward,
+              ep.terminated)
+    return pack_tensors(*(torch.as_tensor(np.asarray(x)) for x in arrays), scale).numpy()
 
 
 def pack_tensors(observation: torch.Tensor, achieved_goal: torch.Tensor,
                  desired_goal: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
                  terminated: torch.Tensor, scale: ActionScale) -> torch.Tensor:
-    """`pack` on tensors, with the same float64 operations and rounding to float32.
+    """Transitions as packed rows: the inputs (`goal_input`) and actions (`ActionScale.to_actor`)
+    computed in float64 and rounded to float32.
 
     observation : (..., L + 1, obs_dim), achieved_goal : (..., L + 1, goal_dim), desired_goal
     : (..., goal_dim), action : (..., L, act_dim) env units, reward : (..., L), terminated :
     (..., L) bool -> (..., L, width) float32 rows on their device.
     """
-    dg = desired_goal.unsqueeze(-2).expand_as(achieved_goal)
-    x = torch.cat([observation, dg - achieved_goal, dg], -1).to(torch.float32)
-    low, high = (torch.as_tensor(v, device=action.device) for v in (scale.low, scale.high))
-    u = (action.to(torch.float64) - low) / (0.5 * (high - low)) - 1.0
+    x = goal_input(observation, achieved_goal, desired_goal.unsqueeze(-2))
+    u = scale.to_actor(action)
     return torch.cat([x[..., :-1, :], u.to(torch.float32), reward.unsqueeze(-1).to(torch.float32),
                       x[..., 1:, :], terminated.unsqueeze(-1).to(torch.float32)], -1)
 
@@ -212,24 +201,15 @@ class ReplayBuffer:
     def size(self, k: int) -> int:
         return int(min(self.total[k], self.capacity))
 
-    def put(self, k: int, start: int, rows: np.ndarray) -> None:
-        """Write ``rows : (L, width)`` as agent k's transitions ``start .. start + L - 1``."""
+    def put(self, k: int, start: int, rows: np.ndarray | torch.Tensor) -> None:
+        """Write ``rows : (L, width)`` (an array, or a tensor on any device) as agent k's
+        transitions ``start .. start + L - 1``; the positions are computed on the buffer's
+        device."""
         if len(rows) > self.capacity:  # only the last `capacity` would survive
             start += len(rows) - self.capacity
             rows = rows[-self.capacity:]
-        pos = (start + np.arange(len(rows))) % self.capacity
-        self.rows[k, torch.from_numpy(pos).to(self.rows.device)] = torch.from_numpy(
-            np.asarray(rows)).to(self.rows)
-        self.total[k] = max(self.total[k], start + len(rows))
-        self.filled[k] = self.size(k)
-
-    def put_tensor(self, k: int, start: int, rows: torch.Tensor) -> None:
-        """`put` of rows already on the buffer's device; the positions are computed there."""
-        if len(rows) > self.capacity:
-            start += len(rows) - self.capacity
-            rows = rows[-self.capacity:]
         pos = (start + torch.arange(len(rows), device=self.rows.device)) % self.capacity
-        self.rows[k, pos] = rows.to(self.rows)
+        self.rows[k, pos] = torch.as_tensor(rows).to(self.rows)
         self.total[k] = max(self.total[k], start + len(rows))
         self.filled[k] = self.size(k)
 

@@ -1,4 +1,13 @@
-"""Exploration noise of the K agents, each agent drawing from its own generator."""
+"""Exploration noise of the K agents, each agent drawing from its own generator.
+
+`Explorer` holds the noise's arithmetic, written once on float64 tensors; where the random
+numbers come from is the env backend's choice (`NumpyDraws` for envs on the host, `TorchDraws`
+for envs on the device), and only the draws differ between the two. Both draw (K, act_dim)
+float64 tensors on their ``device`` in actor units: ``drawing(active)`` says which agents draw
+at a step (active : (K,) bool, the agents whose episode runs), ``uniform`` and ``normal`` draw
+for those rows (the others are unused), and ``coin(rows, p, dim)`` gives (K,) bool, True with
+probability p, and where True a uniform action.
+"""
 
 from __future__ import annotations
 
@@ -9,77 +18,100 @@ import torch
 
 from ddpg_her.config import AgentConfig, Exploration
 
+F64 = torch.float64
 
-class Explorer:
-    """Perturbs the actors' actions during training, as set by ``config.exploration``.
 
-    Agent k draws from ``rngs[k]`` only at the steps where its own episode is running, so its
-    random stream does not depend on how long the other agents' episodes last.
-    """
+class NumpyDraws:
+    """`Draws` of ``numpy.random.Generator`` s on the host: agent k draws from ``rngs[k]`` only
+    at the steps where its own episode runs, so its stream does not depend on how long the
+    other agents' episodes last."""
 
-    def __init__(self, config: AgentConfig, rngs: Sequence[np.random.Generator], act_dim: int):
-        self.kind, self.nu, self.theta = config.exploration, config.exploration_rate, \
-            config.ou_theta
+    device = torch.device("cpu")
+
+    def __init__(self, rngs: Sequence[np.random.Generator]):
         self.rngs = rngs
-        self.ou = np.zeros((len(rngs), act_dim))
 
-    def reset(self) -> None:
-        """Start of an episode: the OU processes restart at 0."""
-        self.ou[:] = 0.0
+    def drawing(self, active: torch.Tensor) -> torch.Tensor:
+        return active
 
-    def __call__(self, u: np.ndarray, active: np.ndarray, *, uniform: bool) -> np.ndarray:
-        """u : (K, act_dim) actor actions in [-1, 1], active : (K,) bool -> (K, act_dim) in
-        [-1, 1]. With ``uniform`` (warm-up) the action is uniformly random."""
-        u = u.copy()
-        for k in np.flatnonzero(active):
-            rng = self.rngs[k]
-            if uniform:
-                u[k] = rng.uniform(-1.0, 1.0, u.shape[1])
-            elif self.kind is Exploration.GAUSSIAN:
-                u[k] += self.nu * rng.standard_normal(u.shape[1])
-            elif self.kind is Exploration.OU:
-                self.ou[k] += -self.theta * self.ou[k] + self.nu * rng.standard_normal(u.shape[1])
-                u[k] += self.ou[k]
-            elif rng.random() < self.nu:
-                u[k] = rng.uniform(-1.0, 1.0, u.shape[1])
-        return np.clip(u, -1.0, 1.0)
+    def _each(self, rows: torch.Tensor, dim: int, draw) -> torch.Tensor:
+        out = np.zeros((len(self.rngs), dim))
+        for k in np.flatnonzero(rows.numpy()):
+            out[k] = draw(self.rngs[k])
+        return torch.from_numpy(out)
+
+    def uniform(self, rows: torch.Tensor, dim: int) -> torch.Tensor:
+        return self._each(rows, dim, lambda rng: rng.uniform(-1.0, 1.0, dim))
+
+    def normal(self, rows: torch.Tensor, dim: int) -> torch.Tensor:
+        return self._each(rows, dim, lambda rng: rng.standard_normal(dim))
+
+    def coin(self, rows: torch.Tensor, p: float, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
+        hit = np.zeros(len(self.rngs), dtype=bool)
+        for k in np.flatnonzero(rows.numpy()):
+            hit[k] = self.rngs[k].random() < p
+        return torch.from_numpy(hit), self.uniform(torch.from_numpy(hit), dim)
 
 
-class TorchExplorer:
-    """`Explorer` on the device, for the torch env backend: agent k draws from its own
-    ``torch.Generator`` (on the actions' device) at every step of every episode, whether its
-    episode still runs or not, so its stream depends on its seed alone and is never read back.
+class TorchDraws:
+    """`Draws` of ``torch.Generator`` s on the device: agent k draws from ``generators[k]`` at
+    every step of every episode, whether its episode still runs or not, so its stream depends
+    on its seed alone and is never read back.
 
-    Its draws are not `Explorer`'s (numpy's generators, drawn only while an episode runs):
+    Its draws are not `NumpyDraws`' (numpy's generators, drawn only while an episode runs):
     the two backends explore alike in law, not sample by sample.
     """
 
-    def __init__(self, config: AgentConfig, generators: Sequence[torch.Generator],
-                 act_dim: int, device: torch.device):
+    def __init__(self, generators: Sequence[torch.Generator], device: torch.device):
+        self.generators, self.device = generators, device
+
+    def drawing(self, active: torch.Tensor) -> torch.Tensor:
+        return torch.ones_like(active)
+
+    def _draw(self, fn, size: int) -> torch.Tensor:
+        return torch.stack([fn(size, generator=g, dtype=F64, device=self.device)
+                            for g in self.generators])
+
+    def uniform(self, rows: torch.Tensor, dim: int) -> torch.Tensor:
+        return 2.0 * self._draw(torch.rand, dim) - 1.0
+
+    def normal(self, rows: torch.Tensor, dim: int) -> torch.Tensor:
+        return self._draw(torch.randn, dim)
+
+    def coin(self, rows: torch.Tensor, p: float, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
+        draw = self._draw(torch.rand, dim + 1)
+        return draw[:, 0] < p, 2.0 * draw[:, 1:] - 1.0
+
+
+class Explorer:
+    """Perturbs the actors' actions during training, as set by ``config.exploration``, with
+    the random numbers of ``draws``."""
+
+    def __init__(self, config: AgentConfig, draws: NumpyDraws | TorchDraws, k: int,
+                 act_dim: int):
         self.kind, self.nu, self.theta = config.exploration, config.exploration_rate, \
             config.ou_theta
-        self.generators, self.act_dim, self.device = generators, act_dim, device
-        self.ou = torch.zeros((len(generators), act_dim), dtype=torch.float64, device=device)
+        self.draws, self.act_dim = draws, act_dim
+        self.ou = torch.zeros((k, act_dim), dtype=F64, device=draws.device)
 
     def reset(self) -> None:
         """Start of an episode: the OU processes restart at 0."""
         self.ou.zero_()
 
-    def _draw(self, fn, size: int) -> torch.Tensor:
-        return torch.stack([fn(size, generator=g, dtype=torch.float64, device=self.device)
-                            for g in self.generators])
-
-    def __call__(self, u: torch.Tensor, *, uniform: bool) -> torch.Tensor:
-        """u : (K, act_dim) float64 actor actions in [-1, 1] -> (K, act_dim) in [-1, 1].
-        With ``uniform`` (warm-up) the action is uniformly random."""
+    def __call__(self, u: torch.Tensor, active: torch.Tensor, *, uniform: bool) -> torch.Tensor:
+        """u : (K, act_dim) float64 actor actions in [-1, 1] on the draws' device, active :
+        (K,) bool -> (K, act_dim) in [-1, 1]. With ``uniform`` (warm-up) the action is
+        uniformly random. Agents that do not draw keep their action."""
+        rows, d = self.draws.drawing(active), self.act_dim
         if uniform:
-            u = 2.0 * self._draw(torch.rand, self.act_dim) - 1.0
+            noisy = self.draws.uniform(rows, d)
         elif self.kind is Exploration.GAUSSIAN:
-            u = u + self.nu * self._draw(torch.randn, self.act_dim)
+            noisy = u + self.nu * self.draws.normal(rows, d)
         elif self.kind is Exploration.OU:
-            self.ou += -self.theta * self.ou + self.nu * self._draw(torch.randn, self.act_dim)
-            u = u + self.ou
+            step = self.ou + (-self.theta * self.ou + self.nu * self.draws.normal(rows, d))
+            self.ou = torch.where(rows.unsqueeze(-1), step, self.ou)
+            noisy = u + self.ou
         else:
-            draw = self._draw(torch.rand, self.act_dim + 1)
-            u = torch.where(draw[:, :1] < self.nu, 2.0 * draw[:, 1:] - 1.0, u)
-        return torch.clamp(u, -1.0, 1.0)
+            hit, value = self.draws.coin(rows, self.nu, d)
+            noisy = torch.where(hit.unsqueeze(-1), value, u)
+        return torch.clamp(torch.where(rows.unsqueeze(-1), noisy, u), -1.0, 1.0)

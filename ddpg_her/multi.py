@@ -24,38 +24,16 @@ from __future__ import annotations
 import datetime
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from ddpg_her.config import AgentConfig
+from ddpg_her.logs import progress_bar
 from ddpg_her.runfolder import RunFolder, RunFolderError, read_run
 from ddpg_her.trainer import Trainer
+from ddpg_her.units import Setting
 from ddpg_her.vecenv import GoalVecEnv
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One task's runs: ``gymnasium.make(env_id, **env_kwargs)``, agent ``config``, one run
-    folder per seed (``run_dirs[i]`` for ``seeds[i]``)."""
-
-    env_id: str
-    env_kwargs: dict[str, Any]
-    config: AgentConfig
-    seeds: tuple[int, ...]
-    run_dirs: tuple[str, ...]
-
-    def __post_init__(self) -> None:
-        if not self.seeds or len(self.seeds) != len(self.run_dirs):
-            raise ValueError(f"need one or more seeds and one run folder per seed, got seeds "
-                             f"{list(self.seeds)} and folders {list(self.run_dirs)}")
-
-    @property
-    def name(self) -> str:
-        """The task in a few words, for messages: its env kwargs."""
-        return ", ".join(f"{k}={v}" for k, v in self.env_kwargs.items())
 
 
 def resume_point(run_dirs: Sequence[str | Path]) -> int | None:
@@ -168,16 +146,10 @@ class MultiTrainer:
 
 def _progress(enabled: bool, trainers: Sequence[Trainer]):
     """One bar over the agent-episodes of every group (a group's episode counts K)."""
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    total = sum(t.k * t.config.episodes for t in trainers)
-    done = sum(t.k * t.episode for t in trainers)
-    agents = sum(t.k for t in trainers)
-    bar = tqdm(total=total, initial=done, unit="agent-ep", dynamic_ncols=True,
-               desc=f"train {agents} agents in {len(trainers)} group"
-                    f"{'s' if len(trainers) > 1 else ''}")
-    start = datetime.datetime.now()
-    bar.set_postfix_str(f"started {start:%a %H:%M}", refresh=False)
+    bar = progress_bar(enabled, sum(t.k * t.config.episodes for t in trainers),
+                       sum(t.k * t.episode for t in trainers), "agent-ep",
+                       f"train {sum(t.k for t in trainers)} agents in {len(trainers)} group"
+                       f"{'s' if len(trainers) > 1 else ''}")
+    if bar is not None:
+        bar.set_postfix_str(f"started {datetime.datetime.now():%a %H:%M}", refresh=False)
     return bar

@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ddpg_her.config import VALID, AgentConfig, field_docs
-from ddpg_her.units import DEFAULT_JOINTS, task_fields, task_option
+from ddpg_her.units import DEFAULT_JOINTS, Setting, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
 def _add_config_flags(group: argparse._ArgumentGroup) -> None:
@@ -154,20 +154,6 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     return dirs
 
 
-@dataclasses.dataclass(frozen=True)
-class Request:
-    """What one ``ddpg_her.train`` command line asks to train (its task, agent, seeds and run
-    folders), checked but not started."""
-
-    env_id: str
-    env_kwargs: dict[str, Any]
-    config: AgentConfig
-    seeds: tuple[int, ...]
-    run_dirs: tuple[str, ...]
-    note: str | None = None
-    """What the command should say about the request (a budget kept on resume), or None."""
-
-
 PROCESS_FLAGS = ("resume", "device", "env_backend", "update_graph", "threads", "no_progress",
                  "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
@@ -240,7 +226,7 @@ def contradictions(config: AgentConfig) -> None:
             "would have no test session and the run would never count as finished")
 
 
-def request(args: argparse.Namespace, resume: bool | None = None) -> Request:
+def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
     """The runs a parsed command line asks for.
 
     With ``resume`` (default: ``args.resume``) and no --episodes given (see `parse_args`),
@@ -273,7 +259,7 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Request:
             config = dataclasses.replace(config, episodes=budget)
             note = (f"--resume: training to the {budget} episodes that spec.json records "
                     "(give --episodes to extend the run)")
-    return Request(args.env_id, env_kwargs, config, tuple(seeds), tuple(dirs), note)
+    return Setting(args.env_id, env_kwargs, config, tuple(seeds), tuple(dirs), note)
 
 
 def build_trainer(parser: argparse.ArgumentParser, make: Callable[[], Any]) -> Any:

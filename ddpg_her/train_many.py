@@ -64,7 +64,7 @@ def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
 
 
 def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
-    """The `ddpg_her.multi.Setting` of each unit, parsed by ddpg_her.train's parser (with
+    """The `ddpg_her.units.Setting` of each unit, parsed by ddpg_her.train's parser (with
     ``resume``, a unit without --episodes keeps the budget its run folders record).
 
     Raises
@@ -73,8 +73,6 @@ def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
         When a unit does not parse, sets a process flag, or asks for an invalid run; the
         message names the unit.
     """
-    from ddpg_her.multi import Setting
-
     unit_parser = train.make_parser()
     defaults = {dest: unit_parser.get_default(dest) for dest in train.PROCESS_FLAGS}
     out = []
@@ -94,7 +92,7 @@ def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
             req = train.request(args, resume=resume)
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from None
-        out.append(Setting(req.env_id, req.env_kwargs, req.config, req.seeds, req.run_dirs))
+        out.append(req)
     return out
 
 

@@ -1,17 +1,45 @@
-"""What a unit of training is on the command line, for every command that builds one: the
+"""What a unit of training is, for every command that builds one: its settings (`Setting`), the
 ``--task KEY=VALUE`` pairs and the env fields they give (``ddpg_her.train``), and plan files of
 units (``ddpg_her.train_many --plan``, written by ``analysis.sweep``)."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from ddpg_her.config import AgentConfig
+
 DEFAULT_JOINTS = 3
 """Controlled joints when neither --joints nor --task n_joints is given."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One unit's runs, as one ``ddpg_her.train`` command line asks for them (checked, not
+    started): ``gymnasium.make(env_id, **env_kwargs)``, agent ``config``, one run folder per
+    seed (``run_dirs[i]`` for ``seeds[i]``)."""
+
+    env_id: str
+    env_kwargs: dict[str, Any]
+    config: AgentConfig
+    seeds: tuple[int, ...]
+    run_dirs: tuple[str, ...]
+    note: str | None = dataclasses.field(default=None, compare=False)
+    """What the command should say about the setting (a budget kept on resume), or None."""
+
+    def __post_init__(self) -> None:
+        if not self.seeds or len(self.seeds) != len(self.run_dirs):
+            raise ValueError(f"need one or more seeds and one run folder per seed, got seeds "
+                             f"{list(self.seeds)} and folders {list(self.run_dirs)}")
+
+    @property
+    def name(self) -> str:
+        """The task in a few words, for messages: its env kwargs."""
+        return ", ".join(f"{k}={v}" for k, v in self.env_kwargs.items())
 
 
 def task_fields(region: str, joints: int | None, overrides: Sequence[tuple[str, Any]]

@@ -1,4 +1,4 @@
-"""Goal envs stepped in lockstep, one group of copies per agent, and the rollout of an episode.
+"""Goal envs stepped in lockstep, one group of copies per agent, behind one tensor interface.
 
 The agent sees the env only through the Gymnasium goal-env API: a Dict observation with
 ``observation``, ``achieved_goal`` and ``desired_goal``, a Box action, ``info["is_success"]``, and
@@ -8,7 +8,9 @@ when it has one; a single copy is ``gymnasium.make``. By default groups never sh
 what agent k's copies compute does not depend on how many agents train beside it. With
 ``merge=True`` (the trainer's ``batched`` env backend) the copies of every group whose tasks
 differ only in their goals step together in one vector env: one batched call per step for all
-of them, the goals still each group's own draws.
+of them, the goals still each group's own draws. The trainer sees every env backend through one
+interface of tensors: `HostEnvs` (a `GoalVecEnv`, its arrays entering torch without a copy) and
+`TorchGoalVecEnv` (the env's tensor twin on a device); ``ddpg_her.collect`` rolls out either.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium
@@ -24,7 +26,6 @@ import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode
 
-from ddpg_her.buffer import Episode, TensorEpisodes
 from ddpg_her.spaces import ActionScale
 
 KEYS = ("observation", "achieved_goal", "desired_goal")
@@ -35,12 +36,9 @@ GOAL_FIELDS = ("region", "goal_sampler")
 
 Step = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
-_REGISTERED_BY = {"UR5Reach-v0": "envs", "UR5TorchReach-v0": "envs"}
-"""This project's env ids and the module whose import registers each."""
-
-TORCH_TWINS = {"UR5Reach-v0": "UR5TorchReach-v0"}
-"""Env ids that have a tensor twin (torch in and out, state on one device), used by the
-``torch`` env backend: the twin's ``vector_entry_point`` makes it (``envs.TorchReach``)."""
+PROJECT_ENVS = "envs"
+"""The package whose import registers this project's env ids (``UR5Reach-v0``) and says which
+have a tensor twin (``envs.tensor_twin``): imported for an id given without a module."""
 
 
 def register_env(env_id: str) -> str:
@@ -50,10 +48,21 @@ def register_env(env_id: str) -> str:
     ``module:EnvId``, whose module registers ``EnvId``.
     """
     module, _, name = env_id.rpartition(":")
-    module = module or _REGISTERED_BY.get(name, "")
-    if module:
-        importlib.import_module(module)
+    if module or name not in gymnasium.registry:
+        importlib.import_module(module or PROJECT_ENVS)
     return name
+
+
+def tensor_twin(env_id: str) -> str:
+    """The id of ``env_id``'s tensor twin (torch in and out, state on one device), which the
+    ``torch`` env backend makes; registered. Raises ValueError for an env without one."""
+    name = register_env(env_id)
+    envs = importlib.import_module(PROJECT_ENVS)
+    twin = envs.tensor_twin(name)
+    if twin is None:
+        raise ValueError(f"{env_id} has no tensor twin for the torch env backend; ids that "
+                         f"have one: {sorted(envs.TENSOR_TWINS)}")
+    return register_env(twin)
 
 
 def _make(env_id: str, kwargs: dict[str, Any]) -> gymnasium.Env:
@@ -97,12 +106,17 @@ class _Singles:
             env.close()
 
 
+def _make_vec(env_id: str, n: int, kwargs: dict[str, Any]) -> gymnasium.vector.VectorEnv:
+    """``n`` copies in the env's own vector implementation, never reset automatically."""
+    return gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point",
+                              autoreset_mode=AutoresetMode.DISABLED, **kwargs)
+
+
 class _Vector:
     """M copies in the env's own vector implementation, never reset automatically."""
 
     def __init__(self, env_id: str, m: int, kwargs: dict[str, Any]):
-        self.env = gymnasium.make_vec(env_id, num_envs=m, vectorization_mode="vector_entry_point",
-                                      autoreset_mode=AutoresetMode.DISABLED, **kwargs)
+        self.env = _make_vec(env_id, m, kwargs)
         self.observation_space = self.env.single_observation_space
         self.action_space = self.env.single_action_space
         self.goal_env = self.env.unwrapped
@@ -115,8 +129,9 @@ class _Vector:
     def step(self, action: np.ndarray, active: np.ndarray) -> tuple:
         # Copies whose episode ended are stepped too (the batch moves as one) and ignored.
         o, r, term, trunc, info = self.env.step(action)
-        success = np.asarray(info.get("is_success", term), dtype=bool)
-        return o, r, term, trunc, success
+        success = info.get("is_success", term)  # a tensor twin's stays on its device
+        return o, r, term, trunc, success if isinstance(success, torch.Tensor) else \
+            np.asarray(success, dtype=bool)
 
     def close(self) -> None:
         self.env.close()
@@ -178,13 +193,33 @@ class _Layout:
         """Group ``group``'s task specification (``task.to_dict()`` of its env), or {}."""
         return _task_dict(self.groups[group].goal_env)
 
+    def _reset_groups(self, seeds: Sequence[int]) -> list[Any]:
+        """Each group's reset with its copies' seeds (``seeds[n]`` for copy n)."""
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        c = self.copies
+        return [g.reset(seeds[i * c:(i + 1) * c]) for i, g in enumerate(self.groups)]
+
+    def reward_fn(self, achieved_goal: Any, desired_goal: Any, action: Any,
+                  group: int = 0) -> Any:
+        """Group ``group``'s ``compute_reward`` of transitions (..., goal_dim), (..., goal_dim),
+        (..., act_dim) env units -> (...), arrays or tensors as the env takes them."""
+        return self.groups[group].goal_env.compute_reward(achieved_goal, desired_goal,
+                                                          {"action": action})
+
+    def terminated_fn(self, achieved_goal: Any, desired_goal: Any, action: Any,
+                      group: int = 0) -> Any:
+        """Group ``group``'s ``compute_terminated`` of such transitions, (...) bool: whether each
+        ends the episode (a success, when the task ends episodes at success)."""
+        return self.groups[group].goal_env.compute_terminated(achieved_goal, desired_goal,
+                                                              {"action": action})
+
 
 class _Batch:
     """One vector env stepping the copies ``index`` (flat indices) of several groups."""
 
     def __init__(self, env_id: str, n: int, kwargs: dict[str, Any], index: np.ndarray):
-        self.env = gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point",
-                                      autoreset_mode=AutoresetMode.DISABLED, **kwargs)
+        self.env = _make_vec(env_id, n, kwargs)
         self.index = index
 
 
@@ -246,17 +281,9 @@ class GoalVecEnv(_Layout):
                        np.concatenate([np.arange(k * c, (k + 1) * c) for k in ks]))
                 for ks in members.values()]
 
-    @property
-    def task(self) -> dict[str, Any]:
-        """The env's task specification (``task.to_dict()`` of the env), or {}."""
-        return _task_dict(self.goal_env)
-
     def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
         """Reset every copy n with ``seeds[n]``; the observation arrays are (N, ...)."""
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
-        c = self.copies
-        parts = [g.reset(seeds[i * c:(i + 1) * c]) for i, g in enumerate(self.groups)]
+        parts = self._reset_groups(seeds)
         obs = {key: np.concatenate([
             p[key] if isinstance(p, dict) else np.stack([o[key] for o in p]) for p in parts
         ]).astype(np.float64) for key in KEYS}
@@ -313,22 +340,6 @@ class GoalVecEnv(_Layout):
                 flags[:, n] = term, trunc, success
         return obs, reward, flags[0], flags[1], flags[2]
 
-    def reward_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
-                  action: np.ndarray, group: int = 0) -> np.ndarray:
-        """Group ``group``'s reward for L transitions:
-        (L, goal_dim), (L, goal_dim), (L, act_dim) -> (L,)."""
-        env = self.groups[group].goal_env
-        return np.asarray(env.compute_reward(achieved_goal, desired_goal, {"action": action}),
-                          dtype=np.float64)
-
-    def terminated_fn(self, achieved_goal: np.ndarray, desired_goal: np.ndarray,
-                      action: np.ndarray, group: int = 0) -> np.ndarray:
-        """Group ``group``'s ``compute_terminated`` for L transitions, (L,) bool: whether each
-        ends the episode (a success, when the task ends episodes at success)."""
-        env = self.groups[group].goal_env
-        return np.asarray(env.compute_terminated(achieved_goal, desired_goal,
-                                                 {"action": action}), dtype=bool)
-
     def close(self) -> None:
         for g in self.groups:
             g.close()
@@ -336,97 +347,82 @@ class GoalVecEnv(_Layout):
             b.env.close()
 
 
-ActionFn = Callable[[dict[str, np.ndarray], np.ndarray], np.ndarray]
-"""``policy(obs, active) -> action``: obs arrays (N, ...), active (N,) bool -> (N, act_dim)
-action in env units (rows of inactive copies are ignored)."""
+# ------------------------------------------------------------------ tensors
+class HostEnvs(_Layout):
+    """A `GoalVecEnv` seen through tensors, for the trainer's host env backends (``numpy``,
+    ``batched``): the one place where the host's arrays enter torch (zero-copy
+    ``torch.from_numpy``, float64 on the CPU) and the actions leave it, with the interface of
+    `TorchGoalVecEnv`. The arguments are `GoalVecEnv`'s."""
+
+    device = torch.device("cpu")
+    on_host = True
+    """Whether reading a result (such as whether any episode still runs) is free."""
+
+    def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
+                 *, merge: bool = False, **kwargs: Any):
+        self.vec = GoalVecEnv(env_id, groups, copies, merge=merge, **kwargs)
+        self.groups, self.kwargs, self.batches = self.vec.groups, self.vec.kwargs, \
+            self.vec.batches
+        self._take_layout(env_id, copies)
+
+    def reset(self, seeds: Sequence[int]) -> dict[str, torch.Tensor]:
+        """`GoalVecEnv.reset`, the observations (N, ...) as tensors."""
+        return _tensors(self.vec.reset(seeds))
+
+    def step(self, action: torch.Tensor, active: torch.Tensor,
+             obs: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor,
+                                                    torch.Tensor, torch.Tensor, torch.Tensor]:
+        """`GoalVecEnv.step` of tensors (see `TorchGoalVecEnv.step`)."""
+        o, *rest = self.vec.step(action.numpy(), active.numpy(),
+                                 {key: v.numpy() for key, v in obs.items()})
+        reward, terminated, truncated, success = (torch.from_numpy(x) for x in rest)
+        return _tensors(o), reward, terminated, truncated, success
+
+    def reward_fn(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
+                  action: torch.Tensor, group: int = 0) -> torch.Tensor:
+        return torch.from_numpy(np.asarray(super().reward_fn(
+            achieved_goal.numpy(), desired_goal.numpy(), action.numpy(), group),
+            dtype=np.float64))
+
+    def terminated_fn(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
+                      action: torch.Tensor, group: int = 0) -> torch.Tensor:
+        return torch.from_numpy(np.asarray(super().terminated_fn(
+            achieved_goal.numpy(), desired_goal.numpy(), action.numpy(), group), dtype=bool))
+
+    def close(self) -> None:
+        self.vec.close()
 
 
-def rollout(envs: GoalVecEnv, policy: ActionFn,
-            seeds: Sequence[int]) -> tuple[list[Episode], np.ndarray]:
-    """One episode in each of the N copies, in lockstep until the last one ends.
-
-    Returns the N episodes and their success flags (N,) bool.
-    """
-    n, t_max = envs.num_envs, envs.max_steps
-    obs = envs.reset(seeds)
-    o = np.zeros((n, t_max + 1, envs.obs_dim))
-    ag = np.zeros((n, t_max + 1, envs.goal_dim))
-    a = np.zeros((n, t_max, envs.scale.dim))
-    r = np.zeros((n, t_max))
-    term = np.zeros((n, t_max), dtype=bool)
-    length = np.zeros(n, dtype=int)
-    success = np.zeros(n, dtype=bool)
-    o[:, 0], ag[:, 0] = obs["observation"], obs["achieved_goal"]
-    goal = obs["desired_goal"].copy()
-    active = np.ones(n, dtype=bool)
-    for t in range(t_max):
-        action = np.asarray(policy(obs, active), dtype=np.float64)
-        obs, reward, terminated, truncated, succ = envs.step(action, active, obs)
-        idx = np.flatnonzero(active)
-        o[idx, t + 1], ag[idx, t + 1] = obs["observation"][idx], obs["achieved_goal"][idx]
-        a[idx, t], r[idx, t], term[idx, t] = action[idx], reward[idx], terminated[idx]
-        length[idx] += 1
-        success[idx] = succ[idx]
-        active &= ~(terminated | truncated)
-        if not active.any():
-            break
-    if active.any():
-        raise RuntimeError(f"episodes still running after the time limit of {t_max} steps")
-    episodes = [
-        Episode(observation=o[i, :length[i] + 1], achieved_goal=ag[i, :length[i] + 1],
-                desired_goal=goal[i], action=a[i, :length[i]], reward=r[i, :length[i]],
-                terminated=term[i, :length[i]])
-        for i in range(n)
-    ]
-    return episodes, success
-
-
-# ------------------------------------------------------------------ the torch env backend
-class _TorchGroup:
-    """M copies of an env id's tensor twin on one device, never reset automatically."""
-
-    def __init__(self, env_id: str, m: int, kwargs: dict[str, Any], device: torch.device):
-        # one goal per copy and reset, each copy reseeded at every reset: BatchedReach's goals
-        self.env = gymnasium.make_vec(
-            env_id, num_envs=m, vectorization_mode="vector_entry_point",
-            autoreset_mode=AutoresetMode.DISABLED, device=device, dtype="float64",
-            goal_source="per_copy", goal_pool=1, **kwargs)
-        self.observation_space = self.env.single_observation_space
-        self.action_space = self.env.single_action_space
-        self.goal_env = self.env.unwrapped
-        self.max_steps = _task_dict(self.goal_env).get("max_episode_steps")
+def _tensors(obs: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    return {key: torch.from_numpy(obs[key]) for key in KEYS}
 
 
 class TorchGoalVecEnv(_Layout):
-    """`GoalVecEnv` of tensors: ``groups`` groups of ``copies`` copies of ``env_id``'s tensor
-    twin (`TORCH_TWINS`), everything float64 on ``device``.
+    """`HostEnvs` on the device: ``groups`` groups of ``copies`` copies of ``env_id``'s tensor
+    twin (`tensor_twin`), everything float64 on ``device``.
 
     The same layout, seeding and reward functions as `GoalVecEnv`, with torch tensors in and
     out. Resetting with seeds uploads each copy's one goal (drawn on the host by the task's
     sampler, as `GoalVecEnv`'s envs draw it); ``step`` moves nothing between host and device.
     """
 
+    on_host = False
+
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1, *,
                  device: str | torch.device = "cpu", **kwargs: Any):
         per_group = _per_group(groups, copies, kwargs)
-        name = register_env(env_id)
-        twin = TORCH_TWINS.get(name)
-        if twin is None:
-            raise ValueError(f"{env_id} has no tensor twin for the torch env backend; ids that "
-                             f"have one: {sorted(TORCH_TWINS)}")
-        register_env(twin)
+        twin = tensor_twin(env_id)
         self.device = torch.device(device)
         self.kwargs = per_group
-        self.groups = [_TorchGroup(twin, copies, kw, self.device) for kw in per_group]
+        # one goal per copy and reset, each copy reseeded at every reset: BatchedReach's goals
+        self.groups = [_Vector(twin, copies, {**kw, "device": self.device, "dtype": "float64",
+                                              "goal_source": "per_copy", "goal_pool": 1})
+                       for kw in per_group]
         self._take_layout(env_id, copies)
 
     def reset(self, seeds: Sequence[int]) -> dict[str, torch.Tensor]:
         """Reset every copy n with ``seeds[n]``; the observation tensors are (N, ...)."""
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
-        c = self.copies
-        parts = [g.env.reset(seed=[int(s) for s in seeds[i * c:(i + 1) * c]])[0]
-                 for i, g in enumerate(self.groups)]
+        parts = self._reset_groups(seeds)
         return {key: torch.cat([p[key] for p in parts]) for key in KEYS}
 
     def step(self, action: torch.Tensor, active: torch.Tensor,
@@ -434,10 +430,8 @@ class TorchGoalVecEnv(_Layout):
                                                     torch.Tensor, torch.Tensor, torch.Tensor]:
         """`GoalVecEnv.step` on tensors: action (N, act_dim) env units, active (N,) bool; the
         copies not active keep their observation and get 0 / False."""
-        c, out = self.copies, []
-        for i, g in enumerate(self.groups):
-            o, r, term, trunc, info = g.env.step(action[i * c:(i + 1) * c])
-            out.append((o, r, term, trunc, info["is_success"]))
+        c = self.copies
+        out = [g.step(action[i * c:(i + 1) * c], active) for i, g in enumerate(self.groups)]
         o = {key: torch.cat([x[0][key] for x in out]) for key in KEYS}
         on = active.unsqueeze(-1)
         obs = {key: torch.where(on, o[key], obs[key]) for key in KEYS}
@@ -445,57 +439,6 @@ class TorchGoalVecEnv(_Layout):
         reward = torch.where(active, torch.cat([x[1] for x in out]), 0.0)
         return obs, reward, flags[0], flags[1], flags[2]
 
-    def reward_fn(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
-                  action: torch.Tensor, group: int = 0) -> torch.Tensor:
-        """Group ``group``'s ``compute_reward`` of transitions (..., goal_dim), (..., goal_dim),
-        (..., act_dim) env units -> (...), on the device."""
-        return self.groups[group].goal_env.compute_reward(achieved_goal, desired_goal,
-                                                          {"action": action})
-
-    def terminated_fn(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
-                      action: torch.Tensor, group: int = 0) -> torch.Tensor:
-        """Group ``group``'s ``compute_terminated`` of transitions, (...) bool, on the device."""
-        return self.groups[group].goal_env.compute_terminated(achieved_goal, desired_goal,
-                                                              {"action": action})
-
     def close(self) -> None:
         for g in self.groups:
-            g.env.close()
-
-
-TensorActionFn = Callable[[dict[str, torch.Tensor]], torch.Tensor]
-"""``policy(obs) -> action``: obs tensors (N, ...) -> (N, act_dim) float64 action in env units
-(rows of copies whose episode ended are ignored)."""
-
-
-def torch_rollout(envs: TorchGoalVecEnv, policy: TensorActionFn,
-                  seeds: Sequence[int]) -> TensorEpisodes:
-    """`rollout` on the device: one episode in each of the N copies, in lockstep.
-
-    All ``max_steps`` steps run (copies whose episode ended are stepped and ignored), since
-    asking whether any copy still runs would read the device. Nothing is read back.
-    """
-    n, t_max, dev = envs.num_envs, envs.max_steps, envs.device
-    obs = envs.reset(seeds)
-    f64 = {"dtype": torch.float64, "device": dev}
-    o = torch.zeros((n, t_max + 1, envs.obs_dim), **f64)
-    ag = torch.zeros((n, t_max + 1, envs.goal_dim), **f64)
-    a = torch.zeros((n, t_max, envs.scale.dim), **f64)
-    r = torch.zeros((n, t_max), **f64)
-    term = torch.zeros((n, t_max), dtype=torch.bool, device=dev)
-    length = torch.zeros(n, dtype=torch.long, device=dev)
-    success = torch.zeros(n, dtype=torch.bool, device=dev)
-    o[:, 0], ag[:, 0] = obs["observation"], obs["achieved_goal"]
-    goal = obs["desired_goal"].clone()
-    active = torch.ones(n, dtype=torch.bool, device=dev)
-    for t in range(t_max):
-        action = policy(obs).to(torch.float64)
-        obs, reward, terminated, truncated, succ = envs.step(action, active, obs)
-        o[:, t + 1], ag[:, t + 1] = obs["observation"], obs["achieved_goal"]
-        a[:, t] = torch.where(active.unsqueeze(-1), action, 0.0)
-        r[:, t], term[:, t] = reward, terminated
-        length += active
-        success = torch.where(active, succ, success)
-        active = active & ~(terminated | truncated)
-    return TensorEpisodes(observation=o, achieved_goal=ag, desired_goal=goal, action=a,
-                          reward=r, terminated=term, length=length, success=success)
+            g.close()

@@ -43,6 +43,16 @@ for _env_id in TORCH_ENV_IDS:
                            vector_entry_point="envs.torchreach:TorchReach",
                            max_episode_steps=DEFAULT_EPISODE_STEPS)
 
+TENSOR_TWINS: dict[str, str] = {"UR5Reach-v0": "UR5TorchReach-v0"}
+"""Each env id that has a tensor twin, and the twin's id (see `tensor_twin`)."""
+
+
+def tensor_twin(env_id: str) -> str | None:
+    """The id of the tensor twin of ``env_id`` (the same task, torch in and out, state on one
+    device: what ``ddpg_her``'s ``torch`` env backend makes), or None when it has none."""
+    return TENSOR_TWINS.get(env_id)
+
+
 _LAZY: dict[str, str] = {
     "BatchedReach": "envs.batched",
     "FlatObservation": "envs.wrappers",
@@ -51,8 +61,8 @@ _LAZY: dict[str, str] = {
 }
 """Public names that load their module (and with it Pinocchio) on first use."""
 
-__all__ = ["ENV_IDS", "TORCH_ENV_IDS", "BatchedReach", "FlatObservation", "TaskSpec", "UR5ReachEnv",
-           "compute_reward", "validate"]
+__all__ = ["ENV_IDS", "TENSOR_TWINS", "TORCH_ENV_IDS", "BatchedReach", "FlatObservation",
+           "TaskSpec", "UR5ReachEnv", "compute_reward", "tensor_twin", "validate"]
 
 
 __getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

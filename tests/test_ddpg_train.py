@@ -247,7 +247,7 @@ def test_tensorboard_gets_eval_and_training_scalars(tmp_path, monkeypatch):
         def close(self):
             logged["closed"] = True
 
-    monkeypatch.setattr("ddpg_her.trainer._tb_writer", lambda path, episode: Writer())
+    monkeypatch.setattr("ddpg_her.logs._tb_writer", lambda path, episode: Writer())
     trainer = Trainer(ENV_ID, TASK, TINY, [0], [str(tmp_path / "tb")], progress=False)
     rows = trainer.run()[0]
     trainer.close()

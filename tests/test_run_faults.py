@@ -174,12 +174,12 @@ def test_every_agent_flag_given_is_the_one_recorded(tmp_path, field):
 
 
 def test_a_task_field_the_env_does_not_take_is_refused(tmp_path):
-    from ddpg_her.trainer import _check_recorded
+    from ddpg_her.checkpoints import check_recorded
 
     with pytest.raises(ValueError, match=r"did not take the task field\(s\) given: "
                                          r"max_episode_steps=10 \(the task holds 100\)"):
-        _check_recorded("UR5Reach-v0", {"max_episode_steps": 10, "start_q": None},
-                        {"max_episode_steps": 100, "start_q": [0.0] * 6})
+        check_recorded("UR5Reach-v0", {"max_episode_steps": 10, "start_q": None},
+                       {"max_episode_steps": 100, "start_q": [0.0] * 6})
 
 
 # --- resuming: the recorded budget, lost checkpoints -------------------------------------------
@@ -448,7 +448,6 @@ def test_a_run_killed_at_random_moments_resumes_to_the_uninterrupted_eval_csv(tm
     a start costs no imports."""
     import multiprocessing
     import random
-
     import time
 
     fork = multiprocessing.get_context("fork")
