@@ -287,7 +287,7 @@ def test_a_loaded_ensemble_policy_acts_as_the_trained_ensemble(tmp_path):
         batch = {key: np.stack([o[key] for o in obs]) for key in obs[0]}
         x = torch.as_tensor(goal_input(batch["observation"], batch["achieved_goal"],
                                        batch["desired_goal"]))[None]
-        want = trainer.scale.to_env(trainer.agent.act(x)[0].double().numpy())
+        want = trainer.collector.scale.to_env(trainer.agent.act(x)[0].double().numpy())
         cells = trainer.agent.cells(x)[0]
     finally:
         trainer.close()
