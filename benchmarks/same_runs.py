@@ -164,7 +164,8 @@ def compare(a: Path, b: Path) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.same_runs",
                                      description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True,
+                                help="record: train the runs; compare: two recordings")
     rec = sub.add_parser("record", help="train the matrix of short runs into OUT")
     rec.add_argument("out", type=Path, help="a folder that does not exist yet")
     rec.add_argument("--tree", type=Path, default=Path("."),
@@ -174,8 +175,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rec.add_argument("--only", nargs="+", default=[], metavar="PREFIX",
                      help="only the runs whose name starts so (e.g. numpy- torch-ddpg)")
     cmp = sub.add_parser("compare", help="compare two recorded folders")
-    cmp.add_argument("a", type=Path)
-    cmp.add_argument("b", type=Path)
+    cmp.add_argument("a", type=Path, help="the recording to compare against (e.g. before)")
+    cmp.add_argument("b", type=Path, help="the recording compared (e.g. after; --only allowed)")
     args = parser.parse_args(argv)
     if args.command == "record":
         record(args.out, args.tree, args.python, args.only)
