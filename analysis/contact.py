@@ -97,7 +97,7 @@ def reach_share(task: TaskSpec, goals: int, seed: int) -> float:
 def random_steps(task: TaskSpec, steps: int, seed: int) -> tuple[float, float, float, float]:
     """Contact share, depth-stop share, deepest end-of-step depth (m) and steps/s of
     ``UR5Reach-v0`` under uniform random actions (episodes restarted as they end)."""
-    env = gymnasium.make("UR5Reach-v0", spec=task)
+    env = gymnasium.make("UR5Reach-v0", task=task)
     space = env.action_space
     actions = np.random.default_rng(seed).uniform(space.low, space.high, (steps, *space.shape))
     dyn = env.unwrapped.dynamics

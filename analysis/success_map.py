@@ -93,7 +93,7 @@ def evaluate(policy, task, goals: np.ndarray, batch: int, label: str = "",
 
     import envs
 
-    env = envs.BatchedReach(min(batch, len(goals)), spec=task,
+    env = envs.BatchedReach(min(batch, len(goals)), task=task,
                             autoreset_mode=AutoresetMode.DISABLED)
     reached = np.zeros(len(goals), dtype=bool)
     with tqdm(total=len(goals), desc=f"episodes {label}", disable=not progress, file=sys.stderr,

@@ -263,7 +263,7 @@ def run(config: BenchConfig) -> dict[str, Any]:
                     control_mode=config.control_mode)
     rows: dict[str, Callable[[], float]] = {}
     notes: dict[str, str] = {}
-    single = gymnasium.make("UR5Reach-v0", spec=task)
+    single = gymnasium.make("UR5Reach-v0", task=task)
     rows["UR5Reach-v0"] = single_runner(single, config.steps, config.seed)
     copy_steps = config.steps * max(config.num_envs, 1) // 8
     if config.num_envs > 0:
@@ -281,7 +281,7 @@ def run(config: BenchConfig) -> dict[str, Any]:
             rows.update(dynamics_rows(config, task, copy_steps, notes))
         if config.sync:
             sync = gymnasium.make_vec("UR5Reach-v0", num_envs=config.num_envs,
-                                      vectorization_mode="sync", spec=task)
+                                      vectorization_mode="sync", task=task)
             rows[f"SyncVectorEnv (N={config.num_envs})"] = vector_runner(sync, copy_steps,
                                                                          config.seed)
     peer_name = None

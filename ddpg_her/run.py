@@ -47,8 +47,8 @@ class TrainedPolicy:
         env id and arguments; ``kwargs`` go to ``gymnasium.make`` too, e.g. ``render_mode``).
 
         Where the run recorded its env's whole task (``spec.json``'s ``task``) and the env
-        takes a task record (a ``spec`` parameter, as UR5Reach-v0 does), the env gets that record
-        as ``spec=``: the arguments alone would take today's defaults for fields that a run of
+        takes a task record (a ``task`` parameter, as UR5Reach-v0 does), the env gets that record
+        as ``task=``: the arguments alone would take today's defaults for fields that a run of
         an older version did not name (the env reads a record as of its time)."""
         import inspect
 
@@ -61,9 +61,9 @@ class TrainedPolicy:
         env_kwargs = dict(self.spec["env_kwargs"])
         entry = gymnasium.spec(env_id).entry_point
         creator = load_env_creator(entry) if isinstance(entry, str) else entry
-        if (self.spec.get("task") and "spec" not in env_kwargs
-                and "spec" in inspect.signature(creator).parameters):
-            env_kwargs["spec"] = self.spec["task"]
+        if (self.spec.get("task") and "task" not in env_kwargs and "spec" not in env_kwargs
+                and "task" in inspect.signature(creator).parameters):
+            env_kwargs["task"] = self.spec["task"]
         return gymnasium.make(env_id, **env_kwargs, **kwargs)
 
     def _checked(self, obs: Any) -> list[np.ndarray]:

@@ -30,7 +30,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
     ----------
     num_envs : int
         N, the number of copies.
-    spec : TaskSpec or its dict form, optional
+    task : TaskSpec or its dict form, optional
         The task (defaults as :class:`TaskSpec`); ``**overrides`` change fields.
     autoreset_mode : gymnasium.vector.AutoresetMode or str
         What happens to a copy whose episode ended (terminated or truncated):
@@ -57,7 +57,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
     :data:`envs.task.INFO_KEYS` as (N, ...) arrays, each with a ``_key`` mask.
     """
 
-    def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
+    def __init__(self, num_envs: int = 1, task: TaskSpec | Mapping[str, Any] | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  render_mode: str | None = None, dynamics: str = "auto", device: str = "cpu",
                  threads: int = 1, **overrides: Any) -> None:
@@ -67,11 +67,12 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
                              f"{render_mode!r}")
-        if spec is not None and overrides.get("max_episode_steps") == DEFAULT_EPISODE_STEPS:
+        given = task is not None or "spec" in overrides  # spec=: task='s deprecated name
+        if given and overrides.get("max_episode_steps") == DEFAULT_EPISODE_STEPS:
             # make_vec passes the registration's max_episode_steps whenever its caller gave
             # none; a task given whole keeps its own episode length
             overrides.pop("max_episode_steps")
-        self.task = make_task(spec, overrides)
+        self.task = make_task(task, overrides)
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),

@@ -114,7 +114,7 @@ class UR5ReachEnv(gymnasium.Env):
     | terminated   | d <= ``success_radius`` = 0.1 (if ``terminate_on_success``)   | m     |
     | truncated    | after ``max_episode_steps`` = 100 steps (2 s at 50 Hz)        | steps |
 
-    Set the episode length in the task (``spec=TaskSpec(max_episode_steps=50)``): Gymnasium's
+    Set the episode length in the task (``task=TaskSpec(max_episode_steps=50)``): Gymnasium's
     ``make(..., max_episode_steps=50)`` adds an outer time limit that the task does not see.
 
     ## Info
@@ -134,7 +134,8 @@ class UR5ReachEnv(gymnasium.Env):
     ## Arguments
 
     ``gymnasium.make("UR5Reach-v0", region="zheight", n_joints=3, **fields)`` takes any
-    :class:`TaskSpec` field as a keyword, or ``spec=TaskSpec(...)`` (and overrides), and
+    :class:`TaskSpec` field as a keyword, or ``task=TaskSpec(...)`` (and overrides; ``spec=``
+    is its deprecated name), and
     ``render_mode`` (``"rgb_array"`` or ``"human"``). ``region``: a registered name
     (``unconstrained``, ``zheight``, ``closebox``, ``farbox``, ``farbox_tall``), a string of
     :func:`regions.parse`, or a :class:`regions.Region`.
@@ -146,12 +147,12 @@ class UR5ReachEnv(gymnasium.Env):
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}  # noqa: RUF012
 
-    def __init__(self, spec: TaskSpec | Mapping[str, Any] | None = None,
+    def __init__(self, task: TaskSpec | Mapping[str, Any] | None = None,
                  render_mode: str | None = None, **overrides: Any) -> None:
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
                              f"{render_mode!r}")
-        self.task = make_task(spec, overrides)
+        self.task = make_task(task, overrides)
         task, n = self.task, self.task.n_joints
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": task.control_hz}

@@ -24,6 +24,7 @@ import dataclasses
 import functools
 import json
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -455,24 +456,34 @@ def _region_string(region: Any, base_height: float) -> str:
     return region
 
 
-def make_task(spec: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str, Any]
+def make_task(task: TaskSpec | Mapping[str, Any] | None, overrides: Mapping[str, Any]
               ) -> TaskSpec:
     """The task from a :class:`TaskSpec` (or its dict form) and field overrides: what every
-    env does with its ``spec=`` and ``**overrides`` keywords.
+    env does with its ``task=`` and ``**overrides`` keywords.
 
     ``region`` may be a name, a region string or a :class:`regions.Region`; a changed region
-    brings its default start pose unless ``start_q`` is given too.
+    brings its default start pose unless ``start_q`` is given too. ``spec=`` (the keyword's
+    name before it clashed with Gymnasium's ``env.spec``) is read as ``task=``, with a
+    DeprecationWarning.
 
     Raises
     ------
     ValueError
-        For an unknown field name or a bad value (see :class:`TaskSpec`).
+        For an unknown field name or a bad value (see :class:`TaskSpec`), or for both
+        ``task=`` and ``spec=``.
     """
-    if spec is None:
-        return TaskSpec.from_dict(dict(overrides))
-    if isinstance(spec, Mapping):  # a to_dict() form: a record, perhaps of an older version
-        spec = TaskSpec.from_record(spec)
-    elif not isinstance(spec, TaskSpec):
-        raise ValueError(f"spec must be a TaskSpec, its to_dict() form or None; got "
-                         f"{type(spec).__name__}")
-    return spec.replace(**overrides) if overrides else spec
+    overrides = dict(overrides)
+    if "spec" in overrides:
+        if task is not None:
+            raise ValueError("give the task once: task= (spec= is its deprecated name), not both")
+        warnings.warn("the env keyword spec= is deprecated: it is task= (spec clashes with "
+                      "Gymnasium's env.spec)", DeprecationWarning, stacklevel=3)
+        task = overrides.pop("spec")
+    if task is None:
+        return TaskSpec.from_dict(overrides)
+    if isinstance(task, Mapping):  # a to_dict() form: a record, perhaps of an older version
+        task = TaskSpec.from_record(task)
+    elif not isinstance(task, TaskSpec):
+        raise ValueError(f"task must be a TaskSpec, its to_dict() form or None; got "
+                         f"{type(task).__name__}")
+    return task.replace(**overrides) if overrides else task

@@ -165,7 +165,7 @@ class TorchReach:
     ----------
     num_envs : int
         N.
-    spec : TaskSpec or its dict form, optional
+    task : TaskSpec or its dict form, optional
         The task; ``**overrides`` change fields. Only the stop contact model.
     device : str or torch.device
         Where everything lives (``"cpu"``, ``"cuda"``).
@@ -183,14 +183,14 @@ class TorchReach:
     plane check's exact heights), each with an all-True ``_key`` mask.
     """
 
-    def __init__(self, num_envs: int = 1, spec: TaskSpec | Mapping[str, Any] | None = None, *,
+    def __init__(self, num_envs: int = 1, task: TaskSpec | Mapping[str, Any] | None = None, *,
                  device: Any = "cpu", dtype: Any = "float64",
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  goal_source: str = "batched", goal_pool: int = DEFAULT_POOL_DEPTH,
                  cuda_graph: bool = False, **overrides: Any) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
-        self.task = make_task(spec, overrides)  # checked by its dynamics (envs.validate)
+        self.task = make_task(task, overrides)  # checked by its dynamics (envs.validate)
         if not supports_kernels(self.task):
             raise ValueError(f"TorchReach implements the stop contact model only (as "
                              f"TorchDynamics); got contact_model={self.task.contact_model!r}")

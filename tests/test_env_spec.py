@@ -134,7 +134,7 @@ def test_invalid_values_raise_at_construction_naming_the_field(fields, message):
 def test_unrunnable_tasks_are_records_that_validate_and_the_dynamics_refuse(fields, message):
     task = TaskSpec(**fields)  # a record: reading it checks no physics
     assert TaskSpec.from_json(task.to_json()) == task
-    for check in (validate, PinocchioDynamics, lambda t: UR5ReachEnv(spec=t)):
+    for check in (validate, PinocchioDynamics, lambda t: UR5ReachEnv(task=t)):
         with pytest.raises(ValueError, match=re.escape(message)):
             check(task)
 

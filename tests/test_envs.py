@@ -221,9 +221,9 @@ def test_success_terminates_with_the_bonus_and_time_truncates():
 
 def test_make_accepts_overrides_a_spec_and_region_objects():
     spec = TaskSpec(region="farbox", n_joints=4, reward_type="sparse")
-    assert make(spec=spec).unwrapped.task == spec
-    assert make(spec=spec, n_joints=2).unwrapped.task == spec.replace(n_joints=2)
-    assert make(spec=spec.to_dict()).unwrapped.task == spec
+    assert make(task=spec).unwrapped.task == spec
+    assert make(task=spec, n_joints=2).unwrapped.task == spec.replace(n_joints=2)
+    assert make(task=spec.to_dict()).unwrapped.task == spec
     box = regions.parse("box:0.3,0.7,-0.2,0.2,0,0.5")
     assert make(region=box).unwrapped.task.goal_region == box
     env = make(region="zheight", n_joints=3)
@@ -239,13 +239,34 @@ def test_make_accepts_overrides_a_spec_and_region_objects():
         env.step(np.array([0.0, np.nan, 0.0]))
 
 
+def _torch_reach(num_envs: int, **kw):
+    from envs.torchreach import TorchReach  # torch is imported only where it is used
+
+    return TorchReach(num_envs, **kw)
+
+
+@pytest.mark.parametrize("make_env", [
+    lambda **kw: gymnasium.make("UR5Reach-v0", **kw).unwrapped,
+    lambda **kw: envs.BatchedReach(2, **kw), lambda **kw: _torch_reach(2, **kw)],
+    ids=["UR5Reach-v0", "BatchedReach", "TorchReach"])
+def test_spec_is_the_deprecated_name_of_task_in_every_env(make_env):
+    """``spec=`` (the keyword's old name, which clashed with Gymnasium's ``env.spec``) still
+    gives the same task as ``task=``, with a DeprecationWarning; both at once is an error."""
+    spec = TaskSpec(region="farbox", n_joints=4, max_episode_steps=50)
+    with pytest.warns(DeprecationWarning, match="spec= is deprecated: it is task="):
+        old = make_env(spec=spec, n_joints=3)
+    assert old.task == make_env(task=spec, n_joints=3).task == spec.replace(n_joints=3)
+    with pytest.raises(ValueError, match="give the task once"):
+        make_env(task=spec, spec=spec)
+
+
 @pytest.mark.parametrize("task", [TaskSpec(region="unconstrained", n_joints=6),
                                   TaskSpec(region="zheight", n_joints=3),
                                   TaskSpec(region="farbox", n_joints=2, control_mode="velocity"),
                                   TaskSpec(region="closebox", n_joints=5, control_mode="torque")])
 def test_random_steps_keep_the_arm_above_the_plane(task):
     steps = 2500
-    env = make(spec=task)
+    env = make(task=task)
     space = env.observation_space["observation"]
     angles: list[np.ndarray] = []
     transitions = rollout(env, steps, seed=5, angles=angles)
@@ -261,7 +282,7 @@ def test_random_steps_keep_the_arm_above_the_plane(task):
 @pytest.mark.slow
 def test_1e5_random_steps_keep_the_arm_above_the_plane():
     task = TaskSpec(region="unconstrained", n_joints=6)
-    env = make(spec=task)
+    env = make(task=task)
     angles: list[np.ndarray] = []
     transitions = rollout(env, 100_000, seed=9, angles=angles)
     q = np.array(angles)

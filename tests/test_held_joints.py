@@ -190,7 +190,7 @@ def test_the_env_reads_an_old_record_as_pd_and_keeps_locked_joints_still():
 
     record = TaskSpec(region="zheight").to_dict()
     del record["held_joints"]
-    old = gymnasium.make("UR5Reach-v0", spec=record)
+    old = gymnasium.make("UR5Reach-v0", task=record)
     assert old.unwrapped.task.held_joints == "pd"
     env = gymnasium.make("UR5Reach-v0", region="zheight")
     assert env.unwrapped.task.held_joints == "locked"

@@ -61,14 +61,14 @@ def test_ik_branches_put_tool0_at_the_goal(region: str, n: int) -> None:
 
 
 def test_goals_are_the_envs(zheight: opt.Simulation) -> None:
-    env = envs.BatchedReach(GOALS, spec=zheight.task)
+    env = envs.BatchedReach(GOALS, task=zheight.task)
     obs, _ = env.reset(seed=SEED)
     np.testing.assert_array_equal(zheight.goals, obs["desired_goal"])
 
 
 def _plain_return(task: TaskSpec, seed: int, command: np.ndarray) -> tuple[float, bool]:
     """Discounted return of one constant-command episode in gymnasium.make's env, by hand."""
-    env = gymnasium.make("UR5Reach-v0", spec=task)
+    env = gymnasium.make("UR5Reach-v0", task=task)
     env.reset(seed=seed)
     total, discount, reached = 0.0, 1.0, False
     while True:

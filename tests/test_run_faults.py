@@ -584,7 +584,7 @@ def test_a_trained_policy_refuses_observations_it_cannot_use(two_episodes, chang
     import ddpg_her
 
     policy = ddpg_her.load(two_episodes)
-    env = gymnasium.make(ENV_ID, **policy.spec["env_kwargs"])  # (make_env passes spec=, which
+    env = gymnasium.make(ENV_ID, **policy.spec["env_kwargs"])  # (make_env passes task=, which
     obs, _ = env.reset(seed=0)                                # the toy env does not take)
     assert policy(obs).shape == env.action_space.shape
     with pytest.raises(ValueError, match=re.escape(message)):
