@@ -305,7 +305,8 @@ def bootstrap_intervals(values: np.ndarray, level: float, reps: int,
 
 def reading_settings(reading: Reading) -> dict[tuple[str, str], str | list[str]]:
     """What a reading's ``ddpg_her.train`` arguments set: (spec section, field) -> value as
-    text (``--task K=V`` -> ("task", K); ``--flag-name V...`` -> ("agent", "flag_name"))."""
+    text (``--task K=V`` -> ("task", K); ``--flag-name V...`` -> ("agent", "flag_name"); a
+    switch ``--flag-name`` -> "True", ``--no-flag-name`` -> "False")."""
     out: dict[tuple[str, str], str | list[str]] = {}
     args, i = list(reading.args), 0
     while i < len(args):
@@ -323,6 +324,10 @@ def reading_settings(reading: Reading) -> dict[tuple[str, str], str | list[str]]
                 out[("task", key)] = text
         elif values:
             out[("agent", flag[2:].replace("-", "_"))] = values[0] if len(values) == 1 else values
+        elif flag.startswith("--no-"):  # a switch turned off (argparse.BooleanOptionalAction)
+            out[("agent", flag[5:].replace("-", "_"))] = "False"
+        else:  # a switch turned on, e.g. --batch-norm
+            out[("agent", flag[2:].replace("-", "_"))] = "True"
     return out
 
 

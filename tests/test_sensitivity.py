@@ -445,3 +445,24 @@ def test_a_run_counts_for_the_reading_its_spec_records(tmp_path: Path, monkeypat
     with pytest.raises(ValueError, match=r"reading folder .*mine mixes runs trained under "
                                          r"other choices \(ground contact: stop in"):
         sens.group_runs(root)
+
+
+def test_a_switch_in_a_reading_is_read_as_the_field_it_turns_on(tmp_path):
+    """``--batch-norm`` (a switch, no value) sets ``agent.batch_norm``: a run trained under
+    `lillicrap_nets` is that reading's run and not the defaults', checked against the spec.json
+    that ``ddpg_her.train`` itself writes for the reading's arguments."""
+    import toy_goal_env
+
+    from ddpg_her.train import main as train
+
+    reading = sens.READINGS["lillicrap_nets"]
+    assert sens.reading_settings(reading)[("agent", "batch_norm")] == "True"
+    out = tmp_path / "run"
+    assert train(["--env-id", f"toy_goal_env:{toy_goal_env.ENV_ID}", "--region", "box",
+                  "--episodes", "1", "--eval-every", "1", "--eval-episodes", "1",
+                  "--hidden-sizes", "8", "8", "--no-progress",
+                  "--no-tensorboard", *reading.args, "--out", str(out)]) == 0
+    spec = json.loads((out / "spec.json").read_text())
+    assert spec["agent"]["batch_norm"] is True
+    assert sens.reading_mismatches(reading, spec) == []
+    assert sens.reading_mismatches(sens.READINGS["ours"], spec) != []
