@@ -64,3 +64,19 @@ def brute_force_heights(q: np.ndarray, base_height: float) -> np.ndarray:
                 for i, pts in hulls]
         out.append(min(lows) + base_height)
     return np.array(out)
+
+
+def random_states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n random (q rad, v rad/s, tau N m) rows of the 6 joints, for the dynamics tests."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-np.pi, np.pi, (n, 6))
+    v = rng.uniform(-3.0, 3.0, (n, 6))  # rad/s, the URDF's velocity limits
+    tau = rng.uniform(-1.0, 1.0, (n, 6)) * ur5kin.effort_limits()
+    return q, v, tau
+
+
+def pinocchio_rows(func, *arrays: np.ndarray) -> np.ndarray:
+    """``func(model, data, *row)`` of Pinocchio for each row of ``arrays``: the reference."""
+    model = ur5kin.load_model()
+    data = model.createData()
+    return np.array([func(model, data, *row).copy() for row in zip(*arrays, strict=True)])

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-from arm_geometry import brute_force_heights
+from arm_geometry import brute_force_heights, pinocchio_rows, random_states
 
 import envs
 import ur5kin
@@ -32,20 +32,6 @@ float32's 6e-8 rounding times the mass matrix's conditioning)."""
 F32_STEP_ATOL = 1e-4
 """Bound (rad) of float32 joint angles against float64 ones after 5 free control steps
 (measured 1e-5)."""
-
-
-def random_states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(-np.pi, np.pi, (n, 6))
-    v = rng.uniform(-3.0, 3.0, (n, 6))  # rad/s, the URDF's velocity limits
-    tau = rng.uniform(-1.0, 1.0, (n, 6)) * ur5kin.effort_limits()
-    return q, v, tau
-
-
-def pinocchio_rows(func, *arrays: np.ndarray) -> np.ndarray:
-    model = ur5kin.load_model()
-    data = model.createData()
-    return np.array([func(model, data, *row).copy() for row in zip(*arrays, strict=True)])
 
 
 def test_aba_is_pinocchios_in_float64():

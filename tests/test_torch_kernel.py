@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from arm_geometry import pinocchio_rows, random_states
 from stepping import record
 
 import ur5kin
@@ -42,20 +43,6 @@ HELD_START = (0.0, -np.pi / 4, np.pi / 2, 0.4, -0.6, 0.8)
 """A start pose (rad) whose held joints are not at zero, so that holding them is tested."""
 
 STEP_KEYS = ("q", "v", "acceleration", "contact", "limit_stop", "tool")
-
-
-def random_states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    q = rng.uniform(-np.pi, np.pi, (n, 6))
-    v = rng.uniform(-3.0, 3.0, (n, 6))  # rad/s, the URDF's velocity limits
-    tau = rng.uniform(-1.0, 1.0, (n, 6)) * ur5kin.effort_limits()
-    return q, v, tau
-
-
-def pinocchio_rows(func, *arrays: np.ndarray) -> np.ndarray:
-    model = ur5kin.load_model()
-    data = model.createData()
-    return np.array([func(model, data, *row).copy() for row in zip(*arrays, strict=True)])
 
 
 def host(x) -> np.ndarray:
