@@ -68,6 +68,18 @@ def device_index(device: Any) -> int:
     return int(match.group(1) or 0)
 
 
+def _device_array(x: Any) -> Any:
+    """``x`` as a numba device array where it lives on a GPU (a numba device array, anything
+    with ``__cuda_array_interface__`` such as a CUDA torch tensor, the simulator's arrays);
+    None for a host array."""
+    if hasattr(x, "__cuda_array_interface__"):
+        return cuda.as_cuda_array(x)
+    simulated = getattr(cuda, "devicearray", None)  # the simulator's arrays have no interface
+    if simulated is not None and simulated.is_cuda_ndarray(x):
+        return x
+    return None
+
+
 # ---------------------------------------------------------------------------- kernels
 # Plain Python, compiled by :func:`kernels` with ``DT`` and the step body bound to the device
 # versions of one dtype.
@@ -280,9 +292,8 @@ class NumbaCudaDynamics:
         """``command`` as a ``(B, n)`` device array of the kernel's type: a CUDA array (a
         numba device array, a torch tensor on the GPU) as is, a host array copied up."""
         shape = (self.num_copies, self.task.n_joints)
-        on_device = cuda.devicearray.is_cuda_ndarray(command)
-        if on_device or hasattr(command, "__cuda_array_interface__"):
-            arr = command if on_device else cuda.as_cuda_array(command)
+        arr = _device_array(command)
+        if arr is not None:
             if arr.shape != shape or arr.dtype != self._cast:
                 raise ValueError(f"command must be a ({shape[0]}, {shape[1]}) {self.dtype} "
                                  f"array; got a device array {arr.shape} {arr.dtype}")
@@ -336,6 +347,11 @@ class NumbaCudaDynamics:
                               (self.contact, s.contact), (self.limit_stop, s.limit_stop),
                               (self.tool, s.tool)):
                 dev.copy_to_host(host)
+
+    def synchronize(self) -> None:
+        """Wait until the GPU has run every launch and copy queued so far (for a clock)."""
+        with self._gpu:
+            cuda.synchronize()
 
     @property
     def w(self) -> np.ndarray:
