@@ -87,10 +87,18 @@ def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_
                 kd, effort, w_max, gravity_comp, substeps, q_mid, q_half, vh, bounds, lift,
                 wrist, lipschitz, base_height, margin, rot0, p, axis, inertia, armature, grav,
                 tool_pos, free, w_to_v, w_to_accel):  # pragma: no cover - compiled
-    """One control step of copy ``b = cuda.grid(1)``: :func:`envs.physics.numba_kernel.
-    _control_step`'s loop body, plus the command's torque and the env's ``v`` and
-    ``acceleration``. ``command (B, n)`` in the control mode's unit; ``bias = gain command``
-    for joints 1..n, ``base_bias`` (the held joints' PD) for the others."""
+    """One control step of copy ``b = cuda.grid(1)`` (a thread past B does nothing):
+    :func:`envs.physics.numba_kernel._control_step`'s loop body for row b, plus the command's
+    torque and the env's ``v`` and ``acceleration``, in place.
+
+    ``command (B, n)`` in the control mode's unit (rad, rad/s or N m); the constant torque part
+    is ``gain (n,) * command`` for joints 1..n and ``base_bias (6,)`` (the held joints' PD)
+    for the others, in the time-scaled units of :mod:`envs.physics.model`. The state, read and
+    written: ``Q (B, 6)`` rad, ``W (B, 6)`` rad per substep, ``V (B, 6)`` rad/s, ``A (B, 6)``
+    rad/s^2 (the step's mean), ``clearance (B, 6)`` m (the plane check's height bounds, world
+    z), ``contact, limit_stop (B,)`` bool, ``tool (B, 3)`` m (world frame). The rest is
+    :func:`model_arguments`' (``w_to_v``, ``w_to_accel``: w to rad/s, a step's change of w to
+    rad/s^2)."""
     b = cuda.grid(1)
     if b >= Q.shape[0]:
         return
@@ -222,7 +230,8 @@ class NumbaCudaDynamics:
         B.
     dtype : {"float64", "float32"}
         The kernel's arithmetic and the state's type; float32 computes in float32 throughout
-        (no float64 instruction: tested on the PTX).
+        (no float64 instruction of its own, tested on the PTX: only libdevice's ``sinf``
+        reduction of angles beyond 1e5 rad has some).
     device : str
         ``"cuda"`` or ``"cuda:N"``.
     mirror : bool
