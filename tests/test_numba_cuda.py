@@ -216,12 +216,33 @@ def check_bad_inputs_are_refused() -> str:
     return "ok"
 
 
+def check_the_batched_env_steps_on_the_kernel() -> str:
+    # the seam end to end: BatchedReach(dynamics="numba", device="cuda") reads the host mirrors
+    import envs
+
+    task = TaskSpec(region="unconstrained", n_joints=3)
+    logs = []
+    for device in ("cuda", "cpu"):
+        env = envs.BatchedReach(3, task, dynamics="numba", device=device)
+        kind = numba_cuda.NumbaCudaDynamics if device == "cuda" else numba_kernel.NumbaDynamics
+        assert isinstance(env._core.dynamics, kind)
+        obs, _ = env.reset(seed=4)
+        rng = np.random.default_rng(4)
+        log = [obs["observation"]]
+        for _ in range(3):
+            obs, reward, *_ = env.step(rng.uniform(env.action_space.low, env.action_space.high))
+            log += [obs["observation"], obs["achieved_goal"], reward[:, None]]
+        logs.append(np.concatenate(log, axis=1))
+    np.testing.assert_allclose(logs[0], logs[1], rtol=0, atol=1e-6)
+    return f"max |d obs| {np.abs(logs[0] - logs[1]).max():.1e}"
+
+
 CHECKS = (check_locked_joints_rollout_equals_the_cpu_kernel,
           check_pd_held_joints_rollout_equals_the_cpu_kernel,
           check_joint_limit_stops_equal_the_cpu_kernel,
           check_torque_control_of_six_joints_equals_the_cpu_kernel,
           check_float32_within_the_stated_bound, check_mirror_off_and_pull,
-          check_bad_inputs_are_refused)
+          check_the_batched_env_steps_on_the_kernel, check_bad_inputs_are_refused)
 
 SIMULATOR = """
 import sys
