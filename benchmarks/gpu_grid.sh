@@ -4,7 +4,7 @@
 #
 #   here, once:         bash benchmarks/gpu_grid.sh prepare      # builds .devsite.tgz, checks sizes
 #   there (device run, carry [".devsite.tgz"]), each a separate call:
-#     bash benchmarks/gpu_grid.sh bench                 # tests on cuda + update benchmarks -> $OUT
+#     bash benchmarks/gpu_grid.sh bench [updates|kernel]  # tests on cuda + benchmarks -> $OUT
 #     bash benchmarks/gpu_grid.sh start [SETTING ...]   # the grid, detached (setsid nohup)
 #     bash benchmarks/gpu_grid.sh poll [SECONDS]        # waits up to SECONDS (<= 540), prints progress
 #     bash benchmarks/gpu_grid.sh collect               # packs results into $OUT (<= 8 files)
@@ -59,10 +59,19 @@ prepare() {
     echo 'device run: carry [".devsite.tgz"], command "bash benchmarks/gpu_grid.sh bench" (then start, poll, collect)'
 }
 
+# bench [updates|kernel]: both parts by default; on a cold machine the two together come near a
+# call's 10 minutes, so run them as two calls where time matters
 bench() {
     site
     mkdir -p "$OUT"
+    local part=${1:-all}
+    case $part in all|updates|kernel) ;; *) echo "bench: updates, kernel or nothing; got $part" >&2; exit 2 ;; esac
     $PY -c "import torch; print(torch.__version__, torch.cuda.get_device_name())" | tee "$OUT/device.txt"
+    [[ $part == kernel ]] || bench_updates
+    [[ $part == updates ]] || bench_kernel
+}
+
+bench_updates() {
     # the capturable step on this device: its tests (the cuda ones run here only)
     $PY -m pytest -q -p no:cacheprovider tests/test_update_graph.py 2>&1 | tail -5 | tee "$OUT/tests.txt"
     # issue 24: stacked updates of 55 agents, graph against eager (goal >= 100k agent-updates/s),
@@ -71,6 +80,19 @@ bench() {
         --rounds 10 --fill-episodes 3 --json | tee "$OUT/graph55.json"
     $PY -m benchmarks.agent_updates --device "$DEVICE" --graph 5 --only-graph --updates 100 \
         --rounds 10 --fill-episodes 3 --json | tee "$OUT/graph5.json"
+}
+
+bench_kernel() {
+    # issue 24: the fused dynamics kernel (envs/physics/numba_cuda.py), untested on a GPU until
+    # this runs: its tests against the CPU kernel on this GPU (and the float32 PTX check), then
+    # a control step of 55 copies (goal <= 50 us) and copy-steps/s at N = 4096 (goal >= 5 M)
+    # and 65536, against the torch backend's CUDA graph on the same GPU
+    # (a failure is reported, and the benchmark runs all the same)
+    $PY -m pytest -q -p no:cacheprovider tests/test_numba_cuda.py \
+        -k "not simulator and not dry_run" 2>&1 | tail -15 | tee "$OUT/tests_kernel.txt" \
+        || echo "the kernel's tests FAILED on this GPU: see tests_kernel.txt"
+    $PY -m benchmarks.cuda_dynamics --device "$DEVICE" --sizes 55 4096 65536 --torch graph \
+        --threads-per-block 32 64 128 --rounds 3 --json | tee "$OUT/cuda_dynamics.json"
 }
 
 start() {
@@ -139,6 +161,8 @@ dry() {
     ls -la "$OUT"
     tar tzf "$OUT/grid.tar.gz"
     tar tzf "$OUT/policies.tar.gz"
+    # the kernel benchmark of `bench`, tiny, on the cpu (the kernel in numba's simulator)
+    $PY -m benchmarks.cuda_dynamics --dry-run
     # the sweep resolves --update-graph auto (off on the cpu): run the captured step's flag too
     $PY -m ddpg_her.train --region unconstrained --joints 3 --seeds 0 1 --episodes 2 \
         --eval-every 1 --eval-episodes 2 --updates-per-episode 2 --warmup-episodes 1 \

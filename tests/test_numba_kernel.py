@@ -88,7 +88,7 @@ def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match="dynamics='fast' is now dynamics='numba'"):
         make_dynamics(TaskSpec(), 2, "fast")
     with pytest.raises(ValueError, match="runs on the CPU only"):
-        make_dynamics(TaskSpec(), 2, "numba", device="cuda")
+        make_dynamics(TaskSpec(), 2, "pinocchio", device="cuda")
     assert isinstance(make_dynamics(TaskSpec(), 2, "numba"), numba_kernel.NumbaDynamics)
     assert isinstance(make_dynamics(TaskSpec(), 2, "pinocchio"), PinocchioDynamics)
 

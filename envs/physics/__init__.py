@@ -6,7 +6,9 @@ pinocchio_loop` has the equations) and reads the same :class:`envs.physics.model
 
 - ``pinocchio`` (:class:`envs.physics.pinocchio_loop.PinocchioDynamics`, the reference):
   Pinocchio's ABA in a Python substep loop; the only backend of the compliant contact.
-- ``numba`` (:class:`envs.physics.numba_kernel.NumbaDynamics`): one compiled call per step.
+- ``numba`` (:class:`envs.physics.numba_kernel.NumbaDynamics`): one compiled call per step;
+  on ``device="cuda"``, :class:`envs.physics.numba_cuda.NumbaCudaDynamics`: one GPU kernel
+  launch per step, one thread per copy running the same step body.
 - ``torch`` (:class:`envs.physics.torch_kernel.TorchDynamics` on any device, behind
   :class:`envs.physics.torch_kernel.HostMirror`'s numpy arrays for the numpy envs).
 
@@ -26,7 +28,8 @@ if TYPE_CHECKING:
 
 BACKENDS = ("auto", "pinocchio", "numba", "torch")
 """Dynamics backends, named for their tool (BatchedReach's ``dynamics`` option): ``pinocchio``
-the reference, ``numba`` the compiled kernel, ``torch`` the vectorised path on ``device`` (its
+the reference, ``numba`` the compiled kernel (on the CPU, or one CUDA kernel launch a step on
+``device="cuda"``), ``torch`` the vectorised path on ``device`` (its
 state copied to the host every step; never chosen by ``auto``: on the CPU it is far slower than
 ``numba``), ``auto`` numba for B > 1 where it is installed and implements the task, else
 pinocchio."""
@@ -97,17 +100,18 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
     backend : one of :data:`BACKENDS`
         The backend, named for its tool.
     device : str
-        Where the ``torch`` backend runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``); the others run
-        on the CPU and accept ``"cpu"`` only.
+        Where the ``torch`` backend runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``); ``numba`` runs
+        on ``"cpu"`` or a GPU (``"cuda"``, ``"cuda:N"``, numba's CUDA kernel); the others
+        accept ``"cpu"`` only.
     threads : int
-        CPU threads of the numba backend (the Pinocchio loop uses one).
+        CPU threads of the numba backend on the CPU (the Pinocchio loop uses one).
 
     Raises
     ------
     ValueError
         When ``backend`` is not one of :data:`BACKENDS` (a former name gets its new one), a
-        CPU backend is given another device, or the backend cannot run the task here (numba
-        missing, a contact model it does not implement, no GPU).
+        CPU-only backend is given another device, or the backend cannot run the task here
+        (numba missing, a contact model it does not implement, no GPU).
     """
     if backend in RENAMED_BACKENDS:
         raise ValueError(f"dynamics={backend!r} is now dynamics="
@@ -119,12 +123,14 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
         from envs.physics.torch_kernel import HostMirror, TorchDynamics
 
         return HostMirror(TorchDynamics(task, num_copies, device=device))
-    if str(device) != "cpu":
-        raise ValueError(f"dynamics={backend!r} runs on the CPU only; got device={device!r} "
-                         "(dynamics='torch' runs on other devices)")
     from envs.physics import numba_kernel
 
     fast_ok = numba_kernel.available() and supports_kernels(task)
+    if backend == "numba" and str(device).startswith("cuda"):
+        return _numba_cuda(task, num_copies, device, fast_ok)
+    if str(device) != "cpu":
+        raise ValueError(f"dynamics={backend!r} runs on the CPU only; got device={device!r} "
+                         "(dynamics='torch' runs on any device, 'numba' on 'cuda' too)")
     if backend == "numba" and not fast_ok:
         raise ValueError("dynamics='numba' needs numba and the stop contact model; use "
                          "'pinocchio' (or 'auto')")
@@ -133,3 +139,19 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
     from envs.physics.pinocchio_loop import PinocchioDynamics
 
     return PinocchioDynamics(task, num_copies)
+
+
+def _numba_cuda(task: TaskSpec, num_copies: int, device: str, fast_ok: bool) -> Dynamics:
+    """:class:`envs.physics.numba_cuda.NumbaCudaDynamics` on ``device``, or the ValueError
+    that says why it cannot run here."""
+    if not fast_ok:
+        raise ValueError("dynamics='numba' needs numba and the stop contact model; use "
+                         "'pinocchio' (or 'auto')")
+    from envs.physics import numba_cuda
+
+    numba_cuda.device_index(device)  # a ValueError for a malformed device
+    if not numba_cuda.available():
+        raise ValueError(f"dynamics='numba', device={device!r}: numba sees no CUDA GPU here "
+                         "(numba.cuda.is_available() is False; NUMBA_ENABLE_CUDASIM=1 runs its "
+                         "simulator); device='cpu' runs the numba kernel on the CPU")
+    return numba_cuda.NumbaCudaDynamics(task, num_copies, device=device)

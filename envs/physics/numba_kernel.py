@@ -12,7 +12,9 @@ kernels are compiled on first use and cached on disk (``cache=True``).
 
 from __future__ import annotations
 
-import types
+import ast
+import inspect
+import textwrap
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -530,15 +532,79 @@ STEP_BODY = ("_placements", "_motion_inv", "_force_act", "_gravity_torque", "_ro
 """The functions of one copy's step, callees first: :func:`_step_copy` and all it calls."""
 
 
-def compile_step_body(jit: Any) -> Any:
-    """:func:`_step_copy` and its callees compiled anew by ``jit`` (such as
-    ``numba.cuda.jit(device=True)``, for the body of a GPU kernel): each of :data:`STEP_BODY`
-    rebuilt from its Python source, its calls bound to the others' new versions."""
+class _TypedLiterals(ast.NodeTransformer):
+    """Float literals (``0.0``, ``1.0``, ``np.inf``) as names of constants of one dtype.
+
+    numba types a float literal as float64 whatever the arrays around it, so that ``s = 0.0;
+    s += x[i]`` sums float32 arrays in float64 (and a GPU runs float64 instructions); a global
+    ``np.float32`` constant is typed float32. ``constants`` collects name -> value.
+    """
+
+    def __init__(self, cast: Any, constants: dict[str, Any]) -> None:
+        self.cast, self.constants = cast, constants
+
+    def _name(self, value: float, node: ast.AST) -> ast.Name:
+        name = f"_LITERAL_{len(self.constants)}"
+        self.constants[name] = self.cast(value)
+        return ast.copy_location(ast.Name(id=name, ctx=ast.Load()), node)
+
+    def visit_Constant(self, node: ast.Constant) -> ast.AST:
+        if isinstance(node.value, float):
+            return self._name(node.value, node)
+        return node
+
+    def visit_Attribute(self, node: ast.Attribute) -> ast.AST:
+        if isinstance(node.value, ast.Name) and node.value.id == "np" and node.attr == "inf":
+            return self._name(np.inf, node)
+        return self.generic_visit(node)
+
+
+def _min2(a, b):  # pragma: no cover - compiled
+    """``min(a, b)`` of two numbers (Python's: ``a`` on a tie)."""
+    return b if b < a else a
+
+
+def _max2(a, b):  # pragma: no cover - compiled
+    """``max(a, b)`` of two numbers (Python's: ``a`` on a tie)."""
+    return b if b > a else a
+
+
+def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
+    """Each of :data:`STEP_BODY` compiled anew by ``jit`` (such as
+    ``numba.cuda.jit(device=True)``, for the body of a GPU kernel), by name: rebuilt from its
+    Python source with every float literal a constant of ``dtype`` (float64 or float32: a
+    float32 body then computes in float32 alone, where the CPU kernel, compiled once for both
+    types, sums in float64), its calls bound to the others' new versions. ``min`` and
+    ``max`` are bound to :func:`_min2` and :func:`_max2` compiled by ``jit``: numba 0.66 to
+    0.68's CUDA target fails to compile the builtin two-argument ``min`` and ``max``
+    ("Signature mismatch", numba issue 10753); for numbers they give the same values.
+
+    Raises
+    ------
+    ValueError
+        For a ``dtype`` other than float64 and float32.
+    """
+    cast = DTYPES[_dtype_name(dtype)]
     space = dict(globals())
+    space["min"], space["max"] = jit(_min2), jit(_max2)
+    constants: dict[str, Any] = {}
     for name in STEP_BODY:
         func = getattr(space[name], "py_func", space[name])
-        space[name] = jit(types.FunctionType(func.__code__, space, name, func.__defaults__))
-    return space["_step_copy"]
+        lines, first = inspect.getsourcelines(func)
+        tree = ast.parse(textwrap.dedent("".join(lines)))
+        tree.body[0].decorator_list = []  # the CPU's @_njit
+        ast.increment_lineno(tree, first - 1)  # tracebacks point into this file
+        tree = ast.fix_missing_locations(_TypedLiterals(cast, constants).visit(tree))
+        space.update(constants)
+        exec(compile(tree, inspect.getsourcefile(func) or __file__, "exec"), space)
+        space[name] = jit(space[name])
+    return {name: space[name] for name in STEP_BODY}
+
+
+def compile_step_body(jit: Any, dtype: Any = np.float64) -> Any:
+    """:func:`_step_copy` and its callees compiled anew by ``jit``, its float literals of
+    ``dtype`` (:func:`compile_step_functions`)."""
+    return compile_step_functions(jit, dtype)["_step_copy"]
 
 
 @_njit

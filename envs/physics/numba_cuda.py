@@ -1,0 +1,382 @@
+"""The numba-CUDA backend: a whole control step of B arm copies as one GPU kernel launch.
+
+One thread per copy runs the numba kernel's step body, :func:`envs.physics.numba_kernel.
+_step_copy`, compiled for the device (:func:`envs.physics.numba_kernel.compile_step_functions`:
+the same source as the CPU kernel, its float literals of the kernel's type), with its scratch in
+the thread's local memory. The state stays on the GPU between steps; the host arrays the env
+reads are copied back after each step (``mirror=True``, one synchronisation per step) or on
+:meth:`NumbaCudaDynamics.pull`. Tested against the CPU kernel under numba's CUDA simulator
+(``NUMBA_ENABLE_CUDASIM=1``) and, where a GPU is there, on it.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+import types
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from envs.checks import validate
+from envs.physics.model import (
+    NJ,
+    arm_model,
+    rest_heights,
+    supports_kernels,
+    tool_offset,
+    ur5_plane,
+)
+from envs.physics.numba_kernel import (
+    DTYPES,
+    _dtype_name,
+    _placements,
+    _step_copy,
+    _tool_position,
+    compile_step_functions,
+)
+
+if TYPE_CHECKING:
+    from envs.spec import TaskSpec
+
+try:
+    from numba import cuda
+except ImportError:  # numba missing: make_dynamics says so before this module is used
+    cuda = None
+
+THREADS_PER_BLOCK = 64
+"""Threads (copies) per block of the step kernel. A copy is a long serial computation (20
+substeps of ABA) with about 5 KB of float64 scratch, so small blocks spread few copies over
+many multiprocessors; untuned until a GPU measures it (``threads_per_block``)."""
+
+DT = np.float64
+"""The kernels' float type; :func:`kernels` rebinds it (and the body's functions imported
+above) per dtype when it compiles them for the device."""
+
+
+def available() -> bool:
+    """Whether numba sees a CUDA device (or runs under its simulator, ``NUMBA_ENABLE_CUDASIM``)."""
+    return cuda is not None and cuda.is_available()
+
+
+def device_index(device: Any) -> int:
+    """The GPU number of ``device``: ``"cuda"`` (0) or ``"cuda:N"``; ValueError otherwise."""
+    match = re.fullmatch(r"cuda(?::(\d+))?", str(device))
+    if match is None:
+        raise ValueError(f"device must be 'cuda' or 'cuda:N' for the numba-CUDA kernel; got "
+                         f"{device!r}")
+    return int(match.group(1) or 0)
+
+
+def _device_array(x: Any) -> Any:
+    """``x`` as a numba device array where it lives on a GPU (a numba device array, anything
+    with ``__cuda_array_interface__`` such as a CUDA torch tensor, the simulator's arrays);
+    None for a host array."""
+    if hasattr(x, "__cuda_array_interface__"):
+        return cuda.as_cuda_array(x)
+    simulated = getattr(cuda, "devicearray", None)  # the simulator's arrays have no interface
+    if simulated is not None and simulated.is_cuda_ndarray(x):
+        return x
+    return None
+
+
+# ---------------------------------------------------------------------------- kernels
+# Plain Python, compiled by :func:`kernels` with ``DT`` and the step body bound to the device
+# versions of one dtype.
+def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_stop, tool, kp,
+                kd, effort, w_max, gravity_comp, substeps, q_mid, q_half, vh, bounds, lift,
+                wrist, lipschitz, base_height, margin, rot0, p, axis, inertia, armature, grav,
+                tool_pos, free, w_to_v, w_to_accel):  # pragma: no cover - compiled
+    """One control step of copy ``b = cuda.grid(1)`` (a thread past B does nothing):
+    :func:`envs.physics.numba_kernel._control_step`'s loop body for row b, plus the command's
+    torque and the env's ``v`` and ``acceleration``, in place.
+
+    ``command (B, n)`` in the control mode's unit (rad, rad/s or N m); the constant torque part
+    is ``gain (n,) * command`` for joints 1..n and ``base_bias (6,)`` (the held joints' PD)
+    for the others, in the time-scaled units of :mod:`envs.physics.model`. The state, read and
+    written: ``Q (B, 6)`` rad, ``W (B, 6)`` rad per substep, ``V (B, 6)`` rad/s, ``A (B, 6)``
+    rad/s^2 (the step's mean), ``clearance (B, 6)`` m (the plane check's height bounds, world
+    z), ``contact, limit_stop (B,)`` bool, ``tool (B, 3)`` m (world frame). The rest is
+    :func:`model_arguments`' (``w_to_v``, ``w_to_accel``: w to rad/s, a step's change of w to
+    rad/s^2)."""
+    b = cuda.grid(1)
+    if b >= Q.shape[0]:
+        return
+    R = cuda.local.array((6, 3, 3), DT)
+    vel, acc = cuda.local.array((7, 6), DT), cuda.local.array((7, 6), DT)
+    cb, pA, U = (cuda.local.array((6, 6), DT), cuda.local.array((6, 6), DT),
+                 cuda.local.array((6, 6), DT))
+    IA = cuda.local.array((6, 6, 6), DT)
+    X, Y, force = (cuda.local.array((6, 6), DT), cuda.local.array((6, 6), DT),
+                   cuda.local.array((6, 6), DT))
+    D, u, tau, g, a = (cuda.local.array(6, DT), cuda.local.array(6, DT),
+                       cuda.local.array(6, DT), cuda.local.array(6, DT),
+                       cuda.local.array(6, DT))
+    q, w, q1, w1, q_ref = (cuda.local.array(6, DT), cuda.local.array(6, DT),
+                           cuda.local.array(6, DT), cuda.local.array(6, DT),
+                           cuda.local.array(6, DT))
+    known, heights, bias = (cuda.local.array(6, DT), cuda.local.array(6, DT),
+                            cuda.local.array(6, DT))
+    feat = cuda.local.array(13, DT)
+    n = gain.shape[0]
+    for k in range(6):
+        q[k] = Q[b, k]
+        w[k] = W[b, k]
+        known[k] = clearance[b, k]
+        if k < n:
+            bias[k] = gain[k] * command[b, k]
+        else:
+            bias[k] = base_bias[k]
+    hit_plane, hit_limit = _step_copy(
+        q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half, vh,
+        bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia, armature,
+        grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a, force, q1, w1,
+        q_ref, heights, feat, tool[b])
+    contact[b] = hit_plane
+    limit_stop[b] = hit_limit
+    for k in range(6):
+        A[b, k] = (w[k] - W[b, k]) * w_to_accel
+        V[b, k] = w[k] * w_to_v
+        Q[b, k] = q[k]
+        W[b, k] = w[k]
+        clearance[b, k] = known[k]
+
+
+def _rest(mask, q_new, heights, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p, axis,
+          tool_pos, base_height):  # pragma: no cover - compiled
+    """Copy ``b`` at rest at ``q_new[b]`` (its exact link heights ``heights[b]``) where
+    ``mask[b]``, with its tool position; the other copies untouched."""
+    b = cuda.grid(1)
+    if b >= Q.shape[0] or not mask[b]:
+        return
+    R = cuda.local.array((6, 3, 3), DT)
+    for k in range(6):
+        Q[b, k] = q_new[b, k]
+        W[b, k] = 0
+        V[b, k] = 0
+        A[b, k] = 0
+        clearance[b, k] = heights[b, k]
+    contact[b] = False
+    limit_stop[b] = False
+    _placements(Q[b], rot0, axis, R)
+    _tool_position(R, p, tool_pos, base_height, tool[b])
+
+
+@functools.cache
+def kernels(dtype: str = "float64") -> types.SimpleNamespace:
+    """The compiled kernels of ``dtype`` (float64 or float32), cached: ``step``
+    (:func:`_fused_step`) and ``rest`` (:func:`_rest`), each a ``numba.cuda`` kernel whose
+    ``py_func`` is the Python function it compiles (for ``numba.cuda.compile_ptx``).
+    Compilation for the device happens at the first launch."""
+    if cuda is None:
+        raise RuntimeError("the numba-CUDA kernels need numba (pip install numba)")
+    name = _dtype_name(dtype)
+    space = {**globals(), **compile_step_functions(cuda.jit(device=True), name),
+             "DT": DTYPES[name]}
+    compiled = {}
+    for func in (_fused_step, _rest):
+        space[func.__name__] = types.FunctionType(func.__code__, space, func.__name__)
+        compiled[func.__name__.strip("_")] = cuda.jit(space[func.__name__])
+    return types.SimpleNamespace(step=compiled["fused_step"], rest=compiled["rest"])
+
+
+def model_arguments(task: TaskSpec, dtype: str = "float64") -> dict[str, Any]:
+    """The arguments of :func:`_fused_step` after ``tool``, by its parameter names, in its
+    order (the controller, limits, plane tables, chain, ``free``, ``w_to_v``, ``w_to_accel``):
+    host arrays and scalars of ``dtype``, what :class:`NumbaCudaDynamics` copies to the GPU
+    once."""
+    name = _dtype_name(dtype)
+    cast = DTYPES[name]
+    arm, plane = arm_model(task), ur5_plane(name)
+    c = arm.chain.astype(cast)
+    return dict(kp=arm.kp_eff.astype(cast), kd=arm.kd_eff.astype(cast),
+                effort=arm.effort.astype(cast), w_max=arm.w_max.astype(cast),
+                gravity_comp=bool(task.gravity_compensation), substeps=int(task.substeps),
+                q_mid=arm.q_mid.astype(cast), q_half=arm.q_half.astype(cast),
+                vh=plane.vertex_heights, bounds=plane.bounds, lift=cast(plane.lift_offset),
+                wrist=cast(plane.wrist_offset), lipschitz=plane.lipschitz,
+                base_height=cast(task.base_height), margin=cast(task.plane_margin),
+                rot0=c.rotation, p=c.translation, axis=c.axis, inertia=c.inertia,
+                armature=c.armature, grav=c.gravity, tool_pos=tool_offset().astype(cast),
+                free=int(arm.free), w_to_v=cast(arm.w_to_v), w_to_accel=cast(arm.w_to_accel))
+
+
+def step_signature(task: TaskSpec, dtype: str = "float64") -> tuple[Any, ...]:
+    """The numba types of :func:`_fused_step`'s arguments for ``task`` (for
+    ``numba.cuda.compile_ptx``, which needs no GPU)."""
+    import numba
+
+    name = _dtype_name(dtype)
+    cast = DTYPES[name]
+    n = task.n_joints
+    state = (np.zeros((1, n), cast), np.zeros(n, cast), np.zeros(NJ, cast),
+             *(np.zeros((1, NJ), cast) for _ in range(5)), np.zeros(1, bool), np.zeros(1, bool),
+             np.zeros((1, 3), cast))
+    return tuple(numba.typeof(x) for x in (*state, *model_arguments(task, name).values()))
+
+
+# ---------------------------------------------------------------------------- the class
+class NumbaCudaDynamics:
+    """B copies of the UR5 under the task's controller on a GPU, one kernel launch per control
+    step (:func:`_fused_step`, one thread per copy): an :class:`envs.physics.Dynamics`, the
+    same physics as :class:`envs.physics.numba_kernel.NumbaDynamics` (to 1e-9 in float64,
+    tested).
+
+    Parameters
+    ----------
+    task : TaskSpec
+        The task (stop contact model only).
+    num_copies : int
+        B.
+    dtype : {"float64", "float32"}
+        The kernel's arithmetic and the state's type; float32 computes in float32 throughout
+        (no float64 instruction of its own, tested on the PTX: only libdevice's ``sinf``
+        reduction of angles beyond 1e5 rad has some).
+    device : str
+        ``"cuda"`` or ``"cuda:N"``.
+    mirror : bool
+        Copy the state the env reads to the host after every step and reset (one
+        synchronisation each). False: the host arrays are refreshed only by :meth:`pull`, and a
+        step is a launch (plus the command's upload when it is a numpy array).
+    threads_per_block : int
+        Copies per block of the launch, 1..1024.
+
+    Attributes
+    ----------
+    q, v, acceleration, contact, limit_stop, tool : numpy arrays
+        The host mirrors of the Dynamics protocol's state (``tool (B, 3)`` m, world frame).
+    state : types.SimpleNamespace of numba device arrays
+        ``q, w, v, acceleration, height_bound (B, 6)``, ``contact, limit_stop (B,)``, ``tool
+        (B, 3)``, on the GPU: the state itself (``w`` rad per substep, ``height_bound`` m).
+    """
+
+    def __init__(self, task: TaskSpec, num_copies: int = 1, dtype: str = "float64",
+                 device: str = "cuda", mirror: bool = True,
+                 threads_per_block: int = THREADS_PER_BLOCK) -> None:
+        if not available():
+            raise RuntimeError("NumbaCudaDynamics needs a CUDA GPU that numba sees "
+                               "(numba.cuda.is_available() is False here), or numba's simulator "
+                               "(NUMBA_ENABLE_CUDASIM=1)")
+        if isinstance(num_copies, bool) or not isinstance(num_copies, int | np.integer) \
+                or num_copies < 1:
+            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
+        if isinstance(threads_per_block, bool) \
+                or not isinstance(threads_per_block, int | np.integer) \
+                or not 1 <= threads_per_block <= 1024:
+            raise ValueError(f"threads_per_block must be an integer in [1, 1024]; got "
+                             f"{threads_per_block!r}")
+        if not supports_kernels(task):
+            raise ValueError(f"NumbaCudaDynamics implements the stop contact model; got "
+                             f"contact_model={task.contact_model!r}")
+        name = _dtype_name(dtype)
+        self._cast = DTYPES[name]
+        self.task, self.num_copies, self.dtype = validate(task), int(num_copies), name
+        self.mirror = bool(mirror)
+        self._gpu = cuda.gpus[device_index(device)]
+        self._kernels = kernels(name)
+        B, cast = self.num_copies, self._cast
+        self.arm = arm = arm_model(task)
+        self._block = int(threads_per_block)
+        self._grid = (B + self._block - 1) // self._block
+        self.q, self.v, self.acceleration = (np.zeros((B, NJ), cast) for _ in range(3))
+        self.contact, self.limit_stop = np.zeros(B, bool), np.zeros(B, bool)
+        self.tool = np.zeros((B, 3), cast)
+        with self._gpu:
+            self._model = {k: cuda.to_device(x) if isinstance(x, np.ndarray) else x
+                           for k, x in model_arguments(task, name).items()}
+            self._gain = cuda.to_device(arm.command_gain.astype(cast))
+            self._base_bias = cuda.to_device(arm.initial_bias(1, cast)[0])
+            self._command = cuda.device_array((B, task.n_joints), cast)
+            self.state = types.SimpleNamespace(
+                **{k: cuda.to_device(np.zeros((B, NJ), cast))
+                   for k in ("q", "w", "v", "acceleration", "height_bound")},
+                contact=cuda.to_device(np.zeros(B, bool)),
+                limit_stop=cuda.to_device(np.zeros(B, bool)),
+                tool=cuda.to_device(np.zeros((B, 3), cast)))
+        self.reset(arm.start_q)
+        if not self.mirror:
+            self.pull()
+
+    def _device_command(self, command: Any) -> Any:
+        """``command`` as a ``(B, n)`` device array of the kernel's type: a CUDA array (a
+        numba device array, a torch tensor on the GPU) as is, a host array copied up."""
+        shape = (self.num_copies, self.task.n_joints)
+        arr = _device_array(command)
+        if arr is not None:
+            if arr.shape != shape or arr.dtype != self._cast:
+                raise ValueError(f"command must be a ({shape[0]}, {shape[1]}) {self.dtype} "
+                                 f"array; got a device array {arr.shape} {arr.dtype}")
+            return arr
+        arr = np.ascontiguousarray(command, dtype=self._cast)
+        if arr.shape != shape:
+            raise ValueError(f"command must be ({shape[0]}, {shape[1]}); got {arr.shape}")
+        self._command.copy_to_device(arr)
+        return self._command
+
+    def step(self, command: Any) -> None:
+        """:meth:`envs.physics.Dynamics.step`: ``command (B, n)``, a numpy array or a device
+        array of the kernel's type on this GPU (no upload)."""
+        with self._gpu:
+            arr = self._device_command(command)
+            s = self.state
+            self._kernels.step[self._grid, self._block](
+                arr, self._gain, self._base_bias, s.q, s.w, s.v, s.acceleration,
+                s.height_bound, s.contact, s.limit_stop, s.tool, *self._model.values())
+        if self.mirror:
+            self.pull()
+
+    def reset(self, q: Any, index: Any = None) -> None:
+        """:meth:`envs.physics.Dynamics.reset`: copies ``index`` (None: all) at rest at ``q
+        (6,)`` or ``(m, 6)`` rad, checked on the host (:func:`envs.physics.model.
+        rest_heights`), then set on the GPU (one launch)."""
+        B = self.num_copies
+        heights = rest_heights(self.task, q)
+        sel = slice(None) if index is None else index
+        mask = np.zeros(B, bool)
+        mask[sel] = True
+        rows, height_rows = np.zeros((B, NJ), self._cast), np.zeros((B, NJ), self._cast)
+        rows[sel] = np.asarray(q, dtype=float)
+        height_rows[sel] = heights
+        m = self._model
+        with self._gpu:
+            s = self.state
+            self._kernels.rest[self._grid, self._block](
+                cuda.to_device(mask), cuda.to_device(rows), cuda.to_device(height_rows), s.q,
+                s.w, s.v, s.acceleration, s.height_bound, s.contact, s.limit_stop, s.tool,
+                m["rot0"], m["p"], m["axis"], m["tool_pos"], m["base_height"])
+        if self.mirror:
+            self.pull()
+
+    def pull(self) -> None:
+        """Copy the protocol's state (``q, v, acceleration, contact, limit_stop, tool``) from
+        the GPU into the host arrays (a synchronisation)."""
+        s = self.state
+        with self._gpu:
+            for host, dev in ((self.q, s.q), (self.v, s.v), (self.acceleration, s.acceleration),
+                              (self.contact, s.contact), (self.limit_stop, s.limit_stop),
+                              (self.tool, s.tool)):
+                dev.copy_to_host(host)
+
+    def synchronize(self) -> None:
+        """Wait until the GPU has run every launch and copy queued so far (for a clock)."""
+        with self._gpu:
+            cuda.synchronize()
+
+    @property
+    def w(self) -> np.ndarray:
+        """The integrator's velocities ``(B, 6)`` rad per substep, copied from the GPU."""
+        with self._gpu:
+            return self.state.w.copy_to_host()
+
+    @property
+    def height_bound(self) -> np.ndarray:
+        """The plane check's lower bounds ``(B, 6)`` m (world z) of each moving link's
+        height, copied from the GPU."""
+        with self._gpu:
+            return self.state.height_bound.copy_to_host()
+
+    def tool_positions(self, out: np.ndarray) -> np.ndarray:
+        """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``
+        (the host mirror's)."""
+        out[:] = self.tool
+        return out
