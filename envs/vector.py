@@ -53,10 +53,13 @@ def copy_seeds(seed: int | Sequence[int | None] | None, num_envs: int) -> list[i
 class VectorReach:
     """N copies of the task with Gymnasium's autoreset modes, over arrays or tensors.
 
-    A subclass sets :attr:`task`, :attr:`num_envs`, :attr:`metadata` (``"autoreset_mode"``)
-    and ``_ended`` ((N,) bool, the episodes that ended on the last step), and supplies the
-    hooks: :meth:`_checked_actions`, :meth:`_advance`, :meth:`_reset_where`,
-    :meth:`_observation`, :meth:`_info` and :meth:`_final`, and ``_where``.
+    A subclass sets ``task``, ``num_envs``, ``metadata["autoreset_mode"]`` and ``_ended``
+    ((N,) bool, the episodes that ended on the last step), and supplies the hooks over its
+    arrays: ``_checked_actions(actions)`` (N, n) or a ValueError; ``_advance(actions)`` steps
+    every copy and returns its reward, terminated and truncated (N,); ``_reset_where(mask)``
+    starts new episodes where ``mask``; ``_observation()`` and ``_info()`` (with the ``_key``
+    masks) now; ``_final(info, done)``, ``same_step``'s ``final_obs``, ``final_info`` and
+    their masks; ``_where``, its library's ``where(mask, x, y)``.
 
     Autoreset modes (``metadata["autoreset_mode"]``), for a copy whose episode ended:
 
@@ -74,7 +77,12 @@ class VectorReach:
     metadata: dict[str, Any]
     _ended: Any
     _where: Any
-    """``where(mask, x, y)`` of the env's array library (numpy's or torch's)."""
+    _checked_actions: Any
+    _advance: Any
+    _reset_where: Any
+    _observation: Any
+    _info: Any
+    _final: Any
 
     @property
     def dt(self) -> float:
@@ -103,29 +111,3 @@ class VectorReach:
             info.update(self._final(info, done))
             self._reset_where(done)
         return self._observation(), reward, terminated, truncated, info
-
-    # ------------------------------------------------------------------ hooks
-    def _checked_actions(self, actions: Any) -> Any:
-        """``actions`` as the env's (N, n) array or tensor; a ValueError when they do not fit."""
-        raise NotImplementedError
-
-    def _advance(self, actions: Any) -> tuple[Any, Any, Any]:
-        """Step every copy; its reward, terminated and truncated (N,), copies."""
-        raise NotImplementedError
-
-    def _reset_where(self, mask: Any) -> None:
-        """Start new episodes in the copies where ``mask`` (N,) bool."""
-        raise NotImplementedError
-
-    def _observation(self) -> dict[str, Any]:
-        """The observations now, a dict of (N, ...) copies."""
-        raise NotImplementedError
-
-    def _info(self) -> dict[str, Any]:
-        """The step information now, :data:`envs.task.INFO_KEYS` (N, ...) with masks."""
-        raise NotImplementedError
-
-    def _final(self, info: dict[str, Any], done: Any) -> dict[str, Any]:
-        """``same_step``'s ``final_obs``, ``final_info`` and their masks, of the copies
-        ``done`` whose episode ended now (with the step information ``info``)."""
-        raise NotImplementedError
