@@ -36,8 +36,8 @@ from analysis.sweep import (
     one_process,
     parse_setting,
     print_dry_run,
-    split_passthrough,
 )
+from ddpg_her.units import split_passthrough
 
 ALGORITHMS: dict[str, Reading] = {r.name: r for r in (
     Reading("ddpg", ("--algo", "ddpg"),

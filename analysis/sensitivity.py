@@ -67,8 +67,8 @@ from analysis.sweep import (
     one_process,
     parse_setting,
     print_dry_run,
-    split_passthrough,
 )
+from ddpg_her.units import split_passthrough
 
 # --- readings -----------------------------------------------------------------------------------
 

@@ -32,6 +32,7 @@ from typing import IO
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
+from ddpg_her.units import split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": PAPER_GRID,
@@ -314,15 +315,6 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         if action.default is None or action.default is False or action.default == []:
             return action.help
         return super()._get_help_string(action)
-
-
-def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
-    """Split a command line at the first ``--``: (own arguments, arguments for ddpg_her.train)."""
-    argv = list(argv)
-    if "--" in argv:
-        cut = argv.index("--")
-        return argv[:cut], argv[cut + 1 :]
-    return argv, []
 
 
 def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,

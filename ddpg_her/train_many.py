@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ddpg_her import train
-from ddpg_her.units import read_plan
+from ddpg_her.units import read_plan, split_passthrough
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -52,15 +52,6 @@ def make_parser() -> argparse.ArgumentParser:
                         help="print one line per run (status, stack, folder) and each stack's "
                              "agents, and exit without training")
     return parser
-
-
-def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
-    """Split a command line at the first ``--``: (own arguments, arguments for every unit)."""
-    argv = list(argv)
-    if "--" in argv:
-        cut = argv.index("--")
-        return argv[:cut], argv[cut + 1:]
-    return argv, []
 
 
 def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
