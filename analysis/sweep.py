@@ -32,6 +32,7 @@ from typing import IO
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
+from ddpg_her.runfolder import run_status
 from ddpg_her.units import split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
@@ -75,16 +76,8 @@ class Unit:
         return self.root / RUN_DIR.format(region=self.region, joints=self.joints, seed=seed)
 
     def status(self, seed: int) -> str:
-        """'done', 'resume' (a run folder exists, unfinished) or 'new'."""
-        folder = self.run_dir(seed)
-        if not (folder / "spec.json").exists():
-            return "new"
-        try:
-            run = read_run(folder)
-        except (ValueError, KeyError, OSError):
-            return "resume"
-        done = len(run.episode) and int(run.episode[-1]) >= self.episodes
-        return "done" if done else "resume"
+        """'done', 'resume' or 'new' (`ddpg_her.runfolder.run_status`) of seed's run."""
+        return run_status(self.run_dir(seed), self.episodes)
 
     def pending(self) -> bool:
         return any(self.status(s) != "done" for s in self.seeds)

@@ -117,7 +117,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import gymnasium
     import torch
 
-    from ddpg_her.multi import MultiTrainer, group_settings, run_status
+    from ddpg_her.multi import MultiTrainer, group_settings
+    from ddpg_her.runfolder import run_status
     from ddpg_her.vecenv import register_env
 
     for env_id in sorted({s.env_id for s in settings}):
