@@ -64,7 +64,6 @@ from analysis.sweep import (
     add_execution_arguments,
     check_execution_arguments,
     execute,
-    one_process,
     parse_setting,
     print_dry_run,
 )
@@ -965,7 +964,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             readings.append(known[name])
     units = units_for(readings, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, one_process(args), args.env_backend)
+        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)
