@@ -33,11 +33,10 @@ from analysis.sweep import (
     add_execution_arguments,
     check_execution_arguments,
     execute,
-    one_process,
     parse_setting,
     print_dry_run,
-    split_passthrough,
 )
+from ddpg_her.units import split_passthrough
 
 ALGORITHMS: dict[str, Reading] = {r.name: r for r in (
     Reading("ddpg", ("--algo", "ddpg"),
@@ -101,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     algos = [ALGORITHMS[name] for name in dict.fromkeys(args.algos)]
     units = units_for(algos, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, one_process(args), args.env_backend)
+        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)

@@ -11,13 +11,11 @@ CSV beside the figure (``fig.csv``).
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_text
+from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_csv
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
     PERCENT,
@@ -112,14 +110,6 @@ def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> N
     plt.close(fig)
 
 
-def write_csv(rows: list[dict], path: Path) -> None:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text(path, buf.getvalue())
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.curves", description=__doc__.split("\n\n")[0],
@@ -137,7 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = curve_rows(groups, args.confidence)
     try:
         plot(groups, out, args.confidence)
-        write_csv(rows, csv_path)
+        write_csv(csv_path, CSV_COLUMNS, rows)
     except OutputError as err:
         parser.exit(1, f"error: {err}\n")
     runs = sum(len(v) for v in groups.values())

@@ -38,7 +38,6 @@ import argparse
 import csv
 import dataclasses
 import functools
-import io
 import math
 import sys
 import time
@@ -49,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import OutputError, check_folder, check_writable, save_figure, write_text
+from analysis.outputs import OutputError, check_folder, check_writable, save_figure, write_csv
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
 from ddpg_her.units import task_option
@@ -664,14 +663,6 @@ def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
     return rows, skipped
 
 
-def write_csv(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, CSV_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text(path, buf.getvalue())
-
-
 def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = None) -> Any:
     """Bar chart of the share worth reaching per setting, one bar per reading, with CIs.
 
@@ -806,7 +797,7 @@ def _positive(text: str) -> int:
 def write_outputs(rows: Sequence[Mapping[str, Any]], out: Path, curves: Any) -> None:
     """optimality.csv and optimality.png in ``out``, and optimality_curves.png when
     ``curves`` names the runs to draw beside them."""
-    write_csv(rows, out / "optimality.csv")
+    write_csv(out / "optimality.csv", CSV_COLUMNS, rows)
     plot(rows, out=out / "optimality.png")
     if curves:
         plot_beside_curves(rows, curves, out / "optimality_curves.png")

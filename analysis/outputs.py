@@ -10,8 +10,10 @@ the work starts, and each file is written to a temporary name and moved into pla
 from __future__ import annotations
 
 import contextlib
+import csv
 import io
 import os
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -121,6 +123,20 @@ def write_bytes(path: Path, data: bytes) -> None:
 def write_text(path: Path, text: str) -> None:
     """`write_bytes` of text (UTF-8)."""
     write_bytes(path, text.encode())
+
+
+def write_csv(path: Path, columns: Sequence[str],
+              rows: Iterable[Sequence[Any] | Mapping[str, Any]]) -> None:
+    """A CSV file (``\\n`` line ends) of the header ``columns`` and ``rows``, each a list in
+    column order or a dict by column (``csv.DictWriter``'s rules), written whole by
+    `write_text`."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(columns)
+    by_name = csv.DictWriter(buf, columns, lineterminator="\n")
+    for row in rows:
+        (by_name if isinstance(row, Mapping) else writer).writerow(row)
+    write_text(path, buf.getvalue())
 
 
 def save_figure(fig: Any, path: Path, **kwargs: Any) -> None:

@@ -30,7 +30,6 @@ reading its folder names is refused, naming it.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import shlex
 import shutil
@@ -43,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis.outputs import write_csv
 from analysis.paper import PAPER_EPISODES
 from analysis.readings import CHOICES, READINGS, Reading, run_choices
 from analysis.report import (
@@ -64,11 +64,10 @@ from analysis.sweep import (
     add_execution_arguments,
     check_execution_arguments,
     execute,
-    one_process,
     parse_setting,
     print_dry_run,
-    split_passthrough,
 )
+from ddpg_her.units import split_passthrough
 
 # --- readings -----------------------------------------------------------------------------------
 
@@ -577,28 +576,19 @@ def _r(x: float | None) -> str:
 def write_csvs(cells: Sequence[Cell], rows: Sequence[VerdictRow], curves: Sequence[dict],
                out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "verdicts.csv", "w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(VERDICT_COLUMNS)
-        for r in rows:
-            w.writerow([r.claim, r.reading, word(r.t), word(r.boot_mean), word(r.boot_iqm),
-                        "" if r.p_value is None else f"{r.p_value:.4g}", r.partial,
-                        "; ".join(r.confounds), r.detail_t, r.detail_boot_mean,
-                        r.detail_boot_iqm])
-    with open(out / "finals.csv", "w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(FINAL_COLUMNS)
-        for c in cells:
-            bm, bi, wr = c.boot_mean or (None,) * 3, c.boot_iqm or (None,) * 3, \
-                c.worth or (None,) * 3
-            w.writerow([c.reading, c.region, c.joints, len(c.levels), c.episode, c.partial,
-                        ";".join(f"{v:g}" for v in c.levels), _r(c.t[0]), _r(c.t[1]),
-                        _r(c.t[2]), _r(bm[1]), _r(bm[2]), _r(bi[0]), _r(bi[1]), _r(bi[2]),
-                        _r(wr[0]), _r(wr[1]), _r(wr[2])])
-    with open(out / "curves.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=CURVE_COLUMNS, lineterminator="\n")
-        w.writeheader()
-        w.writerows(curves)
+    write_csv(out / "verdicts.csv", VERDICT_COLUMNS, (
+        [r.claim, r.reading, word(r.t), word(r.boot_mean), word(r.boot_iqm),
+         "" if r.p_value is None else f"{r.p_value:.4g}", r.partial, "; ".join(r.confounds),
+         r.detail_t, r.detail_boot_mean, r.detail_boot_iqm] for r in rows))
+    finals = []
+    for c in cells:
+        bm, bi, wr = c.boot_mean or (None,) * 3, c.boot_iqm or (None,) * 3, c.worth or (None,) * 3
+        finals.append([c.reading, c.region, c.joints, len(c.levels), c.episode, c.partial,
+                       ";".join(f"{v:g}" for v in c.levels), _r(c.t[0]), _r(c.t[1]),
+                       _r(c.t[2]), _r(bm[1]), _r(bm[2]), _r(bi[0]), _r(bi[1]), _r(bi[2]),
+                       _r(wr[0]), _r(wr[1]), _r(wr[2])])
+    write_csv(out / "finals.csv", FINAL_COLUMNS, finals)
+    write_csv(out / "curves.csv", CURVE_COLUMNS, curves)
 
 
 def curve_rows(groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
@@ -965,7 +955,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             readings.append(known[name])
     units = units_for(readings, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, one_process(args), args.env_backend)
+        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)

@@ -13,13 +13,12 @@ numbers of every cell go to a CSV beside the figure.
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import math
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +28,7 @@ from analysis.outputs import (
     check_writable,
     figure_path,
     save_figure,
-    write_text,
+    write_csv,
 )
 
 WORKSPACE_REACH_M = 1.1
@@ -150,19 +149,18 @@ def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
     plt.close(fig)
 
 
-def write_csv(maps: Sequence[SuccessMap], path: Path) -> None:
-    with io.StringIO() as f:
-        writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(CSV_COLUMNS)
-        for m in maps:
-            rate = m.rate
-            for i in range(len(m.x_edges) - 1):
-                for j in range(len(m.y_edges) - 1):
-                    writer.writerow([m.run, round(m.x_edges[i], 6), round(m.x_edges[i + 1], 6),
-                                     round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
-                                     int(m.goals[i, j]), int(m.successes[i, j]),
-                                     "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
-        write_text(path, f.getvalue())
+def csv_rows(maps: Sequence[SuccessMap]) -> list[list[Any]]:
+    """The rows of :data:`CSV_COLUMNS`: one per cell of every map."""
+    rows = []
+    for m in maps:
+        rate = m.rate
+        for i in range(len(m.x_edges) - 1):
+            for j in range(len(m.y_edges) - 1):
+                rows.append([m.run, round(m.x_edges[i], 6), round(m.x_edges[i + 1], 6),
+                             round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
+                             int(m.goals[i, j]), int(m.successes[i, j]),
+                             "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
+    return rows
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -232,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         maps.append(bin_successes(label, goals, reached, args.cell))
     try:
         plot(maps, z, out)
-        write_csv(maps, csv_path)
+        write_csv(csv_path, CSV_COLUMNS, csv_rows(maps))
     except OutputError as err:
         parser.exit(1, f"error: {err}\n")
     for m in maps:

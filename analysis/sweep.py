@@ -32,6 +32,8 @@ from typing import IO
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
+from ddpg_her.runfolder import run_status
+from ddpg_her.units import split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": PAPER_GRID,
@@ -74,16 +76,8 @@ class Unit:
         return self.root / RUN_DIR.format(region=self.region, joints=self.joints, seed=seed)
 
     def status(self, seed: int) -> str:
-        """'done', 'resume' (a run folder exists, unfinished) or 'new'."""
-        folder = self.run_dir(seed)
-        if not (folder / "spec.json").exists():
-            return "new"
-        try:
-            run = read_run(folder)
-        except (ValueError, KeyError, OSError):
-            return "resume"
-        done = len(run.episode) and int(run.episode[-1]) >= self.episodes
-        return "done" if done else "resume"
+        """'done', 'resume' or 'new' (`ddpg_her.runfolder.run_status`) of seed's run."""
+        return run_status(self.run_dir(seed), self.episodes)
 
     def pending(self) -> bool:
         return any(self.status(s) != "done" for s in self.seeds)
@@ -316,15 +310,6 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
-def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
-    """Split a command line at the first ``--``: (own arguments, arguments for ddpg_her.train)."""
-    argv = list(argv)
-    if "--" in argv:
-        cut = argv.index("--")
-        return argv[:cut], argv[cut + 1 :]
-    return argv, []
-
-
 def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                             unit_word: str = "setting") -> None:
     """The flags of every study that trains units: budget, root, where and how they run."""
@@ -353,7 +338,7 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "process whose tasks differ only in their goals in one compiled "
                              "call, the same goals, trajectories equal to rounding (default: "
                              "numpy, one env per agent)")
-    parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=None,
+    parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=False,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
                              "configuration share one stacked agent), its output in "
@@ -377,18 +362,6 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.one_process and args.workers > 1:
         parser.error(f"--one-process runs one process; --workers {args.workers} contradicts it")
     return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
-
-
-def one_process(args: argparse.Namespace) -> bool:
-    """Whether the units train in one process: only with --one-process.
-
-    Not the default on cuda although one stack wastes the GPU less than K = 5 products per
-    process: the one process steps every unit's envs on one CPU core. Measured on an H100
-    machine with the numpy env backend (each agent's env on Pinocchio's substep loop), the paper
-    grid's 55 agents took 2.1 s per warm-up episode, slower than one process per unit
-    (results/batched_env/README.md); the batched env backend steps them in 7 compiled calls,
-    and that pairing is not yet measured on a GPU."""
-    return bool(args.one_process)
 
 
 ONE_PROCESS_LOG = "logs/one-process.log"
@@ -544,7 +517,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
         todo.remove(unit)
     if not todo:
         return 0
-    if one_process(args):
+    if args.one_process:
         return run_one_process(todo, args.out, threads, extra, args.device, args.env_backend)
     extra = [*extra, *backend_args(args.env_backend)]
     if args.ray_address:
@@ -572,7 +545,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = args.setting or GRIDS[args.grid]
     units = units_for(settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, one_process(args), args.env_backend)
+        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
         return 0
     return execute(units, args, threads, extra)
 

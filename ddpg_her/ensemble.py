@@ -161,10 +161,6 @@ class CellBuffer(ReplayBuffer):
         """Cells (n,) long of seed k's goals (n, goal_dim)."""
         return goal_cells(goals[None], self.centres[k:k + 1])[0]
 
-    def cell_sizes(self, k: int) -> list[int]:
-        """How many stored transitions of seed k each cell holds."""
-        return [q.size for q in self._queues[k]]
-
     def sample(self, batch_size: int,
                generators: Sequence[torch.Generator]) -> tuple[torch.Tensor, ...]:
         """Minibatches x, u, r, x2, terminated of the K x M members, each (K * M, batch, ...)."""

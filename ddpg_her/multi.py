@@ -30,7 +30,7 @@ from typing import Any
 import torch
 
 from ddpg_her.logs import progress_bar
-from ddpg_her.runfolder import RunFolder, RunFolderError, read_run
+from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
 from ddpg_her.units import Setting
 from ddpg_her.vecenv import GoalVecEnv
@@ -44,18 +44,6 @@ def resume_point(run_dirs: Sequence[str | Path]) -> int | None:
         return None
     common = set.intersection(*have)
     return max(common) if common else -1
-
-
-def run_status(folder: str | Path, episodes: int) -> str:
-    """'done' (eval.csv reaches ``episodes``), 'resume' (a run folder, unfinished) or 'new'."""
-    f = RunFolder(folder)
-    if not f.exists():
-        return "new"
-    try:
-        run = read_run(folder)
-    except RunFolderError:
-        return "resume"
-    return "done" if len(run.episode) and int(run.episode[-1]) >= episodes else "resume"
 
 
 def layout(env_id: str, env_kwargs: dict[str, Any]) -> dict[str, Any]:

@@ -563,3 +563,15 @@ def read_run(path: str | os.PathLike) -> Run:
         tests=column("tests", int), final_distance_m=column("mean_final_distance_m", float),
         spec=spec,
     )
+
+
+def run_status(folder: str | os.PathLike, episodes: int) -> str:
+    """'done' (eval.csv reaches ``episodes``), 'resume' (a run folder, unfinished or not
+    readable yet) or 'new': what a command that trains units does with a run folder."""
+    if not RunFolder(folder).exists():
+        return "new"
+    try:
+        run = read_run(folder)
+    except (RunFolderError, KeyError, OSError):
+        return "resume"
+    return "done" if len(run.episode) and int(run.episode[-1]) >= episodes else "resume"

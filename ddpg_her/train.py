@@ -301,6 +301,37 @@ def run_to_end(trainer: Any) -> Any:
         trainer.close()
 
 
+def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse a --threads below 1 (before any unit is parsed)."""
+    if args.threads is not None and args.threads < 1:
+        parser.error(f"--threads must be >= 1, got {args.threads}")
+
+
+def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Apply the process flags to torch: --device cuda needs a device, --threads, and
+    deterministic algorithms (runs bitwise repeatable on the CPU)."""
+    import torch
+
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: no CUDA device is available to torch")
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
+
+
+def register_envs(parser: argparse.ArgumentParser, env_ids: Sequence[str]) -> None:
+    """Import the modules that register ``env_ids`` (`ddpg_her.vecenv.register_env`); a usage
+    error naming the --env-id when one cannot be imported."""
+    from ddpg_her.vecenv import register_env
+
+    for env_id in env_ids:
+        try:
+            register_env(env_id)
+        except ImportError as e:
+            parser.error(f"--env-id {env_id}: cannot import the module that registers it "
+                         f"({type(e).__name__}: {e})")
+
+
 def last_session(rows: Sequence[dict[str, Any]]) -> str:
     """One run's last test session as text (its eval rows, as ``Trainer.run`` returns them)."""
     if not rows:
@@ -312,8 +343,7 @@ def last_session(rows: Sequence[dict[str, Any]]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = make_parser()
     args = parse_args(parser, argv)
-    if args.threads is not None and args.threads < 1:
-        parser.error(f"--threads must be >= 1, got {args.threads}")
+    check_process_flags(parser, args)
     try:
         req = request(args)
     except ValueError as e:
@@ -322,23 +352,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(req.note, file=sys.stderr)
     env_kwargs, config, seeds, dirs = req.env_kwargs, req.config, list(req.seeds), \
         list(req.run_dirs)
-
-    import torch
-
-    if args.device == "cuda" and not torch.cuda.is_available():
-        parser.error("--device cuda: no CUDA device is available to torch")
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
-    torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
-
+    start_process(parser, args)
     from ddpg_her.trainer import Trainer
-    from ddpg_her.vecenv import register_env
 
-    try:
-        register_env(args.env_id)
-    except ImportError as e:
-        parser.error(f"--env-id {args.env_id}: cannot import the module that registers it "
-                     f"({type(e).__name__}: {e})")
+    register_envs(parser, [args.env_id])
     trainer = build_trainer(parser, lambda: Trainer(
         args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
         env_backend=args.env_backend, update_graph=args.update_graph,

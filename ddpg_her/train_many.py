@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ddpg_her import train
-from ddpg_her.units import read_plan
+from ddpg_her.units import read_plan, split_passthrough
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -52,15 +52,6 @@ def make_parser() -> argparse.ArgumentParser:
                         help="print one line per run (status, stack, folder) and each stack's "
                              "agents, and exit without training")
     return parser
-
-
-def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
-    """Split a command line at the first ``--``: (own arguments, arguments for every unit)."""
-    argv = list(argv)
-    if "--" in argv:
-        cut = argv.index("--")
-        return argv[:cut], argv[cut + 1:]
-    return argv, []
 
 
 def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
@@ -100,8 +91,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     own, common = split_passthrough(sys.argv[1:] if argv is None else argv)
     parser = make_parser()
     args = parser.parse_args(own)
-    if args.threads is not None and args.threads < 1:
-        parser.error(f"--threads must be >= 1, got {args.threads}")
+    train.check_process_flags(parser, args)
     units = [shlex.split(u) for u in args.unit]
     for path in args.plan:
         try:
@@ -124,17 +114,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             writers[key] = f"{s.name} seed={seed}"
 
     import gymnasium
-    import torch
 
-    from ddpg_her.multi import MultiTrainer, group_settings, run_status
-    from ddpg_her.vecenv import register_env
+    from ddpg_her.multi import MultiTrainer, group_settings
+    from ddpg_her.runfolder import run_status
 
-    for env_id in sorted({s.env_id for s in settings}):
-        try:
-            register_env(env_id)
-        except ImportError as e:
-            parser.error(f"--env-id {env_id}: cannot import the module that registers it "
-                         f"({type(e).__name__}: {e})")
+    train.register_envs(parser, sorted({s.env_id for s in settings}))
     status = [[run_status(d, s.config.episodes) for d in s.run_dirs] for s in settings]
     pending = [not args.resume or any(st != "done" for st in sts) for sts in status]
     todo = [s for s, p in zip(settings, pending, strict=True) if p]
@@ -159,11 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{s.name}: finished, skipped", file=sys.stderr)
     if not todo:
         return 0
-    if args.device == "cuda" and not torch.cuda.is_available():
-        parser.error("--device cuda: no CUDA device is available to torch")
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
-    torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
+    train.start_process(parser, args)
     command = ["python", "-m", "ddpg_her.train_many",
                *(argv if argv is not None else sys.argv[1:])]
     trainer = train.build_trainer(parser, lambda: MultiTrainer(

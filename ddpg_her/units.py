@@ -107,6 +107,16 @@ def read_plan(path: Path) -> list[list[str]]:
     return units
 
 
+def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Split a command line at the first ``--``: (own arguments, arguments passed on to every
+    unit's ``ddpg_her.train``)."""
+    argv = list(argv)
+    if "--" in argv:
+        cut = argv.index("--")
+        return argv[:cut], argv[cut + 1 :]
+    return argv, []
+
+
 def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
     """Write a plan file that `read_plan` reads back as ``units``."""
     path.parent.mkdir(parents=True, exist_ok=True)

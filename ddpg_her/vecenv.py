@@ -215,11 +215,11 @@ class _Layout:
                                                               {"action": action})
 
 
-class _Batch:
+class _Batch(_Vector):
     """One vector env stepping the copies ``index`` (flat indices) of several groups."""
 
     def __init__(self, env_id: str, n: int, kwargs: dict[str, Any], index: np.ndarray):
-        self.env = _make_vec(env_id, n, kwargs)
+        super().__init__(env_id, n, kwargs)
         self.index = index
 
 
@@ -304,16 +304,19 @@ class GoalVecEnv(_Layout):
         obs = {key: v.copy() for key, v in obs.items()}
         reward = np.zeros(self.num_envs)
         flags = np.zeros((3, self.num_envs), dtype=bool)
-        for b in self.batches:
-            # the batch moves as one: copies whose episode ended are stepped and ignored
-            o, r, term, trunc, info = b.env.step(action[b.index])
-            on = active[b.index]
-            rows = b.index[on]
+
+        def put(rows: np.ndarray, out: tuple) -> None:
+            """A vector env's step of the copies ``rows`` (flat indices), where active."""
+            o, r, term, trunc, success = out
+            on = active[rows]
+            rows = rows[on]
             for key in KEYS:
                 obs[key][rows] = o[key][on]
             reward[rows] = np.asarray(r)[on]
-            success = np.asarray(info.get("is_success", term), dtype=bool)
             flags[0, rows], flags[1, rows], flags[2, rows] = term[on], trunc[on], success[on]
+
+        for b in self.batches:
+            put(b.index, b.step(action[b.index], active[b.index]))
         if self.batches:
             return obs, reward, flags[0], flags[1], flags[2]
         c = self.copies
@@ -321,13 +324,7 @@ class GoalVecEnv(_Layout):
             sl = slice(i * c, (i + 1) * c)
             out = g.step(action[sl], active[sl])
             if isinstance(out, tuple):  # a vector group: arrays for all its copies
-                o, r, term, trunc, success = out
-                on = active[sl]
-                for key in KEYS:
-                    obs[key][sl][on] = o[key][on]
-                reward[sl][on] = np.asarray(r)[on]
-                flags[0, sl][on], flags[1, sl][on] = term[on], trunc[on]
-                flags[2, sl][on] = success[on]
+                put(np.arange(i * c, (i + 1) * c), out)
                 continue
             for m, res in enumerate(out):
                 if res is None:

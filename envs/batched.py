@@ -16,9 +16,10 @@ from envs.physics import make_dynamics
 from envs.render import RENDER_MODES
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec, make_task
 from envs.task import INFO_KEYS, as_autoreset_mode, real_actions
+from envs.vector import VectorReach, check_num_envs, copy_seeds, reset_options
 
 
-class BatchedReach(gymnasium.vector.VectorEnv):
+class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
     """N copies of ``UR5Reach-v0`` advanced together by one batched dynamics call.
 
     Copy i behaves exactly like ``gymnasium.make("UR5Reach-v0", ...)`` reset with seed
@@ -34,14 +35,9 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         The task (defaults as :class:`TaskSpec`); ``**overrides`` change fields.
     autoreset_mode : gymnasium.vector.AutoresetMode or str
         What happens to a copy whose episode ended (terminated or truncated):
-
-        - ``next_step`` (default, Gymnasium's): the next ``step`` resets it instead of stepping
-          it; its action is ignored, and it returns the first observation of the new episode
-          with reward 0 and both flags False.
-        - ``same_step``: it is reset within the same ``step``; the returned observation is the
-          new episode's first, and the episode's last observation and info are in
-          ``info["final_obs"]`` / ``info["final_info"]`` (masks ``info["_final_obs"]``).
-        - ``disabled``: never reset automatically; call ``reset(options={"reset_mask": done})``.
+        :class:`envs.vector.VectorReach`'s modes, ``next_step`` (default, Gymnasium's),
+        ``same_step`` (``info["final_obs"]``, ``info["final_info"]``: object arrays of one
+        copy's dicts) or ``disabled``.
     render_mode : {"rgb_array", "human"}, optional
         ``render()`` draws every copy (one frame each).
     dynamics : {"auto", "pinocchio", "numba", "torch"}
@@ -61,8 +57,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  render_mode: str | None = None, dynamics: str = "auto", device: str = "cpu",
                  threads: int = 1, **overrides: Any) -> None:
-        if not isinstance(num_envs, int | np.integer) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
+        num_envs = check_num_envs(num_envs)
         mode = as_autoreset_mode(autoreset_mode)
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
@@ -73,7 +68,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
             # none; a task given whole keeps its own episode length
             overrides.pop("max_episode_steps")
         self.task = make_task(task, overrides)
-        self.num_envs = int(num_envs)
+        self.num_envs = num_envs
         self.render_mode = render_mode
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
                          "render_fps": self.task.control_hz}
@@ -85,14 +80,10 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._ended = np.zeros(self.num_envs, dtype=bool)  # episodes awaiting a next-step reset
-        self._all = np.arange(self.num_envs)
         self._true = np.ones(self.num_envs, dtype=bool)
         self._renderers: list[Any] = []
 
-    @property
-    def dt(self) -> float:
-        """Duration of one step (s)."""
-        return self.task.dt
+    _where = staticmethod(np.where)
 
     # ------------------------------------------------------------------ VectorEnv API
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
@@ -104,27 +95,14 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         None keeps each copy's generator (fresh entropy on the first reset).
         ``options["goal"]``: ``(m, 3)`` m goals for the m copies reset, instead of drawing them.
         """
-        if options is not None and not isinstance(options, Mapping):
-            raise ValueError(f"options must be a dict such as {{'reset_mask': (N,) bool, 'goal': "
-                             f"(m, 3) m}}; got {options!r:.200}")
-        options = dict(options or {})
-        unknown = sorted(set(options) - {"reset_mask", "goal"})
-        if unknown:
-            raise ValueError(f"unknown reset option(s) {unknown}; known: 'reset_mask', 'goal'")
+        options = reset_options(options, ("reset_mask", "goal"),
+                                "{'reset_mask': (N,) bool, 'goal': (m, 3) m}")
         mask = np.asarray(options.get("reset_mask", self._true))
         if mask.dtype != np.bool_ or mask.shape != (self.num_envs,):
             # 0/1 integers would pass a cast to bool while meaning indices to a numpy user
             raise ValueError(f"options['reset_mask'] must be a ({self.num_envs},) bool array; got "
                              f"{mask.dtype} of shape {mask.shape}")
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, int | np.integer):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed must be an int, None or {self.num_envs} seeds; got "
-                                 f"{len(seeds)} seeds")
+        seeds = copy_seeds(seed, self.num_envs)
         index = np.flatnonzero(mask)
         for i in index:
             if seeds[i] is not None or self._rngs[i] is None:
@@ -140,49 +118,37 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         self._ended[index] = False
         return self._observation(), self._info()
 
-    def step(self, actions: Any) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
-                                          np.ndarray, dict[str, Any]]:
-        """Step every copy with ``actions (N, n)``; see the class docstring for episode ends.
-
-        Returns observations (dict of (N, ...) arrays), rewards (N,), terminations (N,),
-        truncations (N,) and infos (dict of (N, ...) arrays with ``_key`` masks).
-
-        Raises
-        ------
-        ValueError
-            When ``actions`` is not a finite real ``(N, n)`` array.
-        gymnasium.error.ResetNeeded
-            When a copy has never been reset.
-        """
-        core, n = self._core, self.task.n_joints
-        a = real_actions(actions)
+    # step: VectorReach.step. Raises ValueError when ``actions`` is not a finite real (N, n)
+    # array, gymnasium.error.ResetNeeded when a copy has never been reset.
+    def _checked_actions(self, actions: Any) -> np.ndarray:
+        a, n = real_actions(actions), self.task.n_joints
         if a is None or a.shape != (self.num_envs, n) or not np.isfinite(a).all():
             raise ValueError(f"actions must be a finite ({self.num_envs}, {n}) array (the "
                              f"{self.task.control_mode} commands of joints 1..{n}); got "
                              + (f"shape {a.shape}" if a is not None else repr(actions)))
-        mode = self.metadata["autoreset_mode"]
-        core.step(a)
-        if mode == AutoresetMode.NEXT_STEP and self._ended.any():
-            index = np.flatnonzero(self._ended)
-            core.reset(index, [self._rngs[i] for i in index])
-        terminated, truncated = core.terminated.copy(), core.truncated.copy()
-        reward = core.reward.copy()
-        info = self._info()
-        done = terminated | truncated
-        if mode == AutoresetMode.NEXT_STEP:
-            self._ended = done
-        elif mode == AutoresetMode.SAME_STEP and done.any():
-            final_obs = np.empty(self.num_envs, dtype=object)
-            final_info = np.empty(self.num_envs, dtype=object)
-            last = self._observation()
-            for i in np.flatnonzero(done):
-                final_obs[i] = {key: value[i] for key, value in last.items()}
-                final_info[i] = {key: info[key][i] for key in INFO_KEYS}
-            info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info,
-                        _final_info=done.copy())
-            index = np.flatnonzero(done)
-            core.reset(index, [self._rngs[i] for i in index])
-        return self._observation(), reward, terminated, truncated, info
+        return a
+
+    def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        core = self._core
+        core.step(actions)
+        return core.reward.copy(), core.terminated.copy(), core.truncated.copy()
+
+    def _reset_where(self, mask: np.ndarray) -> None:
+        if mask.any():
+            index = np.flatnonzero(mask)
+            self._core.reset(index, [self._rngs[i] for i in index])
+
+    def _final(self, info: dict[str, Any], done: np.ndarray) -> dict[str, Any]:
+        if not done.any():
+            return {}
+        final_obs = np.empty(self.num_envs, dtype=object)
+        final_info = np.empty(self.num_envs, dtype=object)
+        last = self._observation()
+        for i in np.flatnonzero(done):
+            final_obs[i] = {key: value[i] for key, value in last.items()}
+            final_info[i] = {key: info[key][i] for key in INFO_KEYS}
+        return {"final_obs": final_obs, "_final_obs": done.copy(), "final_info": final_info,
+                "_final_info": done.copy()}
 
     def _observation(self) -> dict[str, np.ndarray]:
         core = self._core

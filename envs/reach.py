@@ -13,6 +13,7 @@ from envs.physics import Dynamics
 from envs.render import RENDER_MODES
 from envs.spec import TaskSpec, make_task
 from envs.task import RESET_INFO_KEYS, real_actions
+from envs.vector import reset_options
 
 
 class UR5ReachEnv(gymnasium.Env):
@@ -185,13 +186,8 @@ class UR5ReachEnv(gymnasium.Env):
               ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         goals = None
-        if options is not None and not isinstance(options, Mapping):
-            raise ValueError(f"options must be a dict such as {{'goal': (x, y, z)}}; got "
-                             f"{options!r}")
+        options = reset_options(options, ("goal",), "{'goal': (x, y, z)}")
         if options:
-            unknown = sorted(set(options) - {"goal"})
-            if unknown:
-                raise ValueError(f"unknown reset option(s) {unknown}; the only option is 'goal'")
             goal = real_actions(options["goal"])  # None for strings, complex, objects
             if goal is None or goal.shape != (3,) or not np.all(np.isfinite(goal)):
                 raise ValueError(f"options['goal'] must be 3 finite numbers (x, y, z in m, world "

@@ -38,6 +38,7 @@ from envs.task import (
     single_spaces,
     task_sampler,
 )
+from envs.vector import VectorReach, check_num_envs, copy_seeds, reset_options
 
 GOAL_SOURCES = ("batched", "per_copy")
 """How :class:`GoalPool` draws goals on the host: ``batched`` from one generator in one
@@ -95,16 +96,14 @@ class GoalPool:
         """New generators (``per_copy``: copy i from ``seed + i``, or from ``seed[i]`` given one
         seed per copy, as :meth:`envs.batched.BatchedReach.reset`; ``batched``: one from
         ``seed``; None: fresh entropy) and a full pool drawn from them."""
-        if not isinstance(seed, int | np.integer | None):
-            if self.source != "per_copy" or len(seed) != self.num_copies:
-                raise ValueError(f"one seed per copy ({self.num_copies}) needs goal_source="
-                                 f"'per_copy'; got {len(seed)} seeds with {self.source!r}")
-            self._rngs = [seeding.np_random(int(s))[0] for s in seed]
-        elif self.source == "per_copy":
-            self._rngs = [seeding.np_random(None if seed is None else seed + i)[0]
-                          for i in range(self.num_copies)]
-        else:
+        if self.source == "per_copy":
+            self._rngs = [seeding.np_random(None if s is None else int(s))[0]
+                          for s in copy_seeds(seed, self.num_copies)]
+        elif isinstance(seed, int | np.integer | None):
             self._rngs = [seeding.np_random(seed)[0]]
+        else:
+            raise ValueError(f"one seed per copy ({self.num_copies}) needs goal_source="
+                             f"'per_copy'; got {len(seed)} seeds with {self.source!r}")
         self._host[:] = self._goals(np.full(self.num_copies, self.depth)).reshape(
             self._host.shape)
         self._upload()
@@ -145,7 +144,7 @@ class GoalPool:
 
 
 # ---------------------------------------------------------------------------- the env
-class TorchReach:
+class TorchReach(VectorReach):
     """N copies of ``UR5Reach-v0`` as tensors on one device: BatchedReach with torch in and out.
 
     Given the same goals and actions, every step equals :class:`envs.batched.BatchedReach`'s
@@ -156,10 +155,10 @@ class TorchReach:
     (:class:`envs.reach.UR5ReachEnv`, whose docstring documents them) with a leading ``(N,)``
     axis, as tensors on the device (the spaces stay numpy boxes, BatchedReach's). Where they
     differ: actions must be finite (unchecked: a check would read the device); the goals come
-    from :class:`GoalPool`; the autoreset modes are BatchedReach's (``next_step`` by default,
-    ``same_step``, ``disabled``), ``same_step``'s ``info["final_obs"]`` / ``info["final_info"]``
-    being dicts of (N, ...) tensors with the masks ``info["_final_obs"]`` /
-    ``info["_final_info"]``.
+    from :class:`GoalPool`; the autoreset modes (:class:`envs.vector.VectorReach`'s, ``next_step``
+    by default) step and reset every copy masked, never asking which ended (that would read the
+    device), and ``same_step``'s ``info["final_obs"]`` / ``info["final_info"]`` are dicts of
+    (N, ...) tensors with the masks ``info["_final_obs"]`` / ``info["_final_info"]``.
 
     Parameters
     ----------
@@ -188,13 +187,12 @@ class TorchReach:
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  goal_source: str = "batched", goal_pool: int = DEFAULT_POOL_DEPTH,
                  cuda_graph: bool = False, **overrides: Any) -> None:
-        if not isinstance(num_envs, int | np.integer) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
+        num_envs = check_num_envs(num_envs)
         self.task = make_task(task, overrides)  # checked by its dynamics (envs.validate)
         if not supports_kernels(self.task):
             raise ValueError(f"TorchReach implements the stop contact model only (as "
                              f"TorchDynamics); got contact_model={self.task.contact_model!r}")
-        self.num_envs, self.autoreset_mode = int(num_envs), as_autoreset_mode(autoreset_mode)
+        self.num_envs, self.autoreset_mode = num_envs, as_autoreset_mode(autoreset_mode)
         self.metadata = {"autoreset_mode": self.autoreset_mode}
         self.spec: Any = None  # set by gymnasium.make_vec
         # host-side metadata (numpy boxes, as BatchedReach's); values stay tensors
@@ -221,11 +219,6 @@ class TorchReach:
         self._all = torch.ones(B, dtype=torch.bool, device=dev)
         self._started = False
 
-    @property
-    def dt(self) -> float:
-        """Duration of one step (s)."""
-        return self.task.dt
-
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
@@ -237,10 +230,8 @@ class TorchReach:
         ``options["goal"]``: ``(N, 3)`` m, goals for the copies reset (other rows ignored)
         instead of drawing them. The first reset must be of all copies.
         """
-        options = dict(options or {})
-        unknown = sorted(set(options) - {"reset_mask", "goal"})
-        if unknown:
-            raise ValueError(f"unknown reset option(s) {unknown}; known: 'reset_mask', 'goal'")
+        options = reset_options(options, ("reset_mask", "goal"),
+                                "{'reset_mask': (N,) bool tensor, 'goal': (N, 3) m}")
         mask = self._all
         if "reset_mask" in options:
             mask = torch.as_tensor(options["reset_mask"], device=self.device)
@@ -266,23 +257,13 @@ class TorchReach:
             self.goal.copy_(torch.where(mask.unsqueeze(-1), goal, self.goal))
         self._started = True
         self._ended.masked_fill_(mask, False)
-        return self._observation(), self._info(self._distance())
+        return self._observation(), self._info()
 
-    def step(self, actions: Any) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor,
-                                          torch.Tensor, dict[str, torch.Tensor]]:
-        """Step every copy with ``actions (N, n)``; see the class docstring for episode ends.
+    # step: VectorReach.step, every value on the device. Raises ValueError when ``actions`` is
+    # not (N, n), gymnasium.error.ResetNeeded before the first reset.
+    _where = staticmethod(torch.where)
 
-        Returns observations (dict of (N, ...) tensors), rewards (N,), terminations (N,),
-        truncations (N,) and infos (dict of (N, ...) tensors with ``_key`` masks), all on the
-        device.
-
-        Raises
-        ------
-        ValueError
-            When ``actions`` is not ``(N, n)``.
-        gymnasium.error.ResetNeeded
-            Before the first reset.
-        """
+    def _checked_actions(self, actions: Any) -> torch.Tensor:
         if not self._started:
             raise gymnasium.error.ResetNeeded("step() before reset(): call reset() first")
         n = self.task.n_joints
@@ -291,30 +272,21 @@ class TorchReach:
             raise ValueError(f"actions must be a real ({self.num_envs}, {n}) tensor (the "
                              f"{self.task.control_mode} commands of joints 1..{n}); got shape "
                              f"{tuple(a.shape)}")
-        torch.clamp(a.to(self.dtype), self.action_low, self.action_high, out=self.action)
+        return a
+
+    def _advance(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        torch.clamp(actions.to(self.dtype), self.action_low, self.action_high, out=self.action)
         self.dynamics.step(self.action)
         self.elapsed.add_(1)
         distance = self._distance()
         reward = reach_reward(distance, self.action, self.task, self._penalty_scale)
         terminated = (distance <= self.task.success_radius) & self.task.terminate_on_success
-        truncated = self.elapsed >= self.task.max_episode_steps
-        mode = self.autoreset_mode
-        if mode == AutoresetMode.NEXT_STEP:
-            ended = self._ended
-            self._reset_where(ended)  # always, masked: asking whether any ended would sync
-            keep = ~ended
-            reward = torch.where(keep, reward, torch.zeros_like(reward))
-            terminated, truncated = terminated & keep, truncated & keep
-            distance = self._distance()
-            self._ended = terminated | truncated
-            return self._observation(), reward, terminated, truncated, self._info(distance)
-        info = self._info(distance)
-        if mode == AutoresetMode.SAME_STEP:
-            done = terminated | truncated
-            info.update(final_obs=self._observation(), _final_obs=done,
-                        final_info={key: info[key] for key in INFO_KEYS}, _final_info=done)
-            self._reset_where(done)
-        return self._observation(), reward, terminated, truncated, info
+        return reward, terminated, self.elapsed >= self.task.max_episode_steps
+
+    def _final(self, info: dict[str, torch.Tensor], done: torch.Tensor
+               ) -> dict[str, Any]:
+        return {"final_obs": self._observation(), "_final_obs": done,
+                "final_info": {key: info[key] for key in INFO_KEYS}, "_final_info": done}
 
     def compute_reward(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
                        info: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -372,8 +344,8 @@ class TorchReach:
         return {"observation": torch.cat([d.q[:, :n], d.v[:, :n], d.acceleration[:, :n]], -1),
                 "achieved_goal": d.tool_positions(), "desired_goal": self.goal.clone()}
 
-    def _info(self, distance: torch.Tensor) -> dict[str, torch.Tensor]:
-        d = self.dynamics
+    def _info(self) -> dict[str, torch.Tensor]:
+        d, distance = self.dynamics, self._distance()
         values = (self.action.clone(), distance, distance <= self.task.success_radius,
                   d.contact.clone(), d.limit_stop.clone(), d.clearance())
         info = dict(zip(INFO_KEYS, values, strict=True))

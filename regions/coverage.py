@@ -70,11 +70,6 @@ class WorkspaceSamples:
         """Number of samples (clear or not)."""
         return len(self.goals)
 
-    @property
-    def start_position(self) -> np.ndarray:
-        """tool0 position ``(3,) m`` (world) at ``start_q``."""
-        return fk_world(self.start_q, self.base_height)
-
 
 def sample_workspace(n_joints: int, start_q: Any, base_height: float, count: int,
                      rng: np.random.Generator, chunk: int = WORKSPACE_CHUNK) -> WorkspaceSamples:

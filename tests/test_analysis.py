@@ -362,14 +362,14 @@ def test_a_unit_whose_folder_another_process_holds_is_busy(tmp_path: Path) -> No
 
 
 def test_one_process_is_opt_in_and_contradicts_ray_and_workers() -> None:
-    """Opt-in on every device until a GPU run measures it (see sweep.one_process)."""
+    """Opt-in on every device until a GPU run measures it (the --one-process help)."""
     parser = argparse.ArgumentParser()
     sweep.add_execution_arguments(parser, Path("runs"))
-    assert not sweep.one_process(parser.parse_args(["--device", "cuda"]))
-    assert not sweep.one_process(parser.parse_args([]))
-    assert sweep.one_process(parser.parse_args(["--device", "cuda", "--one-process"]))
-    assert not sweep.one_process(parser.parse_args(["--device", "cuda", "--no-one-process"]))
-    assert not sweep.one_process(parser.parse_args(["--device", "cuda", "--ray-address", "a"]))
+    assert parser.parse_args(["--device", "cuda"]).one_process is False
+    assert parser.parse_args([]).one_process is False
+    assert parser.parse_args(["--device", "cuda", "--one-process"]).one_process is True
+    assert parser.parse_args(["--device", "cuda", "--no-one-process"]).one_process is False
+    assert parser.parse_args(["--device", "cuda", "--ray-address", "a"]).one_process is False
     for bad in (["--one-process", "--ray-address", "auto"], ["--one-process", "--workers", "2"]):
         with pytest.raises(SystemExit), contextlib.redirect_stderr(io.StringIO()):
             sweep.check_execution_arguments(parser, parser.parse_args(bad))
