@@ -14,8 +14,8 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from envs.physics import Dynamics, make_dynamics
 from envs.physics.model import clip, moving_link_heights
+from envs.physics.protocol import Dynamics
 from envs.spec import TaskSpec
 from envs.task import TaskRules, action_bounds, single_spaces
 
@@ -28,9 +28,10 @@ class TaskCopies:
     task : TaskSpec
     num_copies : int
         B.
-    dynamics : Dynamics, optional
-        The arm's dynamics for the B copies: any backend of the :class:`envs.physics.Dynamics`
-        protocol (the Pinocchio loop, :func:`envs.physics.make_dynamics`, when None).
+    dynamics : Dynamics
+        The arm's dynamics of the B copies of ``task``: any backend of the
+        :class:`envs.physics.Dynamics` protocol, as :func:`envs.physics.make_dynamics` builds
+        them (which checks the task against the robot: the one check of an env).
 
     Attributes
     ----------
@@ -55,12 +56,13 @@ class TaskCopies:
     Arrays are overwritten in place by every call; copy what you keep.
     """
 
-    def __init__(self, task: TaskSpec, num_copies: int, dynamics: Dynamics | None = None
-                 ) -> None:
+    def __init__(self, task: TaskSpec, num_copies: int, dynamics: Dynamics) -> None:
         n, B = task.n_joints, num_copies
-        # first: the dynamics check the task against the robot (envs.validate, once per env)
-        self.dynamics: Dynamics = (make_dynamics(task, num_copies, "pinocchio")
-                                   if dynamics is None else dynamics)
+        if dynamics.num_copies != num_copies or dynamics.task != task:
+            raise ValueError(f"dynamics must be of the {num_copies} copies of this task; got "
+                             f"{dynamics.num_copies} copies of "
+                             f"{'this' if dynamics.task == task else 'another'} task")
+        self.dynamics = dynamics
         self.task = task
         self.rules = TaskRules(task)
         self.action_low, self.action_high = action_bounds(task)

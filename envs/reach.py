@@ -9,7 +9,7 @@ import gymnasium
 import numpy as np
 
 from envs.core import TaskCopies
-from envs.physics import Dynamics
+from envs.physics import Dynamics, make_dynamics
 from envs.render import RENDER_MODES
 from envs.spec import TaskSpec, make_task
 from envs.task import RESET_INFO_KEYS, real_actions
@@ -157,7 +157,8 @@ class UR5ReachEnv(gymnasium.Env):
         task, n = self.task, self.task.n_joints
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": task.control_hz}
-        self._core = TaskCopies(task, 1)
+        # one copy: the reference backend
+        self._core = TaskCopies(task, 1, make_dynamics(task, 1, "pinocchio"))
         self.observation_space, self.action_space = self._core.single_spaces()
         self._n = n
         self._renderer: Any = None

@@ -1,7 +1,7 @@
 """The numba-CUDA backend: a whole control step of B arm copies as one GPU kernel launch.
 
 One thread per copy runs the numba kernel's step body, :func:`envs.physics.numba_kernel.
-_step_copy`, compiled for the device (:func:`envs.physics.numba_kernel.compile_step_functions`:
+step_copy`, compiled for the device (:func:`envs.physics.numba_kernel.compile_step_functions`:
 the same source as the CPU kernel, its float literals of the kernel's type), with its scratch in
 the thread's local memory. The state stays on the GPU between steps; the host arrays the env
 reads are copied back after each step (``mirror=True``, one synchronisation per step) or on
@@ -29,11 +29,11 @@ from envs.physics.model import (
 )
 from envs.physics.numba_kernel import (
     DTYPES,
-    _dtype_name,
-    _placements,
-    _step_copy,
-    _tool_position,
     compile_step_functions,
+    dtype_name,
+    placements,
+    step_copy,
+    tool_position,
 )
 
 if TYPE_CHECKING:
@@ -127,7 +127,7 @@ def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_
             bias[k] = gain[k] * command[b, k]
         else:
             bias[k] = base_bias[k]
-    hit_plane, hit_limit = _step_copy(
+    hit_plane, hit_limit = step_copy(
         q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half, vh,
         bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia, armature,
         grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a, force, q1, w1,
@@ -158,8 +158,8 @@ def _rest(mask, q_new, heights, Q, W, V, A, clearance, contact, limit_stop, tool
         clearance[b, k] = heights[b, k]
     contact[b] = False
     limit_stop[b] = False
-    _placements(Q[b], rot0, axis, R)
-    _tool_position(R, p, tool_pos, base_height, tool[b])
+    placements(Q[b], rot0, axis, R)
+    tool_position(R, p, tool_pos, base_height, tool[b])
 
 
 @functools.cache
@@ -170,7 +170,7 @@ def kernels(dtype: str = "float64") -> types.SimpleNamespace:
     Compilation for the device happens at the first launch."""
     if cuda is None:
         raise RuntimeError("the numba-CUDA kernels need numba (pip install numba)")
-    name = _dtype_name(dtype)
+    name = dtype_name(dtype)
     space = {**globals(), **compile_step_functions(cuda.jit(device=True), name),
              "DT": DTYPES[name]}
     compiled = {}
@@ -185,7 +185,7 @@ def model_arguments(task: TaskSpec, dtype: str = "float64") -> dict[str, Any]:
     order (the controller, limits, plane tables, chain, ``free``, ``w_to_v``, ``w_to_accel``):
     host arrays and scalars of ``dtype``, what :class:`NumbaCudaDynamics` copies to the GPU
     once."""
-    name = _dtype_name(dtype)
+    name = dtype_name(dtype)
     cast = DTYPES[name]
     arm, plane = arm_model(task), ur5_plane(name)
     c = arm.chain.astype(cast)
@@ -206,7 +206,7 @@ def step_signature(task: TaskSpec, dtype: str = "float64") -> tuple[Any, ...]:
     ``numba.cuda.compile_ptx``, which needs no GPU)."""
     import numba
 
-    name = _dtype_name(dtype)
+    name = dtype_name(dtype)
     cast = DTYPES[name]
     n = task.n_joints
     state = (np.zeros((1, n), cast), np.zeros(n, cast), np.zeros(NJ, cast),
@@ -268,7 +268,7 @@ class NumbaCudaDynamics:
         if not supports_kernels(task):
             raise ValueError(f"NumbaCudaDynamics implements the stop contact model; got "
                              f"contact_model={task.contact_model!r}")
-        name = _dtype_name(dtype)
+        name = dtype_name(dtype)
         self._cast = DTYPES[name]
         self.task, self.num_copies, self.dtype = validate(task), int(num_copies), name
         self.mirror = bool(mirror)

@@ -3,7 +3,7 @@
 The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynamics/README.md``)
 written as scalar loops: per copy, every substep (PD + gravity compensation, effort clip,
 Featherstone's articulated-body algorithm, velocity clip, semi-implicit Euler) and the stop
-checks, stopping a copy at its first invalid substep. :func:`_step_copy` is one copy's step
+checks, stopping a copy at its first invalid substep. :func:`step_copy` is one copy's step
 (no allocation, no Python object: the body a GPU thread can run); :func:`_control_step` the
 CPU batch loop around it. The chain and plane tables are :mod:`envs.physics.model`'s; the tests
 compare :func:`aba` with ``pin.aba`` and :class:`NumbaDynamics` with the Pinocchio loop. The
@@ -60,7 +60,7 @@ def _njit(func: Any) -> Any:
 
 
 @_njit
-def _placements(q, rot0, axis, R):  # pragma: no cover - compiled
+def placements(q, rot0, axis, R):  # pragma: no cover - compiled
     """``R[i] = rot0[i] Rot(axis[i], q[i])``: each body's rotation in its parent's frame."""
     for i in range(6):
         s, c = np.sin(q[i]), np.cos(q[i])
@@ -280,7 +280,7 @@ def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torqu
     R, vel, acc, cb, pA, U, IA, X, Y, D, u, force = _aba_scratch(q.dtype)
     t, g = np.empty(6, q.dtype), np.empty(6, q.dtype)
     for b in range(q.shape[0]):
-        _placements(q[b], rot0, axis, R)
+        placements(q[b], rot0, axis, R)
         for k in range(6):
             t[k] = tau[b, k]
         if gravity_torque:
@@ -298,7 +298,7 @@ def _gravity_batch(q, rot0, p, axis, inertia, grav, out):  # pragma: no cover - 
     R = np.empty((6, 3, 3), dt)
     acc, force = np.empty((7, 6), dt), np.empty((6, 6), dt)
     for b in range(q.shape[0]):
-        _placements(q[b], rot0, axis, R)
+        placements(q[b], rot0, axis, R)
         _gravity_torque(R, p, axis, inertia, grav, acc, force, out[b])
 
 
@@ -310,7 +310,7 @@ def _batch(x: Any, name: str, dtype: Any) -> np.ndarray:
     return arr
 
 
-def _dtype_name(dtype: Any) -> str:
+def dtype_name(dtype: Any) -> str:
     name = np.dtype(dtype).name
     if name not in DTYPES:
         raise ValueError(f"dtype must be one of {sorted(DTYPES)}; got {name!r}")
@@ -347,7 +347,7 @@ def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np
     """
     if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
         raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
-    name = _dtype_name(dtype)
+    name = dtype_name(dtype)
     cast = DTYPES[name]
     chain = ur5_chain().astype(cast)
     q, v, tau = _batch(q, "q", cast), _batch(v, "v", cast), _batch(tau, "tau", cast)
@@ -366,7 +366,7 @@ def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np
 def generalized_gravity(q: Any, dtype: Any = np.float64) -> np.ndarray:
     """Gravity torques ``g(q) (B, 6)`` N m of B copies (Pinocchio's
     ``computeGeneralizedGravity`` for each row ``q (B, 6)`` rad), batched."""
-    name = _dtype_name(dtype)
+    name = dtype_name(dtype)
     chain = ur5_chain().astype(DTYPES[name])
     q = _batch(q, "q", DTYPES[name])
     out = np.empty_like(q)
@@ -408,7 +408,7 @@ def _link_heights(q, vh, bounds, lift, wrist, base_height, feat, out
 
 
 @_njit
-def _tool_position(R, p, tool_pos, base_height, out):  # pragma: no cover - compiled
+def tool_position(R, p, tool_pos, base_height, out):  # pragma: no cover - compiled
     """``out``: tool0's world position (m) for the placements ``R``; base at base_height.
 
     ``tool_pos (3,)`` m: the tool frame's origin in joint 6's frame."""
@@ -436,7 +436,7 @@ def _tool_position(R, p, tool_pos, base_height, out):  # pragma: no cover - comp
 
 
 @_njit
-def _step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                vh, bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis,
                inertia, armature, grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u,
                tau, g, a, force, q1, w1, q_ref, heights, feat, tool
@@ -479,7 +479,7 @@ def _step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps,
     hit_plane = False
     hit_limit = False
     for _ in range(substeps):
-        _placements(q, rot0, axis, R)
+        placements(q, rot0, axis, R)
         for k in range(6):
             tau[k] = bias[k] - kp[k] * q[k] - kd[k] * w[k]
         if gravity_comp:
@@ -522,14 +522,14 @@ def _step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps,
         for i in range(6):
             bound -= lipschitz[i, k] * abs(q[i] - q_ref[i])
         known[k] = bound
-    _placements(q, rot0, axis, R)
-    _tool_position(R, p, tool_pos, base_height, tool)
+    placements(q, rot0, axis, R)
+    tool_position(R, p, tool_pos, base_height, tool)
     return hit_plane, hit_limit
 
 
-STEP_BODY = ("_placements", "_motion_inv", "_force_act", "_gravity_torque", "_rotate_blocks",
-             "_shift_into", "_aba", "_link_heights", "_tool_position", "_step_copy")
-"""The functions of one copy's step, callees first: :func:`_step_copy` and all it calls."""
+STEP_BODY = ("placements", "_motion_inv", "_force_act", "_gravity_torque", "_rotate_blocks",
+             "_shift_into", "_aba", "_link_heights", "tool_position", "step_copy")
+"""The functions of one copy's step, callees first: :func:`step_copy` and all it calls."""
 
 
 class _TypedLiterals(ast.NodeTransformer):
@@ -584,7 +584,7 @@ def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
     ValueError
         For a ``dtype`` other than float64 and float32.
     """
-    cast = DTYPES[_dtype_name(dtype)]
+    cast = DTYPES[dtype_name(dtype)]
     space = dict(globals())
     space["min"], space["max"] = jit(_min2), jit(_max2)
     constants: dict[str, Any] = {}
@@ -602,9 +602,9 @@ def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
 
 
 def compile_step_body(jit: Any, dtype: Any = np.float64) -> Any:
-    """:func:`_step_copy` and its callees compiled anew by ``jit``, its float literals of
+    """:func:`step_copy` and its callees compiled anew by ``jit``, its float literals of
     ``dtype`` (:func:`compile_step_functions`)."""
-    return compile_step_functions(jit, dtype)["_step_copy"]
+    return compile_step_functions(jit, dtype)["step_copy"]
 
 
 @_njit
@@ -612,7 +612,7 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
                   tool, free, first, stop):  # pragma: no cover - compiled
-    """One control step of copies ``first .. stop - 1`` (:func:`_step_copy` each): the batch
+    """One control step of copies ``first .. stop - 1`` (:func:`step_copy` each): the batch
     loop and the scratch it lends the body. Writes ``Q, W`` (the new state), ``dW = W_new -
     W_old``, ``clearance`` (the height bounds), the stop flags and the tool's world position.
     """
@@ -627,7 +627,7 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
             q[k] = Q[b, k]
             w[k] = W[b, k]
             known[k] = clearance[b, k]
-        contact[b], limit_stop[b] = _step_copy(
+        contact[b], limit_stop[b] = step_copy(
             q, w, known, bias[b], kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
             vh, bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia,
             armature, grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a,
@@ -661,8 +661,8 @@ def _tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma:
     """``tool[b]``: tool0's world position (m) for ``Q[b]``, for each b in ``rows``."""
     R = np.empty((6, 3, 3), Q.dtype)
     for b in rows:
-        _placements(Q[b], rot0, axis, R)
-        _tool_position(R, p, tool_pos, base_height, tool[b])
+        placements(Q[b], rot0, axis, R)
+        tool_position(R, p, tool_pos, base_height, tool[b])
 
 
 # ---------------------------------------------------------------------------- the class
@@ -705,7 +705,7 @@ class NumbaDynamics:
         if not isinstance(threads, int | np.integer) or not 1 <= threads <= pool:
             raise ValueError(f"threads must be an integer in [1, {pool}] (numba's pool on this "
                              f"machine); got {threads!r}")
-        name = _dtype_name(dtype)
+        name = dtype_name(dtype)
         cast = DTYPES[name]
         self.task, self.num_copies, self.dtype = validate(task), int(num_copies), name
         self.threads = int(threads)
@@ -758,7 +758,7 @@ class NumbaDynamics:
 
     def kernel_arguments(self) -> tuple[Any, ...]:
         """The arguments of :func:`_control_step` before ``first, stop``: the state arrays
-        (written in place) and the model's, in the order :func:`_step_copy` reads them per
+        (written in place) and the model's, in the order :func:`step_copy` reads them per
         copy (row b of each ``(B, ...)`` array), for a kernel that runs the body elsewhere."""
         task, c, pl = self.task, self._chain, self._plane
         return (self.q, self.w, self.bias, *self._controller,
@@ -797,7 +797,7 @@ def link_heights(q: Any, base_height: float, dtype: Any = np.float64) -> np.ndar
         Lowest collision-geometry point of shoulder_link .. wrist_3_link
         (:func:`ur5kin.link_heights` without the fixed base link).
     """
-    name = _dtype_name(dtype)
+    name = dtype_name(dtype)
     plane = ur5_plane(name)
     q = _batch(q, "q", DTYPES[name])
     out = np.empty_like(q)
