@@ -74,3 +74,16 @@ def test_compute_reward_checks_the_actions_in_info(env, info, message):
 def test_a_goal_given_to_reset_is_the_goal(env):
     obs, _ = env.reset(seed=0, options={"goal": (0.7, 0.1, 0.2)})
     np.testing.assert_array_equal(obs["desired_goal"], [0.7, 0.1, 0.2])
+
+
+def test_task_copies_refuse_dynamics_of_another_size_or_task():
+    from envs.core import TaskCopies
+    from envs.physics import make_dynamics
+    from envs.spec import TaskSpec
+
+    task, other = TaskSpec(region="zheight", n_joints=3), TaskSpec(region="farbox", n_joints=3)
+    TaskCopies(task, 2, make_dynamics(task, 2, "pinocchio"))  # the copies it was built for
+    with pytest.raises(ValueError, match="of the 2 copies of this task; got 3 copies"):
+        TaskCopies(task, 2, make_dynamics(task, 3, "pinocchio"))
+    with pytest.raises(ValueError, match="got 2 copies of another task"):
+        TaskCopies(task, 2, make_dynamics(other, 2, "pinocchio"))
