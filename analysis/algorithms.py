@@ -32,9 +32,9 @@ from analysis.sweep import (
     HelpFormatter,
     add_execution_arguments,
     check_execution_arguments,
+    dry_run,
     execute,
     parse_setting,
-    print_dry_run,
 )
 from ddpg_her.units import split_passthrough
 
@@ -100,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     algos = [ALGORITHMS[name] for name in dict.fromkeys(args.algos)]
     units = units_for(algos, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
+        dry_run(units, args, threads, extra)
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)

@@ -63,9 +63,9 @@ from analysis.sweep import (
     Unit,
     add_execution_arguments,
     check_execution_arguments,
+    dry_run,
     execute,
     parse_setting,
-    print_dry_run,
 )
 from ddpg_her.units import split_passthrough
 
@@ -955,7 +955,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             readings.append(known[name])
     units = units_for(readings, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
+        dry_run(units, args, threads, extra)
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)

@@ -21,6 +21,7 @@ starts, in a dry run too.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
@@ -32,7 +33,7 @@ from typing import IO
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
-from ddpg_her.runfolder import run_status
+from ddpg_her.runfolder import RunFolder, run_status
 from ddpg_her.units import split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
@@ -348,6 +349,14 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "process per unit; pair it with --env-backend batched)")
     parser.add_argument("--dry-run", action="store_true",
                         help="print one line per run (status, folder, command) and exit")
+    parser.add_argument("--project", action="store_true",
+                        help="with --dry-run: train the first two test intervals (2 x "
+                             "--eval-every episodes, 200 by default) of every unfinished unit, "
+                             "run as the real command would run them (process layout, "
+                             "--workers, --device, --env-backend, arguments after --), in a "
+                             "temporary folder deleted afterwards, and print the projected "
+                             "wall time of the whole run (s and h); costs about 2 x "
+                             "--eval-every / --episodes of the real run (1 %% of the paper's)")
 
 
 def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
@@ -361,6 +370,11 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
                      "--no-one-process")
     if args.one_process and args.workers > 1:
         parser.error(f"--one-process runs one process; --workers {args.workers} contradicts it")
+    if args.project and not args.dry_run:
+        parser.error("--project is part of a dry run: add --dry-run")
+    if args.project and args.ray_address:
+        parser.error("--project times the units on this machine, not on a Ray cluster; drop "
+                     "--ray-address")
     return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
 
 
@@ -419,7 +433,6 @@ def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequ
 def busy(unit: Unit) -> bool:
     """Whether another live process trains one of ``unit``'s run folders: it holds the
     folder's lock (`ddpg_her.runfolder.RunFolder.lock`), whatever its command line or cwd."""
-    from ddpg_her.runfolder import RunFolder
 
     return any(RunFolder(unit.run_dir(seed)).holder() is not None for seed in unit.seeds)
 
@@ -504,6 +517,107 @@ def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
         print(f"{runs} (one process each)", file=sys.stderr)
 
 
+def eval_every(unit: Unit, extra: Sequence[str]) -> int:
+    """Training episodes between two test sessions of ``unit``'s runs, as ``ddpg_her.train``
+    reads its command line (``--eval-every``, 100 by default)."""
+    from ddpg_her import train
+
+    args = train.parse_args(train.make_parser(), unit.run_args(extra))
+    return train.request(args, resume=True).config.eval_every
+
+
+def projected_seconds(walls: Sequence[tuple[int, float]], every: int, episodes: int) -> float:
+    """Projected wall time (s) of a run of ``episodes`` training episodes from the eval rows of
+    its first two test intervals, ``walls`` = [(every, wall_s), (2 * every, wall_s)]
+    (eval.csv's ``episode`` and ``wall_s``): the first interval as measured (start-up, warm-up
+    episodes, the first test session), then every further ``every`` episodes (training and
+    updates, a test session, a checkpoint) as long as the second, the last part pro rata.
+
+    Raises ValueError unless ``walls`` are those two rows with wall times increasing.
+    """
+    if len(walls) != 2 or [e for e, _ in walls] != [every, 2 * every] \
+            or not 0 <= walls[0][1] <= walls[1][1]:
+        raise ValueError(f"need the eval rows at episodes {every} and {2 * every} with wall_s "
+                         f"increasing; got {list(walls)}")
+    (_, first), (_, second) = walls
+    return first + max(episodes - every, 0) / every * (second - first)
+
+
+def makespan(seconds: Sequence[float], workers: int) -> float:
+    """Wall time (s) of jobs of these durations run in this order by ``workers`` concurrent
+    processes, each next job taking the first free process (as `run_local` does)."""
+    free = [0.0] * max(1, min(workers, len(seconds)))
+    for s in seconds:
+        free[free.index(min(free))] += s
+    return max(free, default=0.0)
+
+
+def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: int,
+                     extra: Sequence[str]) -> float:
+    """Time the unfinished units' first two test intervals, run as `execute` would run them
+    (one process, or ``args.workers`` concurrent ones) in a temporary folder, and print the
+    projected wall time of the real run (s); returns it.
+
+    Each unit's training is `projected_seconds` from its eval.csv (its trainer's clock); the
+    processes' start-up (imports, envs, networks), the timed run's wall time less its
+    training, is added once. A unit already under way is projected over the episodes it has
+    left. Episodes that end early (a success with ``terminate_on_success``) get shorter as the
+    agents learn, so the projection leans long for tasks the agents learn.
+    """
+    import dataclasses
+    import shutil
+    import tempfile
+
+    todo = [u for u in units if u.pending()]
+    if not todo:
+        print("projection: every unit has finished; nothing to run", file=sys.stderr)
+        return 0.0
+    every = [eval_every(u, extra) for u in todo]
+    left = [u.episodes - u.episodes_done() // len(u.seeds) for u in todo]
+    tmp = Path(tempfile.mkdtemp(prefix="sweep-projection-"))
+    try:
+        timed = [dataclasses.replace(u, root=tmp / f"unit{i}", episodes=min(2 * e, u.episodes))
+                 for i, (u, e) in enumerate(zip(todo, every, strict=True))]
+        start = time.perf_counter()
+        with contextlib.redirect_stdout(sys.stderr):
+            status = execute(timed, argparse.Namespace(**{**vars(args), "out": tmp}), threads,
+                             extra)
+        spent = time.perf_counter() - start
+        if status != 0:
+            raise SystemExit(f"projection: the timed run failed; its logs were in {tmp}")
+        seconds, measured = [], []
+        for unit, t, e, n in zip(todo, timed, every, left, strict=True):
+            rows = [(int(r["episode"]), float(r["wall_s"]))
+                    for r in RunFolder(t.run_dir(t.seeds[0])).read_eval()]
+            measured.append(rows[-1][1])
+            seconds.append(rows[-1][1] if t.episodes < 2 * e else
+                           projected_seconds(rows[:2], e, n))
+            print(f"projection: {unit.name:<24} {n:>6} episodes left -> {seconds[-1]:10.0f} s "
+                  "of training", file=sys.stderr)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+    def together(times: Sequence[float]) -> float:
+        return max(times) if args.one_process else makespan(times, args.workers)
+
+    start_up = max(0.0, spent - together(measured))
+    total = together(seconds) + start_up
+    layout = "one process" if args.one_process else f"{args.workers} process(es) at a time"
+    print(f"projected wall time: {total:.0f} s ({total / 3600:.2f} h) for {len(todo)} "
+          f"unfinished unit(s), {layout}, --device {args.device}, with {start_up:.0f} s of "
+          f"process start-up; measured by training the first {2 * max(every)} episodes of "
+          f"each in {spent:.0f} s", flush=True)
+    return total
+
+
+def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
+            extra: Sequence[str]) -> None:
+    """`print_dry_run`, then with ``args.project`` `print_projection`."""
+    print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
+    if args.project:
+        print_projection(units, args, threads, extra)
+
+
 def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
@@ -545,7 +659,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = args.setting or GRIDS[args.grid]
     units = units_for(settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
+        dry_run(units, args, threads, extra)
         return 0
     return execute(units, args, threads, extra)
 

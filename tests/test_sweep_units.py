@@ -62,3 +62,65 @@ def test_train_many_refuses_two_runs_on_one_folder_before_anything_starts(tmp_pa
         assert proc.returncode == 2, proc.stderr
         assert f"two runs would write one run folder {folder}" in proc.stderr
         assert not folder.exists()
+
+
+def test_the_projection_of_a_trainer_whose_clock_is_linear_is_exact():
+    """A run whose clock is start-up + t per episode + s per test session (one every 100):
+    its first two eval rows project its wall time at every budget exactly."""
+    start, per_episode, per_session, every = 7.0, 0.25, 3.0, 100
+
+    def wall(episode: int) -> float:
+        return start + per_episode * episode + per_session * (episode // every)
+
+    rows = [(every, wall(every)), (2 * every, wall(2 * every))]
+    for budget in (200, 1_000, 20_000):
+        assert sweep.projected_seconds(rows, every, budget) == pytest.approx(wall(budget))
+    for bad in ([rows[0]], [rows[1], rows[0]], [(every, 5.0), (2 * every, 4.0)]):
+        with pytest.raises(ValueError, match="eval rows at episodes 100 and 200"):
+            sweep.projected_seconds(bad, every, 1_000)
+
+
+def test_makespan_is_the_order_of_run_local_on_its_workers():
+    assert sweep.makespan([3, 3, 2, 2, 2], 2) == 7  # 3|3, then 2->5, 2->5, 2->7
+    assert sweep.makespan([5, 1, 1, 1], 2) == 5
+    assert sweep.makespan([4, 2, 1], 1) == 7
+    assert sweep.makespan([4, 2, 1], 8) == 4
+    assert sweep.makespan([], 3) == 0.0
+
+
+TINY = ["--", "--eval-every", "2", "--eval-episodes", "2", "--warmup-episodes", "1",
+        "--hidden-sizes", "8", "8", "--updates-per-episode", "2", "--batch-size", "16"]
+
+
+def test_a_projection_times_the_real_command_and_leaves_nothing_behind(tmp_path, capsys,
+                                                                        monkeypatch):
+    import tempfile
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    out = tmp_path / "runs"
+    args = ["--setting", "farbox:3", "--episodes", "20", "--seeds", "1", "--out", str(out),
+            "--threads", "1"]
+    assert sweep.main([*args, "--dry-run", "--project", *TINY]) == 0
+    printed = capsys.readouterr()
+    line = next(s for s in printed.out.splitlines() if s.startswith("projected wall time:"))
+    assert float(line.split()[3]) > 0
+    assert "first 4 episodes of each" in line
+    assert "farbox-j3" in printed.err and "20 episodes left" in printed.err
+    assert not out.exists() and list(scratch.iterdir()) == []
+    assert sweep.main([*args, *TINY]) == 0  # the real run, then nothing is left to project
+    capsys.readouterr()
+    assert sweep.main([*args, "--dry-run", "--project", *TINY]) == 0
+    assert "every unit has finished" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--project"], "--project is part of a dry run: add --dry-run"),
+    (["--project", "--dry-run", "--ray-address", "local"], "not on a Ray cluster"),
+])
+def test_a_projection_is_refused_where_it_cannot_time_the_run(tmp_path, capsys, flags,
+                                                             message):
+    with pytest.raises(SystemExit) as exit_:
+        sweep.main(["--setting", "farbox:3", "--out", str(tmp_path), *flags])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
