@@ -100,7 +100,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     algos = [ALGORITHMS[name] for name in dict.fromkeys(args.algos)]
     units = units_for(algos, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
+        print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend,
+                      args.env_dynamics)
         return 0
     if args.collect is not None:
         copied, skipped = collect(units, args.collect)
