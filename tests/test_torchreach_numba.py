@@ -293,9 +293,17 @@ def check_train_run_equals_the_torch_kernels() -> str:
     episodes, tiny: eval.csv equal to the torch kernel's run to rounding, and spec.json
     records the dynamics."""
     from ddpg_her import train
+    from envs.physics.numba_torch import NumbaTorchDynamics
 
     dev = device()
-    rows, specs = {}, {}
+    rows, specs, launches = {}, {}, {}
+    step = NumbaTorchDynamics.step
+    calls = []
+
+    def counted(self, command):  # the kernel steps the numba run's envs, and only its
+        calls.append(1)
+        step(self, command)
+
     # train.main sets torch's deterministic mode for the process: put it back (the GPU check
     # runs in pytest's process)
     deterministic = (torch.are_deterministic_algorithms_enabled(),
@@ -309,15 +317,20 @@ def check_train_run_equals_the_torch_kernels() -> str:
                     "1000", "--batch-size", "8", "--task", "max_episode_steps=8", "--task",
                     "success_radius=0.6", "--no-progress", "--no-tensorboard", "--device", dev,
                     "--env-backend", "torch", "--env-dynamics", dynamics, "--out", str(out)]
+            calls.clear()
+            NumbaTorchDynamics.step = counted
             try:
                 assert train.main(argv) == 0
             finally:
+                NumbaTorchDynamics.step = step
                 torch.use_deterministic_algorithms(deterministic[0],
                                                    warn_only=deterministic[1])
+            launches[dynamics] = len(calls)
             with open(out / "eval.csv") as f:
                 rows[dynamics] = list(csv.DictReader(f))
             specs[dynamics] = json.loads((out / "spec.json").read_text())
     assert specs["numba"]["env_dynamics"] == "numba" and "env_dynamics" not in specs["torch"]
+    assert launches["numba"] > 0 and launches["torch"] == 0, launches
     assert len(rows["numba"]) == len(rows["torch"]) == 1
     for got, want in zip(rows["numba"], rows["torch"], strict=True):
         for key in want:
