@@ -339,6 +339,11 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "process whose tasks differ only in their goals in one compiled "
                              "call, the same goals, trajectories equal to rounding (default: "
                              "numpy, one env per agent)")
+    parser.add_argument("--env-dynamics", choices=("torch", "numba"), default="torch",
+                        help="the arm dynamics of --env-backend torch (ddpg_her.train "
+                             "--env-dynamics): 'numba', the fused CUDA kernel, one launch per "
+                             "control step (--device cuda), instead of the vectorised torch "
+                             "step")
     parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=False,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
@@ -375,6 +380,9 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.project and args.ray_address:
         parser.error("--project times the units on this machine, not on a Ray cluster; drop "
                      "--ray-address")
+    if args.env_dynamics != "torch" and args.env_backend != "torch":
+        parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
+                     f"torch; got --env-backend {args.env_backend}")
     return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
 
 
@@ -383,20 +391,23 @@ ONE_PROCESS_LOG = "logs/one-process.log"
 
 
 def one_process_command(plan: Path | str, threads: int, device: str,
-                        env_backend: str = "numpy") -> list[str]:
+                        env_backend: str = "numpy", env_dynamics: str = "torch") -> list[str]:
     """The ``ddpg_her.train_many`` command line that trains a plan's units in one process."""
     return [sys.executable, "-m", "ddpg_her.train_many", "--plan", str(plan), "--resume",
             "--no-progress", "--threads", str(threads), "--device", device,
-            *backend_args(env_backend)]
+            *backend_args(env_backend, env_dynamics)]
 
 
-def backend_args(env_backend: str) -> list[str]:
-    """The training command's arguments for ``--env-backend`` (none for the default)."""
-    return ["--env-backend", env_backend] if env_backend != "numpy" else []
+def backend_args(env_backend: str, env_dynamics: str = "torch") -> list[str]:
+    """The training command's arguments for ``--env-backend`` and ``--env-dynamics`` (none
+    for the defaults)."""
+    return ((["--env-backend", env_backend] if env_backend != "numpy" else [])
+            + (["--env-dynamics", env_dynamics] if env_dynamics != "torch" else []))
 
 
 def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequence[str],
-                    device: str = "cpu", env_backend: str = "numpy") -> int:
+                    device: str = "cpu", env_backend: str = "numpy",
+                    env_dynamics: str = "torch") -> int:
     """Train the units in one ``ddpg_her.train_many`` process, whose plan (every unit's
     ``ddpg_her.train`` arguments) goes to ``root/logs/one-process-<time>.json``; 1 when the
     process failed, else 0."""
@@ -405,7 +416,8 @@ def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequ
     stamp = time.strftime("%Y%m%d-%H%M%S")
     plan = root / "logs" / f"one-process-{stamp}.json"
     write_plan(plan, [u.run_args(extra) for u in units])
-    proc, log = start_unit(one_process_command(plan, threads, device, env_backend),
+    proc, log = start_unit(one_process_command(plan, threads, device, env_backend,
+                                               env_dynamics),
                            root / ONE_PROCESS_LOG, threads)
     bar = EpisodeBar(units, "training (one process)")
     try:
@@ -491,16 +503,17 @@ def refuse_problems(units: Sequence[Unit], extra: Sequence[str]) -> None:
 
 
 def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
-                  device: str = "cpu", one: bool = False, env_backend: str = "numpy") -> None:
+                  device: str = "cpu", one: bool = False, env_backend: str = "numpy",
+                  env_dynamics: str = "torch") -> None:
     """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
     trains its unit), tag, setting, seed, folder and the unit's command (with ``one``: its
     arguments in the one ``ddpg_her.train_many`` process). Units that could not start are
     refused first (`refuse_problems`), as a real run would."""
-    refuse_problems(units, [*extra, *backend_args(env_backend)])
+    process = backend_args(env_backend, env_dynamics)
+    refuse_problems(units, [*extra, *process])
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if one else \
-            "python " + " ".join(unit.command(threads, [*extra, *backend_args(env_backend)],
-                                              device)[1:])
+            "python " + " ".join(unit.command(threads, [*extra, *process], device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
             status = "busy" if busy(unit) and unit.status(seed) != "done" \
@@ -510,7 +523,7 @@ def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
     runs = f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
     if one:
         command = one_process_command("ROOT/logs/one-process-TIME.json", threads, device,
-                                      env_backend)
+                                      env_backend, env_dynamics)
         print(f"{runs}, the unfinished ones in one process: python "
               f"{' '.join(command[1:])}", file=sys.stderr)
     else:
@@ -613,7 +626,8 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
 def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str]) -> None:
     """`print_dry_run`, then with ``args.project`` `print_projection`."""
-    print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend)
+    print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend,
+                  args.env_dynamics)
     if args.project:
         print_projection(units, args, threads, extra)
 
@@ -621,7 +635,8 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
 def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
-    refuse_problems(units, [*extra, *backend_args(args.env_backend)])
+    process = backend_args(args.env_backend, args.env_dynamics)
+    refuse_problems(units, [*extra, *process])
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)
@@ -632,8 +647,9 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     if not todo:
         return 0
     if args.one_process:
-        return run_one_process(todo, args.out, threads, extra, args.device, args.env_backend)
-    extra = [*extra, *backend_args(args.env_backend)]
+        return run_one_process(todo, args.out, threads, extra, args.device, args.env_backend,
+                               args.env_dynamics)
+    extra = [*extra, *process]
     if args.ray_address:
         failed = run_ray(todo, args.ray_address, threads, extra, args.device)
     else:

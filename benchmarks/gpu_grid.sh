@@ -12,7 +12,8 @@
 #     bash benchmarks/gpu_grid.sh dry                   # every step on the cpu, tiny, in a temp dir
 #
 # SETTING is REGION:JOINTS (e.g. unconstrained:3); none means the whole paper grid. Variables:
-# EPISODES (20000), DEVICE (cuda), RUNS (runs/paper_grid), ENV_BACKEND (batched), SEEDS (5).
+# EPISODES (20000), DEVICE (cuda), RUNS (runs/paper_grid), ENV_BACKEND (batched), SEEDS (5),
+# ENV_DYNAMICS (torch; numba with ENV_BACKEND=torch: the envs on the fused CUDA kernel).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -20,6 +21,7 @@ EPISODES=${EPISODES:-20000}
 DEVICE=${DEVICE:-cuda}
 RUNS=${RUNS:-runs/paper_grid}
 ENV_BACKEND=${ENV_BACKEND:-batched}
+ENV_DYNAMICS=${ENV_DYNAMICS:-torch}
 SEEDS=${SEEDS:-5}
 OUT=${OUT:-$RUNS/out}
 PY=${PY:-python3}
@@ -40,8 +42,11 @@ grid_command() {
     while [[ $# -gt 0 && $1 != -- ]]; do sel+=(--setting "$1"); shift; done
     [[ $# -gt 0 ]] && { shift; rest=(-- "$@"); }
     [[ ${#sel[@]} -gt 0 ]] || sel=(--grid paper)
+    local dynamics=""
+    [[ $ENV_DYNAMICS == torch ]] || dynamics="--env-dynamics $ENV_DYNAMICS"
     echo "$PY -m analysis.sweep ${sel[*]} --one-process --device $DEVICE" \
-         "--env-backend $ENV_BACKEND --seeds $SEEDS --episodes $EPISODES --out $RUNS ${rest[*]}"
+         "--env-backend $ENV_BACKEND $dynamics --seeds $SEEDS --episodes $EPISODES" \
+         "--out $RUNS ${rest[*]}"
 }
 
 prepare() {
@@ -91,6 +96,11 @@ bench_kernel() {
     $PY -m pytest -q -p no:cacheprovider tests/test_numba_cuda.py \
         -k "not simulator and not dry_run" 2>&1 | tail -15 | tee "$OUT/tests_kernel.txt" \
         || echo "the kernel's tests FAILED on this GPU: see tests_kernel.txt"
+    # the kernel behind TorchReach's tensors (ENV_DYNAMICS=numba): rollouts against the torch
+    # kernel, zero copy, no sync in step, launches ordered on a side stream, a tiny training
+    $PY -m pytest -q -p no:cacheprovider tests/test_torchreach_numba.py -k "gpu" 2>&1 \
+        | tail -15 | tee "$OUT/tests_torchreach_numba.txt" \
+        || echo "TorchReach on the kernel FAILED on this GPU: see tests_torchreach_numba.txt"
     $PY -m benchmarks.cuda_dynamics --device "$DEVICE" --sizes 55 4096 65536 --torch graph \
         --threads-per-block 32 64 128 --rounds 3 --json | tee "$OUT/cuda_dynamics.json"
 }
@@ -169,6 +179,15 @@ dry() {
         --hidden-sizes 8 8 --buffer-size 1000 --no-progress --no-tensorboard \
         --update-graph on --out "$tmp/graph/s{seed}"
     grep -h '"update_graph"' "$tmp"/graph/s*/spec.json
+    # ENV_BACKEND=torch ENV_DYNAMICS=numba's training, on the cpu: the kernel in the simulator
+    echo "with ENV_BACKEND=torch ENV_DYNAMICS=numba: $(ENV_BACKEND=torch ENV_DYNAMICS=numba \
+        grid_command unconstrained:3)"
+    NUMBA_ENABLE_CUDASIM=1 $PY -m ddpg_her.train --region unconstrained --joints 3 --seeds 0 \
+        --episodes 1 --eval-every 1 --eval-episodes 1 --updates-per-episode 2 \
+        --warmup-episodes 1 --hidden-sizes 8 8 --buffer-size 1000 --task max_episode_steps=5 \
+        --no-progress --no-tensorboard --env-backend torch --env-dynamics numba \
+        --out "$tmp/fused/s{seed}"
+    grep -h '"env_dynamics"' "$tmp"/fused/s*/spec.json
 }
 
 case "${1:-}" in

@@ -27,12 +27,16 @@ from ddpg_her.runfolder import FORMAT, RunFolder, RunFolderError, git_revision, 
 DEFAULT_BACKEND = "numpy"
 """The env backend a ``spec.json`` without ``env_backend`` was trained with."""
 
+DEFAULT_DYNAMICS = "torch"
+"""The torch env backend's dynamics of a ``spec.json`` without ``env_dynamics`` (the tensor
+step; every run before the fused kernel's flag)."""
+
 RESUMABLE_CHANGES = ("episodes", "flush_denormals")
 """Agent fields a resumed run may change: the budget, and how the CPU rounds subnormals
 (an execution setting like the thread count; runs from before the field existed resume)."""
 
 CONFIG_KEYS = ("format", "env_id", "env_kwargs", "task", "seed", "agent", "dims",
-               "env_backend", "update_graph")
+               "env_backend", "env_dynamics", "update_graph")
 """Keys of the spec that each checkpoint carries as its ``config``: what it was trained
 with, compared with the command's on resume."""
 
@@ -60,7 +64,7 @@ def run_spec(*, env_backend: str, env_id: str, env_kwargs: dict[str, Any],
 def differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     """Keys that make two specs different tasks or agents."""
     diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims",
-                             "env_backend", "update_graph")
+                             "env_backend", "env_dynamics", "update_graph")
              if not json_equal(old.get(key), new.get(key))]
     # a field added after the run was written reads as what such runs did (config.BEFORE)
     old_agent = {k: v for k, v in {**BEFORE, **old.get("agent", {})}.items()
@@ -73,9 +77,10 @@ def differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
 
 def check_continues(where: Any, old: dict[str, Any], new: dict[str, Any]) -> None:
     """Raise ValueError if ``new`` may not continue the run ``old`` (a spec or config)."""
-    # a spec records env_backend only when it is not the default; name the default too
-    old, new = ({"env_backend": DEFAULT_BACKEND, "update_graph": "off", **x}
-                for x in (old, new))
+    # a spec records env_backend (env_dynamics) only when it is not the default; name the
+    # default too
+    old, new = ({"env_backend": DEFAULT_BACKEND, "env_dynamics": DEFAULT_DYNAMICS,
+                 "update_graph": "off", **x} for x in (old, new))
     diffs = differences(old, new)
     if diffs:
         raise ValueError(

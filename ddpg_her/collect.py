@@ -38,6 +38,11 @@ equal to rounding. ``torch``: the env id's tensor twin (``envs.tensor_twin``, e.
 ``envs.TorchReach``) on the trainer's device, so rollout, HER and the buffer stay on the device
 (stop contact model only)."""
 
+ENV_DYNAMICS = ("torch", "numba")
+"""The arm dynamics of the ``torch`` env backend (``envs.torchreach.DYNAMICS``): ``torch``, the
+vectorised tensor step; ``numba``, the fused CUDA kernel, one launch per control step (a CUDA
+device, or the CPU under numba's CUDA simulator)."""
+
 Envs = HostEnvs | TorchGoalVecEnv
 
 Policy = Callable[[dict[str, torch.Tensor], torch.Tensor], torch.Tensor]
@@ -46,10 +51,19 @@ float64 action in env units on the envs' device (rows of copies not active are i
 
 
 def make_envs(env_backend: str, env_id: str, per_agent: Sequence[dict[str, Any]], copies: int,
-              device: torch.device) -> Envs:
-    """``copies`` copies per agent of ``env_id`` in the env backend ``env_backend``."""
+              device: torch.device, env_dynamics: str = "torch") -> Envs:
+    """``copies`` copies per agent of ``env_id`` in the env backend ``env_backend``, the
+    ``torch`` backend's arm by ``env_dynamics`` (one of `ENV_DYNAMICS`; ValueError for another,
+    or for ``numba`` with a host backend)."""
+    if env_dynamics not in ENV_DYNAMICS:
+        raise ValueError(f"env_dynamics must be one of {list(ENV_DYNAMICS)}; got "
+                         f"{env_dynamics!r}")
     if env_backend == "torch":
-        return TorchGoalVecEnv(env_id, per_agent, copies, device=device)
+        return TorchGoalVecEnv(env_id, per_agent, copies, device=device,
+                               dynamics=None if env_dynamics == "torch" else env_dynamics)
+    if env_dynamics != "torch":
+        raise ValueError(f"env_dynamics={env_dynamics!r} is the dynamics of the torch env "
+                         f"backend; got env_backend={env_backend!r}")
     return HostEnvs(env_id, per_agent, copies, merge=env_backend == "batched")
 
 

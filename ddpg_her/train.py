@@ -74,6 +74,16 @@ def add_process_flags(group: Any, what: str) -> None:
                             "rollout, HER and replay stay on the device. Its exploration "
                             "noise comes from torch generators: the same seed explores "
                             "otherwise than under 'numpy'")
+    group.add_argument("--env-dynamics", choices=["torch", "numba"], default="torch",
+                       help="the arm dynamics of --env-backend torch (default: torch): "
+                            "'torch', the vectorised tensor step (any --device; on cuda about "
+                            "6,000 kernel launches per control step); 'numba', the fused CUDA "
+                            "kernel (envs/physics/numba_cuda.py: one launch per control step, "
+                            "one thread per env copy, zero copy into torch), --device cuda "
+                            "only (cpu only under numba's CUDA simulator, "
+                            "NUMBA_ENABLE_CUDASIM=1, for tests). The two give the same "
+                            "trajectories to rounding; spec.json records 'numba', and a run "
+                            "resumes only with its own setting")
     group.add_argument("--update-graph", choices=["auto", "on", "off"], default="auto",
                        help="how the updates run (default: auto, which is 'on' for --device "
                             "cuda with --algo ddpg without --batch-norm, else 'off'): 'on', each "
@@ -154,8 +164,8 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     return dirs
 
 
-PROCESS_FLAGS = ("resume", "device", "env_backend", "update_graph", "threads", "no_progress",
-                 "no_tensorboard")
+PROCESS_FLAGS = ("resume", "device", "env_backend", "env_dynamics", "update_graph", "threads",
+                 "no_progress", "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
 
 
@@ -302,9 +312,13 @@ def run_to_end(trainer: Any) -> Any:
 
 
 def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Refuse a --threads below 1 (before any unit is parsed)."""
+    """Refuse a --threads below 1, and --env-dynamics numba without --env-backend torch
+    (before any unit is parsed)."""
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
+    if args.env_dynamics != "torch" and args.env_backend != "torch":
+        parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
+                     f"torch; got --env-backend {args.env_backend}")
 
 
 def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -358,8 +372,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     register_envs(parser, [args.env_id])
     trainer = build_trainer(parser, lambda: Trainer(
         args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
-        env_backend=args.env_backend, update_graph=args.update_graph,
-        progress=not args.no_progress,
+        env_backend=args.env_backend, env_dynamics=args.env_dynamics,
+        update_graph=args.update_graph, progress=not args.no_progress,
         tensorboard=not args.no_tensorboard,
         command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
     rows = run_to_end(trainer)

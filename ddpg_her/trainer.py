@@ -59,7 +59,10 @@ class Trainer:
     `ENV_BACKENDS`. With ``torch``, exploration draws from torch generators on the device
     (`ddpg_her.exploration.TorchDraws`), so the same seed explores otherwise than with
     ``numpy``; with no exploration draws (no warm-up, rate 0) the two backends train alike to
-    rounding (tested). update_graph : ``auto``, ``on`` or ``off``
+    rounding (tested). env_dynamics : the ``torch`` backend's arm, one of
+    `ddpg_her.collect.ENV_DYNAMICS` (``numba``: the fused CUDA kernel, the same trajectories
+    to rounding; recorded in ``spec.json`` when not ``torch``). update_graph : ``auto``,
+    ``on`` or ``off``
     (`ddpg_her.update_graph.MODES`); on, the updates run as one device step (`UpdateStep`, a
     CUDA graph on CUDA) with their own minibatch stream.
     """
@@ -69,7 +72,7 @@ class Trainer:
                  resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
                  command: Sequence[str] | None = None, env_backend: str = "numpy",
-                 update_graph: str = "off"):
+                 env_dynamics: str = "torch", update_graph: str = "off"):
         if env_backend not in ENV_BACKENDS:
             raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
                              f"{env_backend!r}")
@@ -95,9 +98,9 @@ class Trainer:
         self._flush_denormals()
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
-        self.envs = make_envs(env_backend, env_id, per_agent, 1, self.device)
+        self.envs = make_envs(env_backend, env_id, per_agent, 1, self.device, env_dynamics)
         self.eval_envs = make_envs(env_backend, env_id, per_agent, config.eval_episodes,
-                                   self.device)
+                                   self.device, env_dynamics)
         envs = self.envs
         for k, kwargs in enumerate(per_agent):
             check_recorded(env_id, kwargs, envs.task_of(k))
@@ -128,8 +131,10 @@ class Trainer:
         self.env_steps = np.zeros(self.k, dtype=np.int64)
         self.wall_s = 0.0
         self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
-        graph = {} if self.update_step is None else {"update_graph": "on"}
-        self.specs = [{**graph, **spec_entry(self.agent, k),
+        process = {} if self.update_step is None else {"update_graph": "on"}
+        if env_dynamics != "torch":
+            process["env_dynamics"] = env_dynamics
+        self.specs = [{**process, **spec_entry(self.agent, k),
                        **run_spec(env_backend=env_backend, env_id=env_id,
                                   env_kwargs=per_agent[k], task=envs.task_of(k), seed=seeds[k],
                                   config=config, dims=envs.dims, command=command)}

@@ -401,19 +401,23 @@ class TorchGoalVecEnv(_Layout):
     The same layout, seeding and reward functions as `GoalVecEnv`, with torch tensors in and
     out. Resetting with seeds uploads each copy's one goal (drawn on the host by the task's
     sampler, as `GoalVecEnv`'s envs draw it); ``step`` moves nothing between host and device.
+    ``dynamics``: the twin's ``dynamics`` argument (``envs.TorchReach``'s: ``"torch"`` or
+    ``"numba"``), None to leave the twin's default.
     """
 
     on_host = False
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1, *,
-                 device: str | torch.device = "cpu", **kwargs: Any):
+                 device: str | torch.device = "cpu", dynamics: str | None = None,
+                 **kwargs: Any):
         per_group = _per_group(groups, copies, kwargs)
         twin = tensor_twin(env_id)
         self.device = torch.device(device)
         self.kwargs = per_group
         # one goal per copy and reset, each copy reseeded at every reset: BatchedReach's goals
+        own = {} if dynamics is None else {"dynamics": dynamics}
         self.groups = [_Vector(twin, copies, {**kw, "device": self.device, "dtype": "float64",
-                                              "goal_source": "per_copy", "goal_pool": 1})
+                                              "goal_source": "per_copy", "goal_pool": 1, **own})
                        for kw in per_group]
         self._take_layout(env_id, copies)
 

@@ -1,9 +1,11 @@
 """B copies of the Reacher whose whole state lives in torch tensors on one device (issue 14).
 
 :class:`TorchReach` is :class:`envs.batched.BatchedReach` with torch in and out: the arm is
-:class:`envs.physics.torch_kernel.TorchDynamics`, and goals, observations, reward, episode ends and
-autoreset are tensor operations on the same device, so that on a GPU a training step moves no
-data between host and device. Goals come from :class:`GoalPool`, a device-resident stock of
+:class:`envs.physics.torch_kernel.TorchDynamics` (``dynamics="torch"``, any device) or the fused
+CUDA kernel behind the same tensor face, :class:`envs.physics.numba_torch.NumbaTorchDynamics`
+(``dynamics="numba"``: one launch per control step), and goals, observations, reward, episode
+ends and autoreset are tensor operations on the same device, so that on a GPU a training step
+moves no data between host and device. Goals come from :class:`GoalPool`, a device-resident stock of
 goals drawn on the host by the task's own sampler (:func:`envs.task.task_sampler`) and topped up
 only when it may run dry. The reward is :func:`envs.reward.reach_reward` (eq. 2, one definition for
 arrays and tensors), and :meth:`TorchReach.compute_reward` relabels HER goals with it.
@@ -18,7 +20,7 @@ reads the device); its actions must be finite.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
@@ -40,11 +42,21 @@ from envs.task import (
 )
 from envs.vector import VectorReach, check_num_envs, copy_seeds, reset_options
 
+if TYPE_CHECKING:
+    from envs.physics.numba_torch import NumbaTorchDynamics
+
 GOAL_SOURCES = ("batched", "per_copy")
 """How :class:`GoalPool` draws goals on the host: ``batched`` from one generator in one
 vectorised sampler call (cheap); ``per_copy`` from one generator per copy, one sampler call per
 goal, exactly as :class:`envs.batched.BatchedReach` does (copy i seeded ``seed + i`` gets the
 same goals; about 0.6 ms a goal on the 2-core machine)."""
+
+DYNAMICS = ("torch", "numba")
+"""The arm dynamics of :class:`TorchReach`, named for their tool: ``torch``, the vectorised
+tensor step (:class:`envs.physics.torch_kernel.TorchDynamics`, any device; on a GPU about 6,000
+kernel launches per control step); ``numba``, the fused kernel (:class:`envs.physics.
+numba_torch.NumbaTorchDynamics`: one launch per control step, one thread per copy) on a CUDA
+device, or on ``"cpu"`` under numba's CUDA simulator (tests)."""
 
 DEFAULT_POOL_DEPTH = 64
 """Goals stocked per copy; also the ``step`` calls between two top-ups at most."""
@@ -143,6 +155,35 @@ class GoalPool:
         self.cursor.add_(mask.to(torch.long))
 
 
+def make_tensor_dynamics(task: TaskSpec, num_copies: int, dynamics: str, device: Any,
+                         dtype: Any, cuda_graph: bool = False
+                         ) -> TorchDynamics | NumbaTorchDynamics:
+    """The arm of :class:`TorchReach`: ``num_copies`` copies of ``task`` by ``dynamics`` (one of
+    :data:`DYNAMICS`) on ``device``, state as tensors of ``dtype``.
+
+    Raises
+    ------
+    ValueError
+        For another ``dynamics``, ``cuda_graph`` with ``numba`` (its step is one launch
+        already), or a device the chosen dynamics cannot run on here.
+    """
+    if dynamics == "torch":
+        return TorchDynamics(task, num_copies, device=device, dtype=dtype, cuda_graph=cuda_graph)
+    if dynamics != "numba":
+        raise ValueError(f"dynamics must be one of {list(DYNAMICS)}; got {dynamics!r}")
+    if cuda_graph:
+        raise ValueError("cuda_graph=True records the torch step; dynamics='numba' is one "
+                         "kernel launch per step already")
+    from envs.physics.numba_kernel import available
+
+    if not available():
+        raise ValueError("dynamics='numba' needs numba (pip install numba); "
+                         "dynamics='torch' runs without it")
+    from envs.physics.numba_torch import NumbaTorchDynamics
+
+    return NumbaTorchDynamics(task, num_copies, device=device, dtype=dtype)
+
+
 # ---------------------------------------------------------------------------- the env
 class TorchReach(VectorReach):
     """N copies of ``UR5Reach-v0`` as tensors on one device: BatchedReach with torch in and out.
@@ -176,7 +217,11 @@ class TorchReach(VectorReach):
         Goals stocked per copy (:class:`GoalPool`): a top-up (one sync) every this many steps
         at most.
     cuda_graph : bool
-        Passed to :class:`envs.physics.torch_kernel.TorchDynamics`.
+        Passed to :class:`envs.physics.torch_kernel.TorchDynamics` (``dynamics="torch"``
+        only).
+    dynamics : {"torch", "numba"}
+        :data:`DYNAMICS`: the tensor step, or the fused CUDA kernel (``device="cuda"``). Both
+        give the same rollouts to rounding (tested to 1e-9 in float64).
 
     ``info`` holds :data:`envs.task.INFO_KEYS` as (N, ...) tensors (``clearance`` from the
     plane check's exact heights), each with an all-True ``_key`` mask.
@@ -186,7 +231,8 @@ class TorchReach(VectorReach):
                  device: Any = "cpu", dtype: Any = "float64",
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  goal_source: str = "batched", goal_pool: int = DEFAULT_POOL_DEPTH,
-                 cuda_graph: bool = False, **overrides: Any) -> None:
+                 cuda_graph: bool = False, dynamics: str = "torch",
+                 **overrides: Any) -> None:
         num_envs = check_num_envs(num_envs)
         self.task = make_task(task, overrides)  # checked by its dynamics (envs.validate)
         if not supports_kernels(self.task):
@@ -197,8 +243,8 @@ class TorchReach(VectorReach):
         self.spec: Any = None  # set by gymnasium.make_vec
         # host-side metadata (numpy boxes, as BatchedReach's); values stay tensors
         self.single_observation_space, self.single_action_space = single_spaces(self.task)
-        self.dynamics = TorchDynamics(self.task, self.num_envs, device=device, dtype=dtype,
-                                      cuda_graph=cuda_graph)
+        self.dynamics = make_tensor_dynamics(self.task, self.num_envs, dynamics, device, dtype,
+                                             cuda_graph)
         self.device, self.dtype = self.dynamics.device, self.dynamics.dtype
         B, n, dev = self.num_envs, self.task.n_joints, self.device
         self.goals = GoalPool(self.task, B, goal_pool, goal_source, dev, self.dtype)

@@ -12,7 +12,10 @@ pinocchio_loop` has the equations) and reads the same :class:`envs.physics.model
 - ``torch`` (:class:`envs.physics.torch_kernel.TorchDynamics` on any device, behind
   :class:`envs.physics.torch_kernel.HostMirror`'s numpy arrays for the numpy envs).
 
-The backend is named for its tool; the device is its own argument.
+The backend is named for its tool; the device is its own argument. The device-resident env
+(:class:`envs.torchreach.TorchReach`) reads tensors instead: ``TorchDynamics`` itself, or the
+CUDA kernel behind the same tensor face, zero copy (:class:`envs.physics.numba_torch.
+NumbaTorchDynamics`), chosen by its ``dynamics`` argument.
 """
 
 from __future__ import annotations

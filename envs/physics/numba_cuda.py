@@ -5,8 +5,11 @@ step_copy`, compiled for the device (:func:`envs.physics.numba_kernel.compile_st
 the same source as the CPU kernel, its float literals of the kernel's type), with its scratch in
 the thread's local memory. The state stays on the GPU between steps; the host arrays the env
 reads are copied back after each step (``mirror=True``, one synchronisation per step) or on
-:meth:`NumbaCudaDynamics.pull`. Tested against the CPU kernel under numba's CUDA simulator
-(``NUMBA_ENABLE_CUDASIM=1``) and, where a GPU is there, on it.
+:meth:`NumbaCudaDynamics.pull`. For a caller that keeps the state on the device (the torch face
+of :mod:`envs.physics.numba_torch`) the state arrays themselves are exposed, the steps and the
+masked resets launch on a stream the caller names, and commands and masks come in as device
+arrays, so that nothing is read back. Tested against the CPU kernel under numba's CUDA
+simulator (``NUMBA_ENABLE_CUDASIM=1``) and, where a GPU is there, on it.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from envs.physics.model import (
 from envs.physics.numba_kernel import (
     DTYPES,
     compile_step_functions,
+    copy_link_heights,
     dtype_name,
     placements,
     step_copy,
@@ -59,6 +63,16 @@ def available() -> bool:
     return cuda is not None and cuda.is_available()
 
 
+def simulated() -> bool:
+    """Whether numba's CUDA is its simulator (``NUMBA_ENABLE_CUDASIM=1``): device arrays are
+    numpy arrays on the host and every launch runs at once, as Python."""
+    if cuda is None:
+        return False
+    from numba import config
+
+    return bool(config.ENABLE_CUDASIM)
+
+
 def device_index(device: Any) -> int:
     """The GPU number of ``device``: ``"cuda"`` (0) or ``"cuda:N"``; ValueError otherwise."""
     match = re.fullmatch(r"cuda(?::(\d+))?", str(device))
@@ -78,6 +92,30 @@ def _device_array(x: Any) -> Any:
     if simulated is not None and simulated.is_cuda_ndarray(x):
         return x
     return None
+
+
+def device_view(x: Any) -> Any:
+    """``x`` as a numba device array over the same memory: no copy, and no synchronisation on
+    the stream that made it (the caller orders the launches, :meth:`NumbaCudaDynamics.
+    external_stream`). ``x`` is a numba device array, anything with
+    ``__cuda_array_interface__`` (a CUDA torch tensor), or under the simulator a host array
+    (a numpy array, a CPU torch tensor), wrapped as the simulator's device array."""
+    if cuda.devicearray.is_cuda_ndarray(x):
+        return x
+    if hasattr(x, "__cuda_array_interface__"):
+        return cuda.as_cuda_array(x, sync=False)
+    if simulated():
+        return cuda.devicearray.FakeCUDAArray(np.asarray(x))
+    raise ValueError(f"expected an array on the GPU (__cuda_array_interface__); got "
+                     f"{type(x).__name__}")
+
+
+def device_pointer(x: Any) -> int:
+    """The address of the first element of the numba device array ``x`` (under the
+    simulator: of the numpy array behind it), to check that another view shares it."""
+    if hasattr(x, "__cuda_array_interface__"):
+        return int(x.__cuda_array_interface__["data"][0])
+    return int(np.asarray(x).ctypes.data)
 
 
 # ---------------------------------------------------------------------------- kernels
@@ -162,22 +200,63 @@ def _rest(mask, q_new, heights, Q, W, V, A, clearance, contact, limit_stop, tool
     tool_position(R, p, tool_pos, base_height, tool[b])
 
 
+def _rest_where(mask, q_new, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p, axis,
+                tool_pos, base_height, vh, bounds, lift, wrist):  # pragma: no cover - compiled
+    """Copy ``b`` at rest at the one configuration ``q_new (6,)`` rad where ``mask[b]``, with
+    its exact link heights (m, world z) and tool position computed here; the other copies
+    untouched. The mask is read on the device only (the env's masked autoreset)."""
+    b = cuda.grid(1)
+    if b >= Q.shape[0] or not mask[b]:
+        return
+    R = cuda.local.array((6, 3, 3), DT)
+    feat, heights = cuda.local.array(13, DT), cuda.local.array(6, DT)
+    copy_link_heights(q_new, vh, bounds, lift, wrist, base_height, feat, heights)
+    for k in range(6):
+        Q[b, k] = q_new[k]
+        W[b, k] = 0
+        V[b, k] = 0
+        A[b, k] = 0
+        clearance[b, k] = heights[k]
+    contact[b] = False
+    limit_stop[b] = False
+    placements(Q[b], rot0, axis, R)
+    tool_position(R, p, tool_pos, base_height, tool[b])
+
+
+def _lowest_point(Q, vh, bounds, lift, wrist, base_height, out):  # pragma: no cover - compiled
+    """``out[b]``: the lowest point (m, world z) of copy b's moving links at ``Q[b]`` rad, from
+    their exact heights (the plane check's, :func:`envs.physics.numba_kernel.copy_link_heights`)."""
+    b = cuda.grid(1)
+    if b >= Q.shape[0]:
+        return
+    feat, heights = cuda.local.array(13, DT), cuda.local.array(6, DT)
+    copy_link_heights(Q[b], vh, bounds, lift, wrist, base_height, feat, heights)
+    low = heights[0]
+    for k in range(1, 6):
+        if heights[k] < low:  # not min(): numba's CUDA target fails on it (issue 10753)
+            low = heights[k]
+    out[b] = low
+
+
 @functools.cache
 def kernels(dtype: str = "float64") -> types.SimpleNamespace:
     """The compiled kernels of ``dtype`` (float64 or float32), cached: ``step``
-    (:func:`_fused_step`) and ``rest`` (:func:`_rest`), each a ``numba.cuda`` kernel whose
-    ``py_func`` is the Python function it compiles (for ``numba.cuda.compile_ptx``).
-    Compilation for the device happens at the first launch."""
+    (:func:`_fused_step`), ``rest`` (:func:`_rest`), ``rest_where`` (:func:`_rest_where`) and
+    ``lowest_point`` (:func:`_lowest_point`), each a ``numba.cuda`` kernel whose ``py_func``
+    is the Python function it compiles (for ``numba.cuda.compile_ptx``). Compilation for the
+    device happens at the first launch."""
     if cuda is None:
         raise RuntimeError("the numba-CUDA kernels need numba (pip install numba)")
     name = dtype_name(dtype)
     space = {**globals(), **compile_step_functions(cuda.jit(device=True), name),
              "DT": DTYPES[name]}
     compiled = {}
-    for func in (_fused_step, _rest):
+    for func in (_fused_step, _rest, _rest_where, _lowest_point):
         space[func.__name__] = types.FunctionType(func.__code__, space, func.__name__)
         compiled[func.__name__.strip("_")] = cuda.jit(space[func.__name__])
-    return types.SimpleNamespace(step=compiled["fused_step"], rest=compiled["rest"])
+    return types.SimpleNamespace(step=compiled["fused_step"], rest=compiled["rest"],
+                                 rest_where=compiled["rest_where"],
+                                 lowest_point=compiled["lowest_point"])
 
 
 def model_arguments(task: TaskSpec, dtype: str = "float64") -> dict[str, Any]:
@@ -248,6 +327,8 @@ class NumbaCudaDynamics:
     state : types.SimpleNamespace of numba device arrays
         ``q, w, v, acceleration, height_bound (B, 6)``, ``contact, limit_stop (B,)``, ``tool
         (B, 3)``, on the GPU: the state itself (``w`` rad per substep, ``height_bound`` m).
+    lowest : (B,) numba device array, m, world z
+        :meth:`lowest_points`' output.
     """
 
     def __init__(self, task: TaskSpec, num_copies: int = 1, dtype: str = "float64",
@@ -293,15 +374,23 @@ class NumbaCudaDynamics:
                 contact=cuda.to_device(np.zeros(B, bool)),
                 limit_stop=cuda.to_device(np.zeros(B, bool)),
                 tool=cuda.to_device(np.zeros((B, 3), cast)))
+            self.lowest = cuda.to_device(np.zeros(B, cast))
         self.reset(arm.start_q)
         if not self.mirror:
             self.pull()
 
-    def _device_command(self, command: Any) -> Any:
+    def _device_command(self, command: Any, stream: Any) -> Any:
         """``command`` as a ``(B, n)`` device array of the kernel's type: a CUDA array (a
-        numba device array, a torch tensor on the GPU) as is, a host array copied up."""
+        numba device array, a torch tensor on the GPU) as is, a host array copied up (on
+        ``stream``, None: numba's default)."""
         shape = (self.num_copies, self.task.n_joints)
-        arr = _device_array(command)
+        if stream is None:
+            arr = _device_array(command)  # a foreign array synchronises on its stream
+        elif cuda.devicearray.is_cuda_ndarray(command) \
+                or hasattr(command, "__cuda_array_interface__"):
+            arr = device_view(command)  # the caller ordered its producer on ``stream``
+        else:
+            arr = None
         if arr is not None:
             if arr.shape != shape or arr.dtype != self._cast:
                 raise ValueError(f"command must be a ({shape[0]}, {shape[1]}) {self.dtype} "
@@ -310,20 +399,78 @@ class NumbaCudaDynamics:
         arr = np.ascontiguousarray(command, dtype=self._cast)
         if arr.shape != shape:
             raise ValueError(f"command must be ({shape[0]}, {shape[1]}); got {arr.shape}")
-        self._command.copy_to_device(arr)
+        self._command.copy_to_device(arr, stream=0 if stream is None else stream)
         return self._command
 
-    def step(self, command: Any) -> None:
+    def step(self, command: Any, stream: Any = None) -> None:
         """:meth:`envs.physics.Dynamics.step`: ``command (B, n)``, a numpy array or a device
-        array of the kernel's type on this GPU (no upload)."""
+        array of the kernel's type on this GPU (no upload).
+
+        ``stream``: None launches on numba's default stream, after synchronising on the
+        stream a foreign device array names (numba's ``CUDA_ARRAY_INTERFACE_SYNC``, a host
+        wait); a numba stream (:meth:`external_stream`) launches there without any wait: the
+        caller has queued the command's producer on that stream."""
         with self._gpu:
-            arr = self._device_command(command)
+            arr = self._device_command(command, stream)
             s = self.state
-            self._kernels.step[self._grid, self._block](
+            self._kernels.step[self._grid, self._block, 0 if stream is None else stream](
                 arr, self._gain, self._base_bias, s.q, s.w, s.v, s.acceleration,
                 s.height_bound, s.contact, s.limit_stop, s.tool, *self._model.values())
         if self.mirror:
             self.pull()
+
+    def reset_where(self, mask: Any, q: Any, stream: Any = None) -> None:
+        """Put the copies where ``mask`` is True at rest at ``q``, on the GPU: one launch
+        (:func:`_rest_where`), nothing read back (the env's masked autoreset).
+
+        Parameters
+        ----------
+        mask : (B,) bool device array
+            Which copies (:func:`device_view` of a CUDA tensor, say).
+        q : (6,) device array of the kernel's type, rad
+            One configuration for all of them, unchecked: the caller has checked it clear of
+            the plane and within the limits once (:meth:`reset` does on the host).
+        stream : numba stream or None
+            Where to launch (:meth:`step`'s meaning).
+        """
+        B = self.num_copies
+        if mask.shape != (B,) or mask.dtype != np.bool_:
+            raise ValueError(f"mask must be a ({B},) bool device array; got {mask.shape} "
+                             f"{mask.dtype}")
+        if q.shape != (NJ,) or q.dtype != self._cast:
+            raise ValueError(f"q must be a ({NJ},) {self.dtype} device array (rad); got "
+                             f"{q.shape} {q.dtype}")
+        m, s = self._model, self.state
+        with self._gpu:
+            self._kernels.rest_where[self._grid, self._block, 0 if stream is None else stream](
+                mask, q, s.q, s.w, s.v, s.acceleration, s.height_bound, s.contact,
+                s.limit_stop, s.tool, m["rot0"], m["p"], m["axis"], m["tool_pos"],
+                m["base_height"], m["vh"], m["bounds"], m["lift"], m["wrist"])
+        if self.mirror:
+            self.pull()
+
+    def lowest_points(self, stream: Any = None) -> Any:
+        """Each copy's lowest moving-link point now, ``(B,)`` m (world z, the plane check's
+        exact heights), computed on the GPU (one launch on ``stream``, :meth:`step`'s meaning)
+        into :attr:`lowest`, which is returned (overwritten by the next call)."""
+        m, out = self._model, self.lowest
+        with self._gpu:
+            self._kernels.lowest_point[self._grid, self._block,
+                                       0 if stream is None else stream](
+                self.state.q, m["vh"], m["bounds"], m["lift"], m["wrist"], m["base_height"],
+                out)
+        return out
+
+    def external_stream(self, handle: int) -> Any:
+        """The numba stream of the raw CUDA stream ``handle`` on this GPU (torch's
+        ``torch.cuda.current_stream().cuda_stream``), for :meth:`step`'s ``stream``: 0 is the
+        legacy default stream (torch's default stream), anything else wraps the handle
+        (``numba.cuda.external_stream``). The simulator has no streams: 0 there."""
+        if simulated():
+            return 0
+        with self._gpu:
+            return cuda.legacy_default_stream() if handle == 0 else \
+                cuda.external_stream(handle)
 
     def reset(self, q: Any, index: Any = None) -> None:
         """:meth:`envs.physics.Dynamics.reset`: copies ``index`` (None: all) at rest at ``q

@@ -376,7 +376,7 @@ def generalized_gravity(q: Any, dtype: Any = np.float64) -> np.ndarray:
 
 
 @_njit
-def _link_heights(q, vh, bounds, lift, wrist, base_height, feat, out
+def copy_link_heights(q, vh, bounds, lift, wrist, base_height, feat, out
                   ):  # pragma: no cover - compiled
     """``out[k - 1]``: exact lowest point (m, world z) of moving link k = 1..6 at ``q``.
 
@@ -467,7 +467,7 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
     tool : (3,) float
         Written: tool0's world position (m) after the step.
     R .. feat
-        Scratch of :func:`_aba`, :func:`_gravity_torque` and :func:`_link_heights`.
+        Scratch of :func:`_aba`, :func:`_gravity_torque` and :func:`copy_link_heights`.
 
     Returns
     -------
@@ -504,7 +504,7 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
             if bound < margin:
                 unsure = True
         if unsure:
-            _link_heights(q1, vh, bounds, lift, wrist, base_height, feat, heights)
+            copy_link_heights(q1, vh, bounds, lift, wrist, base_height, feat, heights)
             for k in range(6):
                 known[k] = heights[k]
                 q_ref[k] = q1[k]
@@ -528,7 +528,7 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
 
 
 STEP_BODY = ("placements", "_motion_inv", "_force_act", "_gravity_torque", "_rotate_blocks",
-             "_shift_into", "_aba", "_link_heights", "tool_position", "step_copy")
+             "_shift_into", "_aba", "copy_link_heights", "tool_position", "step_copy")
 """The functions of one copy's step, callees first: :func:`step_copy` and all it calls."""
 
 
@@ -779,7 +779,7 @@ class NumbaDynamics:
 def _heights_batch(q, vh, bounds, lift, wrist, base_height, out):  # pragma: no cover
     feat = np.empty(13, q.dtype)
     for b in range(q.shape[0]):
-        _link_heights(q[b], vh, bounds, lift, wrist, base_height, feat, out[b])
+        copy_link_heights(q[b], vh, bounds, lift, wrist, base_height, feat, out[b])
 
 
 def link_heights(q: Any, base_height: float, dtype: Any = np.float64) -> np.ndarray:

@@ -301,7 +301,7 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
 def plane_heights(q: torch.Tensor, plane: TorchPlane, base_height: float) -> torch.Tensor:
     """Lowest point ``(B, 6)`` (m, world z) of each moving link at ``q (B, 6)`` rad: the 13
     trigonometric features (:data:`ur5kin.collision.FEATURES`) times the vertex table, the
-    minimum per link (the numba kernel's ``_link_heights``)."""
+    minimum per link (the numba kernel's ``copy_link_heights``)."""
     a = q[:, 1] + plane.lift_offset
     b = a + q[:, 2]
     c = b + q[:, 3] + plane.wrist_offset
