@@ -415,9 +415,8 @@ class TorchDynamics:
     compile : bool or str
         Run each substep through ``torch.compile`` (compiled on the first step): True for its
         default mode, or a mode name from :data:`COMPILE_MODES` (``"reduce-overhead"`` adds CUDA
-        graphs on a GPU). On the CPU it needs a C++ compiler and was measured at 114 s for the
-        first step and 1.65x the eager steps/s at B = 1,024 (results/batched_env/README.md);
-        a slow test checks it against the eager step.
+        graphs on a GPU). On the CPU it needs a C++ compiler (timings:
+        results/batched_env/README.md); a slow test checks it against the eager step.
     cuda_graph : bool
         Record the whole control step as one ``torch.cuda.CUDAGraph`` on the first step and
         replay it after (CUDA only, not with ``compile``): the ~6,000 kernels of a step are
