@@ -601,12 +601,6 @@ def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
     return {name: space[name] for name in STEP_BODY}
 
 
-def compile_step_body(jit: Any, dtype: Any = np.float64) -> Any:
-    """:func:`step_copy` and its callees compiled anew by ``jit``, its float literals of
-    ``dtype`` (:func:`compile_step_functions`)."""
-    return compile_step_functions(jit, dtype)["step_copy"]
-
-
 @_njit
 def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
