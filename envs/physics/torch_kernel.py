@@ -232,10 +232,8 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
     tau : (B, 6) float
         Joint torques, in the units of the chain's gravity times inertia.
     free : int, 1..6
-        Joints 1..free move; free+1..6 are locked (welded at their angles, zero ``qd``): as
-        :func:`envs.physics.numba_kernel.aba`, they carry their articulated inertia to the
-        parent whole
-        and get ``qdd = 0``.
+        Joints 1..free move; free+1..6 are locked (welded at their angles, zero ``qd``), as in
+        :func:`envs.physics.numba_kernel.aba`.
 
     Returns
     -------
