@@ -5,31 +5,13 @@
     python -m analysis.optimality --settings farbox:6 unconstrained:2 --grid 16 --out DIR
     python -m analysis.optimality --settings zheight:3 --goals 100 --out runs/optimality
 
-For a task (region, joints, reward reading) and a discount gamma, draw goals with the env's own
-goal sampler and, per goal, roll out constant-command policies in the env's own dynamics for a
-whole episode, with the env's reward and termination:
-
-- ``branch``: command an analytic IK solution of the goal for the controlled joints (the goal's
-  own sampled configuration, :func:`ur5kin.ik_position` with joints 4-6 at the start angles,
-  and for 6 joints every :func:`ur5kin.ik` solution of the sampled tool pose), wrapped to the
-  action range [-pi, pi];
-- ``stay``: command the start pose (hold still);
-- ``zero``: command all-zero angles of the controlled joints (the cheapest command in the
-  literal, rad^2 reading of the action penalty).
-
-The discounted return is ``sum_t gamma^t r_t`` over the episode's steps (t = 0 for the first
-step's reward), ending at the first success when the task terminates on success. A goal is
-**worth reaching** when the best return among the candidates that reach it (any branch; stay or
-zero too, should they pass within the success radius) exceeds the best return of stay and zero
-among those that do not. That estimates which goals a return-maximising learner aims for at
-all: where it is False, a learner that found the goal would still earn more by not going there.
-
-Constant commands bound both sides from below: a learner can reach a goal along a better
-trajectory than the PD's response to one command, and can also do better than stay or zero
-without reaching it (e.g. by hovering near the goal in a cheaper pose). So the share is an
-estimate, not a bound; its use is the comparison between regions and readings, which all get
-the same candidates. The dynamics (and so the rollouts) do not depend on the reward fields, so
-:func:`simulate` runs once per dynamics and :func:`evaluate` scores it under any reward reading.
+Per goal of a task, constant commands (the goal's analytic IK branches, ``stay`` at the start
+pose, ``zero``) are held for a whole episode in the env's own dynamics, reward and termination. A
+goal is **worth reaching** when the best discounted return (``sum_t gamma^t r_t``) among the
+candidates that reach it exceeds the best of stay and zero among those that do not: an estimate
+for comparing regions and readings, not a bound (results/optimality/README.md, "What is
+computed"). :func:`simulate` runs once per dynamics; :func:`evaluate` scores it under any reward
+reading.
 """
 
 from __future__ import annotations

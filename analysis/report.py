@@ -8,26 +8,8 @@ For each (region, joints): each seed's mean over its last 5 test sessions and it
 100 goals, and the paper's statement; then every claim of the paper's section IV
 (`analysis.paper.CLAIMS`), each *holds*, *fails*, *within noise*, *not judgeable* or *not run*.
 
-The rule (`judge_claims`, printed with every report):
-
-- A claim about where training ends (an asymptote or a converged level: "highly capable",
-  "under 50 %", "about 40 %", "about 20 %", "identical", "approximately equivalent",
-  "similar", "takes longer to converge", the converged policies of Fig. 4) is *not judgeable*
-  when the runs end below the paper's 20,000 episodes. What the runs show so far is printed
-  beside it as information, never as a verdict.
-- Levels are each seed's mean over its last `LAST_SESSIONS` (5) test sessions at the point
-  judged, never one session; intervals are the paper's 65 % Student-t over seeds.
-- "A above B" holds when the weakest setting of A and the strongest of B have intervals apart
-  in that order, fails when they are apart the other way, and is within noise when they overlap.
-  Thresholds, "about X" (X +- `ABOUT_TOLERANCE`) and "alike" (every interval inside a band
-  `ALIKE_TOLERANCE` wide) hold when the intervals lie inside, fail when they lie outside (or,
-  for "alike", apart), and are within noise otherwise. The far box "within 1,000 episodes" holds
-  when no more seeds than the paper's (0 of 5 with 3 joints, 1 of 5 with 6) fail to hit 90 in a
-  test session by episode 1,000.
-- Every comparison also gets a two-sided Welch p-value over seeds, and the report says how many
-  comparisons it made (the p-values are not corrected for their number), and which comparisons
-  carry a confound (other joint counts, another start pose, the penalty-free pose inside the far
-  box).
+The verdict rule is `rule_lines`, printed with every report and stated in docs/design.md ("What
+the paper reports"); `judge_claims` applies it.
 """
 
 from __future__ import annotations
@@ -154,7 +136,7 @@ def _first_high(first: tuple[int | None, ...]) -> str:
 
 
 class Verdict(str, enum.Enum):
-    """Whether one of the paper's claims holds in these runs (the rule: module docstring)."""
+    """Whether one of the paper's claims holds in these runs (the rule: `rule_lines`)."""
 
     YES = "holds"
     NO = "fails"

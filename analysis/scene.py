@@ -11,9 +11,8 @@ browser. :class:`Scene` draws onto a MeshCat ``Visualizer`` of either kind:
   printed address.
 
 The arm is ur5kin's: the parts of :func:`ur5kin.mesh_parts` (the URDF's collision meshes by
-default: 5,300 triangles, about 100 kB in the page; or its COLLADA visual meshes, 6.7 MB of text
-and 9 MB in the page) posed by :func:`ur5kin.part_poses`. World frame as in the task: the plane
-z = 0, the robot base at (0, 0, base height), m.
+default, about 100 kB in the page; the visual ones make it 9 MB) posed by
+:func:`ur5kin.part_poses`. World frame as in the task: plane z = 0, base at (0, 0, base height), m.
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
 """The sensitivity study (issue 13): which of the paper's claims hold under each reading of the
 choices it leaves unstated.
 
-    python -m analysis.sensitivity [--readings NAME...] [--setting REGION:JOINTS]...
-                                   [--episodes N] [--out ROOT] [--workers W | --ray-address A]
-                                   [--device cpu|cuda] [--one-process] [--dry-run]
-                                   [-- TRAIN_ARGS...]
     python -m analysis.sensitivity --collect DEST          # finished units' spec.json, eval.csv
     python -m analysis.sensitivity report ROOT [--out DIR] # curves, verdicts, report.md
     python -m analysis.sensitivity --readings actor_penalty --setting zheight:3 --dry-run

@@ -143,10 +143,10 @@ class _AdamStep:
     """``opt.step()`` of a fused torch Adam, without its per-call Python bookkeeping.
 
     The optimiser keeps its state (so ``state_dict`` and checkpoints are torch's own); this calls
-    the kernel ``opt.step()`` would, ``torch._fused_adam_``, on the tensors gathered once, which
-    saves about 0.4 ms of about 1.4 ms per step of a stacked network on the CPU (K = 5). Any
-    optimiser that is not a single-group fused Adam, and the first step (which creates the
-    state), go through ``opt.step()``. Call `reset` after ``opt.load_state_dict``.
+    the kernel ``opt.step()`` would, ``torch._fused_adam_``, on the tensors gathered once
+    (results/throughput/README.md has the saving). Any optimiser that is not a single-group
+    fused Adam, and the first step (which creates the state), go through ``opt.step()``. Call
+    `reset` after ``opt.load_state_dict``.
     """
 
     def __init__(self, opt: torch.optim.Adam, allowed: bool = True):

@@ -140,8 +140,8 @@ class AgentConfig:
     statistics in the update; target networks and every action taken (exploration and test)
     by running statistics, as Lillicrap. A network's running statistics move only in the
     forward pass of its own loss and are soft-updated into its target with tau. Trained by a
-    stacked autograd path (checked against ddpg_her.reference to 1e-10), not the hand-written
-    backward: slower per update (on the loaded 2-core CPU 1.7x at 400-300, 4x at 64-64)."""
+    stacked autograd path (checked against ddpg_her.reference to 1e-10), slower per update than
+    the hand-written backward (docs/design.md gives the factors)."""
     batch_norm_momentum: float = 0.01
     """Weight m of each minibatch in the running statistics of --batch-norm, in (0, 1]:
     running <- (1 - m) running + m batch, the variance unbiased. Lillicrap et al. do not say;

@@ -2,23 +2,8 @@
 ``AgentConfig.algo``, each owning one cell of a k-means partition of the task's goals
 (`regions.partition`); the desired goal picks the agent, in training and at test.
 
-The rules, each chosen once here (docs/design.md, "The regional ensemble"):
-
-- **Routing.** A network input's desired goal (its last ``goal_dim`` entries, see
-  `ddpg_her.spaces.goal_input`) lies in one cell; that cell's member acts.
-- **Replay and HER.** Each seed keeps one replay buffer, as a single agent does. A stored
-  transition trains the member whose cell holds the transition's own desired goal: a HER copy
-  whose relabelled goal (an achieved goal) lies in another cell than the episode's goal trains
-  that other cell's member, not the member that acted. DDPG, TD3 and SAC learn off-policy, so
-  who acted does not matter; a member's networks are only ever asked about goals of its cell,
-  and this way every transition about such a goal reaches it. A member samples its minibatch
-  uniformly from the transitions of its cell (until its cell holds one, from all of the
-  seed's). The normaliser statistics are per member, of the inputs routed to it.
-- **Budget.** The M members share one agent's: the same training episodes (environment
-  steps), one buffer of ``buffer_size`` per seed, and ``updates_per_episode`` updates per
-  episode in all, ``updates_per_episode / M`` per member (M divides it). The M members step
-  together as ``K x M`` stacked agents, so an ensemble update costs the FLOPs of a single
-  agent's.
+The rules (routing, replay and HER across cells, budget, normaliser, initial weights,
+resume), each chosen once here, and why: docs/design.md, "The regional ensemble".
 """
 
 from __future__ import annotations

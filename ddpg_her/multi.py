@@ -7,16 +7,8 @@ stacked agent: one `Trainer` whose K is the sum of their seeds, agent k with its
 others form further groups, each its own `Trainer`; every round, each unfinished group trains one
 episode (updates, test session and checkpoint included) in turn.
 
-Why these keys, and why no padding: a stack's update runs every agent in lockstep with one Adam
-step count, one warm-up, one batch size and one learning rate, so agents of different agent
-configurations (a reading's exploration rate or warm-up) or resume points cannot share one
-exactly; layouts (joint counts) differ in the weights' shapes. Groups keep all of it exact at the
-cost of a few more, smaller stacks. Nothing is shared between groups, and within a group agent k
-depends on its seed and its task alone, so every run folder is the one the run gets alone: the
-same ``spec.json`` (but for the command and the clock), bitwise the same ``eval.csv`` (but for
-``wall_s``) and checkpoints where a single run is bitwise repeatable (the tests' small networks),
-and the same to rounding of the batched products at large networks in float32 (README, "Training
-many seeds fast").
+Nothing is padded and no stack mixes agent configurations or Adam step counts, so every run
+folder is the one the run gets alone (README, "Training many seeds fast", says to what precision).
 """
 
 from __future__ import annotations

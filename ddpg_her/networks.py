@@ -117,7 +117,17 @@ def _norms(k: int, dims: Sequence[int], momentum: float | None, **net) -> nn.Mod
                          for i, d in enumerate(dims))
 
 
-class Actor(nn.Module):
+class ThreeLayers(nn.Module):
+    """A network of three `StackedLinear` layers ``l1``, ``l2``, ``l3`` (a subclass builds them)."""
+
+    def init_(self, final_init: float, generators: Sequence[torch.Generator]) -> None:
+        """Hidden layers uniform in +-1/sqrt(fan_in), the last in +-``final_init``."""
+        self.l1.init_uniform_(None, generators)
+        self.l2.init_uniform_(None, generators)
+        self.l3.init_uniform_(final_init, generators)
+
+
+class Actor(ThreeLayers):
     """mu(x) = tanh(W3 relu(W2 relu(W1 x))), in actor units: -1..1 spans the action box.
 
     x : (K, B, in_dim) normalised input -> (K, B, act_dim) in [-1, 1]. With ``batch_norm``
@@ -135,11 +145,6 @@ class Actor(nn.Module):
         self.l2 = StackedLinear(k, h1, h2, dtype=dtype, device=device, bias=plain)
         self.l3 = StackedLinear(k, h2, act_dim, dtype=dtype, device=device)
         self.norms = _norms(k, (in_dim, h1, h2), batch_norm, dtype=dtype, device=device)
-
-    def init_(self, final_init: float, generators: Sequence[torch.Generator]) -> None:
-        self.l1.init_uniform_(None, generators)
-        self.l2.init_uniform_(None, generators)
-        self.l3.init_uniform_(final_init, generators)
 
     def activations(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Hidden activations and output: x (K, B, in) -> a1 (K, B, h1), a2 (K, B, h2), mu.
@@ -164,7 +169,7 @@ class Actor(nn.Module):
         return torch.tanh(self.l3(a2))
 
 
-class Critic(nn.Module):
+class Critic(ThreeLayers):
     """Q(x, u) = W3 relu(W2 [relu(W1 x), u]); the action u enters at the second layer.
 
     x : (K, B, in_dim) normalised input, u : (K, B, act_dim) action in actor units
@@ -182,11 +187,6 @@ class Critic(nn.Module):
         self.l2 = StackedLinear(k, h1 + act_dim, h2, dtype=dtype, device=device)
         self.l3 = StackedLinear(k, h2, 1, dtype=dtype, device=device)
         self.norms = _norms(k, (in_dim, h1), batch_norm, dtype=dtype, device=device)
-
-    def init_(self, final_init: float, generators: Sequence[torch.Generator]) -> None:
-        self.l1.init_uniform_(None, generators)
-        self.l2.init_uniform_(None, generators)
-        self.l3.init_uniform_(final_init, generators)
 
     def activations(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Hidden activations and output: x (K, B, in), u (K, B, act) -> c1 (K, B, h1), the

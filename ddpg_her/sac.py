@@ -21,13 +21,13 @@ from torch import nn
 from ddpg_her.agent import make_adam
 from ddpg_her.algos import StackedAgent, set_grads, soft_update, stacked_normal
 from ddpg_her.config import AgentConfig
-from ddpg_her.networks import StackedLinear
+from ddpg_her.networks import StackedLinear, ThreeLayers
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 """The policy's log standard deviation is clamped to this range (Haarnoja et al.'s code)."""
 
 
-class GaussianActor(nn.Module):
+class GaussianActor(ThreeLayers):
     """m, log sigma = split(W3 relu(W2 relu(W1 x))), log sigma clamped to
     [LOG_STD_MIN, LOG_STD_MAX]: x (K, B, in_dim) -> two (K, B, act_dim), pre-tanh units."""
 
@@ -38,11 +38,6 @@ class GaussianActor(nn.Module):
         self.l2 = StackedLinear(k, h1, h2, dtype=dtype, device=device)
         self.l3 = StackedLinear(k, h2, 2 * act_dim, dtype=dtype, device=device)
         self.act_dim = act_dim
-
-    def init_(self, final_init: float, generators: Sequence[torch.Generator]) -> None:
-        self.l1.init_uniform_(None, generators)
-        self.l2.init_uniform_(None, generators)
-        self.l3.init_uniform_(final_init, generators)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         h = torch.relu(self.l2(torch.relu(self.l1(x))))

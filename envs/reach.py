@@ -38,26 +38,11 @@ class UR5ReachEnv(gymnasium.Env):
     | i   | ``velocity``: joint i+1's target velocity   | -3.15 (wrists -3.2) | 3.15 (3.2) | rad/s |
     | i   | ``torque``: torque on joint i+1, plus g(q)  | -150 (wrists -28)   | 150 (28)   | N m   |
 
-    A joint PD controller with gravity compensation makes the torques (``kp``, ``kd``: poles at
-    30 rad/s), saturated at the URDF effort limits (150, 150, 150, 28, 28, 28 N m). Joints
-    n+1..6 stay at their start angles: ``held_joints`` = ``locked`` (default) welds them there
-    (out of the dynamics; the arm's inertia and gravity are the whole arm's in that pose), ``pd``
-    holds them by the same PD. Pinocchio's ABA integrates the
-    arm at ``sim_hz`` = 1000 Hz (20 substeps a step, semi-implicit Euler), velocities saturated
-    at the URDF limits. The URDF joint limits stop the arm dead (inelastic). The ground plane
-    acts by ``contact_model``: ``stop`` (default) stops the whole arm dead for the rest of the
-    step at any contact; ``compliant`` pushes each link out with a penalty force at its deepest
-    point, ``f_n = max(0, k d - c dz/dt)`` N with ``k`` = 2e5 N/m, ``c`` = 2000 N s/m, and
-    Coulomb friction ``mu`` = 1 against the point's sliding (the arm slides along the plane, as
-    in Gazebo; about 1 mm deep under the arm's weight). No link ends a step more than
-    ``contact_max_depth`` = 0.02 m below the plane in either model; see
-    :mod:`envs.physics.pinocchio_loop`.
-
-    Under ``held_joints="pd"`` the held joints give way under load: this URDF gives each wrist
-    link the inertia of a cylinder of radius 0.6 m (izz = 0.219 kg m^2 for 1.219 kg), and the
-    wrists' 28 N m cannot hold them rigidly while the shoulder and elbow accelerate at full
-    torque; with random actions a held wrist swings by up to about 1.2 rad. Under ``locked``
-    they never move. ``env.unwrapped.joint_angles`` gives all six angles.
+    A joint PD controller with gravity compensation turns the command into torques, saturated at
+    the URDF effort limits, integrated at ``sim_hz`` = 1000 Hz; joints n+1..6 stay at their
+    start angles (``held_joints``), and the URDF joint limits and the ground plane
+    (``contact_model``) stop or push the arm: docs/design.md, "Dynamics".
+    ``env.unwrapped.joint_angles`` gives all six angles.
 
     ## Observation Space
 

@@ -124,9 +124,8 @@ class TaskSpec:
     ``locked`` (the default) takes them out of the dynamics: the controlled joints move the
     whole arm (its inertia and gravity in the held pose) and the held ones never move.
     ``pd``: the PD controller holds them, as before this field existed; the URDF wrists' 28 N m
-    cannot hold their 0.6 m inertias during fast shoulder moves, and with 3 controlled joints
-    they swing by a median 0.3-0.8 rad per episode (issue 22), which moves tool0 by more than
-    the success radius in about a fifth of episodes."""
+    cannot hold their 0.6 m inertias during fast shoulder moves: they swing and move tool0
+    (measured in results/held_joints/README.md)."""
 
     start_q: tuple[float, ...] | None = None
     """Start configuration (6 angles, rad) of every episode. ``None`` resolves at construction:

@@ -3,10 +3,8 @@ success and termination, step information, what an env does with an ended episod
 
 :class:`TaskRules` is the task half of the env in panda-gym's sense (its ``Task`` beside the
 ``Robot``): it knows the goal region, the reward and when an episode ends, and nothing of the
-arm's motion. :class:`envs.core.TaskCopies` calls it on every reset and step, and the single
-env (:class:`envs.reach.UR5ReachEnv`) and the batched one (:class:`envs.batched.BatchedReach`)
-take their GoalEnv functions (``compute_reward``, ``compute_terminated``) and their ``info``
-from it, so the rules are written once; the torch env and the studies read the same functions.
+arm's motion. Every env, :class:`envs.core.TaskCopies` and the studies take their rules from
+here, so they are written once.
 
 The step kernels (:meth:`TaskRules.is_success`, :meth:`TaskRules.reward`,
 :meth:`TaskRules.terminated`) take values the env made itself and do not check them; the GoalEnv

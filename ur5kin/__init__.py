@@ -2,11 +2,8 @@
 the arm's collision geometry with its clearance above the ground plane, and its meshes placed for
 drawing (:func:`mesh_parts`, :func:`part_poses`).
 
-Every kinematic quantity is in the robot's ``base_link`` frame, SI units (m, rad); the end
-effector is the URDF frame ``tool0``. ``q`` is ``(..., 6)``: shoulder_pan, shoulder_lift, elbow,
-wrist_1, wrist_2, wrist_3. In this URDF all zeros stretches the arm along +x and a negative
-shoulder_lift raises it. The task world puts the base at (0, 0, ``base_height``)
-(:mod:`ur5kin.world`: :func:`to_world`, :func:`fk_world`, :func:`link_heights`).
+Frame ``base_link``, SI units, end effector ``tool0``, ``q`` ``(..., 6)`` in joint order 1-6:
+docs/design.md, "Frames and units"; the task world is :mod:`ur5kin.world`'s.
 
 Names load on first use (PEP 562), so that ``import ur5kin.world`` or ``ur5kin.checks`` does not
 load Pinocchio.

@@ -51,8 +51,6 @@ LINK_NAMES: tuple[str, ...] = (
 )
 """Links in chain order; link i (i >= 1) is moved by joint i."""
 
-NQ = 6
-
 
 @functools.cache
 def urdf_path() -> pathlib.Path:

@@ -601,12 +601,6 @@ def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
     return {name: space[name] for name in STEP_BODY}
 
 
-def compile_step_body(jit: Any, dtype: Any = np.float64) -> Any:
-    """:func:`step_copy` and its callees compiled anew by ``jit``, its float literals of
-    ``dtype`` (:func:`compile_step_functions`)."""
-    return compile_step_functions(jit, dtype)["step_copy"]
-
-
 @_njit
 def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
@@ -783,20 +777,9 @@ def _heights_batch(q, vh, bounds, lift, wrist, base_height, out):  # pragma: no 
 
 
 def link_heights(q: Any, base_height: float, dtype: Any = np.float64) -> np.ndarray:
-    """The kernel's plane check: lowest point of each moving link, batched.
-
-    Parameters
-    ----------
-    q : (B, 6) float, rad
-    base_height : float, m
-        Height of base_link above the plane.
-
-    Returns
-    -------
-    heights : (B, 6) float, m, world z
-        Lowest collision-geometry point of shoulder_link .. wrist_3_link
-        (:func:`ur5kin.link_heights` without the fixed base link).
-    """
+    """The kernel's plane check: lowest point ``(B, 6)`` (m, world z) of shoulder_link ..
+    wrist_3_link for ``q (B, 6)`` rad, base_link ``base_height`` m above the plane
+    (:func:`ur5kin.link_heights` without the fixed base link)."""
     name = dtype_name(dtype)
     plane = ur5_plane(name)
     q = _batch(q, "q", DTYPES[name])

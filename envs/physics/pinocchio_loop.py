@@ -40,10 +40,8 @@ if TYPE_CHECKING:
     from envs.spec import TaskSpec
 
 CLEARANCE_BATCH = 192
-"""Most configurations per :func:`ur5kin.link_heights` call. Its ``(359, 13) @ (13, B)``
-product goes to multithreaded OpenBLAS from B ~ 256 on, which was measured 20x slower than one
-thread on a loaded two-core machine (15 ms instead of 0.6 ms at B = 840); blocks below the
-threshold cost about the same per configuration either way."""
+"""Most configurations per :func:`ur5kin.link_heights` call: larger products go to
+multithreaded OpenBLAS, measured far slower (results/dynamics/README.md)."""
 
 
 class PlaneContact:
@@ -191,8 +189,8 @@ class PinocchioDynamics:
         ``stop``, whose stops are all in ``contact``).
 
     One copy (B = 1) calls Pinocchio's ``aba`` and ``computeGeneralizedGravity`` directly;
-    more go through ``abaInParallel`` and ``rneaInParallel`` (one thread: measured faster than
-    two on small batches, and it leaves the other core to the learner).
+    more go through ``abaInParallel`` and ``rneaInParallel`` on one thread
+    (results/dynamics/README.md says why).
     """
 
     def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:

@@ -84,14 +84,10 @@ class TorchChain:
 
     Attributes
     ----------
-    rotation : (6, 3, 3) float
-        Joint placement rotations (joint frame in its parent's).
-    translation : (6, 3) float, m, parent frame
-        Joint placement translations.
+    rotation, translation, axis, inertia, armature
+        :class:`envs.physics.model.ChainModel`'s, as tensors.
     skew_translation : (6, 3, 3) float, m
         ``[p]x`` of each translation.
-    axis : (6, 3) float
-        Unit rotation axis of each joint, joint frame.
     axis_outer : (6, 3, 3) float
         ``a a^T`` of each axis (Rodrigues' formula).
     skew_axis : (6, 3, 3) float
@@ -101,10 +97,6 @@ class TorchChain:
     bias_map : (6, 6, 6) float
         ``diag([a]x, [a]x)^T``: ``v @ bias_map[i] = v x_m S_i`` (the bias acceleration per unit
         joint velocity).
-    inertia : (6, 6, 6) float
-        Spatial inertia of each body in its joint frame (kg, kg m, kg m^2).
-    armature : (6,) float, kg m^2
-        Rotor inertia on each joint's diagonal.
     base_acceleration : (6,) float, m/s^2
         ``[-g; 0]``: the base accelerates up, gravity as a fictitious force (in the units of
         the chain's gravity, which the caller may have time-scaled).
@@ -240,10 +232,8 @@ def articulated_body(X: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, chain
     tau : (B, 6) float
         Joint torques, in the units of the chain's gravity times inertia.
     free : int, 1..6
-        Joints 1..free move; free+1..6 are locked (welded at their angles, zero ``qd``): as
-        :func:`envs.physics.numba_kernel.aba`, they carry their articulated inertia to the
-        parent whole
-        and get ``qdd = 0``.
+        Joints 1..free move; free+1..6 are locked (welded at their angles, zero ``qd``), as in
+        :func:`envs.physics.numba_kernel.aba`.
 
     Returns
     -------
@@ -342,25 +332,9 @@ def _batch(x: Any, name: str, device: Any, dtype: torch.dtype) -> torch.Tensor:
 
 def aba(q: Any, v: Any, tau: Any, device: Any = "cpu", dtype: Any = "float64",
         free: int = NJ) -> torch.Tensor:
-    """Joint accelerations of B copies of the UR5 (Pinocchio's ``aba`` for each row), batched.
-
-    Parameters
-    ----------
-    q : (B, 6) float, rad
-    v : (B, 6) float, rad/s
-    tau : (B, 6) float, N m
-    device : str or torch.device
-    dtype : float64 or float32
-    free : int, 1..6
-        Joints 1..free move, the others are locked (as :func:`envs.physics.numba_kernel.aba`; their
-        velocities must be zero).
-
-    Returns
-    -------
-    a : (B, 6) tensor, rad/s^2
-        ``M(q)^-1 (tau - C(q, v) v - g(q))`` under the model's gravity (with locked joints,
-        the free block's, 0 in the locked columns).
-    """
+    """Joint accelerations ``(B, 6)`` rad/s^2 of B copies of the UR5, as tensors on ``device``:
+    :func:`envs.physics.numba_kernel.aba`'s parameters, result and errors (zero velocities in
+    the locked joints' columns)."""
     if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
         raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
     cast = _dtype(dtype)
@@ -415,9 +389,8 @@ class TorchDynamics:
     compile : bool or str
         Run each substep through ``torch.compile`` (compiled on the first step): True for its
         default mode, or a mode name from :data:`COMPILE_MODES` (``"reduce-overhead"`` adds CUDA
-        graphs on a GPU). On the CPU it needs a C++ compiler and was measured at 114 s for the
-        first step and 1.65x the eager steps/s at B = 1,024 (results/batched_env/README.md);
-        a slow test checks it against the eager step.
+        graphs on a GPU). On the CPU it needs a C++ compiler (timings:
+        results/batched_env/README.md); a slow test checks it against the eager step.
     cuda_graph : bool
         Record the whole control step as one ``torch.cuda.CUDAGraph`` on the first step and
         replay it after (CUDA only, not with ``compile``): the ~6,000 kernels of a step are
