@@ -17,3 +17,19 @@ def record(dyn: Any, commands: np.ndarray, keys: Sequence[str]) -> dict[str, np.
         for k in keys:
             log[k].append(getattr(dyn, k).copy())
     return {k: np.array(v) for k, v in log.items()}
+
+
+def step_without_cuda_sync(env: Any, actions: Any) -> None:
+    """Step the vector env ``env`` with ``actions[0]`` (compilation and lazy CUDA set-up),
+    then with each later row under torch's sync debug mode set to "error": any host
+    synchronisation in those steps raises."""
+    import torch
+
+    env.step(actions[0])
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        for a in actions[1:]:
+            env.step(a)
+    finally:
+        torch.cuda.set_sync_debug_mode("default")

@@ -14,6 +14,7 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils import seeding
+from stepping import step_without_cuda_sync
 
 from envs.batched import BatchedReach
 from envs.spec import TaskSpec
@@ -231,15 +232,8 @@ def test_step_does_not_synchronise_on_cuda():
     depth = 16
     env = TorchReach(8, SPECS["wide"], device="cuda", goal_pool=depth)
     env.reset(seed=0)
-    actions = torch.as_tensor(random_actions(env.task, depth - 1, 8, seed=1), device="cuda")
-    env.step(actions[0])  # lazy CUDA initialisations out of the checked steps
-    torch.cuda.synchronize()
-    torch.cuda.set_sync_debug_mode("error")
-    try:
-        for a in actions[1:]:
-            env.step(a)
-    finally:
-        torch.cuda.set_sync_debug_mode("default")
+    step_without_cuda_sync(env, torch.as_tensor(random_actions(env.task, depth - 1, 8, seed=1),
+                                                device="cuda"))
 
 
 @CUDA

@@ -343,21 +343,16 @@ def check_train_run_equals_the_torch_kernels() -> str:
 
 # ------------------------------------------------------------------ GPU-only checks
 def check_step_does_not_synchronise_on_cuda() -> str:
+    from stepping import step_without_cuda_sync
+
     from envs.torchreach import TorchReach
 
     depth = 8
     env = TorchReach(8, device="cuda", dynamics="numba", goal_pool=depth, success_radius=0.6,
                      max_episode_steps=3)
     env.reset(seed=0)
-    actions = torch.as_tensor(commands(env.task, depth - 1, 8, seed=1), device="cuda")
-    env.step(actions[0])  # the kernels' compilation and lazy initialisations first
-    torch.cuda.synchronize()
-    torch.cuda.set_sync_debug_mode("error")
-    try:
-        for a in actions[1:]:
-            env.step(a)
-    finally:
-        torch.cuda.set_sync_debug_mode("default")
+    step_without_cuda_sync(env, torch.as_tensor(commands(env.task, depth - 1, 8, seed=1),
+                                                device="cuda"))
     return "ok"
 
 

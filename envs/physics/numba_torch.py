@@ -23,7 +23,7 @@ import torch
 import envs.physics.numba_cuda as numba_cuda
 from envs.physics.model import NJ
 from envs.physics.numba_kernel import dtype_name
-from envs.physics.torch_kernel import DTYPES
+from envs.physics.torch_kernel import DTYPES, copy_out
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -214,13 +214,7 @@ class NumbaTorchDynamics:
     def tool_positions(self, out: Any = None) -> Any:
         """tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)), a new tensor,
         or written into ``out`` (a tensor, or a numpy array: a device-to-host copy)."""
-        if out is None:
-            return self.tool.clone()
-        if isinstance(out, np.ndarray):
-            out[:] = self.tool.cpu().numpy()
-        else:
-            out.copy_(self.tool)
-        return out
+        return copy_out(self.tool, out)
 
     def clearance(self) -> torch.Tensor:
         """Lowest point ``(B,)`` (m, world z) of the moving links now, a new tensor on the

@@ -371,6 +371,18 @@ def link_heights(q: Any, base_height: float, device: Any = "cpu", dtype: Any = "
 
 
 # ---------------------------------------------------------------------------- the class
+def copy_out(x: torch.Tensor, out: Any = None) -> Any:
+    """``x`` as a new tensor, or written into ``out``: a tensor of its shape, or a numpy array
+    (a device-to-host copy). Returns what it wrote."""
+    if out is None:
+        return x.clone()
+    if isinstance(out, np.ndarray):
+        out[:] = x.cpu().numpy()
+    else:
+        out.copy_(x)
+    return out
+
+
 class TorchDynamics:
     """B copies of the UR5 under the task's controller, one vectorised torch step per call: an
     :class:`envs.physics.Dynamics` with tensors for arrays (the same physics as the numba kernel
@@ -563,13 +575,7 @@ class TorchDynamics:
     def tool_positions(self, out: Any = None) -> Any:
         """tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)), written into
         ``out`` (a tensor, or a numpy array, which costs a device-to-host copy) when given."""
-        if out is None:
-            return self.tool.clone()
-        if isinstance(out, np.ndarray):
-            out[:] = self.tool.cpu().numpy()
-        else:
-            out.copy_(self.tool)
-        return out
+        return copy_out(self.tool, out)
 
     def reset(self, q: Any, index: Any = None) -> None:
         """:meth:`envs.physics.Dynamics.reset` (the configurations checked on the host: a reset
