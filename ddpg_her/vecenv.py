@@ -453,6 +453,9 @@ class TorchGoalVecEnv(_Layout):
                            for kw in per_group]
             self._take_layout(env_id, copies)
             sets = self._merge_sets()
+            if not sets:
+                raise ValueError(f"{twin} has no task specification (task.to_dict()) to merge "
+                                 "its groups by; use merge=False")
             self.batches = [_Batch(twin, len(rows), {**per_group[ks[0]], "device": self.device,
                                                      **handed, **own}, rows)
                             for ks, rows in sets]
