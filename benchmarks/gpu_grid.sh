@@ -4,7 +4,7 @@
 #
 #   here, once:         bash benchmarks/gpu_grid.sh prepare      # builds .devsite.tgz, checks sizes
 #   there (device run, carry [".devsite.tgz"]), each a separate call:
-#     bash benchmarks/gpu_grid.sh bench [updates|kernel]  # tests on cuda + benchmarks -> $OUT
+#     bash benchmarks/gpu_grid.sh bench [updates|kernel|envs]  # tests on cuda + benchmarks -> $OUT
 #     bash benchmarks/gpu_grid.sh start [SETTING ...]   # the grid, detached (setsid nohup)
 #     bash benchmarks/gpu_grid.sh poll [SECONDS]        # waits up to SECONDS (<= 540), prints progress
 #     bash benchmarks/gpu_grid.sh collect               # packs results into $OUT (<= 8 files)
@@ -64,16 +64,18 @@ prepare() {
     echo 'device run: carry [".devsite.tgz"], command "bash benchmarks/gpu_grid.sh bench" (then start, poll, collect)'
 }
 
-# bench [updates|kernel]: both parts by default; on a cold machine the two together come near a
-# call's 10 minutes, so run them as two calls where time matters
+# bench [updates|kernel|envs]: updates and kernel by default; on a cold machine the two together
+# come near a call's 10 minutes, so run them as two calls where time matters; envs only when named
 bench() {
     site
     mkdir -p "$OUT"
     local part=${1:-all}
-    case $part in all|updates|kernel) ;; *) echo "bench: updates, kernel or nothing; got $part" >&2; exit 2 ;; esac
+    case $part in all|updates|kernel|envs) ;; *) echo "bench: updates, kernel, envs or nothing; got $part" >&2; exit 2 ;; esac
     $PY -c "import torch; print(torch.__version__, torch.cuda.get_device_name())" | tee "$OUT/device.txt"
-    [[ $part == kernel ]] || bench_updates
-    [[ $part == updates ]] || bench_kernel
+    [[ $part == all || $part == updates ]] && bench_updates
+    [[ $part == all || $part == kernel ]] && bench_kernel
+    [[ $part == envs ]] && bench_envs
+    return 0
 }
 
 bench_updates() {
@@ -103,6 +105,18 @@ bench_kernel() {
         || echo "TorchReach on the kernel FAILED on this GPU: see tests_torchreach_numba.txt"
     $PY -m benchmarks.cuda_dynamics --device "$DEVICE" --sizes 55 4096 65536 --torch graph \
         --threads-per-block 32 64 128 --rounds 3 --json | tee "$OUT/cuda_dynamics.json"
+}
+
+bench_envs() {
+    # issue 24: the torch env backend's merged twins (one TorchReach per set of agents equal but
+    # for their goals) against one twin per agent: seconds per training episode and test
+    # session of the 3-joint stack (4 settings x 5 seeds, 100 copies per agent in a test),
+    # full episodes on the fused kernel; 10-step episodes on the torch kernel (~6,000
+    # launches per twin and step: unmerged, 20 twins, it is slow)
+    $PY -m benchmarks.torch_envs --device "$DEVICE" --env-dynamics numba --steps 100 \
+        --eval-episodes 100 --rounds 3 | tee "$OUT/torch_envs_numba.json"
+    $PY -m benchmarks.torch_envs --device "$DEVICE" --env-dynamics torch --steps 10 \
+        --eval-episodes 100 --rounds 2 | tee "$OUT/torch_envs_torch.json"
 }
 
 start() {
@@ -188,6 +202,9 @@ dry() {
         --no-progress --no-tensorboard --env-backend torch --env-dynamics numba \
         --out "$tmp/fused/s{seed}"
     grep -h '"env_dynamics"' "$tmp"/fused/s*/spec.json
+    # bench envs, tiny: merged twins against one per agent, the kernel in the simulator
+    NUMBA_ENABLE_CUDASIM=1 $PY -m benchmarks.torch_envs --settings zheight farbox --seeds 1 \
+        --steps 2 --eval-episodes 1 --rounds 1 --env-dynamics numba
 }
 
 case "${1:-}" in

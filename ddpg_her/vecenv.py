@@ -193,6 +193,23 @@ class _Layout:
         """Group ``group``'s task specification (``task.to_dict()`` of its env), or {}."""
         return _task_dict(self.groups[group].goal_env)
 
+    def _merge_sets(self) -> list[tuple[list[int], np.ndarray]]:
+        """The groups that may step in one batch: those whose tasks (`task_of`) are equal but
+        for `GOAL_FIELDS`, each set as its groups (ascending, sets in order of their first
+        group) and their copies' flat indices (n,), group by group; [] when a group's env has
+        no task specification (nothing merges)."""
+        members: dict[str, list[int]] = {}
+        for k in range(len(self.groups)):
+            task = self.task_of(k)
+            if not task:
+                return []
+            key = json.dumps({f: v for f, v in task.items() if f not in GOAL_FIELDS},
+                             sort_keys=True, default=str)
+            members.setdefault(key, []).append(k)
+        c = self.copies
+        return [(ks, np.concatenate([np.arange(k * c, (k + 1) * c) for k in ks]))
+                for ks in members.values()]
+
     def _reset_groups(self, seeds: Sequence[int]) -> list[Any]:
         """Each group's reset with its copies' seeds (``seeds[n]`` for copy n)."""
         if len(seeds) != self.num_envs:
@@ -204,15 +221,18 @@ class _Layout:
                   group: int = 0) -> Any:
         """Group ``group``'s ``compute_reward`` of transitions (..., goal_dim), (..., goal_dim),
         (..., act_dim) env units -> (...), arrays or tensors as the env takes them."""
-        return self.groups[group].goal_env.compute_reward(achieved_goal, desired_goal,
-                                                          {"action": action})
+        return self._rules(group).compute_reward(achieved_goal, desired_goal, {"action": action})
 
     def terminated_fn(self, achieved_goal: Any, desired_goal: Any, action: Any,
                       group: int = 0) -> Any:
         """Group ``group``'s ``compute_terminated`` of such transitions, (...) bool: whether each
         ends the episode (a success, when the task ends episodes at success)."""
-        return self.groups[group].goal_env.compute_terminated(achieved_goal, desired_goal,
-                                                              {"action": action})
+        return self._rules(group).compute_terminated(achieved_goal, desired_goal,
+                                                     {"action": action})
+
+    def _rules(self, group: int) -> Any:
+        """The env whose ``compute_reward`` and ``compute_terminated`` are group ``group``'s."""
+        return self.groups[group].goal_env
 
 
 class _Batch(_Vector):
@@ -268,18 +288,8 @@ class GoalVecEnv(_Layout):
         the env has no vector entry point or no task specification."""
         if gymnasium.spec(env_id).vector_entry_point is None:
             return []
-        members: dict[str, list[int]] = {}
-        for k in range(len(self.groups)):
-            task = self.task_of(k)
-            if not task:
-                return []
-            key = json.dumps({f: v for f, v in task.items() if f not in GOAL_FIELDS},
-                             sort_keys=True, default=str)
-            members.setdefault(key, []).append(k)
-        c = self.copies
-        return [_Batch(env_id, len(ks) * c, self.kwargs[ks[0]],
-                       np.concatenate([np.arange(k * c, (k + 1) * c) for k in ks]))
-                for ks in members.values()]
+        return [_Batch(env_id, len(rows), self.kwargs[ks[0]], rows)
+                for ks, rows in self._merge_sets()]
 
     def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
         """Reset every copy n with ``seeds[n]``; the observation arrays are (N, ...)."""
@@ -403,43 +413,108 @@ class TorchGoalVecEnv(_Layout):
     sampler, as `GoalVecEnv`'s envs draw it); ``step`` moves nothing between host and device.
     ``dynamics``: the twin's ``dynamics`` argument (``envs.TorchReach``'s: ``"torch"`` or
     ``"numba"``), None to leave the twin's default.
+
+    ``merge=True`` (the default; the trainer's ``torch`` env backend) steps the copies of all
+    groups whose tasks are equal but for `GOAL_FIELDS` in one twin on the device, as
+    `GoalVecEnv(merge=True)` does on the host: one step call (``dynamics="numba"``: one kernel
+    launch) per step for all of them instead of one per group. Each group keeps a twin of its
+    own on the CPU that only draws its copies' goals (the twin's ``draw_goals(seeds)``: the
+    goals its ``reset(seed=seeds)`` would start with, nothing stepped), handed to the merged
+    twin by ``reset(options={"goal": (n, goal_dim)})``: the goals are exactly those of
+    ``merge=False``, and so are the steps on the CPU (the copies do not interact; measured
+    bitwise for the torch kernel, by the fingerprints too). A group's reward and termination
+    are its merged twin's (the tasks of one batch differ only where goals are drawn, which
+    neither reads). ``merge=False``: one twin per group on the device, each stepped alone.
     """
 
     on_host = False
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1, *,
                  device: str | torch.device = "cpu", dynamics: str | None = None,
-                 **kwargs: Any):
+                 merge: bool = True, **kwargs: Any):
         per_group = _per_group(groups, copies, kwargs)
         twin = tensor_twin(env_id)
         self.device = torch.device(device)
         self.kwargs = per_group
-        # one goal per copy and reset, each copy reseeded at every reset: BatchedReach's goals
         own = {} if dynamics is None else {"dynamics": dynamics}
-        self.groups = [_Vector(twin, copies, {**kw, "device": self.device, "dtype": "float64",
-                                              "goal_source": "per_copy", "goal_pool": 1, **own})
-                       for kw in per_group]
-        self._take_layout(env_id, copies)
+        # one goal per copy and reset, each copy reseeded at every reset: BatchedReach's goals
+        drawn = {"dtype": "float64", "goal_source": "per_copy", "goal_pool": 1}
+        # a merged twin's own draws are replaced by the groups' goals at once: the cheap source
+        handed = {"dtype": "float64", "goal_source": "batched"}
+        self.merged = merge
+        if not merge:
+            self.groups = [_Vector(twin, copies, {**kw, "device": self.device, **drawn, **own})
+                           for kw in per_group]
+            self._take_layout(env_id, copies)
+            self.batches: list[_Batch] = []
+            stepped, order = self.groups, np.arange(self.num_envs)
+        else:
+            self.groups = [_Vector(twin, copies, {**kw, "device": "cpu", **drawn})
+                           for kw in per_group]
+            self._take_layout(env_id, copies)
+            sets = self._merge_sets()
+            if not sets:
+                raise ValueError(f"{twin} has no task specification (task.to_dict()) to merge "
+                                 "its groups by; use merge=False")
+            self.batches = [_Batch(twin, len(rows), {**per_group[ks[0]], "device": self.device,
+                                                     **handed, **own}, rows)
+                            for ks, rows in sets]
+            self._batch_of = {k: b for (ks, _), b in zip(sets, self.batches, strict=True)
+                              for k in ks}
+            stepped, order = self.batches, np.concatenate([b.index for b in self.batches])
+        self._stepped: list[_Vector] = list(stepped)
+        """The twins on the device that ``step`` steps, in turn: the batches, or the groups."""
+        self._sizes = [int(v.env.num_envs) for v in self._stepped]
+        # flat copy n is row _flat[n] of the batches' outputs stacked; None: already in order
+        self._order = None if (order == np.arange(self.num_envs)).all() else \
+            torch.as_tensor(order, device=self.device)
+        self._flat = None if self._order is None else \
+            torch.as_tensor(np.argsort(order), device=self.device)
 
     def reset(self, seeds: Sequence[int]) -> dict[str, torch.Tensor]:
         """Reset every copy n with ``seeds[n]``; the observation tensors are (N, ...)."""
-        parts = self._reset_groups(seeds)
-        return {key: torch.cat([p[key] for p in parts]) for key in KEYS}
+        if not self.merged:
+            return self._stacked(self._reset_groups(seeds))
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        c = self.copies
+        goals = torch.cat([g.goal_env.draw_goals([int(s) for s in seeds[i * c:(i + 1) * c]])
+                           for i, g in enumerate(self.groups)]).to(self.device)
+        if self._order is not None:
+            goals = goals[self._order]
+        return self._stacked([b.env.reset(options={"goal": g})[0] for b, g in
+                              zip(self.batches, goals.split(self._sizes), strict=True)])
 
     def step(self, action: torch.Tensor, active: torch.Tensor,
              obs: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor,
                                                     torch.Tensor, torch.Tensor, torch.Tensor]:
         """`GoalVecEnv.step` on tensors: action (N, act_dim) env units, active (N,) bool; the
         copies not active keep their observation and get 0 / False."""
-        c = self.copies
-        out = [g.step(action[i * c:(i + 1) * c], active) for i, g in enumerate(self.groups)]
-        o = {key: torch.cat([x[0][key] for x in out]) for key in KEYS}
+        if self._order is not None:
+            action = action[self._order]
+        out = [v.step(a, active) for v, a in zip(self._stepped, action.split(self._sizes),
+                                                  strict=True)]
+        o = self._stacked([x[0] for x in out])
         on = active.unsqueeze(-1)
         obs = {key: torch.where(on, o[key], obs[key]) for key in KEYS}
-        flags = [torch.cat([x[j] for x in out]) & active for j in (2, 3, 4)]
-        reward = torch.where(active, torch.cat([x[1] for x in out]), 0.0)
+        flags = [self._flat_order(torch.cat([x[j] for x in out])) & active for j in (2, 3, 4)]
+        reward = torch.where(active, self._flat_order(torch.cat([x[1] for x in out])), 0.0)
         return obs, reward, flags[0], flags[1], flags[2]
+
+    def _flat_order(self, x: torch.Tensor) -> torch.Tensor:
+        """Rows (N, ...) of the batches' outputs, stacked batch by batch, in flat order."""
+        return x if self._flat is None else x[self._flat]
+
+    def _stacked(self, parts: Sequence[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+        """The batches' observations (or the groups', unmerged) as (N, ...) in flat order."""
+        return {key: self._flat_order(torch.cat([p[key] for p in parts])) for key in KEYS}
+
+    def _rules(self, group: int) -> Any:
+        # merged: the batch's twin on the device (the group's own lives on the CPU)
+        return self._batch_of[group].goal_env if self.merged else self.groups[group].goal_env
 
     def close(self) -> None:
         for g in self.groups:
             g.close()
+        for b in self.batches:
+            b.close()

@@ -305,6 +305,19 @@ class TorchReach(VectorReach):
         self._ended.masked_fill_(mask, False)
         return self._observation(), self._info()
 
+    def draw_goals(self, seed: int | Sequence[int]) -> torch.Tensor:
+        """The goals ``(N, 3)`` m, world frame, that ``reset(seed=seed)`` starts the copies
+        with, drawn alone: the goal source reseeded (:meth:`GoalPool.seed`) and its next goal
+        taken for every copy, nothing else reset or stepped. For a merged batch
+        (``ddpg_her.vecenv.TorchGoalVecEnv``): each group draws its goals here and hands them
+        to the batch's env with ``reset(options={"goal": ...})``."""
+        if isinstance(seed, Sequence):
+            seed = [int(s) for s in seed]
+        self.goals.seed(seed)
+        goal = torch.zeros_like(self.goal)
+        self.goals.draw(self._all, goal)
+        return goal
+
     # step: VectorReach.step, every value on the device. Raises ValueError when ``actions`` is
     # not (N, n), gymnasium.error.ResetNeeded before the first reset.
     _where = staticmethod(torch.where)
