@@ -341,9 +341,9 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "numpy, one env per agent)")
     parser.add_argument("--env-dynamics", choices=("torch", "numba"), default="torch",
                         help="the arm dynamics of --env-backend torch (ddpg_her.train "
-                             "--env-dynamics): 'numba', the fused CUDA kernel, one launch per "
-                             "control step (--device cuda), instead of the vectorised torch "
-                             "step")
+                             "--env-dynamics): 'numba', the numba kernels (--device cuda: the "
+                             "fused CUDA kernel, one launch per control step; cpu: the CPU "
+                             "kernel), instead of the vectorised torch step")
     parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=False,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "

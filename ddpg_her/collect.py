@@ -40,8 +40,8 @@ equal to rounding. ``torch``: the env id's tensor twin (``envs.tensor_twin``, e.
 
 ENV_DYNAMICS = ("torch", "numba")
 """The arm dynamics of the ``torch`` env backend (``envs.torchreach.DYNAMICS``): ``torch``, the
-vectorised tensor step; ``numba``, the fused CUDA kernel, one launch per control step (a CUDA
-device, or the CPU under numba's CUDA simulator)."""
+vectorised tensor step; ``numba``, the numba kernels behind the same tensors (on a CUDA device
+the fused kernel, one launch per control step; on the CPU the CPU kernel)."""
 
 Envs = HostEnvs | TorchGoalVecEnv
 

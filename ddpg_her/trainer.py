@@ -60,7 +60,7 @@ class Trainer:
     (`ddpg_her.exploration.TorchDraws`), so the same seed explores otherwise than with
     ``numpy``; with no exploration draws (no warm-up, rate 0) the two backends train alike to
     rounding (tested). env_dynamics : the ``torch`` backend's arm, one of
-    `ddpg_her.collect.ENV_DYNAMICS` (``numba``: the fused CUDA kernel, the same trajectories
+    `ddpg_her.collect.ENV_DYNAMICS` (``numba``: the numba kernels, the same trajectories
     to rounding; recorded in ``spec.json`` when not ``torch``). update_graph : ``auto``,
     ``on`` or ``off``
     (`ddpg_her.update_graph.MODES`); on, the updates run as one device step (`UpdateStep`, a

@@ -55,8 +55,9 @@ DYNAMICS = ("torch", "numba")
 """The arm dynamics of :class:`TorchReach`, named for their tool: ``torch``, the vectorised
 tensor step (:class:`envs.physics.torch_kernel.TorchDynamics`, any device; on a GPU about 6,000
 kernel launches per control step); ``numba``, the fused kernel (:class:`envs.physics.
-numba_torch.NumbaTorchDynamics`: one launch per control step, one thread per copy) on a CUDA
-device, or on ``"cpu"`` under numba's CUDA simulator (tests)."""
+numba_torch.NumbaTorchDynamics`): on a CUDA device the fused kernel, one launch per control
+step, one thread per copy; on ``"cpu"`` the CPU kernel, one compiled call per control step (or,
+under numba's CUDA simulator, the CUDA kernel run as Python, for tests)."""
 
 DEFAULT_POOL_DEPTH = 64
 """Goals stocked per copy; also the ``step`` calls between two top-ups at most."""

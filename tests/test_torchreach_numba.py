@@ -1,19 +1,20 @@
-"""TorchReach on the fused CUDA kernel (``dynamics="numba"``) against the torch kernel and numpy.
+"""TorchReach on the numba kernels (``dynamics="numba"``) against the torch kernel and numpy.
 
-Three paths step in lockstep from one seed: ``TorchReach(dynamics="numba")`` (the kernel of
-envs.physics.numba_cuda behind envs.physics.numba_torch's zero-copy tensors),
+Three paths step in lockstep from one seed: ``TorchReach(dynamics="numba")`` (a numba kernel
+behind envs.physics.numba_torch's zero-copy tensors),
 ``TorchReach(dynamics="torch")`` and ``BatchedReach(dynamics="numba")`` on the CPU, through
 contacts, successes and every autoreset mode (masked resets on the device), 2, 3 and 6 joints,
 held joints locked and pd. Then the zero copy itself, the refusals, no read-back in ``step``,
 and a short ``ddpg_her.train --env-backend torch --env-dynamics numba`` run against the torch
 kernel's.
 
-The checks (``check_*``) run twice, as tests/test_numba_cuda.py's: under numba's CUDA
-simulator (``NUMBA_ENABLE_CUDASIM=1``, one subprocess per check: the variable must be set before
-numba.cuda is imported), where the kernel's device arrays are numpy arrays and the env lives on
-``device="cpu"``; and in this process on a real GPU (``device="cuda"``) where numba and torch
-see one, with the GPU-only checks of streams and synchronisation. The simulator runs the
-kernel as Python: 0.1 s per copy and step, so few copies and steps.
+The checks (``check_*``) run three times: on the CPU kernel (envs.physics.numba_kernel,
+``device="cpu"`` in this process, no simulator); for the CUDA kernel, as tests/test_numba_cuda.py's,
+under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``, one subprocess per check: the variable
+must be set before numba.cuda is imported), where the kernel's device arrays are numpy arrays and
+the env lives on ``device="cpu"``; and in this process on a real GPU (``device="cuda"``) where
+numba and torch see one, with the GPU-only checks of streams and synchronisation. The simulator
+runs the kernel as Python: 0.1 s per copy and step, so few copies and steps.
 """
 
 from __future__ import annotations
@@ -66,11 +67,30 @@ each check asserts)."""
 ROLLOUT_STEPS, ROLLOUT_COPIES = 9, 4
 
 
+DEVICE = "cuda"
+"""Where the checks put the env: set by each test ("cpu" for the CPU kernel and under the
+simulator, "cuda" on a GPU)."""
+
+
 def device() -> str:
-    """Where the env lives: the CPU under numba's simulator, else the GPU."""
+    return DEVICE
+
+
+def host_kernel() -> bool:
+    """Whether the checks run on the CPU kernel (``device="cpu"`` without the simulator)."""
     from envs.physics import numba_cuda
 
-    return "cpu" if numba_cuda.simulated() else "cuda"
+    return DEVICE == "cpu" and not numba_cuda.simulated()
+
+
+def kernel_array(dyn, key: str):
+    """``(address, host copy)`` of the kernel's own state array ``key``."""
+    from envs.physics import numba_cuda
+
+    array = getattr(dyn.kernel.state, key)
+    if host_kernel():
+        return array.ctypes.data, np.array(array)
+    return numba_cuda.device_pointer(array), array.copy_to_host()
 
 
 def host(x) -> np.ndarray:
@@ -181,20 +201,23 @@ def check_state_tensors_are_the_kernels_arrays() -> str:
 
     task = TaskSpec(region="unconstrained", n_joints=3)
     dyn = NumbaTorchDynamics(task, 2, device=device(), threads_per_block=2)
+    assert type(dyn.kernel).__name__ == ("HostKernel" if host_kernel() else "NumbaCudaDynamics")
     for key in STATE:
-        tensor, array = getattr(dyn, key), getattr(dyn.kernel.state, key)
-        assert tensor.data_ptr() == numba_cuda.device_pointer(array), key
+        assert getattr(dyn, key).data_ptr() == kernel_array(dyn, key)[0], key
     # a write through a tensor is in the kernel's array, and a launch shows in the tensor
     dyn.q[1, 0] = 0.25
-    assert dyn.kernel.state.q.copy_to_host()[1, 0] == 0.25
+    assert kernel_array(dyn, "q")[1][1, 0] == 0.25
     before, ptr = dyn.q.clone(), dyn.q.data_ptr()
     dyn.step(torch.full((2, 3), 0.3, dtype=torch.float64, device=dyn.device))
     dyn.synchronize()
-    np.testing.assert_array_equal(host(dyn.q), dyn.kernel.state.q.copy_to_host())
+    np.testing.assert_array_equal(host(dyn.q), kernel_array(dyn, "q")[1])
     assert dyn.q.data_ptr() == ptr and not torch.equal(dyn.q, before)
     # commands, masks and poses enter the kernels as views of the caller's tensors
     command = torch.zeros((2, 3), dtype=torch.float64, device=dyn.device)
-    assert numba_cuda.device_pointer(numba_cuda.device_view(command)) == command.data_ptr()
+    if host_kernel():
+        assert command.numpy().ctypes.data == command.data_ptr()
+    else:
+        assert numba_cuda.device_pointer(numba_cuda.device_view(command)) == command.data_ptr()
     # the masked reset and the clearance, on the device
     mask = torch.tensor([False, True], device=dyn.device)
     dyn.reset_where(mask, torch.as_tensor(task.start_q, device=dyn.device))
@@ -241,9 +264,11 @@ def check_bad_inputs_are_refused() -> str:
         TorchReach(2, device=dev, dynamics="numba", cuda_graph=True)
     with pytest.raises(ValueError, match="stop contact"):
         TorchReach(2, device=dev, dynamics="numba", contact_model="compliant")
-    other = "cuda" if dev == "cpu" else "cpu"  # the simulator is host memory; a GPU is not
-    with pytest.raises(ValueError, match=f"'{other}'"):
-        NumbaTorchDynamics(TaskSpec(), 2, device=other)
+    from envs.physics import numba_cuda
+
+    if numba_cuda.simulated() or not gpu_available():  # the simulator is host memory
+        with pytest.raises(ValueError, match="'cuda'"):
+            NumbaTorchDynamics(TaskSpec(), 2, device="cuda")
     with pytest.raises(ValueError, match="'mps'"):
         NumbaTorchDynamics(TaskSpec(), 2, device="mps")
     dyn = NumbaTorchDynamics(TaskSpec(), 2, device=dev)
@@ -270,6 +295,8 @@ def check_step_reads_nothing_back() -> str:
     depth = 5
     env = TorchReach(3, device="cpu", dynamics="numba", goal_pool=depth, success_radius=0.6,
                      max_episode_steps=2)
+    assert type(env.dynamics.kernel).__name__ == ("HostKernel" if host_kernel()
+                                                  else "NumbaCudaDynamics")
     env.reset(seed=0)
     actions = torch.as_tensor(commands(env.task, depth - 1, 3, seed=1))
 
@@ -390,7 +417,7 @@ CHECKS = (check_rollout_j3_locked_next_step, check_rollout_j6_velocity_same_step
           check_rollout_j2_pd_disabled_masked_resets, check_state_tensors_are_the_kernels_arrays,
           check_float32_follows_the_torch_kernel, check_bad_inputs_are_refused,
           check_step_reads_nothing_back, check_train_run_equals_the_torch_kernels)
-"""Run under the simulator (on the CPU) and on a GPU."""
+"""Run on the CPU kernel, under the simulator (on the CPU) and on a GPU."""
 
 GPU_CHECKS = (check_step_does_not_synchronise_on_cuda,
               check_launches_follow_torchs_current_stream)
@@ -400,6 +427,7 @@ SIMULATOR = """
 import sys
 sys.path.insert(0, "tests")
 import test_torchreach_numba as t
+t.DEVICE = "cpu"
 check = getattr(t, sys.argv[1])
 print(check.__name__, check(), flush=True)
 """
@@ -431,6 +459,16 @@ def simulator() -> None:
 
 
 @pytest.mark.parametrize("check", CHECKS, ids=lambda c: c.__name__.removeprefix("check_"))
+def test_on_the_cpu_kernel(check, monkeypatch):
+    from envs.physics import numba_cuda
+
+    if numba_cuda.simulated():
+        pytest.skip("this process runs numba's CUDA simulator: the CPU device is the CUDA path")
+    monkeypatch.setattr(sys.modules[__name__], "DEVICE", "cpu")
+    check()
+
+
+@pytest.mark.parametrize("check", CHECKS, ids=lambda c: c.__name__.removeprefix("check_"))
 def test_under_the_cuda_simulator(simulator, check):
     run = run_python(SIMULATOR, check.__name__, NUMBA_ENABLE_CUDASIM="1", OMP_NUM_THREADS="1")
     assert run.returncode == 0, run.stdout + run.stderr[-4000:]
@@ -440,20 +478,9 @@ def test_under_the_cuda_simulator(simulator, check):
 @pytest.mark.skipif(not gpu_available(), reason="numba and torch see no CUDA device")
 @pytest.mark.parametrize("check", CHECKS + GPU_CHECKS,
                          ids=lambda c: c.__name__.removeprefix("check_"))
-def test_on_the_gpu(check):
+def test_on_the_gpu(check, monkeypatch):
+    monkeypatch.setattr(sys.modules[__name__], "DEVICE", "cuda")
     check()
-
-
-def test_numba_dynamics_on_the_cpu_needs_the_simulator():
-    # in this process numba is not simulated: the kernel's arrays would be on a GPU, never
-    # CPU tensors
-    from envs.physics import numba_cuda
-    from envs.torchreach import TorchReach
-
-    if numba_cuda.simulated():
-        pytest.skip("this process runs numba's simulator")
-    with pytest.raises(ValueError, match="NUMBA_ENABLE_CUDASIM"):
-        TorchReach(2, device="cpu", dynamics="numba")
 
 
 def test_the_train_flag_is_refused_without_the_torch_backend():

@@ -1,20 +1,26 @@
-"""The fused numba-CUDA kernel behind the tensor face of the torch backend, zero copy.
+"""The numba kernels behind the tensor face of the torch backend, zero copy, on either device.
 
-:class:`NumbaTorchDynamics` is :class:`envs.physics.numba_cuda.NumbaCudaDynamics` (one kernel
-launch per control step, one thread per copy) seen as :class:`envs.physics.torch_kernel.
+:class:`NumbaTorchDynamics` is a numba kernel seen as :class:`envs.physics.torch_kernel.
 TorchDynamics` is seen by :class:`envs.torchreach.TorchReach`: its state arrays are torch
-tensors that *are* the kernel's device arrays (``torch.as_tensor`` over
-``__cuda_array_interface__``), commands and masks go in as the tensors they are, and a step,
-a masked reset and the clearance are each one launch with nothing read back.
+tensors that *are* the kernel's arrays, commands and masks go in as the tensors they are.
 
-Under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``) the kernel's device arrays are numpy
-arrays on the host, so the same code gives CPU tensors over them (``device="cpu"``): the
-whole path runs, slowly, on any machine, which is how it is tested without a GPU.
+- ``device="cuda"``: :class:`envs.physics.numba_cuda.NumbaCudaDynamics` (one kernel launch per
+  control step, one thread per copy); the tensors are views of its device arrays
+  (``__cuda_array_interface__``), and a step, a masked reset and the clearance are each one
+  launch with nothing read back.
+- ``device="cpu"``: :class:`envs.physics.numba_kernel.NumbaDynamics` (one compiled call per
+  control step, the same step body); the tensors are views of its numpy arrays
+  (``torch.from_numpy``), so the torch env runs on the CPU at the numba kernel's speed instead
+  of the tensor step's (which launches some thousands of small operations per control step).
+- ``device="cpu"`` under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``): the CUDA path,
+  whose device arrays are then numpy arrays on the host: the GPU code runs, slowly, on any
+  machine, which is how it is tested without a GPU.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
+from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -22,7 +28,7 @@ import torch
 
 import envs.physics.numba_cuda as numba_cuda
 from envs.physics.model import NJ
-from envs.physics.numba_kernel import dtype_name
+from envs.physics.numba_kernel import NumbaDynamics, dtype_name, link_heights
 from envs.physics.torch_kernel import DTYPES, copy_out
 
 if TYPE_CHECKING:
@@ -32,13 +38,63 @@ STATE = ("q", "w", "v", "acceleration", "height_bound", "contact", "limit_stop",
 """The kernel's state arrays (:attr:`envs.physics.numba_cuda.NumbaCudaDynamics.state`), each
 a tensor attribute of :class:`NumbaTorchDynamics` of the same name."""
 
+class HostKernel:
+    """:class:`envs.physics.numba_kernel.NumbaDynamics` behind the face of
+    :class:`envs.physics.numba_cuda.NumbaCudaDynamics` that :class:`NumbaTorchDynamics` reads
+    (``state``, ``lowest``, ``step``, ``reset_where``, ``lowest_points``, ``reset``), on the CPU:
+    the arrays are host memory, a call runs at once, and streams do not exist (``stream`` is
+    accepted and ignored).
+
+    Attributes
+    ----------
+    dynamics : NumbaDynamics
+        The CPU kernel's object (one thread).
+    state : types.SimpleNamespace of numpy arrays
+        :data:`STATE`, the CPU kernel's own arrays (written in place by every call).
+    lowest : (B,) numpy array, m, world z
+        :meth:`lowest_points`' output.
+    """
+
+    def __init__(self, task: TaskSpec, num_copies: int, dtype: str) -> None:
+        self.dynamics = NumbaDynamics(task, num_copies, dtype=dtype)
+        self.task, self.num_copies, self.arm = task, num_copies, self.dynamics.arm
+        self.state = SimpleNamespace(**{key: getattr(self.dynamics, key) for key in STATE})
+        self.lowest = np.zeros(num_copies, self.dynamics.q.dtype)
+
+    def step(self, command: np.ndarray, stream: Any = None) -> None:
+        self.dynamics.step(command)
+
+    def reset_where(self, mask: np.ndarray, q: np.ndarray, stream: Any = None) -> None:
+        """The copies where ``mask (B,) bool`` is True at rest at ``q (6,)`` rad (the CPU
+        kernel's reset, which checks ``q`` on the host; the copies are read on the host too,
+        which costs nothing on the CPU)."""
+        rows = np.flatnonzero(mask)
+        if rows.size:
+            self.dynamics.reset(q, rows)
+
+    def lowest_points(self, stream: Any = None) -> np.ndarray:
+        self.lowest[:] = link_heights(self.dynamics.q, self.task.base_height,
+                                      self.dynamics.dtype).min(-1)
+        return self.lowest
+
+    def reset(self, q: Any, index: Any = None) -> None:
+        self.dynamics.reset(q, index)
+
+    def external_stream(self, handle: int) -> int:
+        return 0
+
+    def synchronize(self) -> None:
+        pass
+
+
 VIEW_CACHE = 4
 """Numba views of input tensors kept for reuse (the env steps with one action tensor, and
 resets at one start pose): making a view costs some tens of microseconds of Python."""
 
 
 class NumbaTorchDynamics:
-    """B copies of the UR5 stepped by the fused CUDA kernel, state as tensors on the device.
+    """B copies of the UR5 stepped by a numba kernel (the fused CUDA kernel on a GPU, the CPU
+    kernel on the CPU), state as tensors on the device.
 
     The tensor interface :class:`envs.torchreach.TorchReach` reads from
     :class:`envs.physics.torch_kernel.TorchDynamics` (``q``, ``v``, ``acceleration``, ``tool``,
@@ -46,9 +102,11 @@ class NumbaTorchDynamics:
     ``clearance``, ``device``, ``dtype``), the same physics as the numba kernel on the CPU
     (equal to 1e-9 in float64, tested).
 
-    Zero copy: each state tensor is a view of the kernel's device array (its ``data_ptr`` is
-    the array's address; checked when built), commands, masks and configurations enter the
-    kernels as views of the tensors given.
+    Zero copy: each state tensor is a view of the kernel's array (its ``data_ptr`` is the
+    array's address; checked when built), commands, masks and configurations enter the
+    kernels as views of the tensors given. On the CPU the kernel is :class:`HostKernel`'s (no
+    simulator): the same results as :class:`envs.batched.BatchedReach`'s dynamics, bit for
+    bit, since it is the same kernel.
 
     Streams: numba launches on its own default stream unless told otherwise, torch works on
     its *current* stream. Every launch here goes to torch's current stream of ``device``
@@ -65,11 +123,13 @@ class NumbaTorchDynamics:
     num_copies : int
         B.
     device : str or torch.device
-        ``"cuda"`` or ``"cuda:N"``; ``"cpu"`` only under numba's CUDA simulator.
+        ``"cuda"`` or ``"cuda:N"`` (the CUDA kernel); ``"cpu"`` (the CPU kernel, or the CUDA
+        kernel under numba's CUDA simulator).
     dtype : {"float64", "float32"} or the torch dtype
         The kernel's arithmetic and the state's type.
     threads_per_block : int
-        Copies per block of a launch (:class:`envs.physics.numba_cuda.NumbaCudaDynamics`).
+        Copies per block of a launch (:class:`envs.physics.numba_cuda.NumbaCudaDynamics`;
+        unused by the CPU kernel).
 
     Attributes
     ----------
@@ -79,16 +139,15 @@ class NumbaTorchDynamics:
     contact, limit_stop : (B,) bool tensors
     tool : (B, 3) tensor, m, world frame
         tool0's position now.
-    kernel : NumbaCudaDynamics
-        The kernel's own object (``mirror=False``: its host arrays wait for ``pull()``).
+    kernel : NumbaCudaDynamics or HostKernel
+        The kernel's own object (CUDA: ``mirror=False``, its host arrays wait for ``pull()``).
 
     The tensors are overwritten in place by every launch; clone what you keep.
 
     Raises
     ------
     ValueError
-        For a device the kernel cannot run on here: ``"cpu"`` without the simulator (the
-        torch kernel, ``TorchDynamics``, runs there), ``"cuda"`` under the simulator or where
+        For a device the kernel cannot run on here: ``"cuda"`` under the simulator or where
         numba or torch sees no GPU, any other device.
     """
 
@@ -99,9 +158,11 @@ class NumbaTorchDynamics:
         gpu = self._numba_device()
         name = dtype_name(str(dtype).removeprefix("torch.") if isinstance(dtype, torch.dtype)
                           else dtype)
-        self.kernel = numba_cuda.NumbaCudaDynamics(task, num_copies, dtype=name, device=gpu,
-                                                   mirror=False,
-                                                   threads_per_block=threads_per_block)
+        self._host = gpu is None
+        self.kernel: numba_cuda.NumbaCudaDynamics | HostKernel = (
+            HostKernel(task, num_copies, name) if self._host else
+            numba_cuda.NumbaCudaDynamics(task, num_copies, dtype=name, device=gpu,
+                                         mirror=False, threads_per_block=threads_per_block))
         self.task, self.num_copies, self.arm = self.kernel.task, self.kernel.num_copies, \
             self.kernel.arm
         self.dtype = DTYPES[name]
@@ -113,16 +174,13 @@ class NumbaTorchDynamics:
         self._lowest = self._tensor(self.kernel.lowest)
         self.kernel.synchronize()  # the construction's reset ran on numba's default stream
 
-    def _numba_device(self) -> str:
-        """The numba device of ``self.device`` (normalised to its index), or the ValueError
-        that says why the kernel cannot run there."""
+    def _numba_device(self) -> str | None:
+        """The numba-CUDA device of ``self.device`` (normalised to its index; ``"cuda"`` for
+        the CPU under the simulator), None for the CPU kernel, or the ValueError that says why
+        no kernel runs there."""
         dev = self.device
         if dev.type == "cpu":
-            if not numba_cuda.simulated():
-                raise ValueError("dynamics='numba' with device 'cpu' runs only under numba's "
-                                 "CUDA simulator (NUMBA_ENABLE_CUDASIM=1, for tests); use "
-                                 "device 'cuda' on a GPU, or dynamics='torch' on the CPU")
-            return "cuda"
+            return "cuda" if numba_cuda.simulated() else None
         if dev.type != "cuda":
             raise ValueError(f"dynamics='numba' runs on 'cuda' (or 'cpu' under numba's CUDA "
                              f"simulator); got device {str(dev)!r}")
@@ -140,9 +198,9 @@ class NumbaTorchDynamics:
 
     # ------------------------------------------------------------------ views and streams
     def _tensor(self, array: Any) -> torch.Tensor:
-        """The torch tensor over the numba device array ``array`` (CUDA: its
-        ``__cuda_array_interface__``; the simulator: the numpy array behind it), never a
-        copy (RuntimeError if torch made one)."""
+        """The torch tensor over the kernel's array ``array`` (CUDA: its
+        ``__cuda_array_interface__``; the simulator and the CPU kernel: the numpy array), never
+        a copy (RuntimeError if torch made one)."""
         tensor = torch.as_tensor(array, device=self.device)
         if tensor.data_ptr() != numba_cuda.device_pointer(array):
             raise RuntimeError("torch copied the kernel's state instead of viewing it")
@@ -152,6 +210,8 @@ class NumbaTorchDynamics:
         """A numba device array over ``tensor`` (contiguous, on ``device``), reused while the
         same memory comes back: a cached view keeps its tensor alive, so an address seen again
         with the same layout is that tensor's memory."""
+        if self._host:
+            return tensor.numpy()  # a view of a CPU tensor, made in microseconds
         key = (tensor.data_ptr(), tuple(tensor.shape), tuple(tensor.stride()), tensor.dtype)
         view = self._views.get(key)
         if view is None:
@@ -183,9 +243,10 @@ class NumbaTorchDynamics:
 
     # ------------------------------------------------------------------ the Dynamics face
     def step(self, command: Any) -> None:
-        """One control step of every copy, one launch on torch's current stream, nothing read
-        back: ``command (B, n)`` in the control mode's unit (a tensor on ``device`` of
-        ``dtype`` enters as it is; anything else is converted by torch first)."""
+        """One control step of every copy, one launch on torch's current stream (CUDA; the
+        CPU kernel's call on the CPU), nothing read back: ``command (B, n)`` in the control
+        mode's unit (a tensor on ``device`` of ``dtype`` enters as it is; anything else is
+        converted by torch first)."""
         command = self._input(command, self.dtype, (self.num_copies, self.task.n_joints),
                               "command")
         self.kernel.step(self._view(command), stream=self._launch_stream())
@@ -206,7 +267,8 @@ class NumbaTorchDynamics:
     def reset_where(self, mask: torch.Tensor, q: torch.Tensor) -> None:
         """Put the copies where ``mask (B,) bool`` is True at rest at ``q (6,)`` rad, on the
         device: one launch, the mask never read on the host (``q`` unchecked: the caller has
-        checked it once, as :meth:`TorchDynamics.reset_where`'s)."""
+        checked it once, as :meth:`TorchDynamics.reset_where`'s). On the CPU,
+        :meth:`HostKernel.reset_where`."""
         mask = self._input(mask, torch.bool, (self.num_copies,), "mask")
         q = self._input(q, self.dtype, (NJ,), "q")
         self.kernel.reset_where(self._view(mask), self._view(q), stream=self._launch_stream())
