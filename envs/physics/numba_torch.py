@@ -38,6 +38,7 @@ STATE = ("q", "w", "v", "acceleration", "height_bound", "contact", "limit_stop",
 """The kernel's state arrays (:attr:`envs.physics.numba_cuda.NumbaCudaDynamics.state`), each
 a tensor attribute of :class:`NumbaTorchDynamics` of the same name."""
 
+
 class HostKernel:
     """:class:`envs.physics.numba_kernel.NumbaDynamics` behind the face of
     :class:`envs.physics.numba_cuda.NumbaCudaDynamics` that :class:`NumbaTorchDynamics` reads
@@ -57,7 +58,8 @@ class HostKernel:
 
     def __init__(self, task: TaskSpec, num_copies: int, dtype: str) -> None:
         self.dynamics = NumbaDynamics(task, num_copies, dtype=dtype)
-        self.task, self.num_copies, self.arm = task, num_copies, self.dynamics.arm
+        dyn = self.dynamics
+        self.task, self.num_copies, self.arm = dyn.task, dyn.num_copies, dyn.arm
         self.state = SimpleNamespace(**{key: getattr(self.dynamics, key) for key in STATE})
         self.lowest = np.zeros(num_copies, self.dynamics.q.dtype)
 
