@@ -8,13 +8,15 @@ Every --eval-every training episodes, a test session of --eval-episodes
 episodes of the deterministic policy, their goals those of ``ddpg_her.train``'s sessions for the
 same seed; one row each in ``eval.csv`` (``ddpg_her.runfolder.EVAL_COLUMNS``) beside a
 ``spec.json``. The hyperparameters are one JSON file (default ``examples/sb3_her.json``: Table I
-where SB3 has the knob, and where it has not, said there). A run is not resumable: an existing
-folder is refused.
+where SB3 has the knob, and where it has not, said there); a ``vec_normalize`` entry (an object
+of ``VecNormalize``'s keyword arguments) trains under SB3's input normaliser, as
+``examples/sb3_her_vecnormalize.json``. A run is not resumable: an existing folder is refused.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import datetime
 import json
 import sys
@@ -68,7 +70,19 @@ def make_model(algo: str, env: Any, hyperparams: dict[str, Any], seed: int) -> A
     from stable_baselines3 import HerReplayBuffer
     from stable_baselines3.common.noise import NormalActionNoise
 
-    kwargs = dict(hyperparams)
+    kwargs = copy.deepcopy(dict(hyperparams))  # SB3 writes into policy_kwargs (SAC: use_sde)
+    norm = kwargs.pop("vec_normalize", None)
+    if norm is not None:
+        # SB3's own input normaliser (ours keeps one per agent, clipped at +-5 std): the buffer
+        # stores raw observations and normalises each sampled batch, relabelled goals included
+        from stable_baselines3.common.monitor import Monitor
+        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+        if not isinstance(norm, dict):
+            raise ValueError(f"vec_normalize must be an object of VecNormalize's keyword "
+                             f"arguments, got {norm!r}")
+        raw = env
+        env = VecNormalize(DummyVecEnv([lambda: Monitor(raw)]), **norm)
     std = kwargs.pop("action_noise_std", None)
     if std:
         dim = env.action_space.shape[0]
@@ -86,6 +100,14 @@ def make_model(algo: str, env: Any, hyperparams: dict[str, Any], seed: int) -> A
     return model
 
 
+def policy_input(model: Any, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """What ``model.predict`` takes for raw observations ``batch`` (key -> (n, dim)): the batch
+    normalised by the model's ``VecNormalize`` statistics when it trains under one (not updated
+    here), else the batch itself."""
+    norm = model.get_vec_normalize_env()
+    return batch if norm is None else norm.normalize_obs(batch)
+
+
 def test_session(model: Any, make_env: Any, seeds: Sequence[int]) -> dict[str, Any]:
     """One test session: an episode of the deterministic policy per seed, side by side.
     Returns the eval row without episode, env_steps and wall_s."""
@@ -97,7 +119,7 @@ def test_session(model: Any, make_env: Any, seeds: Sequence[int]) -> dict[str, A
     while not done.all():
         live = np.flatnonzero(~done)
         batch = {k: np.stack([obs[i][k] for i in live]) for k in obs[0]}
-        actions, _ = model.predict(batch, deterministic=True)
+        actions, _ = model.predict(policy_input(model, batch), deterministic=True)
         for j, i in enumerate(live):
             obs[i], reward, terminated, truncated, info = envs[i].step(actions[j])
             returns[i] += reward

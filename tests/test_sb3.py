@@ -68,3 +68,62 @@ def test_bad_hyperparameter_files_are_named():
     proc = run_module("analysis.sb3", "--region", "farbox", "--hyperparams", "/nonexistent.json",
                       check=False)
     assert proc.returncode != 0 and "/nonexistent.json" in proc.stderr
+
+
+def test_the_vecnormalize_file_is_the_default_plus_sb3s_normaliser():
+    vn = sb3.ROOT / "examples" / "sb3_her_vecnormalize.json"
+    for algo in sb3.ALGOS:
+        plain = sb3.load_hyperparams(sb3.DEFAULT_HYPERPARAMS, algo)
+        normed = sb3.load_hyperparams(vn, algo)
+        assert normed.pop("vec_normalize") == {"norm_obs": True, "norm_reward": False,
+                                               "clip_obs": 5.0, "epsilon": 1e-4}
+        assert normed == plain
+
+
+def test_under_vecnormalize_the_policy_sees_the_training_statistics():
+    """The test sessions feed the policy what it trained on: (x - mean) / sqrt(var + eps),
+    clipped, per key, by the VecNormalize statistics (a hand computation as the reference)."""
+    params = {**TINY["common"], **TINY["ddpg"],
+              "vec_normalize": {"norm_obs": True, "norm_reward": False, "clip_obs": 2.0,
+                                "epsilon": 1e-4}}
+    env = gymnasium.make(toy_goal_env.ENV_ID, n_joints=2)
+    model = sb3.make_model("ddpg", env, params, seed=0)
+    norm = model.get_vec_normalize_env()
+    rng = np.random.default_rng(0)
+    for rms in norm.obs_rms.values():
+        rms.mean = rng.normal(size=rms.mean.shape)
+        rms.var = rng.uniform(0.01, 4.0, size=rms.var.shape)
+    batch = {k: rng.normal(scale=3.0, size=(5, *space.shape))
+             for k, space in env.observation_space.spaces.items()}
+    seen = sb3.policy_input(model, batch)
+    for k, x in batch.items():
+        rms = norm.obs_rms[k]
+        want = np.clip((x - rms.mean) / np.sqrt(rms.var + 1e-4), -2.0, 2.0)
+        np.testing.assert_allclose(seen[k], want, rtol=1e-6, atol=1e-6)
+    plain = sb3.make_model("ddpg", env, sb3.load_hyperparams_dict(TINY, "ddpg"), seed=0)
+    assert sb3.policy_input(plain, batch) is batch
+    with pytest.raises(ValueError, match="vec_normalize must be an object"):
+        sb3.make_model("ddpg", env, {**params, "vec_normalize": True}, seed=0)
+
+
+def test_a_tiny_run_under_vecnormalize(tmp_path: Path):
+    tiny = json.loads(json.dumps(TINY))
+    tiny["common"]["vec_normalize"] = {"norm_obs": True, "norm_reward": False}
+    params = tmp_path / "h.json"
+    params.write_text(json.dumps(tiny))
+    out = tmp_path / "run"
+    run_module("analysis.sb3", "--algo", "ddpg", "--env-id", "toy_goal_env:ToyReach-v0",
+               "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every", "3",
+               "--eval-episodes", "4", "--hyperparams", str(params), "--out", str(out))
+    run = read_run(out)
+    assert list(run.episode) == [3, 6] and list(run.tests) == [4, 4]
+    assert run.spec["agent"]["sb3"]["vec_normalize"]["norm_obs"] is True
+
+
+def test_making_a_model_leaves_the_hyperparameters_as_they_were():
+    """SB3's SAC writes use_sde into the policy_kwargs it is given; the run's spec.json records
+    the hyperparameters, so they must be what the file said."""
+    params = sb3.load_hyperparams_dict(json.loads(json.dumps(TINY)), "sac")
+    before = json.dumps(params, sort_keys=True)
+    sb3.make_model("sac", gymnasium.make(toy_goal_env.ENV_ID, n_joints=2), params, seed=0)
+    assert json.dumps(params, sort_keys=True) == before
