@@ -70,7 +70,7 @@ def make_model(algo: str, env: Any, hyperparams: dict[str, Any], seed: int) -> A
     from stable_baselines3 import HerReplayBuffer
     from stable_baselines3.common.noise import NormalActionNoise
 
-    kwargs = copy.deepcopy(dict(hyperparams))  # SB3 writes into policy_kwargs (SAC: use_sde)
+    kwargs = copy.deepcopy(hyperparams)  # SB3 writes into policy_kwargs (SAC: use_sde)
     norm = kwargs.pop("vec_normalize", None)
     if norm is not None:
         # SB3's own input normaliser (ours keeps one per agent, clipped at +-5 std): the buffer

@@ -32,10 +32,15 @@ def test_the_shipped_hyperparameters_are_table_one_where_sb3_has_the_knob():
     assert sb3.load_hyperparams(sb3.DEFAULT_HYPERPARAMS, "td3")["policy_delay"] == 2
 
 
-@pytest.mark.parametrize("algo", ["ddpg", "sac"])
-def test_a_tiny_run_writes_the_eval_csv_every_analysis_reads(tmp_path: Path, algo: str):
+@pytest.mark.parametrize("algo, vec_normalize", [
+    ("ddpg", None), ("sac", None), ("ddpg", {"norm_obs": True, "norm_reward": False})])
+def test_a_tiny_run_writes_the_eval_csv_every_analysis_reads(tmp_path: Path, algo: str,
+                                                             vec_normalize: dict | None):
+    tiny = json.loads(json.dumps(TINY))
+    if vec_normalize is not None:
+        tiny["common"]["vec_normalize"] = vec_normalize
     params = tmp_path / "h.json"
-    params.write_text(json.dumps(TINY))
+    params.write_text(json.dumps(tiny))
     out = tmp_path / algo
     run_module("analysis.sb3", "--algo", algo, "--env-id", "toy_goal_env:ToyReach-v0",
                "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every", "3",
@@ -43,6 +48,7 @@ def test_a_tiny_run_writes_the_eval_csv_every_analysis_reads(tmp_path: Path, alg
     run = read_run(out)
     assert list(run.episode) == [3, 6] and list(run.tests) == [4, 4]
     assert run.setting == ("box", 2) and run.spec["agent"]["algo"] == f"sb3-{algo}"
+    assert run.spec["agent"]["sb3"].get("vec_normalize") == vec_normalize
     header = (out / "eval.csv").read_text().splitlines()[0]
     assert tuple(header.split(",")) == EVAL_COLUMNS
     steps = [int(line.split(",")[5]) for line in (out / "eval.csv").read_text().splitlines()[1:]]
@@ -104,20 +110,6 @@ def test_under_vecnormalize_the_policy_sees_the_training_statistics():
     assert sb3.policy_input(plain, batch) is batch
     with pytest.raises(ValueError, match="vec_normalize must be an object"):
         sb3.make_model("ddpg", env, {**params, "vec_normalize": True}, seed=0)
-
-
-def test_a_tiny_run_under_vecnormalize(tmp_path: Path):
-    tiny = json.loads(json.dumps(TINY))
-    tiny["common"]["vec_normalize"] = {"norm_obs": True, "norm_reward": False}
-    params = tmp_path / "h.json"
-    params.write_text(json.dumps(tiny))
-    out = tmp_path / "run"
-    run_module("analysis.sb3", "--algo", "ddpg", "--env-id", "toy_goal_env:ToyReach-v0",
-               "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every", "3",
-               "--eval-episodes", "4", "--hyperparams", str(params), "--out", str(out))
-    run = read_run(out)
-    assert list(run.episode) == [3, 6] and list(run.tests) == [4, 4]
-    assert run.spec["agent"]["sb3"]["vec_normalize"]["norm_obs"] is True
 
 
 def test_making_a_model_leaves_the_hyperparameters_as_they_were():
