@@ -13,7 +13,7 @@ from gymnasium.vector.utils import batch_space
 
 from envs.core import TaskCopies
 from envs.physics import make_dynamics
-from envs.render import RENDER_MODES
+from envs.render import RENDER_MODES, check_render_mode
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec, make_task
 from envs.task import INFO_KEYS, as_autoreset_mode, real_actions
 from envs.vector import VectorReach, check_num_envs, copy_seeds, reset_options
@@ -59,9 +59,6 @@ class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
                  threads: int = 1, **overrides: Any) -> None:
         num_envs = check_num_envs(num_envs)
         mode = as_autoreset_mode(autoreset_mode)
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
-                             f"{render_mode!r}")
         given = task is not None or "spec" in overrides  # spec=: task='s deprecated name
         if given and overrides.get("max_episode_steps") == DEFAULT_EPISODE_STEPS:
             # make_vec passes the registration's max_episode_steps whenever its caller gave
@@ -69,7 +66,7 @@ class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
             overrides.pop("max_episode_steps")
         self.task = make_task(task, overrides)
         self.num_envs = num_envs
-        self.render_mode = render_mode
+        self.render_mode = check_render_mode(render_mode)
         self.metadata = {"autoreset_mode": mode, "render_modes": list(RENDER_MODES),
                          "render_fps": self.task.control_hz}
         self._core = TaskCopies(self.task, self.num_envs,

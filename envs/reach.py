@@ -10,7 +10,7 @@ import numpy as np
 
 from envs.core import TaskCopies
 from envs.physics import Dynamics, make_dynamics
-from envs.render import RENDER_MODES
+from envs.render import RENDER_MODES, check_render_mode
 from envs.spec import TaskSpec, make_task
 from envs.task import RESET_INFO_KEYS, real_actions
 from envs.vector import reset_options
@@ -135,12 +135,9 @@ class UR5ReachEnv(gymnasium.Env):
 
     def __init__(self, task: TaskSpec | Mapping[str, Any] | None = None,
                  render_mode: str | None = None, **overrides: Any) -> None:
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
-                             f"{render_mode!r}")
         self.task = make_task(task, overrides)
         task, n = self.task, self.task.n_joints
-        self.render_mode = render_mode
+        self.render_mode = check_render_mode(render_mode)
         self.metadata = {**self.metadata, "render_fps": task.control_hz}
         # one copy: the reference backend
         self._core = TaskCopies(task, 1, make_dynamics(task, 1, "pinocchio"))

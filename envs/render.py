@@ -21,6 +21,14 @@ RENDER_MODES = ("human", "rgb_array")
 """Render modes of the envs: a matplotlib window, or frames as ``(H, W, 3) uint8`` arrays."""
 
 
+def check_render_mode(render_mode: str | None) -> str | None:
+    """``render_mode`` (one of :data:`RENDER_MODES` or None), or a ValueError."""
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None; got "
+                         f"{render_mode!r}")
+    return render_mode
+
+
 @dataclass(frozen=True)
 class RenderConfig:
     """How frames look; none of it affects the task."""

@@ -28,7 +28,7 @@ import torch
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 
-from envs.physics.model import supports_kernels
+from envs.physics.model import require_kernels
 from envs.physics.torch_kernel import TorchDynamics
 from envs.reward import ACTION_KEY, GOAL_DIM, goal_distance, reach_reward
 from envs.spec import TaskSpec, make_task
@@ -185,6 +185,15 @@ def make_tensor_dynamics(task: TaskSpec, num_copies: int, dynamics: str, device:
     return NumbaTorchDynamics(task, num_copies, device=device, dtype=dtype)
 
 
+def _seeds(seed: int | Sequence[int] | None) -> int | list[int] | None:
+    """A reset's ``seed`` as an int, a list of ints or None; ValueError for anything else."""
+    if isinstance(seed, Sequence):
+        return [int(s) for s in seed]
+    if seed is not None and not isinstance(seed, int | np.integer):
+        raise ValueError(f"seed must be an int, a sequence of ints or None; got {seed!r}")
+    return None if seed is None else int(seed)
+
+
 # ---------------------------------------------------------------------------- the env
 class TorchReach(VectorReach):
     """N copies of ``UR5Reach-v0`` as tensors on one device: BatchedReach with torch in and out.
@@ -236,9 +245,7 @@ class TorchReach(VectorReach):
                  **overrides: Any) -> None:
         num_envs = check_num_envs(num_envs)
         self.task = make_task(task, overrides)  # checked by its dynamics (envs.validate)
-        if not supports_kernels(self.task):
-            raise ValueError(f"TorchReach implements the stop contact model only (as "
-                             f"TorchDynamics); got contact_model={self.task.contact_model!r}")
+        require_kernels(self.task, "TorchReach")
         self.num_envs, self.autoreset_mode = num_envs, as_autoreset_mode(autoreset_mode)
         self.metadata = {"autoreset_mode": self.autoreset_mode}
         self.spec: Any = None  # set by gymnasium.make_vec
@@ -287,14 +294,8 @@ class TorchReach(VectorReach):
                                  f"{tuple(mask.shape)} {mask.dtype}")
             if not self._started:
                 raise ValueError("the first reset must reset every copy (no reset_mask)")
-        if isinstance(seed, Sequence):
-            seed = [int(s) for s in seed]
-        elif seed is not None and not isinstance(seed, int | np.integer):
-            raise ValueError(f"seed must be an int, a sequence of ints or None; got {seed!r}")
-        elif seed is not None:
-            seed = int(seed)
         if seed is not None or not self._started:
-            self.goals.seed(seed)
+            self.goals.seed(_seeds(seed))
         self._reset_where(mask)
         if "goal" in options:
             goal = torch.as_tensor(options["goal"], device=self.device, dtype=self.dtype)
@@ -312,9 +313,7 @@ class TorchReach(VectorReach):
         taken for every copy, nothing else reset or stepped. For a merged batch
         (``ddpg_her.vecenv.TorchGoalVecEnv``): each group draws its goals here and hands them
         to the batch's env with ``reset(options={"goal": ...})``."""
-        if isinstance(seed, Sequence):
-            seed = [int(s) for s in seed]
-        self.goals.seed(seed)
+        self.goals.seed(_seeds(seed))
         goal = torch.zeros_like(self.goal)
         self.goals.draw(self._all, goal)
         return goal

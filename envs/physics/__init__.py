@@ -1,21 +1,10 @@
 """The arm's physics behind one seam: the :class:`Dynamics` protocol and :func:`make_dynamics`.
 
-Every backend advances B copies of the UR5 under the task's joint PD controller, one control
-step per call, with the same physics (docs/design.md, "Dynamics"; :mod:`envs.physics.
-pinocchio_loop` has the equations) and reads the same :class:`envs.physics.model.ArmModel`:
-
-- ``pinocchio`` (:class:`envs.physics.pinocchio_loop.PinocchioDynamics`, the reference):
-  Pinocchio's ABA in a Python substep loop; the only backend of the compliant contact.
-- ``numba`` (:class:`envs.physics.numba_kernel.NumbaDynamics`): one compiled call per step;
-  on ``device="cuda"``, :class:`envs.physics.numba_cuda.NumbaCudaDynamics`: one GPU kernel
-  launch per step, one thread per copy running the same step body.
-- ``torch`` (:class:`envs.physics.torch_kernel.TorchDynamics` on any device, behind
-  :class:`envs.physics.torch_kernel.HostMirror`'s numpy arrays for the numpy envs).
-
-The backend is named for its tool; the device is its own argument. The device-resident env
-(:class:`envs.torchreach.TorchReach`) reads tensors instead: ``TorchDynamics`` itself, or the
-CUDA kernel behind the same tensor face, zero copy (:class:`envs.physics.numba_torch.
-NumbaTorchDynamics`), chosen by its ``dynamics`` argument.
+Every backend (:data:`BACKENDS`) advances B copies of the UR5 under the task's joint PD
+controller, one control step per call, with the same physics (docs/design.md, "Dynamics") read
+from the same :class:`envs.physics.model.ArmModel`. The device-resident env
+(:class:`envs.torchreach.TorchReach`) reads tensors instead: ``TorchDynamics``, or the numba
+kernels behind the same tensor face (:class:`envs.physics.numba_torch.NumbaTorchDynamics`).
 """
 
 from __future__ import annotations

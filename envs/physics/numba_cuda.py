@@ -1,15 +1,10 @@
 """The numba-CUDA backend: a whole control step of B arm copies as one GPU kernel launch.
 
 One thread per copy runs the numba kernel's step body, :func:`envs.physics.numba_kernel.
-step_copy`, compiled for the device (:func:`envs.physics.numba_kernel.compile_step_functions`:
-the same source as the CPU kernel, its float literals of the kernel's type), with its scratch in
-the thread's local memory. The state stays on the GPU between steps; the host arrays the env
-reads are copied back after each step (``mirror=True``, one synchronisation per step) or on
-:meth:`NumbaCudaDynamics.pull`. For a caller that keeps the state on the device (the torch face
-of :mod:`envs.physics.numba_torch`) the state arrays themselves are exposed, the steps and the
-masked resets launch on a stream the caller names, and commands and masks come in as device
-arrays, so that nothing is read back. Tested against the CPU kernel under numba's CUDA
-simulator (``NUMBA_ENABLE_CUDASIM=1``) and, where a GPU is there, on it.
+step_copy`, compiled for the device (:func:`envs.physics.numba_kernel.compile_step_functions`),
+with its scratch in the thread's local memory: :class:`NumbaCudaDynamics`. Tested against the
+CPU kernel under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``) and, where a GPU is there,
+on it.
 """
 
 from __future__ import annotations
@@ -25,8 +20,9 @@ from envs.checks import validate
 from envs.physics.model import (
     NJ,
     arm_model,
+    check_num_copies,
+    require_kernels,
     rest_heights,
-    supports_kernels,
     tool_offset,
     ur5_plane,
 )
@@ -180,37 +176,11 @@ def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_
         clearance[b, k] = known[k]
 
 
-def _rest(mask, q_new, heights, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p, axis,
-          tool_pos, base_height):  # pragma: no cover - compiled
-    """Copy ``b`` at rest at ``q_new[b]`` (its exact link heights ``heights[b]``) where
-    ``mask[b]``, with its tool position; the other copies untouched."""
-    b = cuda.grid(1)
-    if b >= Q.shape[0] or not mask[b]:
-        return
+def _at_rest(b, q_new, heights, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p,
+             axis, tool_pos, base_height):  # pragma: no cover - compiled
+    """Copy ``b`` at rest at ``q_new (6,)`` rad with the exact link heights ``heights (6,)`` m
+    (world z), and its tool position: the device function of both resets."""
     R = cuda.local.array((6, 3, 3), DT)
-    for k in range(6):
-        Q[b, k] = q_new[b, k]
-        W[b, k] = 0
-        V[b, k] = 0
-        A[b, k] = 0
-        clearance[b, k] = heights[b, k]
-    contact[b] = False
-    limit_stop[b] = False
-    placements(Q[b], rot0, axis, R)
-    tool_position(R, p, tool_pos, base_height, tool[b])
-
-
-def _rest_where(mask, q_new, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p, axis,
-                tool_pos, base_height, vh, bounds, lift, wrist):  # pragma: no cover - compiled
-    """Copy ``b`` at rest at the one configuration ``q_new (6,)`` rad where ``mask[b]``, with
-    its exact link heights (m, world z) and tool position computed here; the other copies
-    untouched. The mask is read on the device only (the env's masked autoreset)."""
-    b = cuda.grid(1)
-    if b >= Q.shape[0] or not mask[b]:
-        return
-    R = cuda.local.array((6, 3, 3), DT)
-    feat, heights = cuda.local.array(13, DT), cuda.local.array(6, DT)
-    copy_link_heights(q_new, vh, bounds, lift, wrist, base_height, feat, heights)
     for k in range(6):
         Q[b, k] = q_new[k]
         W[b, k] = 0
@@ -221,6 +191,30 @@ def _rest_where(mask, q_new, Q, W, V, A, clearance, contact, limit_stop, tool, r
     limit_stop[b] = False
     placements(Q[b], rot0, axis, R)
     tool_position(R, p, tool_pos, base_height, tool[b])
+
+
+def _rest(mask, q_new, heights, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p, axis,
+          tool_pos, base_height):  # pragma: no cover - compiled
+    """Copy ``b`` at rest at ``q_new[b]`` (its exact link heights ``heights[b]``) where
+    ``mask[b]``, with its tool position; the other copies untouched."""
+    b = cuda.grid(1)
+    if b < Q.shape[0] and mask[b]:
+        _at_rest(b, q_new[b], heights[b], Q, W, V, A, clearance, contact, limit_stop, tool,
+                 rot0, p, axis, tool_pos, base_height)
+
+
+def _rest_where(mask, q_new, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p, axis,
+                tool_pos, base_height, vh, bounds, lift, wrist):  # pragma: no cover - compiled
+    """Copy ``b`` at rest at the one configuration ``q_new (6,)`` rad where ``mask[b]``, with
+    its exact link heights (m, world z) and tool position computed here; the other copies
+    untouched. The mask is read on the device only (the env's masked autoreset)."""
+    b = cuda.grid(1)
+    if b >= Q.shape[0] or not mask[b]:
+        return
+    feat, heights = cuda.local.array(13, DT), cuda.local.array(6, DT)
+    copy_link_heights(q_new, vh, bounds, lift, wrist, base_height, feat, heights)
+    _at_rest(b, q_new, heights, Q, W, V, A, clearance, contact, limit_stop, tool, rot0, p, axis,
+             tool_pos, base_height)
 
 
 def _lowest_point(Q, vh, bounds, lift, wrist, base_height, out):  # pragma: no cover - compiled
@@ -250,13 +244,15 @@ def kernels(dtype: str = "float64") -> types.SimpleNamespace:
     name = dtype_name(dtype)
     space = {**globals(), **compile_step_functions(cuda.jit(device=True), name),
              "DT": DTYPES[name]}
-    compiled = {}
-    for func in (_fused_step, _rest, _rest_where, _lowest_point):
-        space[func.__name__] = types.FunctionType(func.__code__, space, func.__name__)
-        compiled[func.__name__.strip("_")] = cuda.jit(space[func.__name__])
-    return types.SimpleNamespace(step=compiled["fused_step"], rest=compiled["rest"],
-                                 rest_where=compiled["rest_where"],
-                                 lowest_point=compiled["lowest_point"])
+
+    def rebound(func: Any) -> Any:  # ``func`` reading its globals from ``space``
+        return types.FunctionType(func.__code__, space, func.__name__)
+
+    space["_at_rest"] = cuda.jit(device=True)(rebound(_at_rest))
+    return types.SimpleNamespace(step=cuda.jit(rebound(_fused_step)),
+                                 rest=cuda.jit(rebound(_rest)),
+                                 rest_where=cuda.jit(rebound(_rest_where)),
+                                 lowest_point=cuda.jit(rebound(_lowest_point)))
 
 
 def model_arguments(task: TaskSpec, dtype: str = "float64") -> dict[str, Any]:
@@ -338,24 +334,18 @@ class NumbaCudaDynamics:
             raise RuntimeError("NumbaCudaDynamics needs a CUDA GPU that numba sees "
                                "(numba.cuda.is_available() is False here), or numba's simulator "
                                "(NUMBA_ENABLE_CUDASIM=1)")
-        if isinstance(num_copies, bool) or not isinstance(num_copies, int | np.integer) \
-                or num_copies < 1:
-            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
+        B = self.num_copies = check_num_copies(num_copies)
         if isinstance(threads_per_block, bool) \
                 or not isinstance(threads_per_block, int | np.integer) \
                 or not 1 <= threads_per_block <= 1024:
             raise ValueError(f"threads_per_block must be an integer in [1, 1024]; got "
                              f"{threads_per_block!r}")
-        if not supports_kernels(task):
-            raise ValueError(f"NumbaCudaDynamics implements the stop contact model; got "
-                             f"contact_model={task.contact_model!r}")
+        require_kernels(task, "NumbaCudaDynamics")
         name = dtype_name(dtype)
-        self._cast = DTYPES[name]
-        self.task, self.num_copies, self.dtype = validate(task), int(num_copies), name
-        self.mirror = bool(mirror)
+        cast = self._cast = DTYPES[name]
+        self.task, self.dtype, self.mirror = validate(task), name, bool(mirror)
         self._gpu = cuda.gpus[device_index(device)]
         self._kernels = kernels(name)
-        B, cast = self.num_copies, self._cast
         self.arm = arm = arm_model(task)
         self._block = int(threads_per_block)
         self._grid = (B + self._block - 1) // self._block
@@ -378,6 +368,11 @@ class NumbaCudaDynamics:
         self.reset(arm.start_q)
         if not self.mirror:
             self.pull()
+
+    def _launch(self, kernel: Any, stream: Any = None) -> Any:
+        """``kernel`` configured for one thread per copy, on ``stream`` (None: numba's
+        default)."""
+        return kernel[self._grid, self._block, 0 if stream is None else stream]
 
     def _device_command(self, command: Any, stream: Any) -> Any:
         """``command`` as a ``(B, n)`` device array of the kernel's type: a CUDA array (a
@@ -413,7 +408,7 @@ class NumbaCudaDynamics:
         with self._gpu:
             arr = self._device_command(command, stream)
             s = self.state
-            self._kernels.step[self._grid, self._block, 0 if stream is None else stream](
+            self._launch(self._kernels.step, stream)(
                 arr, self._gain, self._base_bias, s.q, s.w, s.v, s.acceleration,
                 s.height_bound, s.contact, s.limit_stop, s.tool, *self._model.values())
         if self.mirror:
@@ -442,7 +437,7 @@ class NumbaCudaDynamics:
                              f"{q.shape} {q.dtype}")
         m, s = self._model, self.state
         with self._gpu:
-            self._kernels.rest_where[self._grid, self._block, 0 if stream is None else stream](
+            self._launch(self._kernels.rest_where, stream)(
                 mask, q, s.q, s.w, s.v, s.acceleration, s.height_bound, s.contact,
                 s.limit_stop, s.tool, m["rot0"], m["p"], m["axis"], m["tool_pos"],
                 m["base_height"], m["vh"], m["bounds"], m["lift"], m["wrist"])
@@ -455,8 +450,7 @@ class NumbaCudaDynamics:
         into :attr:`lowest`, which is returned (overwritten by the next call)."""
         m, out = self._model, self.lowest
         with self._gpu:
-            self._kernels.lowest_point[self._grid, self._block,
-                                       0 if stream is None else stream](
+            self._launch(self._kernels.lowest_point, stream)(
                 self.state.q, m["vh"], m["bounds"], m["lift"], m["wrist"], m["base_height"],
                 out)
         return out
@@ -487,7 +481,7 @@ class NumbaCudaDynamics:
         m = self._model
         with self._gpu:
             s = self.state
-            self._kernels.rest[self._grid, self._block](
+            self._launch(self._kernels.rest)(
                 cuda.to_device(mask), cuda.to_device(rows), cuda.to_device(height_rows), s.q,
                 s.w, s.v, s.acceleration, s.height_bound, s.contact, s.limit_stop, s.tool,
                 m["rot0"], m["p"], m["axis"], m["tool_pos"], m["base_height"])

@@ -24,9 +24,12 @@ from envs.checks import validate
 from envs.physics.model import (
     NJ,
     arm_model,
+    check_aba_batch,
+    check_free,
+    check_num_copies,
     moving_link_heights,
     put_at_rest,
-    supports_kernels,
+    require_kernels,
     tool_offset,
     ur5_chain,
     ur5_plane,
@@ -345,21 +348,14 @@ def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np
         For arrays of another shape, non-finite values, a ``free`` outside 1..6, or a nonzero
         velocity of a locked joint.
     """
-    if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
-        raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
-    name = dtype_name(dtype)
-    cast = DTYPES[name]
+    free = check_free(free)
+    cast = DTYPES[dtype_name(dtype)]
     chain = ur5_chain().astype(cast)
     q, v, tau = _batch(q, "q", cast), _batch(v, "v", cast), _batch(tau, "tau", cast)
-    if not q.shape == v.shape == tau.shape:
-        raise ValueError(f"q, v and tau must have one shape; got {q.shape}, {v.shape}, "
-                         f"{tau.shape}")
-    if np.any(v[:, free:] != 0.0):
-        raise ValueError(f"locked joints {free + 1}..{NJ} must have zero velocity; got "
-                         f"{v[:, free:].tolist()}")
+    check_aba_batch(q, v, tau, free)
     out = np.empty_like(q)
     _aba_batch(q, v, tau, chain.rotation, chain.translation, chain.axis, chain.inertia,
-               chain.armature, chain.gravity, False, out, int(free))
+               chain.armature, chain.gravity, False, out, free)
     return out
 
 
@@ -633,17 +629,13 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
             clearance[b, k] = known[k]
 
 
-def _parallel_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
-                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
-                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
-                   tool, free, chunks):  # pragma: no cover - compiled
-    """:func:`_control_step` over ``chunks`` blocks of copies, on numba's thread pool."""
-    size = (Q.shape[0] + chunks - 1) // chunks
+def _parallel_step(chunks, *args):  # pragma: no cover - compiled
+    """:func:`_control_step` over ``chunks`` blocks of copies, on numba's thread pool;
+    ``args`` are its arguments before ``first, stop``."""
+    num_copies = args[0].shape[0]
+    size = (num_copies + chunks - 1) // chunks
     for c in numba.prange(chunks):
-        _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid,
-                      q_half, vh, bounds, lift, wrist, lipschitz, base_height, margin,
-                      clearance, rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact,
-                      limit_stop, tool, free, c * size, min(Q.shape[0], (c + 1) * size))
+        _control_step(*args, c * size, min(num_copies, (c + 1) * size))
 
 
 if numba is not None:
@@ -690,20 +682,15 @@ class NumbaDynamics:
             raise RuntimeError("NumbaDynamics needs numba (pip install numba); "
                                "envs.physics.pinocchio_loop.PinocchioDynamics is the path "
                                "without it")
-        if not isinstance(num_copies, int | np.integer) or num_copies < 1:
-            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-        if not supports_kernels(task):
-            raise ValueError(f"NumbaDynamics implements the stop contact model; got "
-                             f"contact_model={task.contact_model!r}")
+        B = self.num_copies = check_num_copies(num_copies)
+        require_kernels(task, "NumbaDynamics")
         pool = numba.config.NUMBA_NUM_THREADS
         if not isinstance(threads, int | np.integer) or not 1 <= threads <= pool:
             raise ValueError(f"threads must be an integer in [1, {pool}] (numba's pool on this "
                              f"machine); got {threads!r}")
         name = dtype_name(dtype)
         cast = DTYPES[name]
-        self.task, self.num_copies, self.dtype = validate(task), int(num_copies), name
-        self.threads = int(threads)
-        B = self.num_copies
+        self.task, self.dtype, self.threads = validate(task), name, int(threads)
         arm = self.arm = arm_model(task)
         self._chain, self._plane = arm.chain.astype(cast), ur5_plane(name)
         self._tool_pos = tool_offset().astype(cast)
@@ -745,8 +732,8 @@ class NumbaDynamics:
             _control_step(*args, 0, self.num_copies)
         else:
             numba.set_num_threads(self.threads)
-            _parallel_step(*args, min(self.num_copies, PARALLEL_CHUNKS_PER_THREAD
-                                      * self.threads))
+            _parallel_step(min(self.num_copies, PARALLEL_CHUNKS_PER_THREAD * self.threads),
+                           *args)
         np.multiply(self._dw, arm.w_to_accel, out=self.acceleration)
         np.multiply(self.w, arm.w_to_v, out=self.v)
 

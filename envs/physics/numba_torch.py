@@ -1,20 +1,7 @@
-"""The numba kernels behind the tensor face of the torch backend, zero copy, on either device.
-
-:class:`NumbaTorchDynamics` is a numba kernel seen as :class:`envs.physics.torch_kernel.
-TorchDynamics` is seen by :class:`envs.torchreach.TorchReach`: its state arrays are torch
-tensors that *are* the kernel's arrays, commands and masks go in as the tensors they are.
-
-- ``device="cuda"``: :class:`envs.physics.numba_cuda.NumbaCudaDynamics` (one kernel launch per
-  control step, one thread per copy); the tensors are views of its device arrays
-  (``__cuda_array_interface__``), and a step, a masked reset and the clearance are each one
-  launch with nothing read back.
-- ``device="cpu"``: :class:`envs.physics.numba_kernel.NumbaDynamics` (one compiled call per
-  control step, the same step body); the tensors are views of its numpy arrays
-  (``torch.from_numpy``), so the torch env runs on the CPU at the numba kernel's speed instead
-  of the tensor step's (which launches some thousands of small operations per control step).
-- ``device="cpu"`` under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``): the CUDA path,
-  whose device arrays are then numpy arrays on the host: the GPU code runs, slowly, on any
-  machine, which is how it is tested without a GPU.
+"""The numba kernels behind the tensor face of the torch backend, zero copy, on either device:
+:class:`NumbaTorchDynamics` (on CUDA the fused kernel, on the CPU the CPU kernel or, under
+numba's CUDA simulator, the CUDA kernel run as Python, which is how it is tested without a
+GPU; docs/design.md, "Dynamics").
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ import ur5kin
 from envs.checks import validate
 from envs.physics.model import (
     arm_model,
+    check_num_copies,
     clip,
     height_lipschitz,
     link_hulls,
@@ -194,11 +195,9 @@ class PinocchioDynamics:
     """
 
     def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:
-        if not isinstance(num_copies, int | np.integer) or num_copies < 1:
-            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
+        B = self.num_copies = check_num_copies(num_copies)
         self.task = validate(task)
-        B, S, h, n = int(num_copies), task.substeps, task.sim_dt, task.n_joints
-        self.num_copies = B
+        S, h, n = task.substeps, task.sim_dt, task.n_joints
         base = ur5kin.load_model()
         # the time-scaled model: gravity * h^2, so that ABA returns h^2 * a (module docstring)
         self.model = pin.Model(base)

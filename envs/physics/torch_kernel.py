@@ -26,8 +26,11 @@ from envs.physics.model import (
     ChainModel,
     PlaneModel,
     arm_model,
+    check_aba_batch,
+    check_free,
+    check_num_copies,
+    require_kernels,
     rest_heights,
-    supports_kernels,
     tool_offset,
     ur5_chain,
     ur5_plane,
@@ -335,19 +338,12 @@ def aba(q: Any, v: Any, tau: Any, device: Any = "cpu", dtype: Any = "float64",
     """Joint accelerations ``(B, 6)`` rad/s^2 of B copies of the UR5, as tensors on ``device``:
     :func:`envs.physics.numba_kernel.aba`'s parameters, result and errors (zero velocities in
     the locked joints' columns)."""
-    if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
-        raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
+    free = check_free(free)
     cast = _dtype(dtype)
     chain, _ = _ur5_models(str(torch.device(device)), cast)
     q, v, tau = (_batch(x, n, device, cast) for x, n in ((q, "q"), (v, "v"), (tau, "tau")))
-    if not q.shape == v.shape == tau.shape:
-        raise ValueError(f"q, v and tau must have one shape; got {tuple(q.shape)}, "
-                         f"{tuple(v.shape)}, {tuple(tau.shape)}")
-    if bool((v[:, free:] != 0).any()):
-        raise ValueError(f"locked joints {free + 1}..{NJ} must have zero velocity; got "
-                         f"{v[:, free:].tolist()}")
-    return articulated_body(motion_transforms(placements(q, chain), chain), v, tau, chain,
-                            int(free))
+    check_aba_batch(q, v, tau, free)
+    return articulated_body(motion_transforms(placements(q, chain), chain), v, tau, chain, free)
 
 
 def generalized_gravity(q: Any, device: Any = "cpu", dtype: Any = "float64") -> torch.Tensor:
@@ -423,11 +419,8 @@ class TorchDynamics:
     def __init__(self, task: TaskSpec, num_copies: int = 1, device: Any = "cpu",
                  dtype: Any = "float64", compile: bool | str = False,
                  cuda_graph: bool = False) -> None:
-        if not isinstance(num_copies, int | np.integer) or num_copies < 1:
-            raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-        if not supports_kernels(task):
-            raise ValueError(f"TorchDynamics implements the stop contact model (as the numba "
-                             f"kernel does); got contact_model={task.contact_model!r}")
+        B = self.num_copies = check_num_copies(num_copies)
+        require_kernels(task, "TorchDynamics")
         device = torch.device(device)
         if compile is not False and compile is not True and compile not in COMPILE_MODES:
             raise ValueError(f"compile must be a bool or one of {list(COMPILE_MODES)}; got "
@@ -438,9 +431,7 @@ class TorchDynamics:
             raise ValueError(f"cuda_graph=True needs a CUDA device and compile=False; got "
                              f"device {str(device)!r}, compile={compile!r}")
         cast = _dtype(dtype)
-        self.task, self.num_copies = validate(task), int(num_copies)
-        self.device, self.dtype = device, cast
-        B = self.num_copies
+        self.task, self.device, self.dtype = validate(task), device, cast
         arm = self.arm = arm_model(task)
         # time-scaled units (envs.physics.model): gravity and torques * h^2, velocities w = h v
         self._chain = TorchChain.from_chain(arm.chain, device, cast)
