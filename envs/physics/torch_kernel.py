@@ -466,10 +466,17 @@ class TorchDynamics:
         self._use_graph, self._graph = bool(cuda_graph), None
 
     # ------------------------------------------------------------------ the step
-    def _substep(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor
-                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One substep of every copy: the candidate ``(q', w')`` and its ``(B,)`` flags
-        (beyond a joint limit, a link below the plane margin)."""
+    def _masked_substep(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor,
+                        running: torch.Tensor, contact: torch.Tensor, limit: torch.Tensor
+                        ) -> tuple[torch.Tensor, ...]:
+        """One substep of every copy with the stop model, for copies still ``running`` ((B,)
+        bool).
+
+        A substep that leaves the joint limits or brings a link below the plane margin is not
+        taken: the copy stays where it is with ``w = 0`` (stopped dead) and stops running; the
+        substeps it has left are computed and discarded by the masks, as PinocchioDynamics computes
+        and discards them. Returns the new ``q, w, running, contact, limit``.
+        """
         chain = self._chain
         X = motion_transforms(placements(q, chain), chain)
         tau = bias - self._kp * q - self._kd * w
@@ -479,22 +486,9 @@ class TorchDynamics:
         w1 = w + articulated_body(X, w, tau, chain, self.arm.free)
         w1 = torch.minimum(torch.maximum(w1, -self._w_max), self._w_max)
         q1 = q + w1
-        beyond = ((q1 - self._q_mid).abs() > self._q_half).any(-1)
-        below = (plane_heights(q1, self._plane, self._base_height) < self._margin).any(-1)
-        return q1, w1, beyond, below
-
-    def _masked_substep(self, q: torch.Tensor, w: torch.Tensor, bias: torch.Tensor,
-                        running: torch.Tensor, contact: torch.Tensor, limit: torch.Tensor
-                        ) -> tuple[torch.Tensor, ...]:
-        """One substep with the stop model, for copies still ``running`` ((B,) bool).
-
-        A substep that leaves the joint limits or brings a link below the plane margin is not
-        taken: the copy stays where it is with ``w = 0`` (stopped dead) and stops running; the
-        substeps it has left are computed and discarded by the masks, as PinocchioDynamics computes
-        and discards them. Returns the new ``q, w, running, contact, limit``.
-        """
-        q1, w1, beyond, below = self._substep(q, w, bias)
-        beyond, below = beyond & running, below & running
+        beyond = ((q1 - self._q_mid).abs() > self._q_half).any(-1) & running
+        below = (plane_heights(q1, self._plane, self._base_height) < self._margin).any(-1) \
+            & running
         running = running & ~(beyond | below)
         keep = running.unsqueeze(-1)
         return (torch.where(keep, q1, q),
