@@ -1,14 +1,8 @@
-"""B copies of the Reacher whose whole state lives in torch tensors on one device (issue 14).
-
-:class:`TorchReach` is :class:`envs.batched.BatchedReach` with torch in and out: the arm is
-:class:`envs.physics.torch_kernel.TorchDynamics` (``dynamics="torch"``, any device) or the fused
-CUDA kernel behind the same tensor face, :class:`envs.physics.numba_torch.NumbaTorchDynamics`
-(``dynamics="numba"``: one launch per control step), and goals, observations, reward, episode
-ends and autoreset are tensor operations on the same device, so that on a GPU a training step
-moves no data between host and device. Goals come from :class:`GoalPool`, a device-resident stock of
-goals drawn on the host by the task's own sampler (:func:`envs.task.task_sampler`) and topped up
-only when it may run dry. The reward is :func:`envs.reward.reach_reward` (eq. 2, one definition for
-arrays and tensors), and :meth:`TorchReach.compute_reward` relabels HER goals with it.
+"""B copies of the Reacher whose whole state lives in torch tensors on one device (issue 14):
+:class:`TorchReach`, whose arm (:data:`DYNAMICS`), goals (:class:`GoalPool`, draws of the task's
+own sampler stocked on the device), reward (:func:`envs.reward.reach_reward`, also for HER's
+relabelling) and autoreset are tensor operations there, so that on a GPU a training step moves
+no data between host and device.
 
 Where the host is touched (each a device-to-host read, i.e. a synchronisation on CUDA):
 ``reset`` with a seed or for the first time (it fills the pool and checks the start pose), and
@@ -53,11 +47,8 @@ same goals; about 0.6 ms a goal on the 2-core machine)."""
 
 DYNAMICS = ("torch", "numba")
 """The arm dynamics of :class:`TorchReach`, named for their tool: ``torch``, the vectorised
-tensor step (:class:`envs.physics.torch_kernel.TorchDynamics`, any device; on a GPU about 6,000
-kernel launches per control step); ``numba``, the fused kernel (:class:`envs.physics.
-numba_torch.NumbaTorchDynamics`): on a CUDA device the fused kernel, one launch per control
-step, one thread per copy; on ``"cpu"`` the CPU kernel, one compiled call per control step (or,
-under numba's CUDA simulator, the CUDA kernel run as Python, for tests)."""
+tensor step (:class:`envs.physics.torch_kernel.TorchDynamics`, any device); ``numba``, the numba
+kernels behind the same face (:class:`envs.physics.numba_torch.NumbaTorchDynamics`)."""
 
 DEFAULT_POOL_DEPTH = 64
 """Goals stocked per copy; also the ``step`` calls between two top-ups at most."""
