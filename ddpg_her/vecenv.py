@@ -91,32 +91,36 @@ class _Singles:
         limits = [x for x in (limit, task_limit) if x is not None]
         self.max_steps = min(limits) if limits else None
 
-    def reset(self, seeds: Sequence[int]) -> list[dict[str, np.ndarray]]:
-        return [env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds, strict=True)]
+    def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
+        obs = [env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds, strict=True)]
+        return {key: np.stack([o[key] for o in obs]) for key in KEYS}
 
-    def step(self, action: np.ndarray, active: np.ndarray) -> list[tuple | None]:
-        out: list[tuple | None] = [None] * len(self.envs)
+    def step(self, action: np.ndarray, active: np.ndarray) -> tuple:
+        """`_Vector.step`'s arrays (M, ...); the copies not ``active`` are not stepped (their
+        entries are zeros, ignored)."""
+        m = len(self.envs)
+        obs = {key: np.zeros((m, *self.observation_space[key].shape)) for key in KEYS}
+        reward = np.zeros(m)
+        flags = np.zeros((3, m), dtype=bool)
         for i in np.flatnonzero(active):
             o, r, term, trunc, info = self.envs[i].step(action[i])
-            out[i] = (o, r, term, trunc, bool(info.get("is_success", term)))
-        return out
+            for key in KEYS:
+                obs[key][i] = o[key]
+            reward[i] = r
+            flags[:, i] = term, trunc, bool(info.get("is_success", term))
+        return obs, reward, flags[0], flags[1], flags[2]
 
     def close(self) -> None:
         for env in self.envs:
             env.close()
 
 
-def _make_vec(env_id: str, n: int, kwargs: dict[str, Any]) -> gymnasium.vector.VectorEnv:
-    """``n`` copies in the env's own vector implementation, never reset automatically."""
-    return gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point",
-                              autoreset_mode=AutoresetMode.DISABLED, **kwargs)
-
-
 class _Vector:
     """M copies in the env's own vector implementation, never reset automatically."""
 
     def __init__(self, env_id: str, m: int, kwargs: dict[str, Any]):
-        self.env = _make_vec(env_id, m, kwargs)
+        self.env = gymnasium.make_vec(env_id, num_envs=m, vectorization_mode="vector_entry_point",
+                                      autoreset_mode=AutoresetMode.DISABLED, **kwargs)
         self.observation_space = self.env.single_observation_space
         self.action_space = self.env.single_action_space
         self.goal_env = self.env.unwrapped
@@ -294,9 +298,7 @@ class GoalVecEnv(_Layout):
     def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
         """Reset every copy n with ``seeds[n]``; the observation arrays are (N, ...)."""
         parts = self._reset_groups(seeds)
-        obs = {key: np.concatenate([
-            p[key] if isinstance(p, dict) else np.stack([o[key] for o in p]) for p in parts
-        ]).astype(np.float64) for key in KEYS}
+        obs = {key: np.concatenate([p[key] for p in parts]).astype(np.float64) for key in KEYS}
         for b in self.batches:  # the groups drew the goals; the batch starts the episodes
             o = b.env.reset(seed=[int(seeds[i]) for i in b.index],
                             options={"goal": obs["desired_goal"][b.index]})[0]
@@ -314,37 +316,17 @@ class GoalVecEnv(_Layout):
         obs = {key: v.copy() for key, v in obs.items()}
         reward = np.zeros(self.num_envs)
         flags = np.zeros((3, self.num_envs), dtype=bool)
-
-        def put(rows: np.ndarray, out: tuple) -> None:
-            """A vector env's step of the copies ``rows`` (flat indices), where active."""
-            o, r, term, trunc, success = out
+        c = self.copies
+        stepped = [(b, b.index) for b in self.batches] or \
+            [(g, np.arange(i * c, (i + 1) * c)) for i, g in enumerate(self.groups)]
+        for env, rows in stepped:  # each steps its copies ``rows`` (flat indices) together
+            o, r, term, trunc, success = env.step(action[rows], active[rows])
             on = active[rows]
             rows = rows[on]
             for key in KEYS:
                 obs[key][rows] = o[key][on]
             reward[rows] = np.asarray(r)[on]
             flags[0, rows], flags[1, rows], flags[2, rows] = term[on], trunc[on], success[on]
-
-        for b in self.batches:
-            put(b.index, b.step(action[b.index], active[b.index]))
-        if self.batches:
-            return obs, reward, flags[0], flags[1], flags[2]
-        c = self.copies
-        for i, g in enumerate(self.groups):
-            sl = slice(i * c, (i + 1) * c)
-            out = g.step(action[sl], active[sl])
-            if isinstance(out, tuple):  # a vector group: arrays for all its copies
-                put(np.arange(i * c, (i + 1) * c), out)
-                continue
-            for m, res in enumerate(out):
-                if res is None:
-                    continue
-                o, r, term, trunc, success = res
-                n = i * c + m
-                for key in KEYS:
-                    obs[key][n] = o[key]
-                reward[n] = r
-                flags[:, n] = term, trunc, success
         return obs, reward, flags[0], flags[1], flags[2]
 
     def close(self) -> None:
