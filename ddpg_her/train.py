@@ -46,8 +46,6 @@ def _add_config_flags(group: argparse._ArgumentGroup) -> None:
 
 def _task_fields_help() -> str:
     """``--help``'s list of the fields ``--task KEY=VALUE`` sets, with their defaults."""
-    import dataclasses
-
     from envs.spec import TaskSpec  # a plain record: no Pinocchio, --help stays fast
 
     fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(TaskSpec))
