@@ -30,18 +30,14 @@ from ddpg_her.spaces import goal_input
 from ddpg_her.vecenv import HostEnvs, TorchGoalVecEnv
 
 ENV_BACKENDS = ("numpy", "batched", "torch")
-"""``numpy``: the envs are Gymnasium's (numpy arrays on the host), one group of copies per
-agent. ``batched``: the same envs, but the copies of all agents whose tasks differ only in their
-goals step in one vector env (``GoalVecEnv(merge=True)``; UR5Reach-v0: one call of the compiled
-kernel for all of them), with the same goals and exploration as ``numpy`` and trajectories
-equal to rounding. ``torch``: the env id's tensor twin (``envs.tensor_twin``, e.g.
-``envs.TorchReach``) on the trainer's device, so rollout, HER and the buffer stay on the device
-(stop contact model only)."""
+"""The trainer's ``--env-backend``: ``numpy``, Gymnasium's envs on the host, one group of copies
+per agent; ``batched``, the same envs merged where the tasks differ only in their goals
+(``GoalVecEnv(merge=True)``); ``torch``, the env id's tensor twin on the trainer's device
+(`TorchGoalVecEnv`). What each keeps equal: ``python -m ddpg_her.train --help``."""
 
 ENV_DYNAMICS = ("torch", "numba")
-"""The arm dynamics of the ``torch`` env backend (``envs.torchreach.DYNAMICS``): ``torch``, the
-vectorised tensor step; ``numba``, the numba kernels behind the same tensors (on a CUDA device
-the fused kernel, one launch per control step; on the CPU the CPU kernel)."""
+"""The arm dynamics of the ``torch`` env backend (``envs.torchreach.DYNAMICS``, the trainer's
+``--env-dynamics``): ``torch``, the vectorised tensor step; ``numba``, the numba kernels."""
 
 Envs = HostEnvs | TorchGoalVecEnv
 

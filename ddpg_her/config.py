@@ -134,15 +134,9 @@ class AgentConfig:
     batch_norm: bool = False
     """Batch normalisation as Lillicrap et al. 2016 had it for low-dimensional inputs: on the
     network input (actor and critic each) and on the pre-activations of every hidden layer of the
-    actor and of the critic's layers before the action input (its first); none on the output
-    layers; a layer a normalisation follows has no bias, and the input's normalisation no
-    shift (the next normalisation cancels both). Off by default: Table I lists none, although
-    the paper says it used Lillicrap's networks. Online networks normalise by the minibatch's
-    statistics in the update; target networks and every action taken (exploration and test)
-    by running statistics, as Lillicrap. A network's running statistics move only in the
-    forward pass of its own loss and are soft-updated into its target with tau. Trained by a
-    stacked autograd path (checked against ddpg_her.reference to 1e-10), slower per update than
-    the hand-written backward (docs/design.md gives the factors)."""
+    actor and of the critic's layers before the action input (its first). Off by default: Table
+    I lists none, although the paper says it used Lillicrap's networks. Which statistics each
+    pass uses, how they move, and the cost of its autograd update: docs/design.md, "Agent"."""
     batch_norm_momentum: float = 0.01
     """Weight m of each minibatch in the running statistics of --batch-norm, in (0, 1]:
     running <- (1 - m) running + m batch, the variance unbiased. Lillicrap et al. do not say;
@@ -172,12 +166,9 @@ class AgentConfig:
     # --- the regional ensemble (issue 25) ------------------------------------------------------
     ensemble: int = 1
     """Members M of the regional ensemble of --algo agents (1: none, a single agent). Each member
-    owns one cell of a k-means partition of the task's goals (4,096 goals of the task's own
-    distribution, a fixed seed; spec.json records the centres) and acts on the goals of its
-    cell, in training and at test. A stored transition, real or HER-relabelled, trains the
-    member whose cell holds its desired goal. The M members share one agent's budget: the same
-    episodes, replay buffer (one per seed) and updates_per_episode in all, updates_per_episode
-    / M each."""
+    owns one cell of a k-means partition of the task's goals and acts on the goals of its cell;
+    the M members share one agent's budget (updates_per_episode / M each). Every rule, and
+    why: docs/design.md, "The regional ensemble"."""
 
     flush_denormals: bool = True
     """Flush subnormal floats (below 1.2e-38 in float32) to zero on the CPU while training. Adam's

@@ -2,15 +2,10 @@
 
 The agent sees the env only through the Gymnasium goal-env API: a Dict observation with
 ``observation``, ``achieved_goal`` and ``desired_goal``, a Box action, ``info["is_success"]``, and
-the vectorised ``compute_reward`` / ``compute_terminated`` of the env. A group of several copies
-uses the env's own batched implementation (its ``vector_entry_point``, e.g. ``envs.BatchedReach``)
-when it has one; a single copy is ``gymnasium.make``. By default groups never share a batch, so
-what agent k's copies compute does not depend on how many agents train beside it. With
-``merge=True`` (the trainer's ``batched`` env backend) the copies of every group whose tasks
-differ only in their goals step together in one vector env: one batched call per step for all
-of them, the goals still each group's own draws. The trainer sees every env backend through one
-interface of tensors: `HostEnvs` (a `GoalVecEnv`, its arrays entering torch without a copy) and
-`TorchGoalVecEnv` (the env's tensor twin on a device); ``ddpg_her.collect`` rolls out either.
+the vectorised ``compute_reward`` / ``compute_terminated`` of the env. The trainer sees every env
+backend through one interface of tensors: `HostEnvs` (a `GoalVecEnv`, its arrays entering torch
+without a copy) and `TorchGoalVecEnv` (the env's tensor twin on a device); ``ddpg_her.collect``
+rolls out either. How groups merge into one batch, and why: docs/design.md, "Dynamics".
 """
 
 from __future__ import annotations
@@ -257,14 +252,13 @@ class GoalVecEnv(_Layout):
     is reseeded at every reset from the seed given for it, so an episode depends only on its
     own seed and its group's task: nothing about the env needs saving in a checkpoint.
 
-    ``merge=True`` steps the copies of all groups whose tasks (``task_of``) are equal but for
-    `GOAL_FIELDS` in one vector env of the env id's ``vector_entry_point``, which must accept
-    ``reset(seed=[...], options={"goal": (m, goal_dim)})`` (as ``envs.BatchedReach`` does).
-    Each group still draws its copies' goals (its own env is reset with the copy's seed, and
-    the goal it draws is handed to the batch), so the goals are exactly those of
-    ``merge=False``; the trajectories are the batch's dynamics', equal to the groups' own to
-    floating-point rounding (UR5Reach-v0: the compiled kernel instead of Pinocchio's loop for
-    a single copy). Envs without a vector entry point or a task specification are not merged.
+    A group of several copies is the env's own vector implementation (its
+    ``vector_entry_point``, e.g. ``envs.BatchedReach``) when it has one, a single copy
+    ``gymnasium.make``. ``merge=True`` steps the copies of all groups whose tasks (``task_of``)
+    are equal but for `GOAL_FIELDS` in one vector env, which must accept ``reset(seed=[...],
+    options={"goal": (m, goal_dim)})``; each group still draws its copies' goals, so the goals
+    are exactly those of ``merge=False`` and the trajectories equal to rounding. Envs without a
+    vector entry point or a task specification are not merged.
     """
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
@@ -398,15 +392,11 @@ class TorchGoalVecEnv(_Layout):
 
     ``merge=True`` (the default; the trainer's ``torch`` env backend) steps the copies of all
     groups whose tasks are equal but for `GOAL_FIELDS` in one twin on the device, as
-    `GoalVecEnv(merge=True)` does on the host: one step call (``dynamics="numba"``: one kernel
-    launch) per step for all of them instead of one per group. Each group keeps a twin of its
-    own on the CPU that only draws its copies' goals (the twin's ``draw_goals(seeds)``: the
-    goals its ``reset(seed=seeds)`` would start with, nothing stepped), handed to the merged
-    twin by ``reset(options={"goal": (n, goal_dim)})``: the goals are exactly those of
-    ``merge=False``, and so are the steps on the CPU (the copies do not interact; measured
-    bitwise for the torch kernel, by the fingerprints too). A group's reward and termination
-    are its merged twin's (the tasks of one batch differ only where goals are drawn, which
-    neither reads). ``merge=False``: one twin per group on the device, each stepped alone.
+    `GoalVecEnv(merge=True)` does on the host. Each group keeps a twin of its own on the CPU
+    that only draws its copies' goals (``draw_goals(seeds)``), handed to the merged twin by
+    ``reset(options={"goal": (n, goal_dim)})``; a group's reward and termination are its merged
+    twin's (docs/design.md, "Dynamics", says why both are exact). ``merge=False``: one twin per
+    group on the device, each stepped alone.
     """
 
     on_host = False
