@@ -412,8 +412,8 @@ class RunFolder:
         buf = io.BytesIO()
         torch.save(state, buf)
         atomic_write(folder / f"episode-{episode:06d}.pt", buf.getvalue())
-        for old in list(self.checkpoints())[:-keep]:
-            self.checkpoints()[old].unlink(missing_ok=True)
+        for old in list(self.checkpoints().values())[:-keep]:
+            old.unlink(missing_ok=True)
 
     def load_checkpoint(self, episode: int) -> dict[str, Any]:
         """The checkpoint of ``episode`` (tensors on the CPU).
