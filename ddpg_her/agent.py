@@ -284,11 +284,11 @@ class DDPG:
         theta' <- (1 - tau) theta' + tau theta. The gradients are written out by hand (each
         layer a batched matrix product): that skips what autograd would compute and throw
         away (the critic's weight gradients in the actor step, the gradient of the state half
-        of the critic's second-layer input: 144 instead of 160 MFLOP per agent-update at
-        400-300, batch 64), fuses each ReLU's backward into one pass and reuses preallocated
-        gradient buffers. `tests/test_ddpg_agent.py` checks it, on the fast and on the plain
-        path (`FastPaths`), against a plain autograd DDPG to 1e-10 in float64. With
-        ``config.batch_norm`` the two steps go through autograd instead (`_update_autograd`).
+        of the critic's second-layer input), fuses each ReLU's backward into one pass and
+        reuses preallocated gradient buffers. `tests/test_ddpg_agent.py` checks it, on the
+        fast and on the plain path (`FastPaths`), against a plain autograd DDPG to 1e-10 in
+        float64. With ``config.batch_norm`` the two steps go through autograd instead
+        (`_update_autograd`).
         """
         if self.config.batch_norm:
             critic_loss, actor_loss = self._update_autograd(x, u, r, x2, terminated)

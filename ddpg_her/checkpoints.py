@@ -23,6 +23,7 @@ import numpy as np
 from ddpg_her.buffer import ReplayBuffer
 from ddpg_her.config import BEFORE, AgentConfig
 from ddpg_her.runfolder import FORMAT, RunFolder, RunFolderError, git_revision, versions
+from ddpg_her.units import json_equal
 
 DEFAULT_BACKEND = "numpy"
 """The env backend a ``spec.json`` without ``env_backend`` was trained with."""
@@ -63,9 +64,8 @@ def run_spec(*, env_backend: str, env_id: str, env_kwargs: dict[str, Any],
 
 def differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     """Keys that make two specs different tasks or agents."""
-    diffs = [key for key in ("format", "env_id", "env_kwargs", "task", "seed", "dims",
-                             "env_backend", "env_dynamics", "update_graph")
-             if not json_equal(old.get(key), new.get(key))]
+    diffs = [key for key in CONFIG_KEYS
+             if key != "agent" and not json_equal(old.get(key), new.get(key))]
     # a field added after the run was written reads as what such runs did (config.BEFORE)
     old_agent = {k: v for k, v in {**BEFORE, **old.get("agent", {})}.items()
                  if k not in RESUMABLE_CHANGES}
@@ -309,11 +309,6 @@ def _check_coverage(where: Path, episode: int, chunks: Sequence[tuple[int, Any]]
         raise RunFolderError(
             f"{where}: the chunks up to episode {episode} end at transition {covered}, its "
             f"checkpoint expects {total}")
-
-
-def json_equal(a: Any, b: Any) -> bool:
-    """Equality of two values as JSON would store them (tuples are lists)."""
-    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 
 def lookup(d: dict[str, Any], dotted: str) -> Any:

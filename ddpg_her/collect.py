@@ -30,18 +30,14 @@ from ddpg_her.spaces import goal_input
 from ddpg_her.vecenv import HostEnvs, TorchGoalVecEnv
 
 ENV_BACKENDS = ("numpy", "batched", "torch")
-"""``numpy``: the envs are Gymnasium's (numpy arrays on the host), one group of copies per
-agent. ``batched``: the same envs, but the copies of all agents whose tasks differ only in their
-goals step in one vector env (``GoalVecEnv(merge=True)``; UR5Reach-v0: one call of the compiled
-kernel for all of them), with the same goals and exploration as ``numpy`` and trajectories
-equal to rounding. ``torch``: the env id's tensor twin (``envs.tensor_twin``, e.g.
-``envs.TorchReach``) on the trainer's device, so rollout, HER and the buffer stay on the device
-(stop contact model only)."""
+"""The trainer's ``--env-backend``: ``numpy``, Gymnasium's envs on the host, one group of copies
+per agent; ``batched``, the same envs merged where the tasks differ only in their goals
+(``GoalVecEnv(merge=True)``); ``torch``, the env id's tensor twin on the trainer's device
+(`TorchGoalVecEnv`). What each keeps equal: ``python -m ddpg_her.train --help``."""
 
 ENV_DYNAMICS = ("torch", "numba")
-"""The arm dynamics of the ``torch`` env backend (``envs.torchreach.DYNAMICS``): ``torch``, the
-vectorised tensor step; ``numba``, the numba kernels behind the same tensors (on a CUDA device
-the fused kernel, one launch per control step; on the CPU the CPU kernel)."""
+"""The arm dynamics of the ``torch`` env backend (``envs.torchreach.DYNAMICS``, the trainer's
+``--env-dynamics``): ``torch``, the vectorised tensor step; ``numba``, the numba kernels."""
 
 Envs = HostEnvs | TorchGoalVecEnv
 
@@ -149,30 +145,21 @@ class Collector:
         length, success = flags[0], flags[1].astype(bool)
         steps = [her_goal_steps(self.config.her_strategy, int(length[k]), self.config.her_k,
                                 self.rngs[k]) for k in range(self.k)]
-        owner = np.concatenate([np.full(len(g), k) for k, g in enumerate(steps)]).astype(int)
         rows = [pack_tensors(eps.observation[k], eps.achieved_goal[k], eps.desired_goal[k],
                              eps.action[k], eps.reward[k], eps.terminated[k],
                              self.scale)[:length[k]] for k in range(self.k)]
+        # one relabelling call per agent, its reward being the agent's task
+        her = [(k, her_tensors(eps, np.full(len(g), k), g,
+                               functools.partial(envs.reward_fn, group=k),
+                               functools.partial(envs.terminated_fn, group=k)))
+               for k, g in enumerate(steps) if len(g)]
+        her_lengths = iter(torch.cat([out[3] for _, out in her]).tolist() if her else [])
         copies: list[list[torch.Tensor]] = [[] for _ in range(self.k)]
-        if len(owner):
-            # one relabelling call per group, its reward being the group's task
-            goal_steps = np.concatenate(steps)
-            her_len = torch.zeros(len(owner), dtype=torch.long, device=dev)
-            her = []
-            for k in range(self.k):
-                sel = np.flatnonzero(owner == k)
-                if len(sel):
-                    out = her_tensors(eps, owner[sel], goal_steps[sel],
-                                      functools.partial(envs.reward_fn, group=k),
-                                      functools.partial(envs.terminated_fn, group=k))
-                    her_len[torch.as_tensor(sel, device=dev)] = out[3]
-                    her.append((k, sel, out))
-            her_len_host = her_len.cpu().numpy()
-            for k, sel, (goal, reward, terminated, _) in her:
-                idx = torch.as_tensor(owner[sel], device=dev)
-                packed = pack_tensors(eps.observation[idx], eps.achieved_goal[idx], goal,
-                                      eps.action[idx], reward, terminated, self.scale)
-                copies[k] += [p[:her_len_host[c]] for p, c in zip(packed, sel, strict=True)]
+        for k, (goal, reward, terminated, _) in her:
+            idx = torch.full((len(goal),), k, device=dev)
+            packed = pack_tensors(eps.observation[idx], eps.achieved_goal[idx], goal,
+                                  eps.action[idx], reward, terminated, self.scale)
+            copies[k] = [p[:next(her_lengths)] for p in packed]
         for k in range(self.k):
             all_rows = torch.cat([rows[k], *copies[k]])
             buffer.put(k, int(buffer.total[k]), all_rows)

@@ -13,6 +13,7 @@ import itertools
 import math
 import numbers
 import textwrap
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from typing import Any
@@ -133,15 +134,9 @@ class AgentConfig:
     batch_norm: bool = False
     """Batch normalisation as Lillicrap et al. 2016 had it for low-dimensional inputs: on the
     network input (actor and critic each) and on the pre-activations of every hidden layer of the
-    actor and of the critic's layers before the action input (its first); none on the output
-    layers; a layer a normalisation follows has no bias, and the input's normalisation no
-    shift (the next normalisation cancels both). Off by default: Table I lists none, although
-    the paper says it used Lillicrap's networks. Online networks normalise by the minibatch's
-    statistics in the update; target networks and every action taken (exploration and test)
-    by running statistics, as Lillicrap. A network's running statistics move only in the
-    forward pass of its own loss and are soft-updated into its target with tau. Trained by a
-    stacked autograd path (checked against ddpg_her.reference to 1e-10), slower per update than
-    the hand-written backward (docs/design.md gives the factors)."""
+    actor and of the critic's layers before the action input (its first). Off by default: Table
+    I lists none, although the paper says it used Lillicrap's networks. Which statistics each
+    pass uses, how they move, and the cost of its autograd update: docs/design.md, "Agent"."""
     batch_norm_momentum: float = 0.01
     """Weight m of each minibatch in the running statistics of --batch-norm, in (0, 1]:
     running <- (1 - m) running + m batch, the variance unbiased. Lillicrap et al. do not say;
@@ -171,12 +166,9 @@ class AgentConfig:
     # --- the regional ensemble (issue 25) ------------------------------------------------------
     ensemble: int = 1
     """Members M of the regional ensemble of --algo agents (1: none, a single agent). Each member
-    owns one cell of a k-means partition of the task's goals (4,096 goals of the task's own
-    distribution, a fixed seed; spec.json records the centres) and acts on the goals of its
-    cell, in training and at test. A stored transition, real or HER-relabelled, trains the
-    member whose cell holds its desired goal. The M members share one agent's budget: the same
-    episodes, replay buffer (one per seed) and updates_per_episode in all, updates_per_episode
-    / M each."""
+    owns one cell of a k-means partition of the task's goals and acts on the goals of its cell;
+    the M members share one agent's budget (updates_per_episode / M each). Every rule, and
+    why: docs/design.md, "The regional ensemble"."""
 
     flush_denormals: bool = True
     """Flush subnormal floats (below 1.2e-38 in float32) to zero on the CPU while training. Adam's
@@ -242,58 +234,44 @@ MAX_ENSEMBLE = 64
 cost) and needs goals in its cell; 64 is far beyond what the task's budget feeds."""
 
 
-VALID: dict[str, tuple[str, Any]] = {
-    "gamma": ("a number in [0, 1]", lambda c: _real(c.gamma) and 0.0 <= c.gamma <= 1.0),
+_RANGES: tuple[tuple[str, Callable[[Any], bool], tuple[str, ...]], ...] = (
+    ("a number in [0, 1]", lambda v: _real(v) and 0.0 <= v <= 1.0, ("gamma", "ou_theta")),
+    ("a number in (0, 1]", lambda v: _real(v) and 0.0 < v <= 1.0,
+     ("tau", "batch_norm_momentum")),
+    ("a finite number > 0", lambda v: _real(v) and 0.0 < v < math.inf,
+     ("actor_lr", "critic_lr", "final_init", "norm_eps", "sac_init_alpha", "sac_alpha_lr")),
+    ("a finite number >= 0", lambda v: _real(v) and 0.0 <= v < math.inf,
+     ("exploration_rate", "critic_l2", "td3_target_noise", "td3_target_noise_clip")),
+    ("a number > 0 (inf: no clipping)", lambda v: _real(v) and v > 0.0, ("obs_clip",)),
+    ("an integer >= 0", lambda v: _integer(v) and v >= 0,
+     ("episodes", "warmup_episodes", "updates_per_episode")),
+    ("an integer >= 1", lambda v: _integer(v) and v >= 1,
+     ("batch_size", "eval_every", "eval_episodes", "her_k", "td3_policy_delay")),
+    ("true or false", lambda v: isinstance(v, bool),
+     ("normalize_obs", "flush_denormals", "batch_norm")),
+)
+"""The ranges that fields share: (the range in words, the test of a value, the fields)."""
+
+
+def _field_check(name: str, test: Callable[[Any], bool]) -> Callable[[AgentConfig], bool]:
+    return lambda c: test(getattr(c, name))
+
+
+_CHECKS: dict[str, tuple[str, Any]] = {
+    **{name: (words, _field_check(name, test)) for words, test, names in _RANGES
+       for name in names},
     "buffer_size": ("an integer >= batch_size",
                     lambda c: _integer(c.buffer_size) and c.buffer_size >= c.batch_size),
-    "batch_size": ("an integer >= 1", lambda c: _integer(c.batch_size) and c.batch_size >= 1),
-    "exploration_rate": ("a finite number >= 0", lambda c: _real(c.exploration_rate)
-                         and 0.0 <= c.exploration_rate < math.inf),
-    "tau": ("a number in (0, 1]", lambda c: _real(c.tau) and 0.0 < c.tau <= 1.0),
-    "actor_lr": ("a finite number > 0", lambda c: _real(c.actor_lr)
-                 and 0.0 < c.actor_lr < math.inf),
-    "critic_lr": ("a finite number > 0", lambda c: _real(c.critic_lr)
-                  and 0.0 < c.critic_lr < math.inf),
-    "episodes": ("an integer >= 0", lambda c: _integer(c.episodes) and c.episodes >= 0),
-    "eval_every": ("an integer >= 1", lambda c: _integer(c.eval_every) and c.eval_every >= 1),
-    "eval_episodes": ("an integer >= 1",
-                      lambda c: _integer(c.eval_episodes) and c.eval_episodes >= 1),
     "hidden_sizes": ("two integers >= 1",
                      lambda c: isinstance(c.hidden_sizes, tuple) and len(c.hidden_sizes) == 2
                      and all(_integer(h) and h >= 1 for h in c.hidden_sizes)),
-    "final_init": ("a finite number > 0", lambda c: _real(c.final_init)
-                   and 0.0 < c.final_init < math.inf),
-    "her_k": ("an integer >= 1", lambda c: _integer(c.her_k) and c.her_k >= 1),
-    "ou_theta": ("a number in [0, 1]", lambda c: _real(c.ou_theta) and 0.0 <= c.ou_theta <= 1.0),
-    "warmup_episodes": ("an integer >= 0",
-                        lambda c: _integer(c.warmup_episodes) and c.warmup_episodes >= 0),
-    "updates_per_episode": ("an integer >= 0", lambda c: _integer(c.updates_per_episode)
-                            and c.updates_per_episode >= 0),
-    "obs_clip": ("a number > 0 (inf: no clipping)", lambda c: _real(c.obs_clip)
-                 and c.obs_clip > 0.0),
-    "norm_eps": ("a finite number > 0", lambda c: _real(c.norm_eps)
-                 and 0.0 < c.norm_eps < math.inf),
-    "critic_l2": ("a finite number >= 0", lambda c: _real(c.critic_l2)
-                  and 0.0 <= c.critic_l2 < math.inf),
-    "normalize_obs": ("true or false", lambda c: isinstance(c.normalize_obs, bool)),
-    "flush_denormals": ("true or false", lambda c: isinstance(c.flush_denormals, bool)),
-    "batch_norm": ("true or false", lambda c: isinstance(c.batch_norm, bool)),
-    "batch_norm_momentum": ("a number in (0, 1]", lambda c: _real(c.batch_norm_momentum)
-                            and 0.0 < c.batch_norm_momentum <= 1.0),
-    "td3_target_noise": ("a finite number >= 0", lambda c: _real(c.td3_target_noise)
-                         and 0.0 <= c.td3_target_noise < math.inf),
-    "td3_target_noise_clip": ("a finite number >= 0", lambda c: _real(c.td3_target_noise_clip)
-                              and 0.0 <= c.td3_target_noise_clip < math.inf),
-    "td3_policy_delay": ("an integer >= 1",
-                         lambda c: _integer(c.td3_policy_delay) and c.td3_policy_delay >= 1),
-    "sac_init_alpha": ("a finite number > 0", lambda c: _real(c.sac_init_alpha)
-                       and 0.0 < c.sac_init_alpha < math.inf),
-    "sac_alpha_lr": ("a finite number > 0", lambda c: _real(c.sac_alpha_lr)
-                     and 0.0 < c.sac_alpha_lr < math.inf),
     "ensemble": (f"an integer in 1..{MAX_ENSEMBLE} that divides updates_per_episode",
                  lambda c: _integer(c.ensemble) and 1 <= c.ensemble <= MAX_ENSEMBLE
                  and c.updates_per_episode % c.ensemble == 0),
 }
+
+VALID: dict[str, tuple[str, Any]] = {
+    f.name: _CHECKS[f.name] for f in dataclasses.fields(AgentConfig) if f.name in _CHECKS}
 """The valid values of the checked `AgentConfig` fields: {field: (the range in words, test)}.
 The words appear in the error message and in ``--help``."""
 

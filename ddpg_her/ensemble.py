@@ -117,11 +117,6 @@ class CellBuffer(ReplayBuffer):
         super().put(k, start, rows)
         self._index(k, before, start, torch.from_numpy(np.asarray(rows)))
 
-    def put_tensor(self, k: int, start: int, rows: torch.Tensor) -> None:
-        before = int(self.total[k])
-        super().put_tensor(k, start, rows)
-        self._index(k, before, start, rows)
-
     def _index(self, k: int, before: int, start: int, rows: torch.Tensor) -> None:
         """File the rows just written (numbers ``start ..``) under their cells."""
         first = max(0, int(self.total[k]) - self.capacity)

@@ -30,14 +30,12 @@ class RunningNormalizer:
         if isinstance(x, torch.Tensor):
             x = x.to(torch.float64).reshape(-1, self.dim)
             sums = torch.stack([x.sum(0), (x**2).sum(0)]).cpu().numpy()
-            self.count[k] += len(x)
-            self.sum[k] += sums[0]
-            self.sumsq[k] += sums[1]
         else:
             x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
-            self.count[k] += len(x)
-            self.sum[k] += x.sum(axis=0)
-            self.sumsq[k] += (x**2).sum(axis=0)
+            sums = (x.sum(axis=0), (x**2).sum(axis=0))
+        self.count[k] += len(x)
+        self.sum[k] += sums[0]
+        self.sumsq[k] += sums[1]
         if self.enabled and self.count[k] > 0:
             n = self.count[k]
             mean = self.sum[k] / n

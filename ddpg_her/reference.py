@@ -68,6 +68,16 @@ def _float_buffers(net: nn.Module) -> list[torch.Tensor]:
     return [b for b in net.buffers() if b.is_floating_point()]
 
 
+@torch.no_grad()
+def _soft_update(pairs: tuple[tuple[nn.Module, nn.Module], ...], tau: float) -> None:
+    """target <- (1 - tau) target + tau online, for each (online, target) pair of networks:
+    their parameters and running statistics."""
+    for net, target in pairs:
+        for p, pt in zip(list(net.parameters()) + _float_buffers(net),
+                         list(target.parameters()) + _float_buffers(target), strict=True):
+            pt.mul_(1 - tau).add_(tau * p)
+
+
 class ReferenceDDPG:
     """One DDPG agent with fixed input statistics: ``norm(x) = clip((x - mean) / std, +-clip)``.
 
@@ -134,13 +144,8 @@ class ReferenceDDPG:
         with torch.no_grad():
             for b, old in zip(_float_buffers(self.critic), kept, strict=True):
                 b.copy_(old)
-        with torch.no_grad():
-            for net, target in ((self.actor, self.actor_target),
-                                (self.critic, self.critic_target)):
-                pairs = zip(list(net.parameters()) + _float_buffers(net),
-                            list(target.parameters()) + _float_buffers(target), strict=True)
-                for p, pt in pairs:
-                    pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
+        _soft_update(((self.actor, self.actor_target), (self.critic, self.critic_target)),
+                     cfg.tau)
         return critic_loss.detach(), actor_loss.detach()
 
 
@@ -185,12 +190,8 @@ class ReferenceTD3(ReferenceDDPG):
             actor_loss.backward()
             self.actor_opt.step()
             actor_loss = actor_loss.detach()
-            with torch.no_grad():
-                for net, target in ((self.actor, self.actor_target),
-                                    (self.critic, self.critic_target),
-                                    (self.critic2, self.critic2_target)):
-                    for p, pt in zip(net.parameters(), target.parameters(), strict=True):
-                        pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
+            _soft_update(((self.actor, self.actor_target), (self.critic, self.critic_target),
+                          (self.critic2, self.critic2_target)), cfg.tau)
         return critic_loss.detach(), actor_loss
 
 
@@ -270,9 +271,6 @@ class ReferenceSAC:
         self.alpha_opt.zero_grad()
         alpha_loss.backward()
         self.alpha_opt.step()
-        with torch.no_grad():
-            for net, target in ((self.critic, self.critic_target),
-                                (self.critic2, self.critic2_target)):
-                for p, pt in zip(net.parameters(), target.parameters(), strict=True):
-                    pt.mul_(1 - cfg.tau).add_(cfg.tau * p)
+        _soft_update(((self.critic, self.critic_target), (self.critic2, self.critic2_target)),
+                     cfg.tau)
         return critic_loss.detach(), actor_loss.detach()

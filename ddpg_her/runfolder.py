@@ -130,10 +130,6 @@ def _alive(pid: int) -> bool:
         return True
 
 
-def _host() -> str:
-    return socket.gethostname()
-
-
 class RunFolderWriteError(RunFolderError):
     """A file of a run folder that cannot be written (read-only, full disk, no permission, a
     file where a folder should be); the file as it was is left in place."""
@@ -255,7 +251,7 @@ class RunFolder:
             return None
         except (OSError, ValueError, KeyError, TypeError):
             return {"pid": None, "host": None, "since": None, "unreadable": True}
-        if host == _host() and not _alive(pid):
+        if host == socket.gethostname() and not _alive(pid):
             return None
         return holder
 
@@ -271,7 +267,7 @@ class RunFolder:
             the message names its pid and host and how to free a stale lock.
         """
         make_folder(self.path)
-        me = {"pid": os.getpid(), "host": _host(),
+        me = {"pid": os.getpid(), "host": socket.gethostname(),
               "since": datetime.datetime.now().isoformat(timespec="seconds")}
         for _ in range(3):
             try:
@@ -317,7 +313,7 @@ class RunFolder:
             holder = json.loads(self.lock_path.read_text())
         except (OSError, ValueError):
             return
-        if holder.get("pid") == os.getpid() and holder.get("host") == _host():
+        if holder.get("pid") == os.getpid() and holder.get("host") == socket.gethostname():
             with contextlib.suppress(OSError):  # a folder made read-only meanwhile
                 self.lock_path.unlink(missing_ok=True)
 
@@ -416,8 +412,8 @@ class RunFolder:
         buf = io.BytesIO()
         torch.save(state, buf)
         atomic_write(folder / f"episode-{episode:06d}.pt", buf.getvalue())
-        for old in list(self.checkpoints())[:-keep]:
-            self.checkpoints()[old].unlink(missing_ok=True)
+        for old in list(self.checkpoints().values())[:-keep]:
+            old.unlink(missing_ok=True)
 
     def load_checkpoint(self, episode: int) -> dict[str, Any]:
         """The checkpoint of ``episode`` (tensors on the CPU).

@@ -79,9 +79,8 @@ class TD3(StackedAgent):
                 set_grads(list(self.actor.parameters()), actor_loss)
                 self.actor_opt.step()
                 self._actor_loss = actor_loss.detach()
-                pairs = [(m, t) for m, t in ((self.actor, self.actor_target),
-                                             (self.critic1, self.critic1_target),
-                                             (self.critic2, self.critic2_target))]
+                pairs = ((self.actor, self.actor_target), (self.critic1, self.critic1_target),
+                         (self.critic2, self.critic2_target))
                 soft_update([p for _, t in pairs for p in t.parameters()],
                             [p for m, _ in pairs for p in m.parameters()], c.tau)
         return critic_loss.detach(), self._actor_loss

@@ -46,8 +46,6 @@ def _add_config_flags(group: argparse._ArgumentGroup) -> None:
 
 def _task_fields_help() -> str:
     """``--help``'s list of the fields ``--task KEY=VALUE`` sets, with their defaults."""
-    import dataclasses
-
     from envs.spec import TaskSpec  # a plain record: no Pinocchio, --help stays fast
 
     fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(TaskSpec))
@@ -76,16 +74,13 @@ def add_process_flags(group: Any, what: str) -> None:
                             "otherwise than under 'numpy'")
     group.add_argument("--env-dynamics", choices=["torch", "numba"], default="torch",
                        help="the arm dynamics of --env-backend torch (default: torch): "
-                            "'torch', the vectorised tensor step (any --device; on cuda about "
-                            "6,000 kernel launches per control step; on cpu about 40 ms per "
-                            "control step of 20 copies); 'numba', the numba kernels behind "
-                            "the same tensors, zero copy: on --device cuda the fused CUDA "
-                            "kernel (envs/physics/numba_cuda.py: one launch per control step, "
-                            "one thread per env copy), on cpu the CPU kernel (about 1 ms per "
-                            "control step of 20 copies; trajectories equal to --env-backend "
-                            "batched's bit for bit). The two give the same "
-                            "trajectories to rounding; spec.json records 'numba', and a run "
-                            "resumes only with its own setting")
+                            "'torch', the vectorised tensor step (any --device); 'numba', the "
+                            "numba kernels behind the same tensors, zero copy, and faster "
+                            "(docs/design.md, Dynamics): on --device cuda the fused CUDA "
+                            "kernel (one launch per control step), on cpu the CPU kernel "
+                            "(trajectories equal to --env-backend batched's bit for bit). The "
+                            "two give the same trajectories to rounding; spec.json records "
+                            "'numba', and a run resumes only with its own setting")
     group.add_argument("--update-graph", choices=["auto", "on", "off"], default="auto",
                        help="how the updates run (default: auto, which is 'on' for --device "
                             "cuda with --algo ddpg without --batch-norm, else 'off'): 'on', each "

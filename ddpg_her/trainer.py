@@ -56,15 +56,10 @@ class Trainer:
     seeds : (K,) ints, distinct among agents of one task; run_dirs : K distinct folders;
     resume : continue the runs in ``run_dirs`` from their last common checkpoint (runs absent
     there start afresh) instead of refusing existing folders; env_backend : one of
-    `ENV_BACKENDS`. With ``torch``, exploration draws from torch generators on the device
-    (`ddpg_her.exploration.TorchDraws`), so the same seed explores otherwise than with
-    ``numpy``; with no exploration draws (no warm-up, rate 0) the two backends train alike to
-    rounding (tested). env_dynamics : the ``torch`` backend's arm, one of
-    `ddpg_her.collect.ENV_DYNAMICS` (``numba``: the numba kernels, the same trajectories
-    to rounding; recorded in ``spec.json`` when not ``torch``). update_graph : ``auto``,
-    ``on`` or ``off``
-    (`ddpg_her.update_graph.MODES`); on, the updates run as one device step (`UpdateStep`, a
-    CUDA graph on CUDA) with their own minibatch stream.
+    `ENV_BACKENDS`; env_dynamics : the ``torch`` backend's arm, one of
+    `ddpg_her.collect.ENV_DYNAMICS`; update_graph : ``auto``, ``on`` or ``off``
+    (`ddpg_her.update_graph.MODES`). The last three are ``ddpg_her.train``'s flags of their
+    names, whose ``--help`` says how each changes a seed's run.
     """
 
     def __init__(self, env_id: str, env_kwargs: dict[str, Any] | Sequence[dict[str, Any]],

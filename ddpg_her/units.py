@@ -58,7 +58,7 @@ def task_fields(region: str, joints: int | None, overrides: Sequence[tuple[str, 
         given["n_joints"] = ("--joints", joints)
     for key, value in overrides:
         flag = f"--task {key}={json.dumps(value)}"
-        if key in given and not _same(given[key][1], value):
+        if key in given and not json_equal(given[key][1], value):
             raise ValueError(f"{given[key][0]} and {flag} give the task field {key!r} two "
                              f"values ({given[key][1]!r}, {value!r}); give it once")
         given.setdefault(key, (flag, value))
@@ -67,7 +67,8 @@ def task_fields(region: str, joints: int | None, overrides: Sequence[tuple[str, 
     return fields
 
 
-def _same(a: Any, b: Any) -> bool:
+def json_equal(a: Any, b: Any) -> bool:
+    """Equality of two values as JSON would store them (tuples are lists)."""
     return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 

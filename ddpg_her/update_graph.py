@@ -2,13 +2,9 @@
 device, the K agents' update, the loss sums; captured once as a CUDA graph and replayed on CUDA,
 run eagerly on the CPU.
 
-One update of 55 stacked agents is about 60 small kernels; launched one by one from Python they
-cost about 3 ms on an H100, the compute about 0.2 ms (issue 24). A CUDA graph launches them as
-one. A graph replays fixed kernels on fixed memory, so nothing in the step may be a host value
-that changes: the minibatch indices come from a counter-based generator whose counter is a
-device tensor (`ddpg_her.buffer.CounterSampler`), the stored row counts are a device tensor
-(`ReplayBuffer.filled`), the learning rates are device tensors (`DDPG.capturable`), and Adam's
-step counts, the normaliser's statistics and every parameter are updated in place.
+Launching an update's small kernels one by one from Python costs far more than their compute
+on a GPU (issue 24); a graph replays them as one, on fixed memory, so nothing in the step may be
+a host value that changes. What is kept on the device for that: docs/design.md, "Agent".
 """
 
 from __future__ import annotations

@@ -2,15 +2,10 @@
 
 The agent sees the env only through the Gymnasium goal-env API: a Dict observation with
 ``observation``, ``achieved_goal`` and ``desired_goal``, a Box action, ``info["is_success"]``, and
-the vectorised ``compute_reward`` / ``compute_terminated`` of the env. A group of several copies
-uses the env's own batched implementation (its ``vector_entry_point``, e.g. ``envs.BatchedReach``)
-when it has one; a single copy is ``gymnasium.make``. By default groups never share a batch, so
-what agent k's copies compute does not depend on how many agents train beside it. With
-``merge=True`` (the trainer's ``batched`` env backend) the copies of every group whose tasks
-differ only in their goals step together in one vector env: one batched call per step for all
-of them, the goals still each group's own draws. The trainer sees every env backend through one
-interface of tensors: `HostEnvs` (a `GoalVecEnv`, its arrays entering torch without a copy) and
-`TorchGoalVecEnv` (the env's tensor twin on a device); ``ddpg_her.collect`` rolls out either.
+the vectorised ``compute_reward`` / ``compute_terminated`` of the env. The trainer sees every env
+backend through one interface of tensors: `HostEnvs` (a `GoalVecEnv`, its arrays entering torch
+without a copy) and `TorchGoalVecEnv` (the env's tensor twin on a device); ``ddpg_her.collect``
+rolls out either. How groups merge into one batch, and why: docs/design.md, "Dynamics".
 """
 
 from __future__ import annotations
@@ -91,32 +86,36 @@ class _Singles:
         limits = [x for x in (limit, task_limit) if x is not None]
         self.max_steps = min(limits) if limits else None
 
-    def reset(self, seeds: Sequence[int]) -> list[dict[str, np.ndarray]]:
-        return [env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds, strict=True)]
+    def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
+        obs = [env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds, strict=True)]
+        return {key: np.stack([o[key] for o in obs]) for key in KEYS}
 
-    def step(self, action: np.ndarray, active: np.ndarray) -> list[tuple | None]:
-        out: list[tuple | None] = [None] * len(self.envs)
+    def step(self, action: np.ndarray, active: np.ndarray) -> tuple:
+        """`_Vector.step`'s arrays (M, ...); the copies not ``active`` are not stepped (their
+        entries are zeros, ignored)."""
+        m = len(self.envs)
+        obs = {key: np.zeros((m, *self.observation_space[key].shape)) for key in KEYS}
+        reward = np.zeros(m)
+        flags = np.zeros((3, m), dtype=bool)
         for i in np.flatnonzero(active):
             o, r, term, trunc, info = self.envs[i].step(action[i])
-            out[i] = (o, r, term, trunc, bool(info.get("is_success", term)))
-        return out
+            for key in KEYS:
+                obs[key][i] = o[key]
+            reward[i] = r
+            flags[:, i] = term, trunc, bool(info.get("is_success", term))
+        return obs, reward, flags[0], flags[1], flags[2]
 
     def close(self) -> None:
         for env in self.envs:
             env.close()
 
 
-def _make_vec(env_id: str, n: int, kwargs: dict[str, Any]) -> gymnasium.vector.VectorEnv:
-    """``n`` copies in the env's own vector implementation, never reset automatically."""
-    return gymnasium.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point",
-                              autoreset_mode=AutoresetMode.DISABLED, **kwargs)
-
-
 class _Vector:
     """M copies in the env's own vector implementation, never reset automatically."""
 
     def __init__(self, env_id: str, m: int, kwargs: dict[str, Any]):
-        self.env = _make_vec(env_id, m, kwargs)
+        self.env = gymnasium.make_vec(env_id, num_envs=m, vectorization_mode="vector_entry_point",
+                                      autoreset_mode=AutoresetMode.DISABLED, **kwargs)
         self.observation_space = self.env.single_observation_space
         self.action_space = self.env.single_action_space
         self.goal_env = self.env.unwrapped
@@ -253,14 +252,13 @@ class GoalVecEnv(_Layout):
     is reseeded at every reset from the seed given for it, so an episode depends only on its
     own seed and its group's task: nothing about the env needs saving in a checkpoint.
 
-    ``merge=True`` steps the copies of all groups whose tasks (``task_of``) are equal but for
-    `GOAL_FIELDS` in one vector env of the env id's ``vector_entry_point``, which must accept
-    ``reset(seed=[...], options={"goal": (m, goal_dim)})`` (as ``envs.BatchedReach`` does).
-    Each group still draws its copies' goals (its own env is reset with the copy's seed, and
-    the goal it draws is handed to the batch), so the goals are exactly those of
-    ``merge=False``; the trajectories are the batch's dynamics', equal to the groups' own to
-    floating-point rounding (UR5Reach-v0: the compiled kernel instead of Pinocchio's loop for
-    a single copy). Envs without a vector entry point or a task specification are not merged.
+    A group of several copies is the env's own vector implementation (its
+    ``vector_entry_point``, e.g. ``envs.BatchedReach``) when it has one, a single copy
+    ``gymnasium.make``. ``merge=True`` steps the copies of all groups whose tasks (``task_of``)
+    are equal but for `GOAL_FIELDS` in one vector env, which must accept ``reset(seed=[...],
+    options={"goal": (m, goal_dim)})``; each group still draws its copies' goals, so the goals
+    are exactly those of ``merge=False`` and the trajectories equal to rounding. Envs without a
+    vector entry point or a task specification are not merged.
     """
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
@@ -294,9 +292,7 @@ class GoalVecEnv(_Layout):
     def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
         """Reset every copy n with ``seeds[n]``; the observation arrays are (N, ...)."""
         parts = self._reset_groups(seeds)
-        obs = {key: np.concatenate([
-            p[key] if isinstance(p, dict) else np.stack([o[key] for o in p]) for p in parts
-        ]).astype(np.float64) for key in KEYS}
+        obs = {key: np.concatenate([p[key] for p in parts]).astype(np.float64) for key in KEYS}
         for b in self.batches:  # the groups drew the goals; the batch starts the episodes
             o = b.env.reset(seed=[int(seeds[i]) for i in b.index],
                             options={"goal": obs["desired_goal"][b.index]})[0]
@@ -314,37 +310,17 @@ class GoalVecEnv(_Layout):
         obs = {key: v.copy() for key, v in obs.items()}
         reward = np.zeros(self.num_envs)
         flags = np.zeros((3, self.num_envs), dtype=bool)
-
-        def put(rows: np.ndarray, out: tuple) -> None:
-            """A vector env's step of the copies ``rows`` (flat indices), where active."""
-            o, r, term, trunc, success = out
+        c = self.copies
+        stepped = [(b, b.index) for b in self.batches] or \
+            [(g, np.arange(i * c, (i + 1) * c)) for i, g in enumerate(self.groups)]
+        for env, rows in stepped:  # each steps its copies ``rows`` (flat indices) together
+            o, r, term, trunc, success = env.step(action[rows], active[rows])
             on = active[rows]
             rows = rows[on]
             for key in KEYS:
                 obs[key][rows] = o[key][on]
             reward[rows] = np.asarray(r)[on]
             flags[0, rows], flags[1, rows], flags[2, rows] = term[on], trunc[on], success[on]
-
-        for b in self.batches:
-            put(b.index, b.step(action[b.index], active[b.index]))
-        if self.batches:
-            return obs, reward, flags[0], flags[1], flags[2]
-        c = self.copies
-        for i, g in enumerate(self.groups):
-            sl = slice(i * c, (i + 1) * c)
-            out = g.step(action[sl], active[sl])
-            if isinstance(out, tuple):  # a vector group: arrays for all its copies
-                put(np.arange(i * c, (i + 1) * c), out)
-                continue
-            for m, res in enumerate(out):
-                if res is None:
-                    continue
-                o, r, term, trunc, success = res
-                n = i * c + m
-                for key in KEYS:
-                    obs[key][n] = o[key]
-                reward[n] = r
-                flags[:, n] = term, trunc, success
         return obs, reward, flags[0], flags[1], flags[2]
 
     def close(self) -> None:
@@ -416,15 +392,11 @@ class TorchGoalVecEnv(_Layout):
 
     ``merge=True`` (the default; the trainer's ``torch`` env backend) steps the copies of all
     groups whose tasks are equal but for `GOAL_FIELDS` in one twin on the device, as
-    `GoalVecEnv(merge=True)` does on the host: one step call (``dynamics="numba"``: one kernel
-    launch) per step for all of them instead of one per group. Each group keeps a twin of its
-    own on the CPU that only draws its copies' goals (the twin's ``draw_goals(seeds)``: the
-    goals its ``reset(seed=seeds)`` would start with, nothing stepped), handed to the merged
-    twin by ``reset(options={"goal": (n, goal_dim)})``: the goals are exactly those of
-    ``merge=False``, and so are the steps on the CPU (the copies do not interact; measured
-    bitwise for the torch kernel, by the fingerprints too). A group's reward and termination
-    are its merged twin's (the tasks of one batch differ only where goals are drawn, which
-    neither reads). ``merge=False``: one twin per group on the device, each stepped alone.
+    `GoalVecEnv(merge=True)` does on the host. Each group keeps a twin of its own on the CPU
+    that only draws its copies' goals (``draw_goals(seeds)``), handed to the merged twin by
+    ``reset(options={"goal": (n, goal_dim)})``; a group's reward and termination are its merged
+    twin's (docs/design.md, "Dynamics", says why both are exact). ``merge=False``: one twin per
+    group on the device, each stepped alone.
     """
 
     on_host = False
