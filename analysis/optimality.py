@@ -30,7 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import OutputError, check_folder, check_writable, save_figure, write_csv
+from analysis.outputs import (
+    OutputError,
+    check_folder,
+    check_writable,
+    pyplot,
+    save_figure,
+    write_csv,
+)
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
 from ddpg_her.units import task_option
@@ -83,12 +90,6 @@ it was not run."""
 
 
 # ---------------------------------------------------------------------- candidates
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    import ur5kin
-
-    return ur5kin.wrap(angle)
-
-
 def ik_branches(task: Any, goals: np.ndarray, q_sampled: np.ndarray) -> np.ndarray:
     """Analytic IK branches of each goal for the task's controlled joints.
 
@@ -130,10 +131,10 @@ def ik_branches(task: Any, goals: np.ndarray, q_sampled: np.ndarray) -> np.ndarr
             found += list(ur5kin.ik(ur5kin.fk_pose(q_sampled[i])))
         unique: list[np.ndarray] = []
         for q in found:
-            q = _wrap(np.asarray(q, dtype=float))
-            if np.abs(_wrap(q[n:] - start[n:])).max(initial=0.0) > FIXED_JOINT_TOL:
+            q = ur5kin.wrap(np.asarray(q, dtype=float))
+            if np.abs(ur5kin.wrap(q[n:] - start[n:])).max(initial=0.0) > FIXED_JOINT_TOL:
                 continue  # moves a joint the task holds
-            if not any(np.abs(_wrap(q[:n] - u)).max() < DUPLICATE_TOL for u in unique):
+            if not any(np.abs(ur5kin.wrap(q[:n] - u)).max() < DUPLICATE_TOL for u in unique):
                 unique.append(q[:n])
         rows.append(unique)
     width = max(len(r) for r in rows) if rows else 1
@@ -660,38 +661,27 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
     -------
     The Axes drawn into.
     """
-    import matplotlib
-
-    if ax is None:
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     settings = list(dict.fromkeys((r["region"], int(r["joints"])) for r in rows))
     readings = list(dict.fromkeys(r["reading"] for r in rows))
     if ax is None:
-        _, ax = plt.subplots(figsize=(max(5.0, 1.3 * len(settings) * max(1, len(readings)) / 2
+        _, ax = pyplot().subplots(figsize=(max(5.0, 1.3 * len(settings) * max(1, len(readings)) / 2
                                           + 2.0), 3.8))
     width = 0.8 / max(1, len(readings))
     x = np.arange(len(settings))
     for k, name in enumerate(readings):
         by_setting = {(r["region"], int(r["joints"])): r for r in rows if r["reading"] == name}
-        share = np.array([float(by_setting[s]["share_worth"]) if s in by_setting else np.nan
-                          for s in settings])
-        low = np.array([float(by_setting[s]["ci_low"]) if s in by_setting else np.nan
-                        for s in settings])
-        high = np.array([float(by_setting[s]["ci_high"]) if s in by_setting else np.nan
-                         for s in settings])
-        reach = np.array([float(by_setting[s]["share_reachable"]) if s in by_setting else np.nan
-                          for s in settings])
+        # per setting, NaN where the reading has no row (or no grid check: an empty cell)
+        values = [[by_setting[s].get(key) if s in by_setting else None for s in settings]
+                  for key in ("share_worth", "ci_low", "ci_high", "share_reachable",
+                              "share_worth_grid")]
+        share, low, high, reach, grid = (np.array([np.nan if v in ("", None) else float(v)
+                                                   for v in column]) for column in values)
         pos = x - 0.4 + width * (k + 0.5)
         ax.bar(pos, 100 * share, width, color=f"C{k}", label=f"{name}: worth reaching")
         ax.errorbar(pos, 100 * share, yerr=100 * np.abs(np.stack([share - low, high - share])),
                     fmt="none", ecolor="k", lw=0.8, capsize=2)
         ax.scatter(pos, 100 * reach, marker="_", s=120, color="k", zorder=3,
                    label="reachable by a constant command" if k == 0 else None)
-        grid = np.array([float(by_setting[s]["share_worth_grid"])
-                         if s in by_setting and by_setting[s].get("share_worth_grid") not in
-                         ("", None) else np.nan for s in settings])
         if np.isfinite(grid).any():
             ax.scatter(pos, 100 * grid, marker="x", s=25, color="0.3", zorder=3,
                        label="grid of constant commands (check)" if k == 0 else None)
@@ -702,7 +692,6 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     if out is not None:
         save_figure(ax.figure, out, dpi=120, bbox_inches="tight")
-        plt.close(ax.figure)
     return ax
 
 
@@ -727,11 +716,6 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
     ``rows`` is drawn: the mean over its seeds of the test successes per 100 goals, one line per
     (setting, reading of the run), coloured by setting as the bars' x labels order them.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from analysis.runs import aligned_successes, find_runs
 
     settings = list(dict.fromkeys((r["region"], int(r["joints"])) for r in rows))
@@ -740,8 +724,8 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
         if run.setting in settings and len(run.episode):
             # one line per experiment: seeds of one folder share their evaluation episodes
             groups.setdefault(f"{_run_label(run)} [{run.path.parent.name}]", []).append(run)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(13.0, 4.2),
-                                      gridspec_kw={"width_ratios": [1.0, 1.2]})
+    fig, (left, right) = pyplot().subplots(1, 2, figsize=(13.0, 4.2),
+                                           gridspec_kw={"width_ratios": [1.0, 1.2]})
     for label, runs in sorted(groups.items()):
         episode, percent = aligned_successes(runs)
         color = f"C{settings.index(runs[0].setting) % 10}"
@@ -759,7 +743,6 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
         tick.set_color(f"C{k % 10}")
     fig.tight_layout()
     save_figure(fig, out, dpi=120, bbox_inches="tight")
-    plt.close(fig)
 
 
 def _gamma(text: str) -> float:

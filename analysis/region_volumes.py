@@ -35,6 +35,7 @@ from analysis.outputs import (
     available_bytes,
     check_writable,
     figure_path,
+    pyplot,
     save_figure,
     write_text,
 )
@@ -296,14 +297,10 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     Returns the written paths: the figure, ``<stem>.json`` (rows, outlines, start positions,
     settings) and ``<stem>.csv`` (the drawn samples with per-region acceptance).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
     names = list(study.region_objects)
-    fig, axes = plt.subplots(2, len(names), figsize=(3.6 * len(names), 6.4), squeeze=False)
+    fig, axes = pyplot().subplots(2, len(names), figsize=(3.6 * len(names), 6.4), squeeze=False)
     rng = _rng(settings.seed, "plot")
     table_rows: list[dict[str, object]] = []
     outlines: dict[str, dict[str, list[list[float]]]] = {}
@@ -356,7 +353,6 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
                  f"{settings.base_height} m; start: {settings.start})", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     save_figure(fig, path, dpi=130)
-    plt.close(fig)
 
     data_json = path.with_suffix(".json")
     write_text(data_json, json.dumps({

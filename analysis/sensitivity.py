@@ -38,7 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import write_csv
+from analysis.curves import curve_rows as setting_curve_rows
+from analysis.outputs import pyplot, save_figure, write_csv
 from analysis.paper import PAPER_EPISODES
 from analysis.readings import CHOICES, READINGS, Reading, run_choices
 from analysis.report import (
@@ -88,9 +89,6 @@ are first started, so a report of the root knows what each folder means."""
 
 COLLECTED_FILES = ("spec.json", "eval.csv")
 """What ``--collect`` copies of each run folder (no checkpoints, buffers or logs)."""
-
-VERDICT_WORDS = {v: v.value for v in Verdict}
-"""How a verdict of `analysis.report.judge_claims` reads in this study's tables."""
 
 BOOTSTRAP_REPS = 10_000
 """Default bootstrap resamples per interval (rliable's default is 50,000; with 5 seeds the
@@ -472,8 +470,9 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
         if key not in cache:
             try:
                 task = TaskSpec.from_record(spec["task"])
-                cache[key] = _share(optimality.worth_reaching(task, goals=goals, gamma=gamma,
-                                                                 seed=seed))
+                result = optimality.worth_reaching(task, goals=goals, gamma=gamma, seed=seed)
+                low, high = result.share_worth_ci
+                cache[key] = 100.0 * result.share_worth, 100.0 * low, 100.0 * high
             except (KeyError, TypeError, ValueError) as err:
                 problems.append(f"{cell.reading} {cell.region} {cell.joints}: {err}")
                 cache[key] = None
@@ -484,12 +483,6 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
     if problems:
         note += "; not computed for " + "; ".join(problems)
     return out, note
-
-
-def _share(result: Any) -> Interval:
-    """(share, low, high) in percent from an :class:`analysis.optimality.OptimalityResult`."""
-    low, high = result.share_worth_ci
-    return 100.0 * result.share_worth, 100.0 * low, 100.0 * high
 
 
 @dataclass(frozen=True)
@@ -542,7 +535,7 @@ def word(verdict: Verdict | None, partial: str = "") -> str:
     that falls short of the study)."""
     if verdict is None:
         return "-"
-    return VERDICT_WORDS[verdict] + (" (partial)" if partial else "")
+    return verdict.value + (" (partial)" if partial else "")
 
 
 VERDICT_COLUMNS = ("claim", "reading", "verdict_t", "verdict_bootstrap_mean",
@@ -589,31 +582,18 @@ def write_csvs(cells: Sequence[Cell], rows: Sequence[VerdictRow], curves: Sequen
 
 def curve_rows(groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
                level: float) -> list[dict]:
-    """Per reading, setting and evaluation episode: mean successes and interval over seeds."""
-    rows = []
-    for reading, settings in groups.items():
-        for (region, joints), runs in settings.items():
-            episode, table = aligned_successes(runs)
-            mean, low, high = mean_ci(table, level, PERCENT)
-            rows += [{"reading": reading, "region": region, "joints": joints,
-                      "episode": int(e), "seeds": len(runs),
-                      "mean_successes": round(float(mean[i]), 4),
-                      "ci_low": round(float(low[i]), 4), "ci_high": round(float(high[i]), 4)}
-                     for i, e in enumerate(episode)]
-    return rows
+    """Per reading, setting and evaluation episode: mean successes and interval over seeds
+    (`analysis.curves.curve_rows` with the reading)."""
+    return [{"reading": reading, **row} for reading, settings in groups.items()
+            for row in setting_curve_rows(dict(settings), level)]
 
 
 def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],
                 readings: Sequence[str], budget: int, level: float, out: Path) -> None:
     """One panel per setting, one line per reading (mean, band = interval), the budget dotted."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     cols = min(len(settings), 3)
     nrows = -(-len(settings) // cols)
-    fig, axes = plt.subplots(nrows, cols, squeeze=False, sharey=True,
+    fig, axes = pyplot().subplots(nrows, cols, squeeze=False, sharey=True,
                              figsize=(3.6 * cols + 0.4, 2.8 * nrows + 0.9))
     for ax, (region, joints) in zip(axes.flat, settings, strict=False):
         for k, reading in enumerate(readings):
@@ -639,19 +619,13 @@ def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],
     fig.suptitle(f"Test successes per reading: mean and {level:.0%} Student-t interval over "
                  f"seeds (budget {budget:,} episodes dotted)", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    save_figure(fig, out, dpi=120)
 
 
 def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
                readings: Sequence[str], out: Path) -> None:
     """Grouped bars: per setting, each reading's share of goals worth reaching (%)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.4 * len(settings) + 1), 3.4))
+    fig, ax = pyplot().subplots(figsize=(max(6.0, 1.4 * len(settings) + 1), 3.4))
     width = 0.8 / max(1, len(readings))
     labelled: set[str] = set()
     for k, reading in enumerate(readings):
@@ -671,8 +645,7 @@ def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
     ax.legend(fontsize=7)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    save_figure(fig, out, dpi=120)
 
 
 def _fmt(stat: Interval | None) -> str:
@@ -812,15 +785,15 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
     shares, note = worth_shares(cells, groups, worth_goals, boot_seed)
     cells = [Cell(**{**asdict(c), "worth": shares.get((c.reading, *c.setting))}) for c in cells]
     rows = verdicts(cells, groups, names, budget, level, reps, boot_seed)
-    curves = curve_rows({r: groups[r] for r in names if r in groups}, level)
-    write_csvs(cells, rows, curves, out)
+    run = [r for r in names if r in groups]
+    curve_table = curve_rows({r: groups[r] for r in run}, level)
+    write_csvs(cells, rows, curve_table, out)
     files = [out / "verdicts.csv", out / "finals.csv", out / "curves.csv"]
     if settings:
-        plot_curves(curves, settings, [r for r in names if r in groups], budget, level,
-                    out / "curves.png")
+        plot_curves(curve_table, settings, run, budget, level, out / "curves.png")
         files.append(out / "curves.png")
     if shares:
-        plot_worth(cells, settings, [r for r in names if r in groups], out / "worth_reaching.png")
+        plot_worth(cells, settings, run, out / "worth_reaching.png")
         files.append(out / "worth_reaching.png")
     text = render(cells, rows, names, known, budget, seeds, level, reps, note, boot_seed)
     (out / "report.md").write_text(text)
