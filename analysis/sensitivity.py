@@ -881,6 +881,47 @@ def report_main(argv: Sequence[str]) -> int:
     return 0
 
 
+def add_study_arguments(parser: argparse.ArgumentParser, settings: Sequence[tuple[str, int]],
+                        default_out: Path, what: str) -> None:
+    """The flags of a study of readings x settings (this one, `analysis.algorithms`): the
+    settings, `analysis.sweep`'s execution flags at the study's budget, and ``--collect``;
+    ``what`` names the study's readings in the help."""
+    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
+                        help="a (region, joints) setting, joints in 2..6; repeatable (default: "
+                             + ", ".join(f"{r}:{j}" for r, j in settings) + ")")
+    add_execution_arguments(parser, default_out, unit_word="unit")
+    parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
+    parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
+                        help="train nothing: copy each finished unit's spec.json and eval.csv to "
+                             f"DEST/runs/<{what}>/<region>-j<joints>/s<seed> (no checkpoints)")
+
+
+def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
+              readings: Sequence[Reading], settings: Sequence[tuple[str, int]],
+              extra: Sequence[str]) -> int:
+    """What a study's command line asks of the units of ``readings`` x (``args.setting`` or
+    ``settings``): a dry run, ``--collect``, or training them with each reading recorded
+    (`write_reading`) in the root."""
+    threads = check_execution_arguments(parser, args)
+    units = units_for(readings, args.setting or settings, args.seeds, args.out, args.episodes)
+    if args.dry_run:
+        dry_run(units, args, threads, extra)
+        return 0
+    root = args.out if args.collect is None else args.collect / "runs"
+    copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
+    try:
+        for reading in readings:  # units started by hand have no reading.json of their own
+            if args.collect is None or (root / reading.name).is_dir():
+                write_reading(root, reading)
+    except ValueError as err:
+        parser.error(str(err))
+    if args.collect is None:
+        return execute(units, args, threads, extra, unit_word="units")
+    print(f"copied {copied} finished unit(s) to {root}; {len(skipped)} not finished"
+          + (": " + ", ".join(skipped) if skipped else ""), file=sys.stderr)
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["report"]:
@@ -897,16 +938,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="readings to run (default: the built-in ones, "
                              f"{', '.join(READINGS)}, and every --reading/--readings-file one)")
     _add_reading_arguments(parser)
-    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
-                        help="a (region, joints) setting, joints in 2..6; repeatable (default: "
-                             + ", ".join(f"{r}:{j}" for r, j in SETTINGS) + ")")
-    add_execution_arguments(parser, Path("runs/sensitivity"), unit_word="unit")
-    parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
-    parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
-                        help="train nothing: copy each finished unit's spec.json and eval.csv to "
-                             "DEST/runs/<reading>/<region>-j<joints>/s<seed> (no checkpoints)")
+    add_study_arguments(parser, SETTINGS, Path("runs/sensitivity"), "reading")
     args = parser.parse_args(argv)
-    threads = check_execution_arguments(parser, args)
     user = _user_readings(parser, args)
     known = {**READINGS, **{r.name: r for r in user}}
     names = args.readings or list(known)
@@ -922,28 +955,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   "skipped", file=sys.stderr)
         else:
             readings.append(known[name])
-    units = units_for(readings, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
-    if args.dry_run:
-        dry_run(units, args, threads, extra)
-        return 0
-    if args.collect is not None:
-        copied, skipped = collect(units, args.collect)
-        for reading in readings:  # units started by hand have no reading.json of their own
-            if (args.collect / "runs" / reading.name).is_dir():
-                try:
-                    write_reading(args.collect / "runs", reading)
-                except ValueError as err:
-                    parser.error(str(err))
-        print(f"copied {copied} finished unit(s) to {args.collect / 'runs'}; "
-              f"{len(skipped)} not finished" + (": " + ", ".join(skipped) if skipped else ""),
-              file=sys.stderr)
-        return 0
-    try:
-        for reading in readings:
-            write_reading(args.out, reading)
-    except ValueError as err:
-        parser.error(str(err))
-    return execute(units, args, threads, extra, unit_word="units")
+    return run_study(parser, args, readings, SETTINGS, extra)
 
 
 if __name__ == "__main__":
