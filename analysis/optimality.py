@@ -40,6 +40,7 @@ from analysis.outputs import (
 )
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
+from analysis.sweep import parse_setting
 from ddpg_her.units import task_option
 
 DEFAULT_GAMMA = 0.98
@@ -783,7 +784,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="goal regions (names or region strings as TaskSpec.region takes)")
     parser.add_argument("--joints", nargs="+", type=int, default=[3],
                         help="controlled joint counts n (2-6), each crossed with every region")
-    parser.add_argument("--settings", nargs="+", default=None, metavar="REGION:N",
+    parser.add_argument("--settings", nargs="+", type=parse_setting, default=None,
+                        metavar="REGION:N",
                         help="explicit (region, joints) settings, e.g. farbox:6 "
                              "unconstrained:2; replaces the --regions x --joints product")
     parser.add_argument("--readings", nargs="+", default=["ours", "actor_penalty"],
@@ -823,8 +825,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.grid != 0 and args.grid < 2:
         parser.error(f"--grid must be 0 (off) or >= 2 angles per joint; got {args.grid}")
     try:  # before any computing
-        if args.out.exists() and not args.out.is_dir():
-            raise OutputError(f"--out {args.out} is a file; it names the output folder")
         check_folder(args.out, "--out")
         for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):
             check_writable(args.out / name, "--out")
@@ -841,15 +841,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.exit(1, f"error: {err}\n")
         print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
         return 0
-    if args.settings is None:
-        settings = [(r, n) for r in args.regions for n in args.joints]
-    else:
-        settings = []
-        for text in args.settings:
-            region, sep, n = text.rpartition(":")
-            if not sep or not n.isdigit():
-                parser.error(f"--settings takes REGION:N (N the joint count 2-6); got {text!r}")
-            settings.append((region, int(n)))
+    settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
     try:
         rows, skipped = study(settings, args.readings, dict(args.task),
                               args.goals, args.gamma, args.seed, grid=args.grid,

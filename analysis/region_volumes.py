@@ -103,13 +103,10 @@ def start_for(region_name: str, choice: str) -> tuple[float, ...]:
     ``paper``: docs/design.md's choice, the zero start for ``unconstrained`` and the constrained
     start for every other region (user regions included).
     """
-    if choice == "paper":
-        return regions.default_start(region_name)
-    if choice == "zero":
-        return regions.UNCONSTRAINED_START
-    if choice == "constrained":
-        return regions.CONSTRAINED_START
-    raise ValueError(f"start must be one of {START_CHOICES}; got {choice!r}")
+    if choice not in START_CHOICES:
+        raise ValueError(f"start must be one of {START_CHOICES}; got {choice!r}")
+    return {"paper": regions.default_start(region_name), "zero": regions.UNCONSTRAINED_START,
+            "constrained": regions.CONSTRAINED_START}[choice]
 
 
 def start_label(start_q: Sequence[float]) -> str:

@@ -569,14 +569,12 @@ def write_csvs(cells: Sequence[Cell], rows: Sequence[VerdictRow], curves: Sequen
         [r.claim, r.reading, word(r.t), word(r.boot_mean), word(r.boot_iqm),
          "" if r.p_value is None else f"{r.p_value:.4g}", r.partial, "; ".join(r.confounds),
          r.detail_t, r.detail_boot_mean, r.detail_boot_iqm] for r in rows))
-    finals = []
-    for c in cells:
-        bm, bi, wr = c.boot_mean or (None,) * 3, c.boot_iqm or (None,) * 3, c.worth or (None,) * 3
-        finals.append([c.reading, c.region, c.joints, len(c.levels), c.episode, c.partial,
-                       ";".join(f"{v:g}" for v in c.levels), _r(c.t[0]), _r(c.t[1]),
-                       _r(c.t[2]), _r(bm[1]), _r(bm[2]), _r(bi[0]), _r(bi[1]), _r(bi[2]),
-                       _r(wr[0]), _r(wr[1]), _r(wr[2])])
-    write_csv(out / "finals.csv", FINAL_COLUMNS, finals)
+    none = (None,) * 3
+    write_csv(out / "finals.csv", FINAL_COLUMNS, (
+        [c.reading, c.region, c.joints, len(c.levels), c.episode, c.partial,
+         ";".join(f"{v:g}" for v in c.levels),
+         *map(_r, (*c.t, *(c.boot_mean or none)[1:], *(c.boot_iqm or none), *(c.worth or none)))]
+        for c in cells))
     write_csv(out / "curves.csv", CURVE_COLUMNS, curves)
 
 

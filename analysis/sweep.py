@@ -42,9 +42,6 @@ GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
 }
 """Named grids of (region, joints) settings."""
 
-RUN_DIR = "{region}-j{joints}/s{seed}"
-"""Run folder of one seed below the sweep root."""
-
 
 @dataclass(frozen=True)
 class Unit:
@@ -74,7 +71,7 @@ class Unit:
         return f"{self.tag}/{self.setting}" if self.tag else self.setting
 
     def run_dir(self, seed: int) -> Path:
-        return self.root / RUN_DIR.format(region=self.region, joints=self.joints, seed=seed)
+        return self.root / self.setting / f"s{seed}"
 
     def status(self, seed: int) -> str:
         """'done', 'resume' or 'new' (`ddpg_her.runfolder.run_status`) of seed's run."""
@@ -104,8 +101,7 @@ class Unit:
     @property
     def out(self) -> str:
         """The ``--out`` template of the unit's process (``{seed}`` left in)."""
-        return str(self.root / RUN_DIR).replace("{region}", self.region).replace(
-            "{joints}", str(self.joints))
+        return str(self.root / self.setting / "s{seed}")
 
     def run_args(self, extra: Sequence[str] = ()) -> list[str]:
         """The unit's ``ddpg_her.train`` arguments without the process flags: its setting,
@@ -116,9 +112,8 @@ class Unit:
 
     def command(self, threads: int, extra: Sequence[str], device: str = "cpu") -> list[str]:
         """The ``ddpg_her.train`` command line: the unit's own ``train_args``, then ``extra``."""
-        own = self.run_args()
-        return [sys.executable, "-m", "ddpg_her.train", *own, "--resume", "--no-progress",
-                "--threads", str(threads), "--device", device, *extra]
+        return [sys.executable, "-m", "ddpg_her.train", *self.run_args(), "--resume",
+                "--no-progress", "--threads", str(threads), "--device", device, *extra]
 
     @property
     def log_path(self) -> Path:
@@ -454,7 +449,6 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
     (an unknown flag, a bad value), a region that does not parse, or two units (or two seeds)
     with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks what
     needs neither the robot nor torch."""
-    import contextlib
     import io
 
     from ddpg_her import train
