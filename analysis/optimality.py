@@ -482,25 +482,9 @@ def evaluate(simulation: Simulation, task: Any | None = None,
 
 def worth_reaching(task: Any, goals: int = 500, gamma: float = DEFAULT_GAMMA,
                    seed: int = 0) -> OptimalityResult:
-    """The optimality diagnostic of ``task``: :func:`evaluate` of :func:`simulate`.
-
-    Parameters
-    ----------
-    task : envs.TaskSpec
-        Position control; its reward fields are the reading scored.
-    goals : int
-        Number of goals (N >= 1), the env's goals for seeds ``seed .. seed + N - 1``.
-    gamma : float
-        Discount in [0, 1] (the paper: 0.98).
-    seed : int
-
-    Returns
-    -------
-    OptimalityResult
-        ``share_worth`` (with ``share_worth_ci``), ``share_reachable``, ``mean_gap`` and the
-        per-goal returns. Constant commands bound what a learner earns from below on both sides
-        (reaching and not reaching), so the share is an estimate for comparing settings.
-    """
+    """The optimality diagnostic of ``task`` (an envs.TaskSpec, position control; its reward
+    fields are the reading scored): :func:`evaluate`, with discount ``gamma`` in [0, 1], of
+    :func:`simulate` of ``goals`` goals from ``seed``."""
     return evaluate(simulate(task, goals, seed), task, gamma)
 
 

@@ -80,15 +80,14 @@ class SettingSummary:
 def summarise(runs: Sequence[Run], level: float = CONFIDENCE) -> SettingSummary:
     """One setting's statistics over its seeds (see `SettingSummary`)."""
     curves = Curves.of(runs)
-    final = mean_ci(curves.level(), level, PERCENT)
-    best = mean_ci(curves.percent.max(axis=1), level, PERCENT)
+    interval = student_t(level)
     first = []
     for run in runs:
         hit = np.nonzero(run.successes >= HIGH_SUCCESS * run.tests / 100.0)[0]
         first.append(int(run.episode[hit[0]]) if len(hit) else None)
-    as_tuple = lambda t: tuple(float(x) for x in t)  # noqa: E731
     return SettingSummary(runs[0].region, runs[0].joints, len(runs), curves.end,
-                          as_tuple(final), as_tuple(best), tuple(first),
+                          interval(curves.level(), PERCENT),
+                          interval(curves.percent.max(axis=1), PERCENT), tuple(first),
                           tuple(run_choices(r.spec) for r in runs), curves)
 
 
