@@ -175,9 +175,8 @@ def rollout(task: Any, commands: np.ndarray, goals: np.ndarray | None = None
     for lo in range(0, B, CHUNK):
         part = commands[lo : lo + CHUNK]
         env = BatchedReach(len(part), task, dynamics="pinocchio", autoreset_mode="disabled")
-        part_goals = None if goals is None else np.asarray(goals, dtype=float)[lo : lo + CHUNK]
-        if part_goals is None:
-            part_goals = np.zeros((len(part), 3))
+        part_goals = (np.zeros((len(part), 3)) if goals is None
+                      else np.asarray(goals, dtype=float)[lo : lo + CHUNK])
         env.reset(options={"goal": part_goals})
         for t in range(T):
             obs, *_, info = env.step(part)
