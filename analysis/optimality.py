@@ -40,7 +40,7 @@ from analysis.outputs import (
 )
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
-from analysis.sweep import parse_setting
+from analysis.sweep import parse_setting, positive_count
 from ddpg_her.units import task_option
 
 DEFAULT_GAMMA = 0.98
@@ -736,13 +736,6 @@ def _gamma(text: str) -> float:
     return value
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {text}")
-    return value
-
-
 def write_outputs(rows: Sequence[Mapping[str, Any]], out: Path, curves: Any) -> None:
     """optimality.csv and optimality.png in ``out``, and optimality_curves.png when
     ``curves`` names the runs to draw beside them."""
@@ -781,7 +774,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="override a TaskSpec field for every setting (VALUE read as JSON, "
                              "else as a string), e.g. --task action_weight=0.5; a reading's "
                              "own fields win over these")
-    parser.add_argument("--goals", type=_positive, default=500,
+    parser.add_argument("--goals", type=positive_count, default=500,
                         help="goals per setting (count >= 1)")
     parser.add_argument("--gamma", type=_gamma, default=DEFAULT_GAMMA,
                         help="discount per 0.02 s control step, in [0, 1] (the paper: 0.98)")

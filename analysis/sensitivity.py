@@ -63,6 +63,7 @@ from analysis.sweep import (
     dry_run,
     execute,
     parse_setting,
+    positive_count,
 )
 from ddpg_her.units import split_passthrough
 
@@ -802,13 +803,6 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
 # --- command line -------------------------------------------------------------------------------
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a count >= 1; got {value}")
-    return value
-
-
 def _add_reading_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reading", type=parse_reading, action="append", default=[],
                         metavar="NAME=ARGS",
@@ -844,15 +838,15 @@ def report_main(argv: Sequence[str]) -> int:
     parser.add_argument("root", type=Path, metavar="ROOT", help="the study's runs root")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder of the report's files (default: ROOT)")
-    parser.add_argument("--episodes", type=_positive, default=STUDY_EPISODES,
+    parser.add_argument("--episodes", type=positive_count, default=STUDY_EPISODES,
                         help="the budget (training episodes, >= 1): claims are judged at the "
                              "last evaluation at or below it; less is partial")
-    parser.add_argument("--seeds", type=_positive, default=STUDY_SEEDS,
+    parser.add_argument("--seeds", type=positive_count, default=STUDY_SEEDS,
                         help="seeds a complete setting has (count, >= 1); fewer is partial")
     parser.add_argument("--confidence", type=float, default=CONFIDENCE,
                         help="two-sided level of every interval (fraction in (0, 1); the "
                              "paper's figures: 0.65)")
-    parser.add_argument("--reps", type=_positive, default=BOOTSTRAP_REPS,
+    parser.add_argument("--reps", type=positive_count, default=BOOTSTRAP_REPS,
                         help="bootstrap resamples per interval (count, >= 1)")
     parser.add_argument("--bootstrap-seed", type=int, default=0,
                         help="seed of the bootstrap resampling and of the worth-reaching goals")

@@ -129,6 +129,14 @@ def parse_setting(text: str) -> tuple[str, int]:
     return region, int(joints)
 
 
+def positive_count(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a count >= 1; got {value}")
+    return value
+
+
 def units_for(settings: Sequence[tuple[str, int]], seeds: int, root: Path,
               episodes: int) -> list[Unit]:
     return [Unit(region, joints, tuple(range(seeds)), root, episodes)
