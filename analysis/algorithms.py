@@ -21,21 +21,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from analysis.readings import Reading
-from analysis.sensitivity import (
-    STUDY_EPISODES,
-    STUDY_SEEDS,
-    collect,
-    units_for,
-    write_reading,
-)
-from analysis.sweep import (
-    HelpFormatter,
-    add_execution_arguments,
-    check_execution_arguments,
-    dry_run,
-    execute,
-    parse_setting,
-)
+from analysis.sensitivity import add_study_arguments, run_study
+from analysis.sweep import HelpFormatter
 from ddpg_her.units import split_passthrough
 
 ALGORITHMS: dict[str, Reading] = {r.name: r for r in (
@@ -81,14 +68,7 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", choices=list(ALGORITHMS), default=list(ALGORITHMS),
                         metavar="NAME", help="algorithms to run, of " + ", ".join(ALGORITHMS)
                         + " (default: all)")
-    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
-                        help="a (region, joints) setting, joints in 2..6; repeatable (default: "
-                             + ", ".join(f"{r}:{j}" for r, j in SETTINGS) + ")")
-    add_execution_arguments(parser, DEFAULT_OUT, unit_word="unit")
-    parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
-    parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
-                        help="train nothing: copy each finished unit's spec.json and eval.csv to "
-                             "DEST/runs/<algorithm>/<region>-j<joints>/s<seed>")
+    add_study_arguments(parser, SETTINGS, DEFAULT_OUT, "algorithm")
     return parser
 
 
@@ -96,24 +76,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv, extra = split_passthrough(list(sys.argv[1:] if argv is None else argv))
     parser = make_parser()
     args = parser.parse_args(argv)
-    threads = check_execution_arguments(parser, args)
     algos = [ALGORITHMS[name] for name in dict.fromkeys(args.algos)]
-    units = units_for(algos, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
-    if args.dry_run:
-        dry_run(units, args, threads, extra)
-        return 0
-    if args.collect is not None:
-        copied, skipped = collect(units, args.collect)
-        for algo in algos:
-            if (args.collect / "runs" / algo.name).is_dir():
-                write_reading(args.collect / "runs", algo)
-        print(f"copied {copied} finished unit(s) to {args.collect / 'runs'}; "
-              f"{len(skipped)} not finished" + (": " + ", ".join(skipped) if skipped else ""),
-              file=sys.stderr)
-        return 0
-    for algo in algos:
-        write_reading(args.out, algo)
-    return execute(units, args, threads, extra, unit_word="units")
+    return run_study(parser, args, algos, SETTINGS, extra)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,14 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis.outputs import OutputError, check_writable, figure_path, save_figure, write_csv
+from analysis.outputs import (
+    OutputError,
+    check_writable,
+    figure_path,
+    pyplot,
+    save_figure,
+    write_csv,
+)
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
     PERCENT,
@@ -47,21 +54,13 @@ def curve_rows(groups: dict[tuple[str, int], list[Run]], level: float) -> list[d
     return rows
 
 
-def _layout(settings: Sequence[tuple[str, int]]) -> tuple[list[str], list[int]]:
-    regions = sorted({r for r, _ in settings}, key=paper_order)  # figure rows
-    return regions, sorted({j for _, j in settings})
-
-
 def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> None:
     """Draw the panels to ``out`` (any matplotlib format)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    regions, joints = _layout(list(groups))
-    fig, axes = plt.subplots(len(regions), len(joints), squeeze=False, sharex=True, sharey=True,
-                             figsize=(max(3.2 * len(joints) + 0.6, 6.5), 2.6 * len(regions) + 0.8))
+    regions = sorted({r for r, _ in groups}, key=paper_order)  # figure rows
+    joints = sorted({j for _, j in groups})
+    fig, axes = pyplot().subplots(
+        len(regions), len(joints), squeeze=False, sharex=True, sharey=True,
+        figsize=(max(3.2 * len(joints) + 0.6, 6.5), 2.6 * len(regions) + 0.8))
     for i, region in enumerate(regions):
         for j, n in enumerate(joints):
             ax = axes[i][j]
@@ -107,7 +106,6 @@ def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> N
                  fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
     save_figure(fig, out, dpi=120)
-    plt.close(fig)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

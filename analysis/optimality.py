@@ -30,9 +30,17 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import OutputError, check_folder, check_writable, save_figure, write_csv
+from analysis.outputs import (
+    OutputError,
+    check_folder,
+    check_writable,
+    pyplot,
+    save_figure,
+    write_csv,
+)
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
+from analysis.sweep import parse_setting, positive_count
 from ddpg_her.units import task_option
 
 DEFAULT_GAMMA = 0.98
@@ -83,12 +91,6 @@ it was not run."""
 
 
 # ---------------------------------------------------------------------- candidates
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    import ur5kin
-
-    return ur5kin.wrap(angle)
-
-
 def ik_branches(task: Any, goals: np.ndarray, q_sampled: np.ndarray) -> np.ndarray:
     """Analytic IK branches of each goal for the task's controlled joints.
 
@@ -130,10 +132,10 @@ def ik_branches(task: Any, goals: np.ndarray, q_sampled: np.ndarray) -> np.ndarr
             found += list(ur5kin.ik(ur5kin.fk_pose(q_sampled[i])))
         unique: list[np.ndarray] = []
         for q in found:
-            q = _wrap(np.asarray(q, dtype=float))
-            if np.abs(_wrap(q[n:] - start[n:])).max(initial=0.0) > FIXED_JOINT_TOL:
+            q = ur5kin.wrap(np.asarray(q, dtype=float))
+            if np.abs(ur5kin.wrap(q[n:] - start[n:])).max(initial=0.0) > FIXED_JOINT_TOL:
                 continue  # moves a joint the task holds
-            if not any(np.abs(_wrap(q[:n] - u)).max() < DUPLICATE_TOL for u in unique):
+            if not any(np.abs(ur5kin.wrap(q[:n] - u)).max() < DUPLICATE_TOL for u in unique):
                 unique.append(q[:n])
         rows.append(unique)
     width = max(len(r) for r in rows) if rows else 1
@@ -173,9 +175,8 @@ def rollout(task: Any, commands: np.ndarray, goals: np.ndarray | None = None
     for lo in range(0, B, CHUNK):
         part = commands[lo : lo + CHUNK]
         env = BatchedReach(len(part), task, dynamics="pinocchio", autoreset_mode="disabled")
-        part_goals = None if goals is None else np.asarray(goals, dtype=float)[lo : lo + CHUNK]
-        if part_goals is None:
-            part_goals = np.zeros((len(part), 3))
+        part_goals = (np.zeros((len(part), 3)) if goals is None
+                      else np.asarray(goals, dtype=float)[lo : lo + CHUNK])
         env.reset(options={"goal": part_goals})
         for t in range(T):
             obs, *_, info = env.step(part)
@@ -480,25 +481,9 @@ def evaluate(simulation: Simulation, task: Any | None = None,
 
 def worth_reaching(task: Any, goals: int = 500, gamma: float = DEFAULT_GAMMA,
                    seed: int = 0) -> OptimalityResult:
-    """The optimality diagnostic of ``task``: :func:`evaluate` of :func:`simulate`.
-
-    Parameters
-    ----------
-    task : envs.TaskSpec
-        Position control; its reward fields are the reading scored.
-    goals : int
-        Number of goals (N >= 1), the env's goals for seeds ``seed .. seed + N - 1``.
-    gamma : float
-        Discount in [0, 1] (the paper: 0.98).
-    seed : int
-
-    Returns
-    -------
-    OptimalityResult
-        ``share_worth`` (with ``share_worth_ci``), ``share_reachable``, ``mean_gap`` and the
-        per-goal returns. Constant commands bound what a learner earns from below on both sides
-        (reaching and not reaching), so the share is an estimate for comparing settings.
-    """
+    """The optimality diagnostic of ``task`` (an envs.TaskSpec, position control; its reward
+    fields are the reading scored): :func:`evaluate`, with discount ``gamma`` in [0, 1], of
+    :func:`simulate` of ``goals`` goals from ``seed``."""
     return evaluate(simulate(task, goals, seed), task, gamma)
 
 
@@ -660,38 +645,27 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
     -------
     The Axes drawn into.
     """
-    import matplotlib
-
-    if ax is None:
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     settings = list(dict.fromkeys((r["region"], int(r["joints"])) for r in rows))
     readings = list(dict.fromkeys(r["reading"] for r in rows))
     if ax is None:
-        _, ax = plt.subplots(figsize=(max(5.0, 1.3 * len(settings) * max(1, len(readings)) / 2
+        _, ax = pyplot().subplots(figsize=(max(5.0, 1.3 * len(settings) * max(1, len(readings)) / 2
                                           + 2.0), 3.8))
     width = 0.8 / max(1, len(readings))
     x = np.arange(len(settings))
     for k, name in enumerate(readings):
         by_setting = {(r["region"], int(r["joints"])): r for r in rows if r["reading"] == name}
-        share = np.array([float(by_setting[s]["share_worth"]) if s in by_setting else np.nan
-                          for s in settings])
-        low = np.array([float(by_setting[s]["ci_low"]) if s in by_setting else np.nan
-                        for s in settings])
-        high = np.array([float(by_setting[s]["ci_high"]) if s in by_setting else np.nan
-                         for s in settings])
-        reach = np.array([float(by_setting[s]["share_reachable"]) if s in by_setting else np.nan
-                          for s in settings])
+        # per setting, NaN where the reading has no row (or no grid check: an empty cell)
+        values = [[by_setting[s].get(key) if s in by_setting else None for s in settings]
+                  for key in ("share_worth", "ci_low", "ci_high", "share_reachable",
+                              "share_worth_grid")]
+        share, low, high, reach, grid = (np.array([np.nan if v in ("", None) else float(v)
+                                                   for v in column]) for column in values)
         pos = x - 0.4 + width * (k + 0.5)
         ax.bar(pos, 100 * share, width, color=f"C{k}", label=f"{name}: worth reaching")
         ax.errorbar(pos, 100 * share, yerr=100 * np.abs(np.stack([share - low, high - share])),
                     fmt="none", ecolor="k", lw=0.8, capsize=2)
         ax.scatter(pos, 100 * reach, marker="_", s=120, color="k", zorder=3,
                    label="reachable by a constant command" if k == 0 else None)
-        grid = np.array([float(by_setting[s]["share_worth_grid"])
-                         if s in by_setting and by_setting[s].get("share_worth_grid") not in
-                         ("", None) else np.nan for s in settings])
         if np.isfinite(grid).any():
             ax.scatter(pos, 100 * grid, marker="x", s=25, color="0.3", zorder=3,
                        label="grid of constant commands (check)" if k == 0 else None)
@@ -702,7 +676,6 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     if out is not None:
         save_figure(ax.figure, out, dpi=120, bbox_inches="tight")
-        plt.close(ax.figure)
     return ax
 
 
@@ -727,11 +700,6 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
     ``rows`` is drawn: the mean over its seeds of the test successes per 100 goals, one line per
     (setting, reading of the run), coloured by setting as the bars' x labels order them.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from analysis.runs import aligned_successes, find_runs
 
     settings = list(dict.fromkeys((r["region"], int(r["joints"])) for r in rows))
@@ -740,8 +708,8 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
         if run.setting in settings and len(run.episode):
             # one line per experiment: seeds of one folder share their evaluation episodes
             groups.setdefault(f"{_run_label(run)} [{run.path.parent.name}]", []).append(run)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(13.0, 4.2),
-                                      gridspec_kw={"width_ratios": [1.0, 1.2]})
+    fig, (left, right) = pyplot().subplots(1, 2, figsize=(13.0, 4.2),
+                                           gridspec_kw={"width_ratios": [1.0, 1.2]})
     for label, runs in sorted(groups.items()):
         episode, percent = aligned_successes(runs)
         color = f"C{settings.index(runs[0].setting) % 10}"
@@ -759,20 +727,12 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
         tick.set_color(f"C{k % 10}")
     fig.tight_layout()
     save_figure(fig, out, dpi=120, bbox_inches="tight")
-    plt.close(fig)
 
 
 def _gamma(text: str) -> float:
     value = float(text)
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"gamma must be in [0, 1]; got {text}")
-    return value
-
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {text}")
     return value
 
 
@@ -800,7 +760,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="goal regions (names or region strings as TaskSpec.region takes)")
     parser.add_argument("--joints", nargs="+", type=int, default=[3],
                         help="controlled joint counts n (2-6), each crossed with every region")
-    parser.add_argument("--settings", nargs="+", default=None, metavar="REGION:N",
+    parser.add_argument("--settings", nargs="+", type=parse_setting, default=None,
+                        metavar="REGION:N",
                         help="explicit (region, joints) settings, e.g. farbox:6 "
                              "unconstrained:2; replaces the --regions x --joints product")
     parser.add_argument("--readings", nargs="+", default=["ours", "actor_penalty"],
@@ -813,7 +774,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="override a TaskSpec field for every setting (VALUE read as JSON, "
                              "else as a string), e.g. --task action_weight=0.5; a reading's "
                              "own fields win over these")
-    parser.add_argument("--goals", type=_positive, default=500,
+    parser.add_argument("--goals", type=positive_count, default=500,
                         help="goals per setting (count >= 1)")
     parser.add_argument("--gamma", type=_gamma, default=DEFAULT_GAMMA,
                         help="discount per 0.02 s control step, in [0, 1] (the paper: 0.98)")
@@ -840,8 +801,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.grid != 0 and args.grid < 2:
         parser.error(f"--grid must be 0 (off) or >= 2 angles per joint; got {args.grid}")
     try:  # before any computing
-        if args.out.exists() and not args.out.is_dir():
-            raise OutputError(f"--out {args.out} is a file; it names the output folder")
         check_folder(args.out, "--out")
         for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):
             check_writable(args.out / name, "--out")
@@ -858,15 +817,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.exit(1, f"error: {err}\n")
         print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
         return 0
-    if args.settings is None:
-        settings = [(r, n) for r in args.regions for n in args.joints]
-    else:
-        settings = []
-        for text in args.settings:
-            region, sep, n = text.rpartition(":")
-            if not sep or not n.isdigit():
-                parser.error(f"--settings takes REGION:N (N the joint count 2-6); got {text!r}")
-            settings.append((region, int(n)))
+    settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
     try:
         rows, skipped = study(settings, args.readings, dict(args.task),
                               args.goals, args.gamma, args.seed, grid=args.grid,

@@ -139,11 +139,24 @@ def write_csv(path: Path, columns: Sequence[str],
     write_text(path, buf.getvalue())
 
 
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend: the commands write files, never a window."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def save_figure(fig: Any, path: Path, **kwargs: Any) -> None:
     """``fig.savefig(path, **kwargs)``, rendered in memory and written by `write_bytes`; the
-    format is ``path``'s suffix."""
+    format is ``path``'s suffix. The figure is closed afterwards."""
     buf = io.BytesIO()
-    fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", **kwargs)
+    try:
+        fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", **kwargs)
+    finally:
+        pyplot().close(fig)
     write_bytes(path, buf.getvalue())
 
 

@@ -4,18 +4,14 @@
 joints: the region's volume, the reachable workspace of the sub-chain above the plane (a voxel
 estimate with its error bar), the part of it inside the region, the goal acceptance of the
 paper's joint-space sampler, the mean distance from the start's end effector to the goals, and
-whether the start's end effector lies in the region. ``--json`` prints the rows as JSON,
-``--plot FILE.png`` draws the regions over the workspace, ``--view FILE.html`` shows the regions
-and the start poses in 3D in the browser, ``--convergence`` shows the workspace estimate as the
-voxels shrink. Run with ``--help`` for every flag.
+whether the start's end effector lies in the region. Run with ``--help`` for the other outputs
+(JSON, a figure, a 3D page, the estimate's convergence).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import hashlib
-import io
 import json
 import math
 import pathlib
@@ -35,7 +31,9 @@ from analysis.outputs import (
     available_bytes,
     check_writable,
     figure_path,
+    pyplot,
     save_figure,
+    write_csv,
     write_text,
 )
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
@@ -102,13 +100,10 @@ def start_for(region_name: str, choice: str) -> tuple[float, ...]:
     ``paper``: docs/design.md's choice, the zero start for ``unconstrained`` and the constrained
     start for every other region (user regions included).
     """
-    if choice == "paper":
-        return regions.default_start(region_name)
-    if choice == "zero":
-        return regions.UNCONSTRAINED_START
-    if choice == "constrained":
-        return regions.CONSTRAINED_START
-    raise ValueError(f"start must be one of {START_CHOICES}; got {choice!r}")
+    if choice not in START_CHOICES:
+        raise ValueError(f"start must be one of {START_CHOICES}; got {choice!r}")
+    return {"paper": regions.default_start(region_name), "zero": regions.UNCONSTRAINED_START,
+            "constrained": regions.CONSTRAINED_START}[choice]
 
 
 def start_label(start_q: Sequence[float]) -> str:
@@ -296,14 +291,10 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     Returns the written paths: the figure, ``<stem>.json`` (rows, outlines, start positions,
     settings) and ``<stem>.csv`` (the drawn samples with per-region acceptance).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
     names = list(study.region_objects)
-    fig, axes = plt.subplots(2, len(names), figsize=(3.6 * len(names), 6.4), squeeze=False)
+    fig, axes = pyplot().subplots(2, len(names), figsize=(3.6 * len(names), 6.4), squeeze=False)
     rng = _rng(settings.seed, "plot")
     table_rows: list[dict[str, object]] = []
     outlines: dict[str, dict[str, list[list[float]]]] = {}
@@ -356,7 +347,6 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
                  f"{settings.base_height} m; start: {settings.start})", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     save_figure(fig, path, dpi=130)
-    plt.close(fig)
 
     data_json = path.with_suffix(".json")
     write_text(data_json, json.dumps({
@@ -366,21 +356,17 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
                     if not isinstance(r, regions.MeshRegion)},
     }, indent=1))
     data_csv = path.with_suffix(".csv")
-    with io.StringIO() as f:
-        writer = csv.writer(f)
-        keys = sorted({_workspace_key(n_joints, start_for(r.name, settings.start))
-                       for r in study.region_objects.values()})
-        writer.writerow(["held_joints_rad", "x_m", "y_m", "z_m", "clear",
-                         *[f"in_{r.name}" for r in study.region_objects.values()]])
-        for key in keys:
-            ws = study.samples[key]
-            idx = rng.choice(ws.count, size=min(PLOT_CLOUD_POINTS, ws.count), replace=False)
-            inside = [r.contains(ws.goals[idx]) for r in study.region_objects.values()]
-            for m, k in enumerate(idx):
-                writer.writerow([" ".join(f"{x:.6g}" for x in key[1]),
-                                 *(f"{v:.6f}" for v in ws.goals[k]), int(ws.clear[k]),
-                                 *(int(col[m]) for col in inside)])
-        write_text(data_csv, f.getvalue())
+    samples = []
+    for key in sorted({_workspace_key(n_joints, start_for(r.name, settings.start))
+                       for r in study.region_objects.values()}):
+        ws = study.samples[key]
+        idx = rng.choice(ws.count, size=min(PLOT_CLOUD_POINTS, ws.count), replace=False)
+        inside = [r.contains(ws.goals[idx]) for r in study.region_objects.values()]
+        samples += [[" ".join(f"{x:.6g}" for x in key[1]), *(f"{v:.6f}" for v in ws.goals[k]),
+                     int(ws.clear[k]), *(int(col[m]) for col in inside)]
+                    for m, k in enumerate(idx)]
+    write_csv(data_csv, ["held_joints_rad", "x_m", "y_m", "z_m", "clear",
+                         *[f"in_{r.name}" for r in study.region_objects.values()]], samples)
     return [path, data_json, data_csv]
 
 

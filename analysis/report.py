@@ -80,15 +80,14 @@ class SettingSummary:
 def summarise(runs: Sequence[Run], level: float = CONFIDENCE) -> SettingSummary:
     """One setting's statistics over its seeds (see `SettingSummary`)."""
     curves = Curves.of(runs)
-    final = mean_ci(curves.level(), level, PERCENT)
-    best = mean_ci(curves.percent.max(axis=1), level, PERCENT)
+    interval = student_t(level)
     first = []
     for run in runs:
         hit = np.nonzero(run.successes >= HIGH_SUCCESS * run.tests / 100.0)[0]
         first.append(int(run.episode[hit[0]]) if len(hit) else None)
-    as_tuple = lambda t: tuple(float(x) for x in t)  # noqa: E731
     return SettingSummary(runs[0].region, runs[0].joints, len(runs), curves.end,
-                          as_tuple(final), as_tuple(best), tuple(first),
+                          interval(curves.level(), PERCENT),
+                          interval(curves.percent.max(axis=1), PERCENT), tuple(first),
                           tuple(run_choices(r.spec) for r in runs), curves)
 
 
@@ -266,7 +265,11 @@ def _pose(q: tuple[float, ...]) -> str:
                            for x in q) + "]"
 
 
-_J36 = range(3, 7)
+FAR = tuple(("farbox", n) for n in range(3, 7))
+UNC = tuple(("unconstrained", n) for n in range(3, 7))
+CONSTRAINED = tuple((r, n) for r in ("zheight", "closebox") for n in range(3, 7))
+"""The settings with 3-6 joints of the far box, the unconstrained region and the two other
+constrained regions, which the claims compare."""
 
 
 def _name(key: tuple[str, int]) -> str:
@@ -275,6 +278,22 @@ def _name(key: tuple[str, int]) -> str:
 
 def _stat(key: tuple[str, int], stat: Interval) -> str:
     return f"{_name(key)} {_fmt(stat)}"
+
+
+def _apart(a: Interval, b: Interval) -> Verdict:
+    """YES when interval ``a`` lies above ``b``, NO when below, NOISE when they overlap."""
+    return Verdict.YES if a[1] > b[2] else Verdict.NO if b[1] > a[2] else Verdict.NOISE
+
+
+def _overall(each: Sequence[Verdict]) -> Verdict:
+    """A claim's verdict from its parts': fails when one fails, holds when all hold."""
+    return (Verdict.NO if Verdict.NO in each else
+            Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
+
+
+def _least(ps: Sequence[float]) -> float:
+    """The smallest of several p-values (nan when one is undefined)."""
+    return min(ps) if all(np.isfinite(ps)) else float("nan")
 
 
 def judge_claims(curves: Mapping[tuple[str, int], Curves],
@@ -293,23 +312,23 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
     interval = interval or student_t()
     level = {k: c.level() for k, c in curves.items()}
     stat = {k: interval(v, PERCENT) for k, v in level.items()}
-    checks: dict[str, Check] = {}
 
     def present(keys: Sequence[tuple[str, int]]) -> list[tuple[str, int]]:
         return [k for k in keys if k in curves]
 
-    def gate(claim: PaperClaim, keys: Sequence[tuple[str, int]], what: str, so_far: str,
-             p: float | None = None, conf: tuple[str, ...] = ()) -> Check | None:
-        """NOT_JUDGEABLE for a claim about the end of training on shorter runs (with what the
-        runs show so far as information), else None."""
+    def judged(claim: PaperClaim, keys: Sequence[tuple[str, int]], verdict: Verdict,
+               what: str, p: float | None = None, conf: tuple[str, ...] = ()) -> Check:
+        """The verdict, or NOT_JUDGEABLE for a claim about the end of training on shorter runs
+        (with the verdict so far and what the runs show as information)."""
         short = [k for k in keys if curves[k].end < PAPER_EPISODES]
         if not claim.at_end or not short:
-            return None
+            return Check(claim.name, verdict, what, p, conf)
         ends = sorted({curves[k].end for k in short})
         return Check(claim.name, Verdict.NOT_JUDGEABLE,
                      f"a claim about where training ends; these runs end at "
                      f"{', '.join(f'{e:,}' for e in ends)} episodes, below the paper's "
-                     f"{PAPER_EPISODES:,}. So far ({so_far}): {what}", p, conf)
+                     f"{PAPER_EPISODES:,}. So far ({VERDICT_WORDS_SO_FAR[verdict]}): {what}",
+                     p, conf)
 
     def missing(keys: Sequence[tuple[str, int]]) -> str:
         lack = [_name(k) for k in keys if k in PAPER_GRID and k not in curves]
@@ -355,16 +374,11 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         if not pairs:
             pairs = [(min(hi, key=lambda k: stat[k][0]), max(lo, key=lambda k: stat[k][0]))]
         h, l_ = min(pairs, key=lambda pair: stat[pair[0]][0] - stat[pair[1]][0])
-        (_, h_low, h_high), (_, l_low, l_high) = stat[h], stat[l_]
-        verdict = (Verdict.YES if h_low > l_high else Verdict.NO if l_low > h_high
-                   else Verdict.NOISE)
-        p = welch_p(level[h], level[l_])
         detail = (f"weakest of the first: {_stat(h, stat[h])}; strongest of the second"
                   f"{' (as many joints)' if h[1] == l_[1] else ''}: {_stat(l_, stat[l_])}"
                   + missing([*high, *low]))
-        conf = confounds(h, l_)
-        return gate(claim, [*hi, *lo], detail, VERDICT_WORDS_SO_FAR[verdict], p, conf) \
-            or Check(claim.name, verdict, detail, p, conf)
+        return judged(claim, [*hi, *lo], _apart(stat[h], stat[l_]), detail,
+                      welch_p(level[h], level[l_]), confounds(h, l_))
 
     def threshold(claim: PaperClaim, keys: Sequence[tuple[str, int]], bound: float,
                   above: bool) -> Check:
@@ -379,10 +393,8 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         else:
             verdict = (Verdict.YES if high < bound else Verdict.NO if low >= bound
                        else Verdict.NOISE)
-        detail = (f"{'weakest' if above else 'strongest'}: {_stat(k, stat[k])} against "
-                  f"{bound:g}" + missing(keys))
-        return gate(claim, have, detail, VERDICT_WORDS_SO_FAR[verdict]) \
-            or Check(claim.name, verdict, detail)
+        return judged(claim, have, verdict, f"{'weakest' if above else 'strongest'}: "
+                      f"{_stat(k, stat[k])} against {bound:g}" + missing(keys))
 
     def about(claim: PaperClaim, keys: Sequence[tuple[str, int]], target: float) -> Check:
         have = present(keys)
@@ -394,15 +406,10 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             _, low, high = stat[k]
             each.append(Verdict.YES if lo_b <= low and high <= hi_b else
                         Verdict.NO if high < lo_b or low > hi_b else Verdict.NOISE)
-        verdict = (Verdict.NO if Verdict.NO in each else
-                   Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
-        detail = (", ".join(_stat(k, stat[k]) for k in have)
-                  + f" against {lo_b:g}-{hi_b:g}" + missing(keys))
-        return gate(claim, have, detail, VERDICT_WORDS_SO_FAR[verdict]) \
-            or Check(claim.name, verdict, detail)
+        return judged(claim, have, _overall(each), ", ".join(_stat(k, stat[k]) for k in have)
+                      + f" against {lo_b:g}-{hi_b:g}" + missing(keys))
 
-    def alike(claim: PaperClaim, groups: Sequence[Sequence[tuple[str, int]]],
-              values: Mapping[tuple[str, int], np.ndarray] | None = None) -> Check:
+    def alike(claim: PaperClaim, groups: Sequence[Sequence[tuple[str, int]]]) -> Check:
         asked = [k for g in groups for k in g]
         groups = [g for g in (present(g) for g in groups) if len(g) >= 2]
         if not groups:
@@ -418,13 +425,9 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             ps.append(welch_p(level[weak], level[strong]))
             conf += [c for c in confounds(weak, strong) if c not in conf]
             parts.append(", ".join(_stat(k, stat[k]) for k in g))
-        verdict = (Verdict.NO if Verdict.NO in each else
-                   Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
-        p = min(ps) if all(np.isfinite(ps)) else float("nan")
-        detail = "; ".join(parts) + f"; the claim allows a band {ALIKE_TOLERANCE:g} wide"
-        keys = [k for g in groups for k in g]
-        return gate(claim, keys, detail, VERDICT_WORDS_SO_FAR[verdict], p,
-                    tuple(conf)) or Check(claim.name, verdict, detail, p, tuple(conf))
+        return judged(claim, [k for g in groups for k in g], _overall(each),
+                      "; ".join(parts) + f"; the claim allows a band {ALIKE_TOLERANCE:g} wide",
+                      _least(ps), tuple(conf))
 
     def slower(claim: PaperClaim) -> Check:
         pairs = [((r, 6), (r, 3)) for r in ("zheight", "closebox")
@@ -439,21 +442,13 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             at[key] = c.episode[near.argmax(axis=1)].astype(float)
         each, parts, ps = [], [], []
         for six, three in pairs:
-            (_, s_low, s_high), (_, t_low, t_high) = (
-                interval(at[k], (0.0, np.inf)) for k in (six, three))
-            each.append(Verdict.YES if s_low > t_high else Verdict.NO if t_low > s_high
-                        else Verdict.NOISE)
+            s, t = (interval(at[k], (0.0, np.inf)) for k in (six, three))
+            each.append(_apart(s, t))
             ps.append(welch_p(at[six], at[three]))
-            parts.append(f"{six[0]}: converged at episode "
-                         f"{_fmt(interval(at[six], (0.0, np.inf)), 0)} (6 joints) vs "
-                         f"{_fmt(interval(at[three], (0.0, np.inf)), 0)} (3 joints)")
-        verdict = (Verdict.NO if Verdict.NO in each else
-                   Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
-        detail = "; ".join(parts)
-        p = min(ps) if all(np.isfinite(ps)) else float("nan")
-        keys = [k for pair in pairs for k in pair]
-        return gate(claim, keys, detail, VERDICT_WORDS_SO_FAR[verdict], p) \
-            or Check(claim.name, verdict, detail, p)
+            parts.append(f"{six[0]}: converged at episode {_fmt(s, 0)} (6 joints) vs "
+                         f"{_fmt(t, 0)} (3 joints)")
+        return judged(claim, [k for pair in pairs for k in pair], _overall(each),
+                      "; ".join(parts), _least(ps))
 
     def success_maps(claim: PaperClaim) -> Check:
         key = ("unconstrained", 3)
@@ -463,28 +458,22 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
                      f"of two converged (about 40 %) policies at the paper's {PAPER_EPISODES:,} "
                      "episodes; this report reads no success maps")
 
-    far = [("farbox", n) for n in _J36]
-    unc = [("unconstrained", n) for n in _J36]
-    constrained = [(r, n) for r in ("zheight", "closebox") for n in _J36]
-    judges = {
-        0: lambda c: fast(c, 3),
-        1: lambda c: fast(c, 6),
-        2: lambda c: order(c, far, [*unc, *constrained]),
-        3: lambda c: threshold(c, [("unconstrained", 2)], HIGH_SUCCESS, above=True),
-        4: lambda c: threshold(c, unc, UNDER_SUCCESS, above=False),
-        5: lambda c: about(c, unc, PAPER_RESULTS[("unconstrained", 3)].approx_success),
-        6: lambda c: alike(c, [unc]),
-        7: lambda c: about(c, constrained, PAPER_RESULTS[("zheight", 3)].approx_success),
-        8: lambda c: alike(c, [[("zheight", n), ("closebox", n)] for n in (3, 6)]),
-        9: lambda c: order(c, unc, constrained),
-        10: slower,
-        11: lambda c: alike(c, [[("farbox_tall", n), ("farbox", n)] for n in (3, 6)]),
-        12: success_maps,
-    }
-    assert len(judges) == len(CLAIMS)
-    for i, claim in enumerate(CLAIMS):
-        checks[claim.name] = judges[i](claim)
-    return list(checks.values())
+    judges = [  # in the order of CLAIMS
+        lambda c: fast(c, 3),
+        lambda c: fast(c, 6),
+        lambda c: order(c, FAR, UNC + CONSTRAINED),
+        lambda c: threshold(c, [("unconstrained", 2)], HIGH_SUCCESS, above=True),
+        lambda c: threshold(c, UNC, UNDER_SUCCESS, above=False),
+        lambda c: about(c, UNC, PAPER_RESULTS[("unconstrained", 3)].approx_success),
+        lambda c: alike(c, [UNC]),
+        lambda c: about(c, CONSTRAINED, PAPER_RESULTS[("zheight", 3)].approx_success),
+        lambda c: alike(c, [[("zheight", n), ("closebox", n)] for n in (3, 6)]),
+        lambda c: order(c, UNC, CONSTRAINED),
+        slower,
+        lambda c: alike(c, [[("farbox_tall", n), ("farbox", n)] for n in (3, 6)]),
+        success_maps,
+    ]
+    return [judge(claim) for judge, claim in zip(judges, CLAIMS, strict=True)]
 
 
 VERDICT_WORDS_SO_FAR = {Verdict.YES: "as claimed so far, not a verdict",
@@ -521,10 +510,8 @@ def comparisons_line(checks: Sequence[Check]) -> str:
 
 def claim_settings() -> dict[str, tuple[tuple[str, int], ...]]:
     """Each claim of `judge_claims` -> the (region, joints) settings it looks at."""
-    far = tuple(("farbox", n) for n in _J36)
-    unc = tuple(("unconstrained", n) for n in _J36)
-    con = tuple((r, n) for r in ("zheight", "closebox") for n in _J36)
-    needs = [(("farbox", 3),), (("farbox", 6),), far + unc + con, (("unconstrained", 2),),
+    unc, con = UNC, CONSTRAINED
+    needs = [(("farbox", 3),), (("farbox", 6),), FAR + unc + con, (("unconstrained", 2),),
              unc, unc, unc, con, con, unc + con, con,
              (("farbox_tall", 3), ("farbox_tall", 6), ("farbox", 3), ("farbox", 6)),
              (("unconstrained", 3),)]

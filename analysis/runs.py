@@ -20,7 +20,7 @@ from ddpg_her.runfolder import RUN_FORMAT_PREFIX, Run, RunFolderError, is_run_sp
 
 __all__ = ["CONFIDENCE", "PERCENT", "RUN_FORMAT_PREFIX", "Run", "RunFolderError",
            "add_runs_arguments", "aligned_successes", "find_runs", "group_by_setting",
-           "mean_ci", "read_run", "settings_from_args", "t_quantile"]
+           "mean_ci", "read_run", "settings_from_args"]
 
 PERCENT = (0.0, 100.0)
 """Feasible range of a success percentage; confidence intervals are clipped to it."""
@@ -67,13 +67,6 @@ def group_by_setting(runs: Sequence[Run]) -> dict[tuple[str, int], list[Run]]:
     return groups
 
 
-def t_quantile(p: float, dof: int) -> float:
-    """Quantile of Student's t distribution with ``dof`` degrees of freedom."""
-    from scipy import stats
-
-    return float(stats.t.ppf(p, dof))
-
-
 def mean_ci(values: np.ndarray, level: float = CONFIDENCE,
             bounds: tuple[float, float] = (-np.inf, np.inf),
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -91,6 +84,8 @@ def mean_ci(values: np.ndarray, level: float = CONFIDENCE,
         With one seed the interval is the mean itself (no spread to estimate). ``bounds``
         clips the interval to a feasible range (e.g. 0-100 successes).
     """
+    from scipy import stats
+
     if not 0.0 < level < 1.0:
         raise ValueError(f"confidence level must be in (0, 1); got {level}")
     values = np.asarray(values, dtype=float)
@@ -98,7 +93,7 @@ def mean_ci(values: np.ndarray, level: float = CONFIDENCE,
     mean = values.mean(axis=0)
     if n < 2:
         return mean, mean.copy(), mean.copy()
-    half = t_quantile(0.5 + level / 2.0, n - 1) * values.std(axis=0, ddof=1) / math.sqrt(n)
+    half = float(stats.t.ppf(0.5 + level / 2.0, n - 1)) * values.std(axis=0, ddof=1) / math.sqrt(n)
     return mean, np.clip(mean - half, *bounds), np.clip(mean + half, *bounds)
 
 

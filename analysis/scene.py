@@ -222,14 +222,12 @@ _CAPTION = ('<div id="caption" style="position: absolute; left: 8px; top: 8px; z
 def offline_visualizer() -> meshcat.Visualizer:
     """A MeshCat ``Visualizer`` that records the scene for :meth:`Scene.write_html` (no server,
     no network)."""
-    meshcat = meshcat_module()
-    return meshcat.Visualizer(window=RecordingWindow())
+    return meshcat_module().Visualizer(window=RecordingWindow())
 
 
 def live_visualizer() -> meshcat.Visualizer:
     """A MeshCat ``Visualizer`` on a new local server (a subprocess; its address is printed)."""
-    meshcat = meshcat_module()
-    return meshcat.Visualizer()
+    return meshcat_module().Visualizer()
 
 
 # ------------------------------------------------------------------ the scene
@@ -449,10 +447,7 @@ class Timeline:
 
     def pose(self, vis: meshcat.Visualizer, arm: Arm, frame: int, q: Any) -> None:
         """Key the arm's configuration ``q (6,)`` (rad) at ``frame``."""
-        with self.animation.at_frame(vis, frame) as at:
-            for path, pose in zip(arm.parts, ur5kin.part_poses(np.asarray(q, dtype=float),
-                                                               arm.kind), strict=True):
-                at[path].set_transform(pose)
+        self.poses(vis, arm, frame, np.asarray(q, dtype=float)[None])
 
     def poses(self, vis: meshcat.Visualizer, arm: Arm, first: int, q: Any) -> None:
         """Key configurations ``q (T, 6)`` (rad) at frames ``first .. first + T - 1``."""

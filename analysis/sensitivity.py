@@ -38,7 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import write_csv
+from analysis.curves import curve_rows as setting_curve_rows
+from analysis.outputs import pyplot, save_figure, write_csv
 from analysis.paper import PAPER_EPISODES
 from analysis.readings import CHOICES, READINGS, Reading, run_choices
 from analysis.report import (
@@ -62,6 +63,7 @@ from analysis.sweep import (
     dry_run,
     execute,
     parse_setting,
+    positive_count,
 )
 from ddpg_her.units import split_passthrough
 
@@ -88,9 +90,6 @@ are first started, so a report of the root knows what each folder means."""
 
 COLLECTED_FILES = ("spec.json", "eval.csv")
 """What ``--collect`` copies of each run folder (no checkpoints, buffers or logs)."""
-
-VERDICT_WORDS = {v: v.value for v in Verdict}
-"""How a verdict of `analysis.report.judge_claims` reads in this study's tables."""
 
 BOOTSTRAP_REPS = 10_000
 """Default bootstrap resamples per interval (rliable's default is 50,000; with 5 seeds the
@@ -472,8 +471,9 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
         if key not in cache:
             try:
                 task = TaskSpec.from_record(spec["task"])
-                cache[key] = _share(optimality.worth_reaching(task, goals=goals, gamma=gamma,
-                                                                 seed=seed))
+                result = optimality.worth_reaching(task, goals=goals, gamma=gamma, seed=seed)
+                low, high = result.share_worth_ci
+                cache[key] = 100.0 * result.share_worth, 100.0 * low, 100.0 * high
             except (KeyError, TypeError, ValueError) as err:
                 problems.append(f"{cell.reading} {cell.region} {cell.joints}: {err}")
                 cache[key] = None
@@ -484,12 +484,6 @@ def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, 
     if problems:
         note += "; not computed for " + "; ".join(problems)
     return out, note
-
-
-def _share(result: Any) -> Interval:
-    """(share, low, high) in percent from an :class:`analysis.optimality.OptimalityResult`."""
-    low, high = result.share_worth_ci
-    return 100.0 * result.share_worth, 100.0 * low, 100.0 * high
 
 
 @dataclass(frozen=True)
@@ -542,7 +536,7 @@ def word(verdict: Verdict | None, partial: str = "") -> str:
     that falls short of the study)."""
     if verdict is None:
         return "-"
-    return VERDICT_WORDS[verdict] + (" (partial)" if partial else "")
+    return verdict.value + (" (partial)" if partial else "")
 
 
 VERDICT_COLUMNS = ("claim", "reading", "verdict_t", "verdict_bootstrap_mean",
@@ -576,44 +570,29 @@ def write_csvs(cells: Sequence[Cell], rows: Sequence[VerdictRow], curves: Sequen
         [r.claim, r.reading, word(r.t), word(r.boot_mean), word(r.boot_iqm),
          "" if r.p_value is None else f"{r.p_value:.4g}", r.partial, "; ".join(r.confounds),
          r.detail_t, r.detail_boot_mean, r.detail_boot_iqm] for r in rows))
-    finals = []
-    for c in cells:
-        bm, bi, wr = c.boot_mean or (None,) * 3, c.boot_iqm or (None,) * 3, c.worth or (None,) * 3
-        finals.append([c.reading, c.region, c.joints, len(c.levels), c.episode, c.partial,
-                       ";".join(f"{v:g}" for v in c.levels), _r(c.t[0]), _r(c.t[1]),
-                       _r(c.t[2]), _r(bm[1]), _r(bm[2]), _r(bi[0]), _r(bi[1]), _r(bi[2]),
-                       _r(wr[0]), _r(wr[1]), _r(wr[2])])
-    write_csv(out / "finals.csv", FINAL_COLUMNS, finals)
+    none = (None,) * 3
+    write_csv(out / "finals.csv", FINAL_COLUMNS, (
+        [c.reading, c.region, c.joints, len(c.levels), c.episode, c.partial,
+         ";".join(f"{v:g}" for v in c.levels),
+         *map(_r, (*c.t, *(c.boot_mean or none)[1:], *(c.boot_iqm or none), *(c.worth or none)))]
+        for c in cells))
     write_csv(out / "curves.csv", CURVE_COLUMNS, curves)
 
 
 def curve_rows(groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
                level: float) -> list[dict]:
-    """Per reading, setting and evaluation episode: mean successes and interval over seeds."""
-    rows = []
-    for reading, settings in groups.items():
-        for (region, joints), runs in settings.items():
-            episode, table = aligned_successes(runs)
-            mean, low, high = mean_ci(table, level, PERCENT)
-            rows += [{"reading": reading, "region": region, "joints": joints,
-                      "episode": int(e), "seeds": len(runs),
-                      "mean_successes": round(float(mean[i]), 4),
-                      "ci_low": round(float(low[i]), 4), "ci_high": round(float(high[i]), 4)}
-                     for i, e in enumerate(episode)]
-    return rows
+    """Per reading, setting and evaluation episode: mean successes and interval over seeds
+    (`analysis.curves.curve_rows` with the reading)."""
+    return [{"reading": reading, **row} for reading, settings in groups.items()
+            for row in setting_curve_rows(dict(settings), level)]
 
 
 def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],
                 readings: Sequence[str], budget: int, level: float, out: Path) -> None:
     """One panel per setting, one line per reading (mean, band = interval), the budget dotted."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     cols = min(len(settings), 3)
     nrows = -(-len(settings) // cols)
-    fig, axes = plt.subplots(nrows, cols, squeeze=False, sharey=True,
+    fig, axes = pyplot().subplots(nrows, cols, squeeze=False, sharey=True,
                              figsize=(3.6 * cols + 0.4, 2.8 * nrows + 0.9))
     for ax, (region, joints) in zip(axes.flat, settings, strict=False):
         for k, reading in enumerate(readings):
@@ -639,19 +618,13 @@ def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],
     fig.suptitle(f"Test successes per reading: mean and {level:.0%} Student-t interval over "
                  f"seeds (budget {budget:,} episodes dotted)", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    save_figure(fig, out, dpi=120)
 
 
 def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
                readings: Sequence[str], out: Path) -> None:
     """Grouped bars: per setting, each reading's share of goals worth reaching (%)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.4 * len(settings) + 1), 3.4))
+    fig, ax = pyplot().subplots(figsize=(max(6.0, 1.4 * len(settings) + 1), 3.4))
     width = 0.8 / max(1, len(readings))
     labelled: set[str] = set()
     for k, reading in enumerate(readings):
@@ -671,8 +644,7 @@ def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
     ax.legend(fontsize=7)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    save_figure(fig, out, dpi=120)
 
 
 def _fmt(stat: Interval | None) -> str:
@@ -812,15 +784,15 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
     shares, note = worth_shares(cells, groups, worth_goals, boot_seed)
     cells = [Cell(**{**asdict(c), "worth": shares.get((c.reading, *c.setting))}) for c in cells]
     rows = verdicts(cells, groups, names, budget, level, reps, boot_seed)
-    curves = curve_rows({r: groups[r] for r in names if r in groups}, level)
-    write_csvs(cells, rows, curves, out)
+    run = [r for r in names if r in groups]
+    curve_table = curve_rows({r: groups[r] for r in run}, level)
+    write_csvs(cells, rows, curve_table, out)
     files = [out / "verdicts.csv", out / "finals.csv", out / "curves.csv"]
     if settings:
-        plot_curves(curves, settings, [r for r in names if r in groups], budget, level,
-                    out / "curves.png")
+        plot_curves(curve_table, settings, run, budget, level, out / "curves.png")
         files.append(out / "curves.png")
     if shares:
-        plot_worth(cells, settings, [r for r in names if r in groups], out / "worth_reaching.png")
+        plot_worth(cells, settings, run, out / "worth_reaching.png")
         files.append(out / "worth_reaching.png")
     text = render(cells, rows, names, known, budget, seeds, level, reps, note, boot_seed)
     (out / "report.md").write_text(text)
@@ -829,13 +801,6 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
 
 
 # --- command line -------------------------------------------------------------------------------
-
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a count >= 1; got {value}")
-    return value
 
 
 def _add_reading_arguments(parser: argparse.ArgumentParser) -> None:
@@ -873,15 +838,15 @@ def report_main(argv: Sequence[str]) -> int:
     parser.add_argument("root", type=Path, metavar="ROOT", help="the study's runs root")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder of the report's files (default: ROOT)")
-    parser.add_argument("--episodes", type=_positive, default=STUDY_EPISODES,
+    parser.add_argument("--episodes", type=positive_count, default=STUDY_EPISODES,
                         help="the budget (training episodes, >= 1): claims are judged at the "
                              "last evaluation at or below it; less is partial")
-    parser.add_argument("--seeds", type=_positive, default=STUDY_SEEDS,
+    parser.add_argument("--seeds", type=positive_count, default=STUDY_SEEDS,
                         help="seeds a complete setting has (count, >= 1); fewer is partial")
     parser.add_argument("--confidence", type=float, default=CONFIDENCE,
                         help="two-sided level of every interval (fraction in (0, 1); the "
                              "paper's figures: 0.65)")
-    parser.add_argument("--reps", type=_positive, default=BOOTSTRAP_REPS,
+    parser.add_argument("--reps", type=positive_count, default=BOOTSTRAP_REPS,
                         help="bootstrap resamples per interval (count, >= 1)")
     parser.add_argument("--bootstrap-seed", type=int, default=0,
                         help="seed of the bootstrap resampling and of the worth-reaching goals")
@@ -908,6 +873,47 @@ def report_main(argv: Sequence[str]) -> int:
     return 0
 
 
+def add_study_arguments(parser: argparse.ArgumentParser, settings: Sequence[tuple[str, int]],
+                        default_out: Path, what: str) -> None:
+    """The flags of a study of readings x settings (this one, `analysis.algorithms`): the
+    settings, `analysis.sweep`'s execution flags at the study's budget, and ``--collect``;
+    ``what`` names the study's readings in the help."""
+    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
+                        help="a (region, joints) setting, joints in 2..6; repeatable (default: "
+                             + ", ".join(f"{r}:{j}" for r, j in settings) + ")")
+    add_execution_arguments(parser, default_out, unit_word="unit")
+    parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
+    parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
+                        help="train nothing: copy each finished unit's spec.json and eval.csv to "
+                             f"DEST/runs/<{what}>/<region>-j<joints>/s<seed> (no checkpoints)")
+
+
+def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
+              readings: Sequence[Reading], settings: Sequence[tuple[str, int]],
+              extra: Sequence[str]) -> int:
+    """What a study's command line asks of the units of ``readings`` x (``args.setting`` or
+    ``settings``): a dry run, ``--collect``, or training them with each reading recorded
+    (`write_reading`) in the root."""
+    threads = check_execution_arguments(parser, args)
+    units = units_for(readings, args.setting or settings, args.seeds, args.out, args.episodes)
+    if args.dry_run:
+        dry_run(units, args, threads, extra)
+        return 0
+    root = args.out if args.collect is None else args.collect / "runs"
+    copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
+    try:
+        for reading in readings:  # units started by hand have no reading.json of their own
+            if args.collect is None or (root / reading.name).is_dir():
+                write_reading(root, reading)
+    except ValueError as err:
+        parser.error(str(err))
+    if args.collect is None:
+        return execute(units, args, threads, extra, unit_word="units")
+    print(f"copied {copied} finished unit(s) to {root}; {len(skipped)} not finished"
+          + (": " + ", ".join(skipped) if skipped else ""), file=sys.stderr)
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["report"]:
@@ -924,16 +930,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="readings to run (default: the built-in ones, "
                              f"{', '.join(READINGS)}, and every --reading/--readings-file one)")
     _add_reading_arguments(parser)
-    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
-                        help="a (region, joints) setting, joints in 2..6; repeatable (default: "
-                             + ", ".join(f"{r}:{j}" for r, j in SETTINGS) + ")")
-    add_execution_arguments(parser, Path("runs/sensitivity"), unit_word="unit")
-    parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
-    parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
-                        help="train nothing: copy each finished unit's spec.json and eval.csv to "
-                             "DEST/runs/<reading>/<region>-j<joints>/s<seed> (no checkpoints)")
+    add_study_arguments(parser, SETTINGS, Path("runs/sensitivity"), "reading")
     args = parser.parse_args(argv)
-    threads = check_execution_arguments(parser, args)
     user = _user_readings(parser, args)
     known = {**READINGS, **{r.name: r for r in user}}
     names = args.readings or list(known)
@@ -949,28 +947,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   "skipped", file=sys.stderr)
         else:
             readings.append(known[name])
-    units = units_for(readings, args.setting or SETTINGS, args.seeds, args.out, args.episodes)
-    if args.dry_run:
-        dry_run(units, args, threads, extra)
-        return 0
-    if args.collect is not None:
-        copied, skipped = collect(units, args.collect)
-        for reading in readings:  # units started by hand have no reading.json of their own
-            if (args.collect / "runs" / reading.name).is_dir():
-                try:
-                    write_reading(args.collect / "runs", reading)
-                except ValueError as err:
-                    parser.error(str(err))
-        print(f"copied {copied} finished unit(s) to {args.collect / 'runs'}; "
-              f"{len(skipped)} not finished" + (": " + ", ".join(skipped) if skipped else ""),
-              file=sys.stderr)
-        return 0
-    try:
-        for reading in readings:
-            write_reading(args.out, reading)
-    except ValueError as err:
-        parser.error(str(err))
-    return execute(units, args, threads, extra, unit_word="units")
+    return run_study(parser, args, readings, SETTINGS, extra)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from analysis.outputs import (
     available_bytes,
     check_writable,
     figure_path,
+    pyplot,
     save_figure,
     write_csv,
 )
@@ -126,12 +127,7 @@ def bin_successes(run: str, goals: np.ndarray, reached: np.ndarray, cell: float)
 
 
 def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(maps), squeeze=False, sharey=True,
+    fig, axes = pyplot().subplots(1, len(maps), squeeze=False, sharey=True,
                              figsize=(4.6 * len(maps) + 0.8, 4.4))
     image = None
     for ax, m in zip(axes[0], maps, strict=True):
@@ -146,7 +142,6 @@ def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
     fig.colorbar(image, ax=axes[0].tolist(), label="goals reached (%)", shrink=0.85)
     fig.suptitle(f"Success by goal position, {z[0]} <= z <= {z[1]} m (world frame)", fontsize=10)
     save_figure(fig, out, dpi=120, bbox_inches="tight")
-    plt.close(fig)
 
 
 def csv_rows(maps: Sequence[SuccessMap]) -> list[list[Any]]:

@@ -42,9 +42,6 @@ GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
 }
 """Named grids of (region, joints) settings."""
 
-RUN_DIR = "{region}-j{joints}/s{seed}"
-"""Run folder of one seed below the sweep root."""
-
 
 @dataclass(frozen=True)
 class Unit:
@@ -74,7 +71,7 @@ class Unit:
         return f"{self.tag}/{self.setting}" if self.tag else self.setting
 
     def run_dir(self, seed: int) -> Path:
-        return self.root / RUN_DIR.format(region=self.region, joints=self.joints, seed=seed)
+        return self.root / self.setting / f"s{seed}"
 
     def status(self, seed: int) -> str:
         """'done', 'resume' or 'new' (`ddpg_her.runfolder.run_status`) of seed's run."""
@@ -104,8 +101,7 @@ class Unit:
     @property
     def out(self) -> str:
         """The ``--out`` template of the unit's process (``{seed}`` left in)."""
-        return str(self.root / RUN_DIR).replace("{region}", self.region).replace(
-            "{joints}", str(self.joints))
+        return str(self.root / self.setting / "s{seed}")
 
     def run_args(self, extra: Sequence[str] = ()) -> list[str]:
         """The unit's ``ddpg_her.train`` arguments without the process flags: its setting,
@@ -116,9 +112,8 @@ class Unit:
 
     def command(self, threads: int, extra: Sequence[str], device: str = "cpu") -> list[str]:
         """The ``ddpg_her.train`` command line: the unit's own ``train_args``, then ``extra``."""
-        own = self.run_args()
-        return [sys.executable, "-m", "ddpg_her.train", *own, "--resume", "--no-progress",
-                "--threads", str(threads), "--device", device, *extra]
+        return [sys.executable, "-m", "ddpg_her.train", *self.run_args(), "--resume",
+                "--no-progress", "--threads", str(threads), "--device", device, *extra]
 
     @property
     def log_path(self) -> Path:
@@ -132,6 +127,14 @@ def parse_setting(text: str) -> tuple[str, int]:
         raise argparse.ArgumentTypeError(
             f"expected REGION:JOINTS with joints in 2..6; got {text!r}")
     return region, int(joints)
+
+
+def positive_count(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a count >= 1; got {value}")
+    return value
 
 
 def units_for(settings: Sequence[tuple[str, int]], seeds: int, root: Path,
@@ -390,35 +393,32 @@ ONE_PROCESS_LOG = "logs/one-process.log"
 """Below the root: the output of the one-process trainings, appended run after run."""
 
 
-def one_process_command(plan: Path | str, threads: int, device: str,
-                        env_backend: str = "numpy", env_dynamics: str = "torch") -> list[str]:
+def one_process_command(plan: Path | str, threads: int, args: argparse.Namespace) -> list[str]:
     """The ``ddpg_her.train_many`` command line that trains a plan's units in one process."""
     return [sys.executable, "-m", "ddpg_her.train_many", "--plan", str(plan), "--resume",
-            "--no-progress", "--threads", str(threads), "--device", device,
-            *backend_args(env_backend, env_dynamics)]
+            "--no-progress", "--threads", str(threads), "--device", args.device,
+            *backend_args(args)]
 
 
-def backend_args(env_backend: str, env_dynamics: str = "torch") -> list[str]:
+def backend_args(args: argparse.Namespace) -> list[str]:
     """The training command's arguments for ``--env-backend`` and ``--env-dynamics`` (none
     for the defaults)."""
-    return ((["--env-backend", env_backend] if env_backend != "numpy" else [])
-            + (["--env-dynamics", env_dynamics] if env_dynamics != "torch" else []))
+    return ((["--env-backend", args.env_backend] if args.env_backend != "numpy" else [])
+            + (["--env-dynamics", args.env_dynamics] if args.env_dynamics != "torch" else []))
 
 
-def run_one_process(units: Sequence[Unit], root: Path, threads: int, extra: Sequence[str],
-                    device: str = "cpu", env_backend: str = "numpy",
-                    env_dynamics: str = "torch") -> int:
+def run_one_process(units: Sequence[Unit], args: argparse.Namespace, threads: int,
+                    extra: Sequence[str]) -> int:
     """Train the units in one ``ddpg_her.train_many`` process, whose plan (every unit's
-    ``ddpg_her.train`` arguments) goes to ``root/logs/one-process-<time>.json``; 1 when the
+    ``ddpg_her.train`` arguments) goes to ``ROOT/logs/one-process-<time>.json``; 1 when the
     process failed, else 0."""
     from ddpg_her.units import write_plan
 
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    plan = root / "logs" / f"one-process-{stamp}.json"
+    root = args.out
+    plan = root / "logs" / f"one-process-{time.strftime('%Y%m%d-%H%M%S')}.json"
     write_plan(plan, [u.run_args(extra) for u in units])
-    proc, log = start_unit(one_process_command(plan, threads, device, env_backend,
-                                               env_dynamics),
-                           root / ONE_PROCESS_LOG, threads)
+    proc, log = start_unit(one_process_command(plan, threads, args), root / ONE_PROCESS_LOG,
+                           threads)
     bar = EpisodeBar(units, "training (one process)")
     try:
         while proc.poll() is None:
@@ -454,7 +454,6 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
     (an unknown flag, a bad value), a region that does not parse, or two units (or two seeds)
     with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks what
     needs neither the robot nor torch."""
-    import contextlib
     import io
 
     from ddpg_her import train
@@ -502,18 +501,18 @@ def refuse_problems(units: Sequence[Unit], extra: Sequence[str]) -> None:
         raise SystemExit(2)
 
 
-def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
-                  device: str = "cpu", one: bool = False, env_backend: str = "numpy",
-                  env_dynamics: str = "torch") -> None:
+def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
+            extra: Sequence[str]) -> None:
     """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
-    trains its unit), tag, setting, seed, folder and the unit's command (with ``one``: its
-    arguments in the one ``ddpg_her.train_many`` process). Units that could not start are
-    refused first (`refuse_problems`), as a real run would."""
-    process = backend_args(env_backend, env_dynamics)
+    trains its unit), tag, setting, seed, folder and the unit's command (with
+    ``--one-process``: its arguments in the one ``ddpg_her.train_many`` process); then, with
+    ``--project``, `print_projection`. Units that could not start are refused first
+    (`refuse_problems`), as a real run would."""
+    process = backend_args(args)
     refuse_problems(units, [*extra, *process])
     for unit in units:
-        cmd = "one process, unit " + " ".join(unit.run_args(extra)) if one else \
-            "python " + " ".join(unit.command(threads, [*extra, *process], device)[1:])
+        cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
+            "python " + " ".join(unit.command(threads, [*extra, *process], args.device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
             status = "busy" if busy(unit) and unit.status(seed) != "done" \
@@ -521,13 +520,14 @@ def print_dry_run(units: Sequence[Unit], threads: int, extra: Sequence[str],
             print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
                   f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
     runs = f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
-    if one:
-        command = one_process_command("ROOT/logs/one-process-TIME.json", threads, device,
-                                      env_backend, env_dynamics)
+    if args.one_process:
+        command = one_process_command("ROOT/logs/one-process-TIME.json", threads, args)
         print(f"{runs}, the unfinished ones in one process: python "
               f"{' '.join(command[1:])}", file=sys.stderr)
     else:
         print(f"{runs} (one process each)", file=sys.stderr)
+    if args.project:
+        print_projection(units, args, threads, extra)
 
 
 def eval_every(unit: Unit, extra: Sequence[str]) -> int:
@@ -623,19 +623,10 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     return total
 
 
-def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
-            extra: Sequence[str]) -> None:
-    """`print_dry_run`, then with ``args.project`` `print_projection`."""
-    print_dry_run(units, threads, extra, args.device, args.one_process, args.env_backend,
-                  args.env_dynamics)
-    if args.project:
-        print_projection(units, args, threads, extra)
-
-
 def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
-    process = backend_args(args.env_backend, args.env_dynamics)
+    process = backend_args(args)
     refuse_problems(units, [*extra, *process])
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
@@ -647,8 +638,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     if not todo:
         return 0
     if args.one_process:
-        return run_one_process(todo, args.out, threads, extra, args.device, args.env_backend,
-                               args.env_dynamics)
+        return run_one_process(todo, args, threads, extra)
     extra = [*extra, *process]
     if args.ray_address:
         failed = run_ray(todo, args.ray_address, threads, extra, args.device)
