@@ -79,8 +79,10 @@ bench() {
 }
 
 bench_updates() {
-    # the capturable step on this device: its tests (the cuda ones run here only)
-    $PY -m pytest -q -p no:cacheprovider tests/test_update_graph.py 2>&1 | tail -5 | tee "$OUT/tests.txt"
+    # the capturable step on this device, and the ensemble's replay of device rows: their tests
+    # (the cuda ones run here only)
+    $PY -m pytest -q -p no:cacheprovider tests/test_update_graph.py tests/test_ensemble.py \
+        -k "graph or capturable or cuda or tensor_rows" 2>&1 | tail -5 | tee "$OUT/tests.txt"
     # issue 24: stacked updates of 55 agents, graph against eager (goal >= 100k agent-updates/s),
     # and of 5, the size of one setting's stack
     $PY -m benchmarks.agent_updates --device "$DEVICE" --graph 55 --only-graph --updates 100 \

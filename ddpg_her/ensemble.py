@@ -112,10 +112,10 @@ class CellBuffer(ReplayBuffer):
         self._queues = [[_CellQueue(self.rows.device) for _ in range(self.m)] for _ in range(k)]
         self._owners = torch.arange(k, device=self.rows.device).repeat_interleave(self.m)[:, None]
 
-    def put(self, k: int, start: int, rows: np.ndarray) -> None:
+    def put(self, k: int, start: int, rows: np.ndarray | torch.Tensor) -> None:
         before = int(self.total[k])
         super().put(k, start, rows)
-        self._index(k, before, start, torch.from_numpy(np.asarray(rows)))
+        self._index(k, before, start, torch.as_tensor(rows))  # a device tensor stays there
 
     def _index(self, k: int, before: int, start: int, rows: torch.Tensor) -> None:
         """File the rows just written (numbers ``start ..``) under their cells."""

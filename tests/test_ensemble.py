@@ -155,6 +155,29 @@ def test_replay_files_each_transition_under_its_goals_cell_and_members_sample_on
         assert torch.equal(a, b)
 
 
+@pytest.mark.parametrize("device", [
+    "cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(),
+                                                         reason="needs a CUDA device"))])
+def test_replay_files_tensor_rows_as_it_files_the_same_rows_as_arrays(device):
+    """The torch env backend hands the buffer tensors on the training device: they are filed
+    under the same cells as the same rows given as a host array (a CUDA tensor once went
+    through numpy, which cannot read device memory)."""
+    layout = Layout(IN, ACT)
+    centres = torch.as_tensor(np.stack([HALVES.centres, HALVES.centres]))
+    host = CellBuffer(2, 50, layout, centres, dtype=torch.float64, device=device)
+    dev = CellBuffer(2, 50, layout, centres, dtype=torch.float64, device=device)
+    rng = np.random.default_rng(4)
+    for _ in range(7):
+        for k in range(2):
+            rows = rng.normal(size=(rng.integers(3, 13), layout.width))
+            host.add(k, rows)
+            dev.add(k, torch.as_tensor(rows, device=device))
+    for k in range(2):
+        for a, b in zip(host._queues[k], dev._queues[k], strict=True):
+            assert a.data[a.head:a.tail].tolist() == b.data[b.head:b.tail].tolist()
+            assert a.tail > a.head
+
+
 def test_the_normaliser_statistics_are_per_member_of_the_rows_routed_to_it():
     agent = two_seed_ensemble(ensemble_config())
     rng = np.random.default_rng(2)
