@@ -193,10 +193,11 @@ class EpisodeBar:
         self.ended: set[int] = set()
         self.failed: set[int] = set()
         self._last_poll = 0.0
+        # episodes of a resumed sweep count as done from the start, not as progress of this
+        # process (tqdm's rate and time left count from ``initial``)
         self.bar = tqdm(total=sum(u.episodes_total for u in self.units), desc=desc,
-                        unit="episode", file=sys.stderr, smoothing=0.05)
-        self.bar.update(sum(u.episodes_done() for u in self.units))
-        self.bar.unpause()
+                        unit="episode", file=sys.stderr, smoothing=0.05,
+                        initial=sum(u.episodes_done() for u in self.units))
 
     def end(self, unit: Unit, failed: bool = False) -> None:
         """Mark ``unit``'s process as ended (``failed``: with a non-zero status)."""

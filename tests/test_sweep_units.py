@@ -50,6 +50,25 @@ def test_the_progress_bar_does_not_end_at_100_percent_over_a_failed_unit(tmp_pat
         bar.close()
 
 
+def test_the_progress_bar_of_a_resumed_sweep_starts_at_the_episodes_already_done(tmp_path):
+    """A sweep resumed to a larger budget shows its finished episodes at once, and its rate and
+    time left count only what this process trains (tqdm's ``initial``), not those episodes."""
+    import shutil
+
+    run = Path(__file__).parents[1] / "results/paper_long/runs/unconstrained-j3/s0"
+    unit = sweep.Unit("unconstrained", 3, (0,), tmp_path, 100_000)
+    shutil.copytree(run, unit.run_dir(0))
+    done = unit.episodes_done()
+    assert done >= 1000  # the committed run's episodes, whatever stage it is at
+    bar = sweep.EpisodeBar([unit], "training")
+    try:
+        assert bar.bar.initial == bar.bar.n == done
+        assert bar.bar.format_dict["rate"] is None  # nothing trained yet: no rate
+        assert f"{done}/100000" in str(bar.bar)
+    finally:
+        bar.close()
+
+
 def test_train_many_refuses_two_runs_on_one_folder_before_anything_starts(tmp_path):
     from cli_tools import run_module
 
