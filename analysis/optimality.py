@@ -630,6 +630,15 @@ def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
     return rows, skipped
 
 
+def _column(by_setting: Mapping[tuple[str, int], Mapping[str, Any]],
+            settings: Sequence[tuple[str, int]], key: str, optional: bool = False) -> np.ndarray:
+    """One reading's ``key`` per setting: NaN where it has no row, or (``optional``, as the
+    grid check that was not run) an empty cell; any other value must be a number."""
+    return np.array([np.nan if s not in by_setting
+                     or (optional and by_setting[s].get(key) in ("", None))
+                     else float(by_setting[s][key]) for s in settings])
+
+
 def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = None) -> Any:
     """Bar chart of the share worth reaching per setting, one bar per reading, with CIs.
 
@@ -648,18 +657,15 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
     settings = list(dict.fromkeys((r["region"], int(r["joints"])) for r in rows))
     readings = list(dict.fromkeys(r["reading"] for r in rows))
     if ax is None:
-        _, ax = pyplot().subplots(figsize=(max(5.0, 1.3 * len(settings) * max(1, len(readings)) / 2
-                                          + 2.0), 3.8))
+        fig_width = max(5.0, 1.3 * len(settings) * max(1, len(readings)) / 2 + 2.0)
+        _, ax = pyplot().subplots(figsize=(fig_width, 3.8))
     width = 0.8 / max(1, len(readings))
     x = np.arange(len(settings))
     for k, name in enumerate(readings):
         by_setting = {(r["region"], int(r["joints"])): r for r in rows if r["reading"] == name}
-        # per setting, NaN where the reading has no row (or no grid check: an empty cell)
-        values = [[by_setting[s].get(key) if s in by_setting else None for s in settings]
-                  for key in ("share_worth", "ci_low", "ci_high", "share_reachable",
-                              "share_worth_grid")]
-        share, low, high, reach, grid = (np.array([np.nan if v in ("", None) else float(v)
-                                                   for v in column]) for column in values)
+        share, low, high, reach = (_column(by_setting, settings, key) for key in
+                                   ("share_worth", "ci_low", "ci_high", "share_reachable"))
+        grid = _column(by_setting, settings, "share_worth_grid", optional=True)
         pos = x - 0.4 + width * (k + 0.5)
         ax.bar(pos, 100 * share, width, color=f"C{k}", label=f"{name}: worth reaching")
         ax.errorbar(pos, 100 * share, yerr=100 * np.abs(np.stack([share - low, high - share])),

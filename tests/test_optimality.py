@@ -204,3 +204,19 @@ def test_cli_writes_csv_and_figure(tmp_path: Path) -> None:
     assert float(rows[1]["share_worth"]) >= float(rows[0]["share_worth"])
     assert (tmp_path / "optimality.png").stat().st_size > 0
     assert "lower" in proc.stdout or "below" in proc.stdout
+
+
+def test_the_plot_draws_a_missing_grid_check_as_nothing_and_refuses_a_missing_share(tmp_path):
+    """An empty ``share_worth_grid`` is a grid check that was not run (nothing drawn); an empty
+    share or interval is a broken row, refused, never drawn as a silent gap."""
+    row = {"region": "farbox", "joints": 3, "reading": "ours", "share_worth": "0.5",
+           "ci_low": "0.4", "ci_high": "0.6", "share_reachable": "0.7", "share_worth_grid": ""}
+    ax = opt.plot([row, {**row, "region": "zheight", "share_worth_grid": "0.3"}],
+                  out=tmp_path / "ok.png")
+    grid = [c for c in ax.collections if c.get_label().startswith("grid")]
+    heights = np.ma.filled(grid[0].get_offsets()[:, 1].astype(float), np.nan)  # % of goals
+    assert len(grid) == 1 and np.isnan(heights).tolist() == [True, False]
+    assert heights[1] == pytest.approx(30.0)
+    for key in ("share_worth", "ci_low", "ci_high", "share_reachable"):
+        with pytest.raises(ValueError, match="could not convert"):
+            opt.plot([{**row, key: ""}], out=tmp_path / f"{key}.png")
