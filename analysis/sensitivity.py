@@ -593,7 +593,7 @@ def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],
     cols = min(len(settings), 3)
     nrows = -(-len(settings) // cols)
     fig, axes = pyplot().subplots(nrows, cols, squeeze=False, sharey=True,
-                             figsize=(3.6 * cols + 0.4, 2.8 * nrows + 0.9))
+                                  figsize=(3.6 * cols + 0.4, 2.8 * nrows + 0.9))
     for ax, (region, joints) in zip(axes.flat, settings, strict=False):
         for k, reading in enumerate(readings):
             mine = [r for r in rows if r["reading"] == reading and r["region"] == region

@@ -128,7 +128,7 @@ def bin_successes(run: str, goals: np.ndarray, reached: np.ndarray, cell: float)
 
 def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
     fig, axes = pyplot().subplots(1, len(maps), squeeze=False, sharey=True,
-                             figsize=(4.6 * len(maps) + 0.8, 4.4))
+                                  figsize=(4.6 * len(maps) + 0.8, 4.4))
     image = None
     for ax, m in zip(axes[0], maps, strict=True):
         image = ax.pcolormesh(m.x_edges, m.y_edges, 100.0 * m.rate.T, cmap="viridis", vmin=0.0,
