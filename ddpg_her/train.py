@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import enum
+import json
 import re
 import sys
 import typing
@@ -60,7 +61,8 @@ def add_process_flags(group: Any, what: str) -> None:
     group.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
                        help=f"torch device of {what} (default: cpu); runs are bitwise "
                             "repeatable on the CPU")
-    group.add_argument("--env-backend", choices=["numpy", "batched", "torch"], default="numpy",
+    group.add_argument("--env-backend", choices=["numpy", "batched", "torch", "program"],
+                       default="numpy",
                        help="where the envs live (default: numpy): 'numpy', Gymnasium's envs "
                             "on the host, one group per agent; 'batched', the same envs with "
                             "the copies of all agents whose tasks differ only in their goals "
@@ -71,7 +73,15 @@ def add_process_flags(group: Any, what: str) -> None:
                             "UR5Reach-v0 only, the stop contact model only) on --device, so "
                             "rollout, HER and replay stay on the device. Its exploration "
                             "noise comes from torch generators: the same seed explores "
-                            "otherwise than under 'numpy'")
+                            "otherwise than under 'numpy'. 'program': the training program "
+                            "(ddpg_her.program; DDPG + HER, UR5Reach-v0 with the stop contact, "
+                            "locked held joints and the joint goal sampler): every agent of "
+                            "the process, whatever its task and joint count, as one stack on "
+                            "--device, each episode a few device steps (CUDA graphs on cuda) "
+                            "with no host read; goals, exploration and minibatches from "
+                            "counter-based streams (spec.json's 'program'), so a seed trains "
+                            "otherwise than under the other backends, and alike alone or in "
+                            "any stack")
     group.add_argument("--env-dynamics", choices=["torch", "numba"], default="torch",
                        help="the arm dynamics of --env-backend torch (default: torch): "
                             "'torch', the vectorised tensor step (any --device); 'numba', the "
@@ -91,6 +101,11 @@ def add_process_flags(group: Any, what: str) -> None:
                             "so a seed trains otherwise than under 'off', and spec.json "
                             "records update_graph 'on' (a run resumes only with its own "
                             "setting). 'off', the update loop of earlier runs")
+    group.add_argument("--tf32", action="store_true",
+                       help="with --env-backend program on cuda: let the matrix products "
+                            "round their operands to TF32 (10-bit mantissas; faster on "
+                            "Ampere and later, recorded in spec.json). Off by default until "
+                            "its effect on learning is measured")
     group.add_argument("--threads", type=int, default=None,
                        help="torch CPU threads (count, >= 1; default: torch's choice)")
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -161,8 +176,8 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     return dirs
 
 
-PROCESS_FLAGS = ("resume", "device", "env_backend", "env_dynamics", "update_graph", "threads",
-                 "no_progress", "no_tensorboard")
+PROCESS_FLAGS = ("resume", "device", "env_backend", "env_dynamics", "update_graph", "tf32",
+                 "threads", "no_progress", "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
 
 
@@ -280,6 +295,25 @@ def build_trainer(parser: argparse.ArgumentParser, make: Callable[[], Any]) -> A
         parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
 
 
+def build_program(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                  settings: Sequence[Setting], command: Sequence[str]) -> Any:
+    """The training program (`ddpg_her.program.Program`) of every run of ``settings`` as one
+    stack; a usage error when the settings' agent configurations or env ids differ, or the
+    program refuses them."""
+    configs = {json.dumps(s.config.to_dict(), sort_keys=True) for s in settings}
+    if len(configs) > 1 or len({s.env_id for s in settings}) > 1:
+        parser.error("--env-backend program trains one stack: every unit needs the same env "
+                     "id and agent configuration (flags and --episodes)")
+    from ddpg_her.program import Program
+
+    first = settings[0]
+    return build_trainer(parser, lambda: Program(
+        first.env_id, [s.env_kwargs for s in settings for _ in s.seeds], first.config,
+        [seed for s in settings for seed in s.seeds],
+        [d for s in settings for d in s.run_dirs], resume=args.resume, device=args.device,
+        progress=not args.no_progress, command=command, tf32=args.tf32))
+
+
 def run_to_end(trainer: Any) -> Any:
     """Train ``trainer`` to its budget and close it; its rows, or None when interrupted (what
     is finished is on disk, and ``--resume`` continues).
@@ -313,6 +347,8 @@ def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespac
     (before any unit is parsed)."""
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
+    if args.tf32 and args.env_backend != "program":
+        parser.error("--tf32 is a setting of --env-backend program")
     if args.env_dynamics != "torch" and args.env_backend != "torch":
         parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
                      f"torch; got --env-backend {args.env_backend}")
@@ -367,12 +403,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ddpg_her.trainer import Trainer
 
     register_envs(parser, [args.env_id])
-    trainer = build_trainer(parser, lambda: Trainer(
+    if args.env_backend == "program":
+        trainer = build_program(parser, args, [req], ["python", "-m", "ddpg_her.train",
+                                                      *(argv or sys.argv[1:])])
+    else:
+        trainer = build_trainer(parser, lambda: Trainer(
         args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
-        env_backend=args.env_backend, env_dynamics=args.env_dynamics,
-        update_graph=args.update_graph, progress=not args.no_progress,
-        tensorboard=not args.no_tensorboard,
-        command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
+            env_backend=args.env_backend, env_dynamics=args.env_dynamics,
+            update_graph=args.update_graph, progress=not args.no_progress,
+            tensorboard=not args.no_tensorboard,
+            command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
     rows = run_to_end(trainer)
     if rows is None:
         return 130

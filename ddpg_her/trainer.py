@@ -34,7 +34,7 @@ from ddpg_her.update_graph import UpdateStep
 from ddpg_her.update_graph import resolve as resolve_update_graph
 
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
-_INIT, _EXPLORE, _SAMPLE, _TRAIN_ENV, EVAL_ENV_STREAM = range(5)
+INIT_STREAM, EXPLORE_STREAM, SAMPLE_STREAM, TRAIN_ENV_STREAM, EVAL_ENV_STREAM = range(5)
 """``EVAL_ENV_STREAM``: the key of the test sessions' goals, ``stream_seed(seed,
 EVAL_ENV_STREAM, session, i)`` for test episode i of a session (public: other trainers, such
 as ``analysis.sb3``, test on the same goals)."""
@@ -99,18 +99,19 @@ class Trainer:
         envs = self.envs
         for k, kwargs in enumerate(per_agent):
             check_recorded(env_id, kwargs, envs.task_of(k))
-        self.rngs = [np.random.default_rng(stream_seed(s, _EXPLORE)) for s in seeds]
+        self.rngs = [np.random.default_rng(stream_seed(s, EXPLORE_STREAM)) for s in seeds]
         self.sample_generators = [
-            torch.Generator(self.device).manual_seed(stream_seed(s, _SAMPLE)) for s in seeds]
+            torch.Generator(self.device).manual_seed(stream_seed(s, SAMPLE_STREAM)) for s in seeds]
         self.explore_generators = [
-            torch.Generator(self.device).manual_seed(stream_seed(s, _EXPLORE)) for s in seeds]
+            torch.Generator(self.device).manual_seed(stream_seed(s, EXPLORE_STREAM)) for s in seeds]
         self.collector = Collector(self.envs, self.eval_envs, config, self.rngs,
                                    self.explore_generators, device=self.device, dtype=dtype)
         self.layout = self.collector.layout
         check_memory(config, self.layout, self.k, dtype, self.device)
         self.agent = make_agent(
             config, self.layout.in_dim, self.layout.act_dim, dtype=dtype, device=self.device,
-            init_generators=[torch.Generator().manual_seed(stream_seed(s, _INIT)) for s in seeds],
+            init_generators=[torch.Generator().manual_seed(stream_seed(s, INIT_STREAM))
+                             for s in seeds],
             partitions=task_partitions(env_id, per_agent, config.ensemble)
             if config.ensemble > 1 else None)
         self.buffer: ReplayBuffer = make_buffer(config, self.k, self.layout, self.agent,
@@ -118,7 +119,7 @@ class Trainer:
         # --update-graph (ddpg_her.update_graph): the updates as one device step, minibatches
         # from a counter-based stream keyed by the sampling seeds; None: `learn`'s own loop
         self.update_step = UpdateStep(
-            self.agent, self.buffer, [stream_seed(s, _SAMPLE) for s in seeds],
+            self.agent, self.buffer, [stream_seed(s, SAMPLE_STREAM) for s in seeds],
             config.batch_size) if resolve_update_graph(update_graph, self.device, config) \
             else None
 
@@ -198,7 +199,7 @@ class Trainer:
 
     def train_episode(self) -> np.ndarray:
         """One exploring episode per agent, stored with its HER copies; returns successes (K,)."""
-        seeds = [stream_seed(s, _TRAIN_ENV, self.episode) for s in self.seeds]
+        seeds = [stream_seed(s, TRAIN_ENV_STREAM, self.episode) for s in self.seeds]
         length, success = self.collector.train_episode(
             self.agent, self.buffer, seeds, warm=self.episode < self.config.warmup_episodes)
         self.env_steps += length

@@ -43,6 +43,16 @@ for _env_id in TORCH_ENV_IDS:
                            vector_entry_point="envs.torchreach:TorchReach",
                            max_episode_steps=DEFAULT_EPISODE_STEPS)
 
+if "UR5StackReach-v0" not in gymnasium.registry:
+    gymnasium.register("UR5StackReach-v0", entry_point=None,
+                       vector_entry_point="envs.stackreach:StackReach")
+
+STACK_TWINS: dict[str, str] = {"UR5Reach-v0": "UR5StackReach-v0"}
+"""Each env id that has a stack twin, and the twin's id: ``gymnasium.make_vec(twin,
+num_envs=B, vectorization_mode="vector_entry_point", tasks=[...])`` makes an
+`envs.stackreach.StackReach` (copies of several tasks, tensors on one device), the env of
+``ddpg_her.program``."""
+
 TENSOR_TWINS: dict[str, str] = {"UR5Reach-v0": "UR5TorchReach-v0"}
 """Each env id that has a tensor twin, and the twin's id (see `tensor_twin`)."""
 

@@ -1,0 +1,319 @@
+"""The training program (ddpg_her.program) on the CPU: each piece against today's code path or
+an independent reference, the bodies free of host reads, resume and stack independence.
+
+Most tests step the arm with `FirstOrderArm`, a pure-torch stand-in (the program does not
+care what moves the arm, and a stand-in keeps the tests fast and lets torch.compile trace a
+whole body); the physics kernel behind `envs.stackreach` has tests of its own.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.stats
+import torch
+
+import regions
+import ur5kin
+from ddpg_her.agent import DDPG
+from ddpg_her.buffer import TensorEpisodes, her_goal_steps, her_tensors, pack_tensors
+from ddpg_her.config import AgentConfig, HERStrategy
+from ddpg_her.program import PADDED, Program, input_index, pad_state, unpad_state
+from ddpg_her.runfolder import RunFolder
+from ddpg_her.spaces import ActionScale
+from envs.stackreach import StackReach, proposals_for
+from envs.task import action_bounds, compute_reward, compute_success
+
+TINY = dict(hidden_sizes=(16, 16), warmup_episodes=2, eval_every=3, eval_episodes=4,
+            updates_per_episode=4, batch_size=8, buffer_size=1000)
+TASKS = [dict(region="farbox", n_joints=3), dict(region="unconstrained", n_joints=2),
+         dict(region="zheight", n_joints=6)]
+
+
+class FirstOrderArm:
+    """A stand-in arm: each controlled joint moves a fifth of the way to its command per step,
+    tool0 by the closed-form FK; tensors only."""
+
+    def __init__(self, tasks, device="cpu"):
+        f64 = {"dtype": torch.float64, "device": device}
+        self.start = torch.tensor([t.start_q for t in tasks], **f64)
+        n = torch.tensor([t.n_joints for t in tasks], device=device)
+        self.mask = torch.arange(6, device=device) < n[:, None]
+        self.h, self.geometry = tasks[0].base_height, ur5kin.model.geometry()
+        self.q, self.v, self.acceleration = (torch.zeros(len(tasks), 6, **f64) for _ in range(3))
+        self.q.copy_(self.start)
+        self.tool = torch.zeros(len(tasks), 3, **f64)
+        self._tool()
+
+    def _tool(self):
+        p = ur5kin.closed_form.position(self.q, self.geometry)
+        self.tool.copy_(torch.cat([p[:, :2], p[:, 2:] + self.h], -1))
+
+    def step(self, command):
+        q = torch.where(self.mask, self.q + 0.2 * (command - self.q), self.q)
+        v = (q - self.q) / 0.02
+        self.acceleration.copy_((v - self.v) / 0.02)
+        self.v.copy_(v)
+        self.q.copy_(q)
+        self._tool()
+
+    def reset_where(self, mask):
+        m = mask[:, None]
+        self.q.copy_(torch.where(m, self.start, self.q))
+        self.v.masked_fill_(m, 0.0)
+        self.acceleration.masked_fill_(m, 0.0)
+        self._tool()
+
+
+def make_program(tmp_path, tasks=TASKS, seeds=(0, 1, 2), name="run", dtype=torch.float64,
+                 **config):
+    cfg = AgentConfig(**{**TINY, "episodes": 6, **config})
+    return Program("UR5Reach-v0", tasks, cfg, list(seeds),
+                   [tmp_path / f"{name}{i}" for i in range(len(seeds))], progress=False,
+                   dtype=dtype, dynamics=FirstOrderArm)
+
+
+# ---------------------------------------------------------------------------- the update
+def test_the_padded_stack_updates_each_agent_as_ddpg_alone_to_1e10_in_float64():
+    """Agents of 2 and 3 joints embedded in one stack of 6: after several updates on the same
+    minibatches, each agent's weights equal those of a DDPG of its own dims, and what the
+    padding holds stays exactly zero."""
+    cfg = AgentConfig(hidden_sizes=(32, 24), normalize_obs=True)
+    joints, batch = (2, 3), 16
+    gen = torch.Generator().manual_seed(7)
+    alone = [DDPG(cfg, 3 * n + 6, n, dtype=torch.float64,
+                  init_generators=[torch.Generator().manual_seed(11 + n)]) for n in joints]
+    for a in alone:  # normaliser statistics that are not the identity
+        x = torch.randn(50, a.in_dim, generator=gen, dtype=torch.float64) * 2.0 + 0.5
+        a.normalizer.update(0, x.numpy())
+    stack = DDPG(cfg, PADDED.in_dim, PADDED.act_dim, dtype=torch.float64,
+                 init_generators=[torch.Generator() for _ in joints])
+    stack.load_agent_states([pad_state(a.agent_state(0), stack.agent_state(i), n, 32)
+                             for i, (a, n) in enumerate(zip(alone, joints, strict=True))])
+    for _ in range(5):
+        padded = []
+        for a, n in zip(alone, joints, strict=True):
+            x, x2 = (torch.randn(1, batch, a.in_dim, generator=gen, dtype=torch.float64)
+                     for _ in range(2))
+            u = torch.rand(1, batch, n, generator=gen, dtype=torch.float64) * 2 - 1
+            r = torch.randn(1, batch, 1, generator=gen, dtype=torch.float64)
+            term = (torch.rand(1, batch, 1, generator=gen) < 0.2).double()
+            a.update(x, u, r, x2, term)
+            px, px2 = (torch.zeros(1, batch, PADDED.in_dim, dtype=torch.float64)
+                       for _ in range(2))
+            px[..., input_index(n)], px2[..., input_index(n)] = x, x2
+            pu = torch.zeros(1, batch, 6, dtype=torch.float64)
+            pu[..., :n] = u
+            padded.append((px, pu, r, px2, term))
+        stack.update(*(torch.cat(parts) for parts in zip(*padded, strict=True)))
+    for i, (a, n) in enumerate(zip(alone, joints, strict=True)):
+        got = unpad_state(stack.agent_state(i), n, 32)
+        want = a.agent_state(0)
+        for net in ("actor", "critic", "actor_target", "critic_target"):
+            for p, v in want[net].items():
+                torch.testing.assert_close(got[net][p], v, rtol=0, atol=1e-10, msg=f"{net}.{p}")
+        for opt in ("actor_opt", "critic_opt"):
+            for j, entry in want[opt].items():
+                for key, v in entry.items():
+                    torch.testing.assert_close(got[opt][j][key], v, rtol=0, atol=1e-10)
+        full = stack.agent_state(i)
+        assert torch.all(full["actor"]["l3.weight"][:, n:] == 0)
+        assert torch.all(full["actor"]["l3.bias"][:, n:] == 0)
+        dead = [j for j in range(PADDED.in_dim) if j not in input_index(n)]
+        assert torch.all(full["critic"]["l1.weight"][dead] == 0)
+        assert torch.all(full["critic"]["l2.weight"][32 + n:] == 0)
+
+
+# ---------------------------------------------------------------------------- goals
+@pytest.mark.parametrize("task", [dict(region="farbox", n_joints=3),
+                                  dict(region="zheight", n_joints=2)])
+def test_device_goals_follow_the_joint_space_samplers_law(task):
+    """Goals drawn on the device against regions.JointSpaceSampler's: a two-sample KS test
+    per coordinate, and the device's acceptance inside the binomial 99.9 % interval of the
+    sampler's own proposals."""
+    env = StackReach(400, [task], dynamics=FirstOrderArm)
+    rng = np.random.default_rng(3)
+    goals = env.draw_goals(lambda first, count: torch.from_numpy(
+        rng.random((400, count, 6))))
+    assert int(env.goal_misses) == 0
+    sampler = regions.JointSpaceSampler(regions.get(task["region"]), task["n_joints"],
+                                        env.tasks[0].start_q)
+    ref = sampler.sample(400, np.random.default_rng(4)).goals
+    for axis in range(3):
+        assert scipy.stats.ks_2samp(goals[:, axis].numpy(), ref[:, axis]).pvalue > 1e-3
+    proposals = 40_000
+    _, ok = StackReach(1, [task], dynamics=FirstOrderArm).accepts(
+        torch.from_numpy(rng.random((1, proposals, 6))))
+    rate = ok.double().mean().item()
+    batch = sampler.sample(2000, np.random.default_rng(5))
+    ref_rate = len(batch.goals) / batch.proposals
+    # both are binomial estimates of one acceptance: their difference within 3.3 sigma
+    sigma = math.sqrt(ref_rate * (1 - ref_rate) * (1 / proposals + 1 / batch.proposals))
+    assert abs(rate - ref_rate) < 3.3 * sigma, (rate, ref_rate)
+
+
+def test_proposals_bound_the_miss_probability():
+    p = proposals_for(0.05, 1e-9)
+    assert (1 - 0.05) ** p <= 1e-9 < (1 - 0.05) ** (p - 1)
+    with pytest.raises(ValueError, match="acceptance"):
+        proposals_for(0.0)
+
+
+def test_a_stack_refuses_tasks_that_differ_elsewhere():
+    with pytest.raises(ValueError, match="success_radius"):
+        StackReach(2, [dict(region="farbox"), dict(region="farbox", success_radius=0.05)],
+                   dynamics=FirstOrderArm)
+    with pytest.raises(ValueError, match="contact_model"):
+        StackReach(1, [dict(region="farbox", contact_model="compliant")], dynamics=FirstOrderArm)
+    with pytest.raises(ValueError, match="multiple"):
+        StackReach(3, TASKS[:2], dynamics=FirstOrderArm)
+
+
+# ---------------------------------------------------------------------------- the store
+def test_the_store_writes_the_rows_todays_collector_writes(tmp_path):
+    """After a training episode, the rows the program stored for each agent (at its own
+    dims) equal what ddpg_her.collect packs for the same episode: pack_tensors of the real
+    transitions, then the HER 'final' copy from her_tensors with the rewards of
+    envs.task.compute_reward (numpy, the env's own function)."""
+    prog = make_program(tmp_path)
+    for _ in range(3):
+        before = prog.total.clone()
+        prog.step()
+    prog.buffer.total[:] = prog.total.numpy()
+    for k, n in enumerate(prog.joints):
+        task = prog.env.tasks[k]
+        length = int(prog.length[k])
+        eps = TensorEpisodes(
+            observation=prog.obs[k:k + 1, :, [b * 6 + j for b in range(3) for j in range(n)]],
+            achieved_goal=prog.achieved[k:k + 1], desired_goal=prog.env.goal[k:k + 1],
+            action=prog.action[k:k + 1, :, :n], reward=prog.reward[k:k + 1],
+            terminated=prog.terminated[k:k + 1], length=prog.length[k:k + 1],
+            success=prog.success[k:k + 1])
+        scale = ActionScale(*action_bounds(task))
+        rows = pack_tensors(eps.observation[0], eps.achieved_goal[0], eps.desired_goal[0],
+                            eps.action[0], eps.reward[0], eps.terminated[0], scale)[:length]
+
+        def reward_fn(ag, g, a, task=task):
+            return torch.as_tensor(compute_reward(ag.numpy(), g.numpy(), {"action": a.numpy()},
+                                                  task))
+
+        def terminated_fn(ag, g, a, task=task):
+            return torch.as_tensor(compute_success(ag.numpy(), g.numpy(), task)
+                                   & task.terminate_on_success)
+
+        steps = her_goal_steps(HERStrategy.FINAL, length, 4, np.random.default_rng(0))
+        goal, reward, term, her_len = her_tensors(eps, np.zeros(1, dtype=int), steps,
+                                                  reward_fn, terminated_fn)
+        her = pack_tensors(eps.observation, eps.achieved_goal, goal, eps.action, reward, term,
+                           scale)[0, :int(her_len[0])]
+        start, stored = prog.chunks.since(k, int(before[k]))
+        assert start == int(before[k])
+        np.testing.assert_array_equal(stored, torch.cat([rows, her]).numpy())
+
+
+# ---------------------------------------------------------------------------- no host reads
+HOST_READS = ("item", "cpu", "numpy", "tolist", "__bool__", "__int__", "__float__")
+UPLOADS = ("tensor", "as_tensor", "from_numpy")
+
+
+@pytest.fixture
+def host_counter(monkeypatch):
+    """Counts the calls that read a tensor on the host or make one from host data."""
+    calls: list[str] = []
+
+    def counting(owner, name):
+        original = getattr(owner, name)
+
+        def wrapper(*args, **kwargs):
+            calls.append(name)
+            return original(*args, **kwargs)
+        monkeypatch.setattr(owner, name, wrapper)
+
+    for name in HOST_READS:
+        counting(torch.Tensor, name)
+    for name in UPLOADS:
+        counting(torch, name)
+    return calls
+
+
+def test_an_episode_reads_nothing_on_the_host(tmp_path, host_counter):
+    """Training episodes (warm-up and acting, with their updates) make no host read and no
+    upload; the test session's interval reads back what eval.csv needs, once."""
+    prog = make_program(tmp_path, episodes=9)
+    prog.step()  # the first runs make lazily created state (Adam's moments)
+    prog.step()
+    prog.step()  # a test session and a checkpoint
+    host_counter.clear()
+    prog.step()  # acting, with updates
+    prog.step()
+    assert host_counter == []
+    prog.step()  # the session: its reads are the eval rows', the checkpoint's
+    assert host_counter
+
+
+@pytest.mark.parametrize("body", ["warm", "act", "learn", "test"])
+def test_each_body_compiles_whole(tmp_path, body):
+    """torch.compile(fullgraph=True) traces each body without a graph break: no host value,
+    no data-dependent Python branch (dynamo's own tracing; the eager backend keeps it fast)."""
+    short = [dict(task, max_episode_steps=3) for task in TASKS]  # a short unrolled loop
+    prog = make_program(tmp_path, tasks=short, warmup_episodes=1, updates_per_episode=2)
+    prog.step()
+    prog.step()  # Adam's state exists
+    run = prog._bodies[body].body
+    torch._dynamo.reset()
+    torch.compile(run, fullgraph=True, backend="eager")()
+
+
+# ---------------------------------------------------------------------------- runs
+def _eval_rows(folder):
+    return [{k: v for k, v in r.items() if k != "wall_s"} for r in RunFolder(folder).read_eval()]
+
+
+def test_resume_continues_exactly(tmp_path):
+    whole = make_program(tmp_path, name="whole")
+    whole.run()
+    whole.close()
+    part = make_program(tmp_path, name="part", episodes=3)
+    part.run()
+    part.close()
+    rest = Program("UR5Reach-v0", TASKS, AgentConfig(**{**TINY, "episodes": 6}), [0, 1, 2],
+                   [tmp_path / f"part{i}" for i in range(3)], resume=True, progress=False,
+                   dtype=torch.float64, dynamics=FirstOrderArm)
+    assert rest.episode == 3
+    rest.run()
+    rest.close()
+    for i in range(3):
+        assert _eval_rows(tmp_path / f"part{i}") == _eval_rows(tmp_path / f"whole{i}")
+
+
+def test_an_agent_trains_alike_alone_and_in_a_stack(tmp_path):
+    """Seed 1 with 2 joints alone and beside agents of 3 and 6 joints: the same eval.csv."""
+    alone = make_program(tmp_path, tasks=TASKS[1:2], seeds=(1,), name="alone")
+    alone.run()
+    stacked = make_program(tmp_path, name="stack")
+    stacked.run()
+    assert _eval_rows(tmp_path / "alone0") == _eval_rows(tmp_path / "stack1")
+
+
+def test_ddpg_her_load_reads_a_program_run(tmp_path):
+    """A program run folder is a run folder: ddpg_her.load's policy acts as the stack's
+    agent does on the same observation."""
+    import ddpg_her
+
+    prog = make_program(tmp_path)
+    prog.run()
+    policy = ddpg_her.load(tmp_path / "run1")  # the 2-joint agent
+    assert policy.spec["dims"]["act_dim"] == 2
+    rng = np.random.default_rng(1)
+    obs = {"observation": rng.normal(size=6), "achieved_goal": rng.normal(size=3),
+           "desired_goal": rng.normal(size=3)}
+    padded = np.zeros(24)
+    padded[input_index(2)] = np.concatenate([obs["observation"],
+                                            obs["desired_goal"] - obs["achieved_goal"],
+                                            obs["desired_goal"]])
+    x = torch.zeros(3, 1, 24, dtype=torch.float64)
+    x[1, 0] = torch.from_numpy(padded)
+    u = prog.agent.act(x)[1, 0, :2]
+    np.testing.assert_allclose(policy(obs), (u * math.pi).numpy(), rtol=1e-6, atol=1e-6)
