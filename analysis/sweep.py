@@ -337,12 +337,22 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
-    parser.add_argument("--env-backend", choices=("numpy", "batched", "torch"), default="numpy",
+    parser.add_argument("--env-backend", choices=("numpy", "batched", "torch", "program"),
+                        default="numpy",
                         help="the training processes' env backend (ddpg_her.train "
                              "--env-backend): 'batched' steps the envs of all agents of a "
                              "process whose tasks differ only in their goals in one compiled "
-                             "call, the same goals, trajectories equal to rounding (default: "
-                             "numpy, one env per agent)")
+                             "call, the same goals, trajectories equal to rounding; "
+                             "'program', the training program (ddpg_her.program: all agents "
+                             "of a process as one stack on --device; see --program) "
+                             "(default: numpy, one env per agent)")
+    parser.add_argument("--program", action="store_true",
+                        help="the training program for every unfinished unit in one process: "
+                             "--one-process --env-backend program (the whole grid, or --part, "
+                             "as one stack of agents on --device)")
+    parser.add_argument("--tf32", action="store_true",
+                        help="with the program on cuda: TF32 matrix products "
+                             "(ddpg_her.train --tf32; recorded in spec.json)")
     parser.add_argument("--env-dynamics", choices=("torch", "numba"), default="torch",
                         help="the arm dynamics of --env-backend torch (ddpg_her.train "
                              "--env-dynamics): 'numba', the numba kernels (--device cuda: the "
@@ -369,7 +379,15 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
 
 
 def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    """Exit through ``parser.error`` on a count below 1; the threads per process to use."""
+    """Exit through ``parser.error`` on a count below 1; the threads per process to use.
+    ``--program`` becomes ``--one-process --env-backend program``."""
+    if args.program:
+        if args.env_backend not in ("numpy", "program"):
+            parser.error(f"--program trains with --env-backend program; got --env-backend "
+                         f"{args.env_backend}")
+        args.one_process, args.env_backend = True, "program"
+    if args.tf32 and args.env_backend != "program":
+        parser.error("--tf32 is a setting of the training program (--program)")
     for flag in ("episodes", "seeds", "workers", "threads"):
         value = getattr(args, flag)
         if value is not None and value < 1:
@@ -405,7 +423,8 @@ def backend_args(args: argparse.Namespace) -> list[str]:
     """The training command's arguments for ``--env-backend`` and ``--env-dynamics`` (none
     for the defaults)."""
     return ((["--env-backend", args.env_backend] if args.env_backend != "numpy" else [])
-            + (["--env-dynamics", args.env_dynamics] if args.env_dynamics != "torch" else []))
+            + (["--env-dynamics", args.env_dynamics] if args.env_dynamics != "torch" else [])
+            + (["--tf32"] if args.tf32 else []))
 
 
 def run_one_process(units: Sequence[Unit], args: argparse.Namespace, threads: int,
@@ -660,10 +679,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                             "closebox, farbox with 3 and 6 joints (11 settings)")
     which.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
                        help="a setting instead of a named grid; repeatable")
+    parser.add_argument("--part", type=positive_count, default=None, metavar="JOINTS",
+                        help="only the settings with this many controlled joints (2-6): a "
+                             "part of the grid that fits one GPU window with --program")
     add_execution_arguments(parser, Path("runs/sweep"))
     args = parser.parse_args(argv)
     threads = check_execution_arguments(parser, args)
     settings = args.setting or GRIDS[args.grid]
+    if args.part is not None:
+        settings = [s for s in settings if s[1] == args.part]
+        if not settings:
+            parser.error(f"--part {args.part}: no setting of the grid has {args.part} joints")
     units = units_for(settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
         dry_run(units, args, threads, extra)
