@@ -317,3 +317,30 @@ def test_ddpg_her_load_reads_a_program_run(tmp_path):
     x[1, 0] = torch.from_numpy(padded)
     u = prog.agent.act(x)[1, 0, :2]
     np.testing.assert_allclose(policy(obs), (u * math.pi).numpy(), rtol=1e-6, atol=1e-6)
+
+
+# ---------------------------------------------------------------------------- on a GPU
+cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (the GPU "
+                          "window's stage 1 runs it: benchmarks/gpu_grid.sh)")
+
+
+@cuda
+@pytest.mark.parametrize("arm", ["stand-in", "kernel"])
+def test_the_captured_bodies_equal_the_same_bodies_run_eagerly_on_cuda(tmp_path, arm):
+    """The four bodies replayed from CUDA graphs give what the same code gives eagerly on
+    the same device: the same eval rows and weights (the same kernels, so the same bits)."""
+    dynamics = FirstOrderArm if arm == "stand-in" else None
+    runs = {}
+    for capture in (False, True):
+        prog = Program("UR5Reach-v0", TASKS, AgentConfig(**{**TINY, "episodes": 9}), [0, 1, 2],
+                       [tmp_path / f"{capture}{i}" for i in range(3)], progress=False,
+                       device="cuda", capture=capture, dynamics=dynamics)
+        prog.run()
+        runs[capture] = (prog, [_eval_rows(tmp_path / f"{capture}{i}") for i in range(3)])
+        prog.close()
+    assert runs[True][1] == runs[False][1]
+    bodies = runs[True][0]._bodies  # warm-up episodes 2: the "warm" body is never captured
+    assert all(bodies[name].replays > 0 for name in ("act", "learn", "test"))
+    for a, b in zip(runs[True][0].agent.actor.parameters(),
+                    runs[False][0].agent.actor.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
