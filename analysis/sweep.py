@@ -408,6 +408,10 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
 
 
+GPU_COMMAND_S = 600
+"""The longest command a lent GPU machine runs (s): a part of the grid trained by the program
+must end within it, since replay buffers cannot leave the machine."""
+
 ONE_PROCESS_LOG = "logs/one-process.log"
 """Below the root: the output of the one-process trainings, appended run after run."""
 
@@ -640,6 +644,10 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
           f"unfinished unit(s), {layout}, --device {args.device}, with {start_up:.0f} s of "
           f"process start-up; measured by training the first {2 * max(every)} episodes of "
           f"each in {spent:.0f} s", flush=True)
+    if args.env_backend == "program":
+        verdict = "fits" if total <= GPU_COMMAND_S else "does not fit"
+        print(f"the training program: {verdict} one command of a GPU window ({GPU_COMMAND_S} "
+              f"s; --part J runs the grid by joint count)", flush=True)
     return total
 
 
