@@ -271,6 +271,7 @@ def test_every_check_under_the_cuda_simulator():
         assert f"{check.__name__} " in run.stdout, run.stdout
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not cuda_available(), reason="numba sees no CUDA device")
 @pytest.mark.parametrize("check", CHECKS, ids=lambda c: c.__name__.removeprefix("check_"))
 def test_every_check_on_the_gpu(check):
