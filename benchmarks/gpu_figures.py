@@ -54,6 +54,7 @@ import shlex
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -386,9 +387,10 @@ class GridEpisode:
     """``python -m benchmarks.grid_episode`` in its own process, started at once and told to
     time its episodes (``--start-after``) when :meth:`release` is called."""
 
-    def __init__(self, args: Sequence[str], folder: Path, env: dict[str, str]):
+    def __init__(self, args: Sequence[str], env: dict[str, str]):
+        self._folder = tempfile.TemporaryDirectory(prefix="gpu_figures-")
+        folder = Path(self._folder.name)  # not beside --out: that folder's files come back
         self.go = folder / "grid_episode.go"
-        self.go.unlink(missing_ok=True)
         self.log_path = folder / "grid_episode.log"
         self.command = [sys.executable, "-m", "benchmarks.grid_episode", "--json",
                         "--start-after", str(self.go), *args]
@@ -416,8 +418,8 @@ class GridEpisode:
             else:
                 out["error"] = f"exit status {self.proc.returncode}"
         self._log.close()
-        self.go.unlink(missing_ok=True)
         out["log"] = self.log_path.read_text().splitlines()[-30:]
+        self._folder.cleanup()
         return out
 
 
@@ -489,7 +491,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     sizes = DRY if args.dry_run else FULL
     wanted = args.only or [*FIGURES, "grid_episode"]
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    grid = GridEpisode(sizes.grid_args, args.out.parent, child_env) \
+    grid = GridEpisode(sizes.grid_args, child_env) \
         if "grid_episode" in wanted else None
     import torch
 
