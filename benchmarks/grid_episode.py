@@ -199,12 +199,15 @@ def counters(device: str) -> Iterator[Counts]:
     with ExitStack() as stack:
         _counting(torch.cuda.CUDAGraph, "replay", counts, "replays", stack)
         if device == "cuda":
-            from numba import cuda
-
-            for name in NUMBA_SYNCS:
-                _counting(cuda, name, counts, "numba_syncs", stack)
-            _counting(cuda.cudadrv.devicearray.DeviceNDArray, "copy_to_host", counts,
-                      "numba_syncs", stack)
+            try:
+                from numba import cuda
+                from numba.cuda.cudadrv.devicearray import DeviceNDArray
+            except (ImportError, AttributeError):  # no numba(-cuda) here: nothing to count
+                pass
+            else:
+                for name in NUMBA_SYNCS:
+                    _counting(cuda, name, counts, "numba_syncs", stack)
+                _counting(DeviceNDArray, "copy_to_host", counts, "numba_syncs", stack)
             caught = stack.enter_context(warnings.catch_warnings(record=True))
             warnings.simplefilter("always")
             previous = torch.cuda.get_sync_debug_mode()

@@ -73,3 +73,24 @@ def test_bad_arguments_are_refused_by_name():
     run = subprocess.run([sys.executable, "-m", "benchmarks.grid_episode", "--device", "cpu",
                           "--episodes", "0"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "--episodes" in run.stderr
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_the_cuda_counters_see_one_sync_and_one_replay():
+    x = torch.ones(64, device="cuda")
+    y = torch.empty_like(x)
+    graph = torch.cuda.CUDAGraph()
+    side = torch.cuda.Stream()
+    side.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(side):
+        y.copy_(x * 2)
+    torch.cuda.current_stream().wait_stream(side)
+    with torch.cuda.graph(graph):
+        y.copy_(x * 2)
+    with grid_episode.counters("cuda") as counts:
+        graph.replay()
+        y.sum().item()  # one synchronising read
+        y.add_(1)  # none
+    assert counts.replays == 1
+    assert counts.host_syncs == 1
