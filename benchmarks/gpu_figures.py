@@ -455,6 +455,41 @@ def run_figure(name: str, ctx: Context) -> dict[str, Any]:
     return {**result, "seconds": end - start, "window_s": [start - ctx.t0, end - ctx.t0]}
 
 
+def summary(figures: dict[str, Any]) -> dict[str, Any]:
+    """The headline numbers of ``figures`` in one flat dict (None where a figure failed or was
+    not measured): what a reader compares with issue 35's goals first."""
+
+    def get(*keys: Any) -> Any:
+        value: Any = figures
+        for key in keys:
+            try:
+                value = value[key]
+            except (KeyError, IndexError, TypeError):
+                return None
+        return value
+
+    out: dict[str, Any] = {
+        "ms_per_grid_episode": get("grid_episode", "ms_per_grid_episode"),
+        "startup_s": get("grid_episode", "startup_s"),
+        "host_syncs_per_episode": get("grid_episode", "host_syncs_per_episode"),
+        "graph_replays_per_episode": get("grid_episode", "graph_replays_per_episode"),
+        "copy_gb_per_s": get("bandwidth", "gb_per_s"),
+        "numba_import_s": get("numba_kernel", "import_s")}
+    for row in get("numba_kernel", "rows") or []:
+        if "compile_s" in row:
+            out["numba_compile_s"] = row["compile_s"]
+        block = row.get("threads_per_block")
+        name = row["kernel"].split()[0] + (f"_{block}tpb" if block else "")
+        out[f"{name}_us_per_step_at_{row['copies']}"] = row.get("us_per_step")
+    for row in get("numba_in_graph", "rows") or []:
+        for key in ("eager_us_per_step", "graph_us_per_step", "replay_equals_eager"):
+            if key in row:
+                out[f"numba_in_graph_{key}_at_{row['copies']}"] = row[key]
+    for row in get("updates", "rows") or []:
+        out[f"update_ms {row['name']}"] = row.get("ms_per_update")
+    return out
+
+
 def write(path: Path, result: dict[str, Any]) -> None:
     """Write the JSON now (again after every figure: a stage killed midway keeps what is done)."""
     path.write_text(json.dumps(result, indent=1) + "\n")
@@ -524,6 +559,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                              "window_s": [grid.started - t0, end - t0],
                                              "released_at_s": start - t0}
         write(args.out, result)
+    result["summary"] = summary(result["figures"])
     result["seconds"] = time.perf_counter() - t0
     write(args.out, result)
     failed = [k for k, v in result["figures"].items() if "error" in v]

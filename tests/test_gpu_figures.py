@@ -42,6 +42,13 @@ def test_the_dry_run_writes_every_figure(tmp_path):
     assert grid["released_at_s"] >= figures["numba_in_graph"]["window_s"][1]
     assert any("exists after" in line for line in grid["log"])
     assert result["dry_run"] and result["goals"]["host_syncs_per_episode"] == 0
+    headline = result["summary"]
+    assert headline["ms_per_grid_episode"] == grid["ms_per_grid_episode"]
+    assert headline["numba-cuda_2tpb_us_per_step_at_3"] == \
+        figures["numba_kernel"]["rows"][0]["us_per_step"]
+    assert headline["update_ms padded 6-joint tf32 eager"] == \
+        figures["updates"]["rows"][2]["ms_per_update"]
+    assert headline["numba_in_graph_eager_us_per_step_at_3"] > 0
 
 
 def test_a_failing_figure_is_recorded_and_the_rest_go_on(monkeypatch):
@@ -53,3 +60,11 @@ def test_a_failing_figure_is_recorded_and_the_rest_go_on(monkeypatch):
     figure = gpu_figures.run_figure("bandwidth", ctx)
     assert figure["error"] == "RuntimeError: no such kernel"
     assert figure["seconds"] >= 0 and len(figure["window_s"]) == 2
+
+
+def test_the_summary_of_failed_figures_is_empty_not_an_error():
+    figures = {"grid_episode": {"error": "timed out"}, "numba_kernel": {"error": "x"},
+               "updates": {"rows": [{"name": "today 3-joint graph", "error": "y"}]}}
+    headline = gpu_figures.summary(figures)
+    assert headline["ms_per_grid_episode"] is None and headline["copy_gb_per_s"] is None
+    assert headline["update_ms today 3-joint graph"] is None
