@@ -52,7 +52,11 @@ site() {
 stamp() { echo "[$(date -u +%T)] $*"; }
 
 prepare() {
-    [[ -f .devsite.tgz ]] || bash ../shared/tools/device-site.sh
+    # device-site.sh ends by adding the file to .git/info/exclude, which fails in a git
+    # worktree (.git is a file there); .gitignore ignores it anyway, so only the archive counts
+    [[ -f .devsite.tgz ]] || bash ../shared/tools/device-site.sh || true
+    tar tzf .devsite.tgz >/dev/null || { echo "prepare: no readable .devsite.tgz" >&2; exit 1; }
+    git check-ignore -q .devsite.tgz || { echo "prepare: .devsite.tgz is not ignored" >&2; exit 1; }
     local tree carry
     tree=$(git ls-files -z --cached --others --exclude-standard -- . ':!.devsite.tgz' \
            | du -cb --files0-from=- 2>/dev/null | tail -1 | cut -f1)
