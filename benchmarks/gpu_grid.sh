@@ -40,8 +40,9 @@ MAX_CARRY_MIB=64
 
 # The Pinocchio bundle of ../shared/tools/device-site.sh, unpacked as its header says; its
 # sitecustomize.py sets np.row_stack (numba-cuda 0.30.4 needs it, numpy 2.5 removed it).
+# Not in the dry run: its wheels are for the GPU image's Python 3.12 and would shadow this one's.
 site() {
-    if [[ -f .devsite.tgz && ":${PYTHONPATH:-}:" != *":/tmp/devsite:"* ]]; then
+    if [[ $DRY != 1 && -f .devsite.tgz && ":${PYTHONPATH:-}:" != *":/tmp/devsite:"* ]]; then
         tar xzf .devsite.tgz -C /tmp
         export PYTHONPATH=/tmp/devsite:/tmp/devsite/cmeel.prefix/lib/python3.12/site-packages:$PWD
     fi
