@@ -337,6 +337,7 @@ def _update_row(ctx: Context, joints: int, graph: bool, tf32: bool) -> dict[str,
         for k in range(s.agents):
             buffer.put(k, 0, rows)
         step = UpdateStep(agent, buffer, list(range(s.agents)), s.batch, graph=graph)
+        in_effect = torch.backends.cuda.matmul.allow_tf32  # as torch reads it back
         tic = time.perf_counter()
         step.run(WARMUP_UPDATES + 2)  # the capture, where graph
         ctx.sync()
@@ -346,7 +347,8 @@ def _update_row(ctx: Context, joints: int, graph: bool, tf32: bool) -> dict[str,
         torch.backends.cuda.matmul.allow_tf32 = previous
     ms = 1e3 * median / s.updates
     return {"joints": joints, "in_dim": layout.in_dim, "act_dim": layout.act_dim,
-            "graph": graph, "tf32": tf32, "ms_per_update": ms,
+            "graph": graph, "tf32": tf32, "allow_tf32_read_back": in_effect,
+            "ms_per_update": ms,
             "agent_updates_per_s": s.agents / ms * 1e3, "first_run_s": first}
 
 
