@@ -57,6 +57,7 @@ import sys
 import tempfile
 import time
 import traceback
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -295,9 +296,12 @@ def numba_in_graph(ctx: Context) -> dict[str, Any]:
         expected = dyn.q.clone()
         graph = torch.cuda.CUDAGraph()
         tic = time.perf_counter()
-        with torch.cuda.graph(graph):
-            eager()
+        with warnings.catch_warnings(record=True) as caught:  # "The CUDA Graph is empty" ...
+            warnings.simplefilter("always")
+            with torch.cuda.graph(graph):
+                eager()
         row["capture_s"] = time.perf_counter() - tic
+        row["capture_warnings"] = sorted({str(w.message)[:200] for w in caught})
         restart()
         graph.replay()
         ctx.sync()
