@@ -107,12 +107,15 @@ try:  # the bundle's UR5: example-robot-data's URDF through Pinocchio
 except Exception as err:
     print(f"FAIL UR5 model: {type(err).__name__}: {err}")
 EOF
-        # the device tests: every test marked gpu (skipped without a GPU), the kernel's first;
-        # -v: each test's line as it ends, so a cut at the budget still says how far it got
-        local files=(tests/test_numba_cuda.py)
-        local f
-        for f in $(grep -l "mark.gpu" tests/test_*.py); do
-            [[ $f == tests/test_numba_cuda.py ]] || files+=("$f")
+        # the device tests: every test marked gpu (skipped without a GPU); first those that
+        # decide the kernel's route and have never run on a GPU (the kernel, TorchReach on it,
+        # the update graph, the grid episode's counters), then the rest; -v: each test's line
+        # as it ends, so a cut at the budget still says how far it got
+        local first=(tests/test_numba_cuda.py tests/test_torchreach_numba.py
+                     tests/test_update_graph.py tests/test_grid_episode.py)
+        local files=() f
+        for f in "${first[@]}" $(grep -l "mark.gpu" tests/test_*.py); do
+            [[ -f $f && " ${files[*]} " != *" $f "* ]] && files+=("$f")
         done
         stamp "device tests: ${files[*]}"
         local left=$((deadline - SECONDS - 5))
@@ -277,5 +280,5 @@ dry() {
 
 case "${1:-}" in
     prepare|window|smoke|figures|grid|poll|collect|finish|dry) cmd=$1; shift; "$cmd" "$@" ;;
-    *) sed -n '2,26p' "$0"; exit 2 ;;
+    *) sed -n '2,24p' "$0"; exit 2 ;;
 esac
