@@ -408,6 +408,12 @@ class GridEpisode:
     def release(self) -> None:
         self.go.touch()
 
+    def kill(self) -> None:
+        """End the process if it still runs (this one failed before asking for its result)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
     def result(self, deadline: float) -> dict[str, Any]:
         """Its JSON, or its error, killed at ``deadline`` (a ``time.perf_counter`` reading)."""
         out: dict[str, Any] = {"command": shlex.join(self.command[1:])}
@@ -534,6 +540,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     grid = GridEpisode(sizes.grid_args, child_env) \
         if "grid_episode" in wanted else None
+    try:
+        return measure_all(args, sizes, wanted, grid, t0, argv, parser)
+    finally:
+        if grid is not None:
+            grid.kill()
+
+
+def measure_all(args: argparse.Namespace, sizes: Sizes, wanted: Sequence[str],
+                grid: GridEpisode | None, t0: float, argv: Sequence[str] | None,
+                parser: argparse.ArgumentParser) -> int:
+    """Every wanted figure into ``args.out``; the grid episode's last."""
     import torch
 
     device = "cpu" if args.dry_run else "cuda"

@@ -69,6 +69,10 @@ SYNC_WARNING = "synchroniz"
 """A fragment of the warning torch's sync debug mode gives for each synchronising call
 ("called a synchronizing CUDA operation")."""
 
+START_AFTER_TIMEOUT_S = 600.0
+"""The longest ``--start-after`` waits for its file (a GPU window's call lasts at most 600 s):
+a caller that died does not leave this process holding the GPU."""
+
 RL_WARMUP_EPISODES = 1
 """The agents' random-action episodes (``--warmup-episodes`` of every unit) before the actor
 acts and the updates start: one, so the second warm-up episode already captures the update
@@ -253,6 +257,9 @@ def measure(runner: GridRunner, device: str, episodes: int, warmup: int, count_e
     if start_after is not None:
         tic = time.perf_counter()
         while not start_after.exists():
+            if time.perf_counter() - tic > START_AFTER_TIMEOUT_S:
+                raise TimeoutError(f"--start-after: {start_after} did not appear within "
+                                   f"{START_AFTER_TIMEOUT_S:.0f} s")
             time.sleep(0.2)
         waited = time.perf_counter() - tic
         log(t0, f"{start_after} exists after {waited:.1f} s of waiting: timing")
@@ -318,7 +325,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "string (e.g. \"--hidden-sizes 8 8 --buffer-size 1000\")")
     parser.add_argument("--start-after", type=Path, default=None, metavar="FILE",
                         help="after the warm-up, wait until FILE exists before timing (so a "
-                        "caller can run the start-up beside other work and time alone)")
+                        "caller can run the start-up beside other work and time alone); "
+                        f"an error after {START_AFTER_TIMEOUT_S:.0f} s without it")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     return parser
 

@@ -94,3 +94,39 @@ def test_the_cuda_counters_see_one_sync_and_one_replay():
         y.add_(1)  # none
     assert counts.replays == 1
     assert counts.host_syncs == 1
+
+
+class _Stub:
+    """A grid runner that only counts its episodes (and reads one value per episode)."""
+
+    def __init__(self):
+        self.episodes = 0
+
+    def episode(self):
+        self.episodes += 1
+        torch.ones(2).sum().item()
+
+    def synchronize(self):
+        pass
+
+    def close(self):
+        pass
+
+
+def test_measure_warms_up_times_and_counts_apart(tmp_path, monkeypatch):
+    import time
+
+    runner = _Stub()
+    figures = grid_episode.measure(runner, "cpu", episodes=3, warmup=2, count_episodes=2,
+                                   t0=time.perf_counter())
+    assert runner.episodes == 2 + 3 + 2
+    assert len(figures["episode_ms"]) == 3
+    assert figures["host_syncs_per_episode"] == 1  # the stub's one .item() per episode
+    go = tmp_path / "go"
+    monkeypatch.setattr(grid_episode, "START_AFTER_TIMEOUT_S", 0.5)
+    with pytest.raises(TimeoutError, match="did not appear within"):
+        grid_episode.measure(_Stub(), "cpu", 1, 1, 1, time.perf_counter(), start_after=go)
+    go.touch()
+    figures = grid_episode.measure(_Stub(), "cpu", 1, 1, 1, time.perf_counter(),
+                                   start_after=go)
+    assert figures["waited_s"] < 0.5
