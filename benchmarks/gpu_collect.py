@@ -4,7 +4,8 @@ GPU machine (at most 8 files of 16 MiB each, issue 24).
 Writes into OUT:
 
 - ``grid.tar.gz``: every run folder's ``spec.json`` and ``eval.csv`` below ROOT (paths relative
-  to ROOT), and ROOT's ``logs/`` and ``grid_time.json`` where present;
+  to ROOT), and ROOT's ``logs/`` and ``grid_time*.json`` (one per part of the grid,
+  ``benchmarks/gpu_grid.sh`` writes them) where present;
 - ``policies.tar.gz``: for the runs of the settings given by ``--policies`` (default the
   unconstrained 3-joint runs, whose success maps are the paper's Fig. 4), a slim copy of the
   latest checkpoint holding only what `ddpg_her.load` reads (the actor and the normaliser),
@@ -26,7 +27,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 MAX_FILES = 8
-"""Files a device run may bring back (the device tool's limit)."""
+"""Files a device run may bring back (the device tool's limit); ``--max-files`` leaves room
+for the other files of a GPU window (its smoke log and figures)."""
 
 
 def run_folders(root: Path) -> list[Path]:
@@ -69,10 +71,10 @@ def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes) -> None:
 
 
 def pack(root: Path, out: Path, policies: Sequence[tuple[str, int]],
-         max_bytes: int) -> list[Path]:
+         max_bytes: int, max_files: int = MAX_FILES) -> list[Path]:
     """Write grid.tar.gz and policies.tar.gz (split where larger than ``max_bytes``) into
     ``out``; returns the files written. Raises ValueError when ROOT holds no run, or when the
-    pieces would be more than `MAX_FILES`."""
+    pieces would be more than ``max_files``."""
     folders = run_folders(root)
     if not folders:
         raise ValueError(f"no run folder (spec.json beside eval.csv) below {root}")
@@ -82,9 +84,9 @@ def pack(root: Path, out: Path, policies: Sequence[tuple[str, int]],
         for folder in folders:
             for name in ("spec.json", "eval.csv"):
                 tar.add(folder / name, arcname=str((folder / name).relative_to(root)))
-        for extra in ("logs", "grid_time.json"):
-            if (root / extra).exists():
-                tar.add(root / extra, arcname=extra)
+        for extra in [root / "logs", *sorted(root.glob("grid_time*.json"))]:
+            if extra.exists():
+                tar.add(extra, arcname=extra.name)
     written = [grid]
     chosen = [f for f in folders if setting_of(f) in set(policies)]
     if chosen:
@@ -101,8 +103,8 @@ def pack(root: Path, out: Path, policies: Sequence[tuple[str, int]],
     pieces: list[Path] = []
     for path in written:
         pieces += split(path, max_bytes)
-    if len(pieces) > MAX_FILES:
-        raise ValueError(f"{len(pieces)} files to bring back, more than {MAX_FILES}: "
+    if len(pieces) > max_files:
+        raise ValueError(f"{len(pieces)} files to bring back, more than {max_files}: "
                          f"{[p.name for p in pieces]}")
     return pieces
 
@@ -146,12 +148,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--max-mib", type=float, default=15.0,
                         help="largest file written, MiB (> 0; default: %(default)s, under the "
                              "16 MiB a device run brings back)")
+    parser.add_argument("--max-files", type=int, default=MAX_FILES,
+                        help="most files written, 1..%(default)s (default: %(default)s, the "
+                             "device tool's limit; less leaves room for a window's other files)")
     args = parser.parse_args(argv)
     if args.max_mib <= 0:
         parser.error(f"--max-mib must be > 0, got {args.max_mib}")
+    if not 1 <= args.max_files <= MAX_FILES:
+        parser.error(f"--max-files must be in 1..{MAX_FILES}, got {args.max_files}")
     try:
         files = pack(args.root, args.out, args.policies or [("unconstrained", 3)],
-                     int(args.max_mib * 2**20))
+                     int(args.max_mib * 2**20), args.max_files)
     except ValueError as e:
         parser.error(str(e))
     for f in files:

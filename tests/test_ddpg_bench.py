@@ -27,6 +27,7 @@ def test_the_cpu_peak_is_a_sane_rate_that_a_larger_problem_does_not_move_wildly(
     assert 0.1 < large / small < 10
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_the_cuda_peak_is_the_gpus_and_bounds_the_updates_rate():
     """The bug this guards: the peak was measured on the CPU while the update ran on the GPU,

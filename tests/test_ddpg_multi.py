@@ -163,6 +163,7 @@ def test_every_process_flag_a_unit_refuses_is_a_flag_of_train_many():
     assert (args.env_backend, args.device) == ("torch", "cuda")
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_a_multi_setting_stack_on_cuda_matches_the_runs_alone_to_rounding(tmp_path):
     """On the GPU the batched products may round differently with K; float64 keeps it tight."""

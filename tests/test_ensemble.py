@@ -156,8 +156,8 @@ def test_replay_files_each_transition_under_its_goals_cell_and_members_sample_on
 
 
 @pytest.mark.parametrize("device", [
-    "cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(),
-                                                         reason="needs a CUDA device"))])
+    "cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(
+        not torch.cuda.is_available(), reason="needs a CUDA device")])])
 def test_replay_files_tensor_rows_as_it_files_the_same_rows_as_arrays(device):
     """The torch env backend hands the buffer tensors on the training device: they are filed
     under the same cells as the same rows given as a host array (a CUDA tensor once went

@@ -70,5 +70,21 @@ def test_large_files_are_split_and_too_many_refused(grid, tmp_path):
             assert tar.getnames() == want.getnames()
     with pytest.raises(ValueError, match="more than 8"):
         gpu_collect.pack(grid, tmp_path / "c", [("box", 2)], max_bytes=200)
+    with pytest.raises(ValueError, match="more than 1"):
+        gpu_collect.pack(grid, tmp_path / "e", [("box", 2)], max_bytes=2**24, max_files=1)
     with pytest.raises(ValueError, match="no run folder"):
         gpu_collect.pack(tmp_path / "c", tmp_path / "d", [], max_bytes=200)
+
+
+def test_the_grid_time_of_each_part_comes_back(grid, tmp_path):
+    for part in (2, 3):
+        (grid / f"grid_time-part{part}.json").write_text('{"wall_s": 1}')
+    try:
+        files = gpu_collect.pack(grid, tmp_path / "out", [], max_bytes=2**24)
+    finally:
+        for part in (2, 3):
+            (grid / f"grid_time-part{part}.json").unlink()
+    assert [f.name for f in files] == ["grid.tar.gz"]
+    with tarfile.open(files[0]) as tar:
+        names = set(tar.getnames())
+    assert {"grid_time-part2.json", "grid_time-part3.json"} <= names

@@ -18,8 +18,8 @@ QUIET = AgentConfig(episodes=2, eval_every=2, eval_episodes=2, hidden_sizes=(8, 
                     warmup_episodes=0)
 """No exploration draws: the two backends' streams cannot differ."""
 TASK = {"region": "zheight", "n_joints": 3, "max_episode_steps": 15}
-DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
-    not torch.cuda.is_available(), reason="no CUDA device"))]
+DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="no CUDA device")])]
 
 
 def _train(tmp_path, backend: str, config: AgentConfig = QUIET, device: str = "cpu",

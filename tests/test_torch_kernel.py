@@ -27,8 +27,8 @@ from envs.task import action_bounds
 torch = pytest.importorskip("torch")
 torch_kernel = pytest.importorskip("envs.physics.torch_kernel")
 
-DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
-    not torch.cuda.is_available(), reason="torch sees no CUDA device"))]
+DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="torch sees no CUDA device")])]
 
 F32_ACCEL_RTOL = 1e-4
 """Bound of float32 accelerations: ``|a32 - a| <= F32_ACCEL_RTOL (1 + |a|_max)`` rad/s^2 per
@@ -252,6 +252,7 @@ def test_compile_modes_are_checked():
         torch_kernel.TorchDynamics(TaskSpec(), 2, cuda_graph=True)
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="torch sees no CUDA device")
 def test_cuda_graph_steps_are_the_eager_ones():
     task = TaskSpec(region="unconstrained", n_joints=3)

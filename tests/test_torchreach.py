@@ -227,6 +227,7 @@ def test_step_makes_no_tensor_from_host_data():
         torch.tensor([0.1])  # the guard sees what it forbids
 
 
+@pytest.mark.gpu
 @CUDA
 def test_step_does_not_synchronise_on_cuda():
     depth = 16
@@ -236,6 +237,7 @@ def test_step_does_not_synchronise_on_cuda():
                                                 device="cuda"))
 
 
+@pytest.mark.gpu
 @CUDA
 def test_a_cuda_rollout_equals_the_cpu_one():
     envs = [TorchReach(4, SPECS["wide"], device=d, goal_pool=3) for d in ("cpu", "cuda")]

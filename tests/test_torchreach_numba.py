@@ -475,6 +475,7 @@ def test_under_the_cuda_simulator(simulator, check):
     assert run.stdout.splitlines()[-1].startswith(f"{check.__name__} "), run.stdout
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not gpu_available(), reason="numba and torch see no CUDA device")
 @pytest.mark.parametrize("check", CHECKS + GPU_CHECKS,
                          ids=lambda c: c.__name__.removeprefix("check_"))

@@ -245,6 +245,7 @@ def test_a_trainer_with_the_graph_step_records_it_and_resumes_exactly(tmp_path):
     assert not torch.equal(a["agent"]["actor"]["l1.weight"], c["agent"]["actor"]["l1.weight"])
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_on_cuda_the_replayed_graph_equals_the_same_step_run_eagerly():
     """The graph (3 warm-up updates, a capture, replays) against UpdateStep's eager loop on

@@ -122,6 +122,7 @@ def test_torch_path_matches_numpy(dtype: torch.dtype, tol: float) -> None:
     np.testing.assert_allclose(ur5kin.fk_torch(qt).double().numpy(), ur5kin.fk(q), atol=tol)
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_torch_path_on_cuda() -> None:
     q = torch.rand(128, 6, dtype=torch.float64, device="cuda") * 6 - 3
