@@ -29,9 +29,10 @@ seconds since the start at which it began and ended; a figure that fails records
   (``torch.backends.cuda.matmul.allow_tf32``), each eager and captured: milliseconds per
   update of all K and agent-updates/s (buffers of random rows: the cost does not depend on
   their values);
-- ``grid_episode``: ``python -m benchmarks.grid_episode --device cuda --json`` (today's
-  path), started first in its own process so that its start-up (about 2 minutes on an H200
-  in 2026-11, mostly compiling numba kernels) runs beside the figures above; it times its
+- ``grid_episode``: ``python -m benchmarks.grid_episode --device cuda --path program --json``
+  (the training program's grid episode; today's path measured 0.55-1.65 s per grid episode on
+  an H200 in 2026-11 after about 2 minutes of start-up, most of it numba-cuda compiling),
+  started first in its own process so that its start-up runs beside the figures above; it times its
   episodes only once they have finished (``--start-after``), so none is timed beside them, but
   its warm-up episodes may overlap them (read ``window_s`` and its ``log``). Its
   ``startup_s`` is the stage's start-up figure. Killed at the budget's end, with its log.
@@ -107,14 +108,16 @@ class Sizes:
     agents; a minibatch's gather costs about the same from 1e5)."""
     updates: int = 100
     """Updates per timed round (one training episode's)."""
-    grid_args: tuple[str, ...] = ("--device", "cuda", "--episodes", "3", "--warmup", "2")
+    grid_args: tuple[str, ...] = ("--device", "cuda", "--path", "program", "--episodes", "5",
+                                  "--warmup", "3")
     """``benchmarks.grid_episode``'s arguments."""
 
 
 FULL = Sizes()
 DRY = Sizes(copy_mib=16, copies=(3,), threads_per_block=(2,), steps=2, rounds=1, agents=3,
             hidden=(16, 16), buffer_rows=256, updates=4,
-            grid_args=("--device", "cpu", "--part", "2", "--seeds", "1", "--episodes", "1",
+            grid_args=("--device", "cpu", "--path", "program", "--part", "2", "--seeds", "1",
+                       "--episodes", "1",
                        "--warmup", "1", "--unit-args",
                        "--hidden-sizes 8 8 --buffer-size 1000 --batch-size 8 "
                        "--updates-per-episode 2 --task max_episode_steps=5"))

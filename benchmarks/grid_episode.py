@@ -164,9 +164,50 @@ def today_path(spec: GridSpec) -> TodayRunner:
     return TodayRunner(trainer, spec.device)
 
 
-PATHS: dict[str, Callable[[GridSpec], GridRunner]] = {"today": today_path}
-"""``--path``: how the grid is built. ``program`` (``ddpg_her.program``, issue 35's training
-program) joins here when it exists: a function of a `GridSpec` returning a `GridRunner`."""
+@dataclass
+class ProgramRunner:
+    """The training program (``ddpg_her.program.Program``): the whole grid as one stack."""
+
+    program: Any
+    device: str
+
+    def episode(self) -> None:
+        self.program.step()
+
+    def synchronize(self) -> None:
+        if self.device == "cuda":
+            import torch
+
+            torch.cuda.synchronize()
+
+    def close(self) -> None:
+        self.program.close()
+
+
+def program_path(spec: GridSpec) -> ProgramRunner:
+    """The grid as ``analysis.sweep --grid paper --program`` trains it: every agent in one
+    `ddpg_her.program.Program` on ``spec.device`` (captured on CUDA, eager on the CPU)."""
+    from ddpg_her.program import Program
+    from ddpg_her.train_many import settings_of
+
+    units = [["--region", region, "--joints", str(joints),
+              "--seeds", *map(str, range(spec.seeds)), "--episodes", str(spec.budget),
+              "--eval-every", str(spec.budget), "--warmup-episodes", str(RL_WARMUP_EPISODES),
+              *spec.unit_args, "--out", str(spec.folder / f"{region}-j{joints}" / "s{seed}")]
+             for region, joints in spec.settings]
+    settings = settings_of(units)
+    program = Program(settings[0].env_id, [s.env_kwargs for s in settings for _ in s.seeds],
+                      settings[0].config, [seed for s in settings for seed in s.seeds],
+                      [d for s in settings for d in s.run_dirs], device=spec.device,
+                      progress=False)
+    return ProgramRunner(program, spec.device)
+
+
+PATHS: dict[str, Callable[[GridSpec], GridRunner]] = {"today": today_path,
+                                                      "program": program_path}
+"""``--path``: how the grid is built, a function of a `GridSpec` returning a `GridRunner`:
+``today`` (the stacks of ``ddpg_her.multi``) or ``program`` (``ddpg_her.program``, issue 35's
+training program)."""
 
 
 # ---------------------------------------------------------------------------- counters
