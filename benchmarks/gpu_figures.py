@@ -219,7 +219,7 @@ def numba_kernel(ctx: Context) -> dict[str, Any]:
             dyn.synchronize()
             first = time.perf_counter() - tic
 
-            def episode(dyn: Any = dyn) -> None:
+            def episode(dyn: Any = dyn, on_device: Any = on_device) -> None:
                 for c in on_device:
                     dyn.step(c)
 
