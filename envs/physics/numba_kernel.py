@@ -605,6 +605,8 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
     """One control step of copies ``first .. stop - 1`` (:func:`step_copy` each): the batch
     loop and the scratch it lends the body. Writes ``Q, W`` (the new state), ``dW = W_new -
     W_old``, ``clearance`` (the height bounds), the stop flags and the tool's world position.
+    ``free (B,)`` int: copy b's joints ``free[b] ..`` are locked (its task's
+    :attr:`envs.physics.model.ArmModel.free`), so one call steps copies of different n_joints.
     """
     dt = Q.dtype
     R, vel, acc, cb, pA, U, IA, X, Y, D, u, force = _aba_scratch(dt)
@@ -620,7 +622,7 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
         contact[b], limit_stop[b] = step_copy(
             q, w, known, bias[b], kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
             vh, bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia,
-            armature, grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a,
+            armature, grav, tool_pos, free[b], R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a,
             force, q1, w1, q_ref, heights, feat, tool[b])
         for k in range(6):
             dW[b, k] = w[k] - W[b, k]
@@ -699,6 +701,7 @@ class NumbaDynamics:
                                                           arm.w_max))
         self._limits = arm.q_mid.astype(cast), arm.q_half.astype(cast)
         self.bias = arm.initial_bias(B, cast)
+        self._free = np.full(B, arm.free, dtype=np.int64)  # one task: the same for every copy
 
         self.q = np.tile(arm.start_q, (B, 1)).astype(cast)
         self.w = np.zeros((B, NJ), dtype=cast)
@@ -747,7 +750,7 @@ class NumbaDynamics:
                 pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
                 float(task.base_height), float(task.plane_margin), self.height_bound,
                 c.rotation, c.translation, c.axis, c.inertia, c.armature, c.gravity,
-                self._tool_pos, self._dw, self.contact, self.limit_stop, self.tool, self.arm.free)
+                self._tool_pos, self._dw, self.contact, self.limit_stop, self.tool, self._free)
 
     def tool_positions(self, out: np.ndarray) -> np.ndarray:
         """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``."""
