@@ -122,7 +122,7 @@ def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_
                 wrist, lipschitz, base_height, margin, rot0, p, axis, inertia, armature, grav,
                 tool_pos, free, w_to_v, w_to_accel):  # pragma: no cover - compiled
     """One control step of copy ``b = cuda.grid(1)`` (a thread past B does nothing):
-    :func:`envs.physics.numba_kernel._control_step`'s loop body for row b, plus the command's
+    :func:`envs.physics.numba_kernel.control_step`'s loop body for row b, plus the command's
     torque and the env's ``v`` and ``acceleration``, in place.
 
     ``command (B, n)`` in the control mode's unit (rad, rad/s or N m); the constant torque part
@@ -274,7 +274,8 @@ def model_arguments(task: TaskSpec, dtype: str = "float64", num_copies: int = 1
                 base_height=cast(task.base_height), margin=cast(task.plane_margin),
                 rot0=c.rotation, p=c.translation, axis=c.axis, inertia=c.inertia,
                 armature=c.armature, grav=c.gravity, tool_pos=tool_offset().astype(cast),
-                free=np.full(num_copies, arm.free, np.int32), w_to_v=cast(arm.w_to_v), w_to_accel=cast(arm.w_to_accel))
+                free=np.full(num_copies, arm.free, np.int32), w_to_v=cast(arm.w_to_v),
+                w_to_accel=cast(arm.w_to_accel))
 
 
 def step_signature(task: TaskSpec, dtype: str = "float64") -> tuple[Any, ...]:

@@ -4,7 +4,7 @@ The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynami
 written as scalar loops: per copy, every substep (PD + gravity compensation, effort clip,
 Featherstone's articulated-body algorithm, velocity clip, semi-implicit Euler) and the stop
 checks, stopping a copy at its first invalid substep. :func:`step_copy` is one copy's step
-(no allocation, no Python object: the body a GPU thread can run); :func:`_control_step` the
+(no allocation, no Python object: the body a GPU thread can run); :func:`control_step` the
 CPU batch loop around it. The chain and plane tables are :mod:`envs.physics.model`'s; the tests
 compare :func:`aba` with ``pin.aba`` and :class:`NumbaDynamics` with the Pinocchio loop. The
 kernels are compiled on first use and cached on disk (``cache=True``).
@@ -441,7 +441,7 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
     :mod:`envs.physics.model`: the step body, pure scalar and array arithmetic on the arrays it
     is given (no allocation, no Python object), so that the same function can be compiled for a
     GPU thread (``numba.cuda.jit(device=True)``) as well as for the CPU loop
-    :func:`_control_step`.
+    :func:`control_step`.
 
     ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
     ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'`` (joints ``free ..`` locked:
@@ -598,7 +598,7 @@ def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
 
 
 @_njit
-def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+def control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
                   tool, free, first, stop):  # pragma: no cover - compiled
@@ -632,12 +632,12 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
 
 
 def _parallel_step(chunks, *args):  # pragma: no cover - compiled
-    """:func:`_control_step` over ``chunks`` blocks of copies, on numba's thread pool;
+    """:func:`control_step` over ``chunks`` blocks of copies, on numba's thread pool;
     ``args`` are its arguments before ``first, stop``."""
     num_copies = args[0].shape[0]
     size = (num_copies + chunks - 1) // chunks
     for c in numba.prange(chunks):
-        _control_step(*args, c * size, min(num_copies, (c + 1) * size))
+        control_step(*args, c * size, min(num_copies, (c + 1) * size))
 
 
 if numba is not None:
@@ -645,7 +645,7 @@ if numba is not None:
 
 
 @_njit
-def _tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma: no cover
+def tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma: no cover
     """``tool[b]``: tool0's world position (m) for ``Q[b]``, for each b in ``rows``."""
     R = np.empty((6, 3, 3), Q.dtype)
     for b in rows:
@@ -717,7 +717,7 @@ class NumbaDynamics:
 
     def _update_tools(self, rows: np.ndarray) -> None:
         c = self._chain
-        _tool_batch(self.q, rows.astype(np.int64), c.rotation, c.translation, c.axis,
+        tool_batch(self.q, rows.astype(np.int64), c.rotation, c.translation, c.axis,
                     self._tool_pos, float(self.task.base_height), self.tool)
 
     def reset(self, q: Any, index: Any = None) -> None:
@@ -732,7 +732,7 @@ class NumbaDynamics:
         np.multiply(arm.command_gain, command, out=self.bias[:, : self.task.n_joints])
         args = self.kernel_arguments()
         if self.threads == 1:
-            _control_step(*args, 0, self.num_copies)
+            control_step(*args, 0, self.num_copies)
         else:
             numba.set_num_threads(self.threads)
             _parallel_step(min(self.num_copies, PARALLEL_CHUNKS_PER_THREAD * self.threads),
@@ -741,7 +741,7 @@ class NumbaDynamics:
         np.multiply(self.w, arm.w_to_v, out=self.v)
 
     def kernel_arguments(self) -> tuple[Any, ...]:
-        """The arguments of :func:`_control_step` before ``first, stop``: the state arrays
+        """The arguments of :func:`control_step` before ``first, stop``: the state arrays
         (written in place) and the model's, in the order :func:`step_copy` reads them per
         copy (row b of each ``(B, ...)`` array), for a kernel that runs the body elsewhere."""
         task, c, pl = self.task, self._chain, self._plane
