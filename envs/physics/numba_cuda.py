@@ -122,7 +122,7 @@ def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_
                 wrist, lipschitz, base_height, margin, rot0, p, axis, inertia, armature, grav,
                 tool_pos, free, w_to_v, w_to_accel):  # pragma: no cover - compiled
     """One control step of copy ``b = cuda.grid(1)`` (a thread past B does nothing):
-    :func:`envs.physics.numba_kernel._control_step`'s loop body for row b, plus the command's
+    :func:`envs.physics.numba_kernel.control_step`'s loop body for row b, plus the command's
     torque and the env's ``v`` and ``acceleration``, in place.
 
     ``command (B, n)`` in the control mode's unit (rad, rad/s or N m); the constant torque part
@@ -131,8 +131,8 @@ def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_
     written: ``Q (B, 6)`` rad, ``W (B, 6)`` rad per substep, ``V (B, 6)`` rad/s, ``A (B, 6)``
     rad/s^2 (the step's mean), ``clearance (B, 6)`` m (the plane check's height bounds, world
     z), ``contact, limit_stop (B,)`` bool, ``tool (B, 3)`` m (world frame). The rest is
-    :func:`model_arguments`' (``w_to_v``, ``w_to_accel``: w to rad/s, a step's change of w to
-    rad/s^2)."""
+    :func:`model_arguments`' (``free (B,)`` int: copy b's joints ``free[b] ..`` are locked;
+    ``w_to_v``, ``w_to_accel``: w to rad/s, a step's change of w to rad/s^2)."""
     b = cuda.grid(1)
     if b >= Q.shape[0]:
         return
@@ -164,8 +164,8 @@ def _fused_step(command, gain, base_bias, Q, W, V, A, clearance, contact, limit_
     hit_plane, hit_limit = step_copy(
         q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half, vh,
         bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia, armature,
-        grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a, force, q1, w1,
-        q_ref, heights, feat, tool[b])
+        grav, tool_pos, free[b], R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a, force, q1,
+        w1, q_ref, heights, feat, tool[b])
     contact[b] = hit_plane
     limit_stop[b] = hit_limit
     for k in range(6):
@@ -255,11 +255,12 @@ def kernels(dtype: str = "float64") -> types.SimpleNamespace:
                                  lowest_point=cuda.jit(rebound(_lowest_point)))
 
 
-def model_arguments(task: TaskSpec, dtype: str = "float64") -> dict[str, Any]:
+def model_arguments(task: TaskSpec, dtype: str = "float64", num_copies: int = 1
+                    ) -> dict[str, Any]:
     """The arguments of :func:`_fused_step` after ``tool``, by its parameter names, in its
     order (the controller, limits, plane tables, chain, ``free``, ``w_to_v``, ``w_to_accel``):
     host arrays and scalars of ``dtype``, what :class:`NumbaCudaDynamics` copies to the GPU
-    once."""
+    once. ``free`` is ``(num_copies,)`` int32, the task's moving joints for every copy."""
     name = dtype_name(dtype)
     cast = DTYPES[name]
     arm, plane = arm_model(task), ur5_plane(name)
@@ -273,7 +274,8 @@ def model_arguments(task: TaskSpec, dtype: str = "float64") -> dict[str, Any]:
                 base_height=cast(task.base_height), margin=cast(task.plane_margin),
                 rot0=c.rotation, p=c.translation, axis=c.axis, inertia=c.inertia,
                 armature=c.armature, grav=c.gravity, tool_pos=tool_offset().astype(cast),
-                free=int(arm.free), w_to_v=cast(arm.w_to_v), w_to_accel=cast(arm.w_to_accel))
+                free=np.full(num_copies, arm.free, np.int32), w_to_v=cast(arm.w_to_v),
+                w_to_accel=cast(arm.w_to_accel))
 
 
 def step_signature(task: TaskSpec, dtype: str = "float64") -> tuple[Any, ...]:
@@ -354,7 +356,7 @@ class NumbaCudaDynamics:
         self.tool = np.zeros((B, 3), cast)
         with self._gpu:
             self._model = {k: cuda.to_device(x) if isinstance(x, np.ndarray) else x
-                           for k, x in model_arguments(task, name).items()}
+                           for k, x in model_arguments(task, name, B).items()}
             self._gain = cuda.to_device(arm.command_gain.astype(cast))
             self._base_bias = cuda.to_device(arm.initial_bias(1, cast)[0])
             self._command = cuda.device_array((B, task.n_joints), cast)

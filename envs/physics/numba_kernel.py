@@ -4,7 +4,7 @@ The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynami
 written as scalar loops: per copy, every substep (PD + gravity compensation, effort clip,
 Featherstone's articulated-body algorithm, velocity clip, semi-implicit Euler) and the stop
 checks, stopping a copy at its first invalid substep. :func:`step_copy` is one copy's step
-(no allocation, no Python object: the body a GPU thread can run); :func:`_control_step` the
+(no allocation, no Python object: the body a GPU thread can run); :func:`control_step` the
 CPU batch loop around it. The chain and plane tables are :mod:`envs.physics.model`'s; the tests
 compare :func:`aba` with ``pin.aba`` and :class:`NumbaDynamics` with the Pinocchio loop. The
 kernels are compiled on first use and cached on disk (``cache=True``).
@@ -441,7 +441,7 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
     :mod:`envs.physics.model`: the step body, pure scalar and array arithmetic on the arrays it
     is given (no allocation, no Python object), so that the same function can be compiled for a
     GPU thread (``numba.cuda.jit(device=True)``) as well as for the CPU loop
-    :func:`_control_step`.
+    :func:`control_step`.
 
     ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
     ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'`` (joints ``free ..`` locked:
@@ -598,13 +598,15 @@ def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
 
 
 @_njit
-def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
+def control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
                   vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
                   rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
                   tool, free, first, stop):  # pragma: no cover - compiled
     """One control step of copies ``first .. stop - 1`` (:func:`step_copy` each): the batch
     loop and the scratch it lends the body. Writes ``Q, W`` (the new state), ``dW = W_new -
     W_old``, ``clearance`` (the height bounds), the stop flags and the tool's world position.
+    ``free (B,)`` int: copy b's joints ``free[b] ..`` are locked (its task's
+    :attr:`envs.physics.model.ArmModel.free`), so one call steps copies of different n_joints.
     """
     dt = Q.dtype
     R, vel, acc, cb, pA, U, IA, X, Y, D, u, force = _aba_scratch(dt)
@@ -620,7 +622,7 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
         contact[b], limit_stop[b] = step_copy(
             q, w, known, bias[b], kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
             vh, bounds, lift, wrist, lipschitz, base_height, margin, rot0, p, axis, inertia,
-            armature, grav, tool_pos, free, R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a,
+            armature, grav, tool_pos, free[b], R, vel, acc, cb, pA, U, IA, X, Y, D, u, tau, g, a,
             force, q1, w1, q_ref, heights, feat, tool[b])
         for k in range(6):
             dW[b, k] = w[k] - W[b, k]
@@ -630,12 +632,12 @@ def _control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_m
 
 
 def _parallel_step(chunks, *args):  # pragma: no cover - compiled
-    """:func:`_control_step` over ``chunks`` blocks of copies, on numba's thread pool;
+    """:func:`control_step` over ``chunks`` blocks of copies, on numba's thread pool;
     ``args`` are its arguments before ``first, stop``."""
     num_copies = args[0].shape[0]
     size = (num_copies + chunks - 1) // chunks
     for c in numba.prange(chunks):
-        _control_step(*args, c * size, min(num_copies, (c + 1) * size))
+        control_step(*args, c * size, min(num_copies, (c + 1) * size))
 
 
 if numba is not None:
@@ -643,7 +645,7 @@ if numba is not None:
 
 
 @_njit
-def _tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma: no cover
+def tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma: no cover
     """``tool[b]``: tool0's world position (m) for ``Q[b]``, for each b in ``rows``."""
     R = np.empty((6, 3, 3), Q.dtype)
     for b in rows:
@@ -699,6 +701,7 @@ class NumbaDynamics:
                                                           arm.w_max))
         self._limits = arm.q_mid.astype(cast), arm.q_half.astype(cast)
         self.bias = arm.initial_bias(B, cast)
+        self._free = np.full(B, arm.free, dtype=np.int64)  # one task: the same for every copy
 
         self.q = np.tile(arm.start_q, (B, 1)).astype(cast)
         self.w = np.zeros((B, NJ), dtype=cast)
@@ -714,7 +717,7 @@ class NumbaDynamics:
 
     def _update_tools(self, rows: np.ndarray) -> None:
         c = self._chain
-        _tool_batch(self.q, rows.astype(np.int64), c.rotation, c.translation, c.axis,
+        tool_batch(self.q, rows.astype(np.int64), c.rotation, c.translation, c.axis,
                     self._tool_pos, float(self.task.base_height), self.tool)
 
     def reset(self, q: Any, index: Any = None) -> None:
@@ -729,7 +732,7 @@ class NumbaDynamics:
         np.multiply(arm.command_gain, command, out=self.bias[:, : self.task.n_joints])
         args = self.kernel_arguments()
         if self.threads == 1:
-            _control_step(*args, 0, self.num_copies)
+            control_step(*args, 0, self.num_copies)
         else:
             numba.set_num_threads(self.threads)
             _parallel_step(min(self.num_copies, PARALLEL_CHUNKS_PER_THREAD * self.threads),
@@ -738,7 +741,7 @@ class NumbaDynamics:
         np.multiply(self.w, arm.w_to_v, out=self.v)
 
     def kernel_arguments(self) -> tuple[Any, ...]:
-        """The arguments of :func:`_control_step` before ``first, stop``: the state arrays
+        """The arguments of :func:`control_step` before ``first, stop``: the state arrays
         (written in place) and the model's, in the order :func:`step_copy` reads them per
         copy (row b of each ``(B, ...)`` array), for a kernel that runs the body elsewhere."""
         task, c, pl = self.task, self._chain, self._plane
@@ -747,7 +750,7 @@ class NumbaDynamics:
                 pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
                 float(task.base_height), float(task.plane_margin), self.height_bound,
                 c.rotation, c.translation, c.axis, c.inertia, c.armature, c.gravity,
-                self._tool_pos, self._dw, self.contact, self.limit_stop, self.tool, self.arm.free)
+                self._tool_pos, self._dw, self.contact, self.limit_stop, self.tool, self._free)
 
     def tool_positions(self, out: np.ndarray) -> np.ndarray:
         """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``."""

@@ -1,0 +1,292 @@
+"""envs.physics.stack.StackDynamics: B copies of different tasks (n_joints, start pose) in one
+kernel call, against the single-task numba kernel copy by copy; the Triton kernel (under
+Triton's CPU interpreter) against the numba one."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+
+# the Triton kernel runs on the CPU under Triton's interpreter, chosen when
+# envs.physics.triton_kernel is first imported (only this module imports it in the tests)
+os.environ.setdefault("TRITON_INTERPRET", "1")
+
+import numpy as np
+import pytest
+import torch
+
+from envs.physics.model import moving_link_heights
+from envs.physics.numba_kernel import NumbaDynamics
+from envs.physics.stack import (
+    DYNAMICS_FIELDS,
+    PER_COPY_FIELDS,
+    UNREAD_FIELDS,
+    StackDynamics,
+)
+from envs.spec import TaskSpec
+
+try:
+    import triton  # noqa: F401
+
+    HAS_TRITON = True
+except ImportError:
+    HAS_TRITON = False
+
+needs_triton = pytest.mark.skipif(not HAS_TRITON, reason="triton is not installed (the test "
+                                  "extra installs it)")
+
+GRID = [("unconstrained", 2), ("zheight", 3), ("closebox", 6), ("unconstrained", 5),
+        ("farbox", 4), ("unconstrained", 6), ("zheight", 6), ("unconstrained", 3)]
+"""(region, n_joints) of the stack's copies: 2..6 joints, both start poses (all zeros for
+unconstrained, the constrained regions' other)."""
+
+STATE = ("q", "w", "v", "acceleration", "height_bound", "tool", "contact", "limit_stop")
+
+FLOAT32_TOLERANCE = 1e-3
+"""Bound (rad, m) of the float32 Triton kernel against the float32 numba kernel over
+:func:`test_the_triton_kernel_is_the_numba_kernel`'s steps; the two round differently (numba's
+CPU kernel sums float32 arrays with float64 literals)."""
+
+
+def tasks() -> list[TaskSpec]:
+    return [TaskSpec(region=region, n_joints=n) for region, n in GRID]
+
+
+def commands(rng: np.random.Generator, steps: int, B: int) -> np.ndarray:
+    """Position targets ``(steps, B, 6)`` rad held for 40 steps each, within +-8 rad: past the
+    joint limits (+-2 pi) and into the plane, so that both stops happen."""
+    held = rng.uniform(-8.0, 8.0, (steps // 40 + 1, B, 6))
+    return np.repeat(held, 40, axis=0)[:steps]
+
+
+def test_the_stack_is_numba_dynamics_copy_by_copy():
+    # each copy against the single-task kernel of its own task, bit for bit in float64, with
+    # masked resets on the way; the entries >= n_b of a command are NaN: they must be ignored
+    specs = tasks()
+    stack = StackDynamics(specs)
+    refs = [NumbaDynamics(task, 1) for task in specs]
+    rng = np.random.default_rng(7)
+    targets = commands(rng, 400, len(specs))
+    stops = np.zeros(2, int)
+    for step, target in enumerate(targets):
+        command = target.copy()
+        for b, task in enumerate(specs):
+            command[b, task.n_joints :] = np.nan
+        stack.step(torch.from_numpy(command))
+        for b, (task, ref) in enumerate(zip(specs, refs, strict=True)):
+            ref.step(target[b : b + 1, : task.n_joints])
+            for key in STATE:
+                assert np.array_equal(getattr(stack, key)[b].numpy(), getattr(ref, key)[0]), \
+                    (step, b, key)
+        stops += stack.contact.sum().item(), stack.limit_stop.sum().item()
+        if step % 50 == 49:
+            mask = rng.random(len(specs)) < 0.5
+            stack.reset_where(torch.from_numpy(mask))
+            for b in np.flatnonzero(mask):
+                refs[b].reset(specs[b].start_q, [0])
+    assert stops.min() > 0, f"the trajectories must hit the plane and the limits; got {stops}"
+
+
+def test_reset_where_puts_the_masked_copies_at_their_start():
+    specs = tasks()
+    stack, fresh = StackDynamics(specs), StackDynamics(specs)
+    rng = np.random.default_rng(3)
+    for target in commands(rng, 30, len(specs)):
+        stack.step(torch.from_numpy(target))
+    before = {key: getattr(stack, key).clone() for key in STATE}
+    mask = np.arange(len(specs)) % 3 == 0
+    stack.reset_where(torch.from_numpy(mask))
+    for key in STATE:
+        after = getattr(stack, key)
+        assert torch.equal(after[mask], getattr(fresh, key)[mask]), key
+        assert torch.equal(after[~mask], before[key][~mask]), key
+    assert not torch.equal(before["q"][mask], stack.q[mask])  # the copies had moved
+    start = np.array([task.start_q for task in specs])
+    assert np.array_equal(stack.q[mask].numpy(), start[mask])
+    assert np.allclose(stack.height_bound[mask].numpy(),
+                       moving_link_heights(start[mask], specs[0].base_height))
+
+
+def test_copies_keep_their_locked_joints():
+    specs = tasks()
+    stack = StackDynamics(specs)
+    for target in commands(np.random.default_rng(2), 60, len(specs)):
+        stack.step(torch.from_numpy(target))
+    start = np.array([task.start_q for task in specs])
+    for b, task in enumerate(specs):
+        assert np.array_equal(stack.q[b, task.n_joints :].numpy(), start[b, task.n_joints :])
+        assert not np.array_equal(stack.q[b, : task.n_joints].numpy(),
+                                  start[b, : task.n_joints])
+
+
+# ---------------------------------------------------------------------------- refusals
+def test_the_field_lists_partition_the_taskspec():
+    names = [f.name for f in dataclasses.fields(TaskSpec)]
+    listed = PER_COPY_FIELDS + DYNAMICS_FIELDS + UNREAD_FIELDS
+    assert sorted(listed) == sorted(names) and len(set(listed)) == len(listed)
+
+
+CHANGED = {"base_height": 0.2, "control_mode": "velocity", "control_hz": 100, "sim_hz": 2000,
+           "kp": (500.0,) * 6, "kd": (50.0,) * 6, "gravity_compensation": False,
+           "plane_margin": 0.01}
+
+
+@pytest.mark.parametrize("field", sorted(CHANGED))
+def test_tasks_that_differ_in_what_the_dynamics_reads_are_refused(field):
+    task = TaskSpec(n_joints=3)
+    other = dataclasses.replace(task, **{field: CHANGED[field]})
+    with pytest.raises(ValueError, match=rf"tasks\[1\]\.{field} = .* differs from tasks\[0\]"):
+        StackDynamics([task, other])
+
+
+def test_held_joints_and_contact_model_are_refused():
+    with pytest.raises(ValueError, match=r"tasks\[1\]\.held_joints = 'pd'"):
+        StackDynamics([TaskSpec(), TaskSpec(held_joints="pd")])
+    with pytest.raises(ValueError, match=r"tasks\[0\]\.contact_model = 'compliant'"):
+        StackDynamics([TaskSpec(contact_model="compliant")])
+    with pytest.raises(ValueError, match="at least one TaskSpec"):
+        StackDynamics([])
+
+
+def test_goal_side_fields_may_differ():
+    specs = [TaskSpec(region="zheight", n_joints=3, success_radius=0.05),
+             TaskSpec(region="closebox", n_joints=3, goal_sampler="cartesian",
+                      max_episode_steps=50)]
+    assert StackDynamics(specs).num_copies == 2
+
+
+def test_bad_kernels_devices_and_inputs_are_refused():
+    with pytest.raises(ValueError, match="kernel must be one of"):
+        StackDynamics([TaskSpec()], kernel="torch")
+    with pytest.raises(ValueError, match="kernel='numba' runs on the CPU"):
+        StackDynamics([TaskSpec()], device="cuda", kernel="numba")
+    stack = StackDynamics([TaskSpec(), TaskSpec()])
+    with pytest.raises(ValueError, match=r"command must be \(2, 6\); got \(2, 3\)"):
+        stack.step(torch.zeros(2, 3, dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"mask must be \(2,\); got \(3,\)"):
+        stack.reset_where(torch.zeros(3, dtype=torch.bool))
+
+
+@needs_triton
+def test_triton_on_the_cpu_needs_the_interpreter():
+    code = ("from envs.physics.stack import StackDynamics; from envs.spec import TaskSpec; "
+            "StackDynamics([TaskSpec()], kernel='triton')")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, "TRITON_INTERPRET": "0"}, timeout=300)
+    assert run.returncode != 0
+    assert "set TRITON_INTERPRET=1" in run.stderr, run.stderr[-2000:]
+
+
+# ---------------------------------------------------------------------------- host reads
+HOST_READS = ("item", "cpu", "numpy", "tolist", "__bool__", "__int__", "__float__",
+              "__index__")
+
+
+@pytest.fixture
+def no_host_reads(monkeypatch):
+    """Every way a tensor's value reaches Python raises (the CPU stand-in for CUDA's
+    ``torch.cuda.set_sync_debug_mode("error")``)."""
+    def forbid(name):
+        def read(*args, **kwargs):
+            raise AssertionError(f"Tensor.{name} read a value on the host")
+        return read
+
+    for name in HOST_READS:
+        monkeypatch.setattr(torch.Tensor, name, forbid(name))
+
+
+@pytest.mark.parametrize("kernel", ["numba", "triton"])
+def test_step_and_reset_where_read_nothing_on_the_host(kernel, monkeypatch, request):
+    if kernel == "triton":
+        if not HAS_TRITON:
+            pytest.skip("triton is not installed")
+        from envs.physics import triton_kernel
+
+        # the interpreter itself copies every tensor to numpy; on a GPU the launch reads
+        # nothing: here the wrapper around the launch is what is checked
+        calls = []
+        monkeypatch.setattr(triton_kernel, "launch", lambda *args: calls.append(args))
+    stack = StackDynamics(tasks()[:3], kernel=kernel)
+    command = torch.zeros(3, 6, dtype=torch.float64)
+    mask = torch.tensor([True, False, True])
+    request.getfixturevalue("no_host_reads")
+    stack.step(command)
+    stack.reset_where(mask)
+    with pytest.raises(AssertionError, match="read a value on the host"):
+        bool(mask[0])  # the fixture is armed
+    if kernel == "triton":
+        assert len(calls) == 1
+
+
+# ---------------------------------------------------------------------------- Triton
+def hard_states(specs: list[TaskSpec], rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """Start states ``q, w (B, 6)`` and their exact height bounds near the stops: every other
+    copy's first joint 0.1 rad inside its limit, the others' moving joints random with every
+    link 2-15 cm above the plane, moving fast (locked joints at their start, at rest)."""
+    B = len(specs)
+    q = np.array([task.start_q for task in specs])
+    w = np.zeros((B, 6))
+    for b, task in enumerate(specs):
+        n = task.n_joints
+        while True:
+            trial = q[b].copy()
+            trial[:n] = rng.uniform(-1.5, 1.5, n)
+            if b % 2:
+                trial[0] = 2 * np.pi - 0.1
+            low = moving_link_heights(trial, task.base_height).min()
+            if 0.02 < low < 0.15 or (b % 2 and low > 0.02):
+                break
+        q[b] = trial
+        w[b, :n] = rng.uniform(-0.005, 0.005, n)  # rad per substep: up to 5 rad/s
+    return q, w, moving_link_heights(q, specs[0].base_height)
+
+
+def hard_case(specs: list[TaskSpec], steps: int, rng: np.random.Generator
+              ) -> tuple[np.ndarray, ...]:
+    """:func:`hard_states` and position targets ``(steps, B, 6)`` rad (past the limits:
+    every other copy's first joint driven past its own) under which the numba stack stops
+    copies both on the plane and at a limit (drawn again until it does)."""
+    for _ in range(100):
+        q, w, heights = hard_states(specs, rng)
+        targets = rng.uniform(-8.0, 8.0, (steps, len(specs), 6))
+        targets[:, 1::2, 0] = 8.0
+        stack = StackDynamics(specs)
+        stack.q[:], stack.w[:], stack.height_bound[:] = (torch.from_numpy(x) for x in
+                                                        (q, w, heights))
+        stops = np.zeros(2, int)
+        for target in targets:
+            stack.step(torch.from_numpy(target))
+            stops += stack.contact.sum().item(), stack.limit_stop.sum().item()
+        if stops.min() > 0:
+            return q, w, heights, targets
+    raise AssertionError("no draw stops a copy on the plane and one at a limit")
+
+
+@needs_triton
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_the_triton_kernel_is_the_numba_kernel(dtype):
+    # the interpreter is slow (a numpy call per operation): 8 copies, 3 steps from states at
+    # the plane and the limits, commands past both
+    specs = tasks()
+    q, w, heights, targets = hard_case(specs, 3, np.random.default_rng(11))
+    stacks = [StackDynamics(specs, dtype=dtype, kernel=k) for k in ("numba", "triton")]
+    for stack in stacks:
+        stack.q[:], stack.w[:], stack.height_bound[:] = (torch.from_numpy(x) for x in
+                                                        (q, w, heights))
+    tolerance = 1e-9 if dtype == "float64" else FLOAT32_TOLERANCE
+    stops = np.zeros(2, int)
+    for step, target in enumerate(targets):
+        for stack in stacks:
+            stack.step(torch.from_numpy(target))
+        numba, triton = stacks
+        for key in ("contact", "limit_stop"):
+            assert torch.equal(numba.__dict__[key], triton.__dict__[key]), (step, key)
+        for key in ("q", "w", "v", "acceleration", "height_bound", "tool"):
+            scale = 1.0 if key in ("q", "height_bound", "tool") else \
+                float(numba.__dict__[key].abs().max()) + 1.0
+            err = float((numba.__dict__[key] - triton.__dict__[key]).abs().max()) / scale
+            assert err <= tolerance, (step, key, err)
+        stops += numba.contact.sum().item(), numba.limit_stop.sum().item()
+    assert stops.min() > 0, f"the steps must hit the plane and the limits; got {stops}"
