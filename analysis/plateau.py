@@ -147,7 +147,7 @@ class Plateau:
         if self.slope is None or self.sessions < PLATEAU_MIN_SESSIONS:
             return False
         _, low, high = self.change(DECIDING_LEVEL)
-        return -PLATEAU_BAND <= low and high <= PLATEAU_BAND
+        return low >= -PLATEAU_BAND and high <= PLATEAU_BAND
 
     def verdict(self) -> str:
         """'plateaued at N episodes' or 'not judgeable at N episodes'."""

@@ -42,6 +42,7 @@ from analysis.paper import (
 from analysis.plateau import (
     DECIDING_LEVEL,
     PLATEAU_BAND,
+    PLATEAU_LEVELS,
     PLATEAU_MIN_SESSIONS,
     PLATEAU_WINDOW,
     Plateau,
@@ -547,7 +548,7 @@ def plateau_lines(summaries: Mapping[tuple[str, int], SettingSummary], level: fl
             lc_text = (f"{lc[0]:+.1f} {_ci(lc[1], lc[2])} {_ci(lc[3], lc[4])}" if lc else "-")
             _, lo, hi = pl.change()
             rows.append(f"| {_name(key)} | {pl.end:,} | {pl.start:,}-{pl.end:,} | {pl.sessions} "
-                        f"| {s.value:+.1f} {_ci(*s.interval(0.65))} "
+                        f"| {s.value:+.1f} {_ci(*s.interval(PLATEAU_LEVELS[0]))} "
                         f"{_ci(*s.interval(DECIDING_LEVEL))} | {p_text(s.p_value)} | "
                         f"{_ci(lo, hi)} | {lc_text} | "
                         f"{'**' + pl.verdict() + '**' if pl.plateaued else pl.verdict()} |")

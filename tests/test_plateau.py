@@ -80,7 +80,7 @@ def test_flat_but_too_noisy_or_too_short_is_not_a_plateau() -> None:
     episode, percent = _curves(3.0, end=2_000, noise=4.0, seed=5)
     got = pl.plateau(episode, percent)
     c65, c95 = got.change(0.65), got.change(0.95)
-    assert -pl.PLATEAU_BAND <= c65[1] and c65[2] <= pl.PLATEAU_BAND
+    assert c65[1] >= -pl.PLATEAU_BAND and c65[2] <= pl.PLATEAU_BAND
     assert c95[2] > pl.PLATEAU_BAND and not got.plateaued
     # four sessions in the window: too few, however flat
     flat = np.full((5, 7), 30.0) + np.arange(7) % 2
