@@ -2,8 +2,8 @@
 reached, so that its level may be judged there (labelled with that budget) instead of at the
 paper's 20,000 episodes.
 
-The rule, stated before it was applied to any run of `results/paper_long` (docs/design.md,
-"What the paper reports"):
+The rule (docs/design.md, "What the paper reports"), written at the long study's 2,000-episode
+stage after a first look at its slopes and fixed from there on:
 
 - The window is the last half of the run, at most `PLATEAU_WINDOW` training episodes: every
   common test session at or after ``end - min(PLATEAU_WINDOW, end // 2)``.
