@@ -9,7 +9,10 @@ For each (region, joints): each seed's mean over its last 5 test sessions and it
 (`analysis.paper.CLAIMS`), each *holds*, *fails*, *within noise*, *not judgeable* or *not run*.
 
 The verdict rule is `rule_lines`, printed with every report and stated in docs/design.md ("What
-the paper reports"); `judge_claims` applies it.
+the paper reports"); `judge_claims` applies it. A claim about where training ends is judged on
+runs shorter than the paper's when every setting it compares has plateaued by the plateau rule
+(`analysis.plateau`), labelled with the budget; the report applies that rule to every setting
+at every stage of `analysis.plateau.PLATEAU_STAGES` its runs reached.
 """
 
 from __future__ import annotations
@@ -35,6 +38,16 @@ from analysis.paper import (
     PAPER_SEEDS,
     UNDER_SUCCESS,
     PaperClaim,
+)
+from analysis.plateau import (
+    DECIDING_LEVEL,
+    PLATEAU_BAND,
+    PLATEAU_LEVELS,
+    PLATEAU_MIN_SESSIONS,
+    PLATEAU_WINDOW,
+    Plateau,
+    plateau,
+    stages,
 )
 from analysis.readings import run_choices
 from analysis.runs import (
@@ -221,6 +234,9 @@ class Check:
     """Two-sided Welch p-value over seeds of the claim's comparison (None: not a comparison)."""
     confounds: tuple[str, ...] = ()
     """What differs between the compared settings besides what the claim is about."""
+    plateau_at: int | None = None
+    """A claim about where training ends judged below the paper's budget because every setting
+    it compares has plateaued (`analysis.plateau`): the budget it was judged at (episodes)."""
 
 
 def welch_p(a: np.ndarray, b: np.ndarray) -> float:
@@ -297,7 +313,8 @@ def _least(ps: Sequence[float]) -> float:
 
 
 def judge_claims(curves: Mapping[tuple[str, int], Curves],
-                 interval: IntervalFn | None = None) -> list[Check]:
+                 interval: IntervalFn | None = None,
+                 plateaus: Mapping[tuple[str, int], Plateau] | None = None) -> list[Check]:
     """Every claim of `analysis.paper.CLAIMS`, in its order, judged by the module's rule.
 
     Parameters
@@ -308,6 +325,11 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         The interval of the per-seed values (default: the paper's 65 % Student-t,
         `student_t`; `analysis.sensitivity` also passes bootstrap intervals of the mean and
         the IQM). The Welch p-values do not depend on it.
+    plateaus : {(region, joints): Plateau}, optional
+        The plateau rule applied to each setting at the point judged. Given, a claim about
+        where training ends on runs below the paper's budget is judged (and labelled with the
+        budget) when every setting it compares has plateaued, and is *not judgeable at N
+        episodes* otherwise; not given, every such claim is not judgeable.
     """
     interval = interval or student_t()
     level = {k: c.level() for k, c in curves.items()}
@@ -324,11 +346,18 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         if not claim.at_end or not short:
             return Check(claim.name, verdict, what, p, conf)
         ends = sorted({curves[k].end for k in short})
+        at = ", ".join(f"{e:,}" for e in ends)
+        if plateaus is not None and all(plateaus[k].plateaued for k in short):
+            return Check(claim.name, verdict,
+                         f"judged at the plateau of every setting it compares ({at} episodes, "
+                         f"the plateau rule): {what}", p, conf, plateau_at=max(ends))
+        rising = ("" if plateaus is None else
+                  "; not plateaued by the plateau rule: "
+                  + ", ".join(_name(k) for k in short if not plateaus[k].plateaued))
         return Check(claim.name, Verdict.NOT_JUDGEABLE,
-                     f"a claim about where training ends; these runs end at "
-                     f"{', '.join(f'{e:,}' for e in ends)} episodes, below the paper's "
-                     f"{PAPER_EPISODES:,}. So far ({VERDICT_WORDS_SO_FAR[verdict]}): {what}",
-                     p, conf)
+                     f"a claim about where training ends; these runs end at {at} episodes, "
+                     f"below the paper's {PAPER_EPISODES:,}{rising}. So far "
+                     f"({VERDICT_WORDS_SO_FAR[verdict]}): {what}", p, conf)
 
     def missing(keys: Sequence[tuple[str, int]]) -> str:
         lack = [_name(k) for k in keys if k in PAPER_GRID and k not in curves]
@@ -483,10 +512,75 @@ VERDICT_WORDS_SO_FAR = {Verdict.YES: "as claimed so far, not a verdict",
 
 
 def ordering_checks(summaries: dict[tuple[str, int], SettingSummary],
-                    level: float = CONFIDENCE) -> list[Check]:
+                    level: float = CONFIDENCE,
+                    plateaus: Mapping[tuple[str, int], Plateau] | None = None) -> list[Check]:
     """The paper's claims judged on the summaries' curves with the Student-t interval at
-    ``level`` (see `judge_claims`)."""
-    return judge_claims({k: s.curves for k, s in summaries.items()}, student_t(level))
+    ``level`` (see `judge_claims`; ``plateaus``: the plateau rule's verdicts, as there)."""
+    return judge_claims({k: s.curves for k, s in summaries.items()}, student_t(level),
+                        plateaus)
+
+
+def plateaus_at_end(summaries: Mapping[tuple[str, int], SettingSummary]
+                    ) -> dict[tuple[str, int], Plateau]:
+    """The plateau rule applied to each setting at the end of its common sessions."""
+    return {k: plateau(s.curves.episode, s.curves.percent) for k, s in summaries.items()}
+
+
+def _ci(low: float, high: float) -> str:
+    return f"[{low:+.1f}, {high:+.1f}]"
+
+
+def plateau_lines(summaries: Mapping[tuple[str, int], SettingSummary], level: float
+                  ) -> list[str]:
+    """Markdown: the plateau rule applied to every setting at every stage its runs reached,
+    and each plateaued setting's level judged at its plateau against the paper's figure."""
+    rows, judged = [], []
+    for key in sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1])):
+        c = summaries[key].curves
+        for stage in stages(c.end):
+            pl = plateau(c.episode, c.percent, stage)
+            if pl.slope is None:
+                rows.append(f"| {_name(key)} | {pl.end:,} | {pl.start:,}-{pl.end:,} | "
+                            f"{pl.sessions} | - | - | - | - | - | {pl.verdict()} |")
+                continue
+            s = pl.slope
+            lc = pl.level_change
+            lc_text = (f"{lc[0]:+.1f} {_ci(lc[1], lc[2])} {_ci(lc[3], lc[4])}" if lc else "-")
+            _, lo, hi = pl.change()
+            rows.append(f"| {_name(key)} | {pl.end:,} | {pl.start:,}-{pl.end:,} | {pl.sessions} "
+                        f"| {s.value:+.1f} {_ci(*s.interval(PLATEAU_LEVELS[0]))} "
+                        f"{_ci(*s.interval(DECIDING_LEVEL))} | {p_text(s.p_value)} | "
+                        f"{_ci(lo, hi)} | {lc_text} | "
+                        f"{'**' + pl.verdict() + '**' if pl.plateaued else pl.verdict()} |")
+        last = plateau(c.episode, c.percent)
+        paper = PAPER_RESULTS.get(key)
+        if last.plateaued:
+            stat = student_t(level)(c.level(), PERCENT)
+            text = f"- {_name(key)}, judged at its plateau ({last.end:,} episodes): last 5 " \
+                   f"{_fmt(stat)}"
+            if paper is not None and paper.approx_success is not None:
+                lo_b = paper.approx_success - ABOUT_TOLERANCE
+                hi_b = paper.approx_success + ABOUT_TOLERANCE
+                v = (Verdict.YES if lo_b <= stat[1] and stat[2] <= hi_b else
+                     Verdict.NO if stat[2] < lo_b or stat[1] > hi_b else Verdict.NOISE)
+                text += (f" against the paper's about {paper.approx_success:g} % "
+                         f"({lo_b:g}-{hi_b:g}): {v.value}")
+            judged.append(text + ".")
+        else:
+            judged.append(f"- {_name(key)}: not judgeable at {last.end:,} episodes "
+                          "(not plateaued).")
+    return ["## Plateaus", "",
+            f"The plateau rule (`analysis.plateau`; docs/design.md): on the last half of the "
+            f"run, at most {PLATEAU_WINDOW:,} episodes, the OLS slope of the per-session mean "
+            "over seeds (successes per 100 per 1,000 episodes, with its 65 % and 95 % Student-t "
+            "intervals and its p-value against 0); a setting has **plateaued** when the window "
+            f"holds at least {PLATEAU_MIN_SESSIONS} sessions and the 95 % interval of the fitted "
+            f"change over the window (slope x window) lies within +- {PLATEAU_BAND:g}. "
+            "Beside it, as information: the change of each seed's last-5 level over the window "
+            "(mean over seeds, 65 % and 95 % intervals).", "",
+            "| setting | stage | window | sessions | slope per 1,000 [65 %] [95 %] | p | "
+            "fitted change over the window, 95 % | last-5 change [65 %] [95 %] | verdict |",
+            "|---|---:|---|---:|---|---|---|---|---|", *rows, "", *judged, ""]
 
 
 def p_text(p: float | None) -> str:
@@ -518,15 +612,20 @@ def claim_settings() -> dict[str, tuple[tuple[str, int], ...]]:
     return {c.name: k for c, k in zip(CLAIMS, needs, strict=True)}
 
 
-def rule_lines(level: float) -> list[str]:
-    """Markdown: the verdict rule, as `analysis.report` and `analysis.sensitivity` apply it."""
+def rule_lines(level: float, plateaus: bool = False) -> list[str]:
+    """Markdown: the verdict rule, as `analysis.report` and `analysis.sensitivity` apply it
+    (``plateaus``: with the plateau rule's exception, which only `analysis.report` applies)."""
+    exception = (" and a setting it compares has not plateaued by the plateau rule (section "
+                 "*Plateaus*): such a claim is *not judgeable at N episodes*; when every "
+                 "setting it compares has plateaued it is judged there, labelled with the "
+                 "budget" if plateaus else "")
     return [
         "## The rule", "",
         f"- A claim about where training ends (an asymptote, a converged level: \"highly "
         f"capable\", \"under 50 %\", \"about 40 %\", \"about 20 %\", \"identical\", \"alike\", "
         f"\"slower to converge\", Fig. 4) is **not judgeable** when the runs end below the "
-        f"paper's {PAPER_EPISODES:,} episodes; what the runs show so far is printed beside it "
-        "as information, never as a verdict.",
+        f"paper's {PAPER_EPISODES:,} episodes{exception}; what the runs show so far is printed "
+        "beside it as information, never as a verdict.",
         f"- Levels are each seed's mean over its last {LAST_SESSIONS} test sessions at the point "
         f"judged (not one session); the interval is the {level:.0%} Student-t over seeds (the "
         "paper's figures' interval).",
@@ -572,8 +671,9 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
         lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | {_fmt(s.final)} | "
                      f"{_fmt(s.best)} | {_first_high(s.first_high)} | "
                      f"{paper.text if paper else 'not in the paper'} |")
-    checks = ordering_checks(summaries, level)
-    lines += ["", *reading_lines(summaries), *rule_lines(level), "## The paper's claims", "",
+    checks = ordering_checks(summaries, level, plateaus_at_end(summaries))
+    lines += ["", *reading_lines(summaries), *rule_lines(level, plateaus=True),
+              *plateau_lines(summaries, level), "## The paper's claims", "",
               *claim_table(checks), "", comparisons_line(checks)]
     return "\n".join(lines) + "\n"
 
@@ -586,7 +686,8 @@ def claim_table(checks: Sequence[Check]) -> list[str]:
              "|---|---|---|---|---|---|"]
     for c in checks:
         claim = words[c.claim]
-        lines.append(f"| {c.claim} | \"{claim.words}\" ({claim.where}) | {c.verdict.value} | "
+        at = f" at the plateau ({c.plateau_at:,} episodes)" if c.plateau_at is not None else ""
+        lines.append(f"| {c.claim} | \"{claim.words}\" ({claim.where}) | {c.verdict.value}{at} | "
                      f"{p_text(c.p_value)} | {c.detail} | {'; '.join(c.confounds) or '-'} |")
     return lines
 
