@@ -344,3 +344,31 @@ def test_the_captured_bodies_equal_the_same_bodies_run_eagerly_on_cuda(tmp_path,
     for a, b in zip(runs[True][0].agent.actor.parameters(),
                     runs[False][0].agent.actor.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_train_many_runs_a_mixed_stack_on_the_arm_kernel(tmp_path):
+    """The command line end to end, with the real arm (envs.physics.stack on the CPU): units
+    of 2 and 6 joints as one program stack; every run folder has its test sessions, and
+    spec.json records the program and its streams."""
+    import json
+    import subprocess
+    import sys
+
+    common = ("--episodes 4 --eval-every 2 --eval-episodes 3 --warmup-episodes 1 "
+              "--hidden-sizes 16 16 --updates-per-episode 2 --batch-size 8 --buffer-size 1000 "
+              "--task max_episode_steps=10")
+    out = subprocess.run(
+        [sys.executable, "-m", "ddpg_her.train_many", "--env-backend", "program", "--threads",
+         "1", "--no-progress",
+         f"--unit=--region unconstrained --joints 2 --seeds 0 1 {common} "
+         f"--out {tmp_path}/u2/s{{seed}}",
+         f"--unit=--region farbox --joints 6 --seed 0 {common} --out {tmp_path}/f6/s{{seed}}"],
+        capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    for run in ("u2/s0", "u2/s1", "f6/s0"):
+        rows = RunFolder(tmp_path / run).read_eval()
+        assert [int(r["episode"]) for r in rows] == [2, 4]
+        assert all(0 <= int(r["successes"]) <= 3 for r in rows)
+        spec = json.loads((tmp_path / run / "spec.json").read_text())
+        assert spec["env_backend"] == "program" and spec["program"]["streams"]
+    assert "3 agents of 2 units in one program stack" in out.stderr
