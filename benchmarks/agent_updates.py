@@ -300,7 +300,7 @@ def measure_rollouts(k: int, joints: int, rounds: int) -> dict[str, float]:
 
     groups = [{"region": ROLLOUT_REGIONS[i % len(ROLLOUT_REGIONS)], "n_joints": joints}
               for i in range(k)]
-    envs = {name: make_envs(name, "UR5Reach-v0", groups, 1, torch.device("cpu"))
+    envs = {name: make_envs(name, "UR5Reach-v0", groups, 1)
             for name in ("numpy", "batched")}
     scale = envs["numpy"].scale
     generator = torch.Generator().manual_seed(0)

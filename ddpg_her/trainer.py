@@ -56,9 +56,8 @@ class Trainer:
     seeds : (K,) ints, distinct among agents of one task; run_dirs : K distinct folders;
     resume : continue the runs in ``run_dirs`` from their last common checkpoint (runs absent
     there start afresh) instead of refusing existing folders; env_backend : one of
-    `ENV_BACKENDS`; env_dynamics : the ``torch`` backend's arm, one of
-    `ddpg_her.collect.ENV_DYNAMICS`; update_graph : ``auto``, ``on`` or ``off``
-    (`ddpg_her.update_graph.MODES`). The last three are ``ddpg_her.train``'s flags of their
+    `ENV_BACKENDS`; update_graph : ``auto``, ``on`` or ``off``
+    (`ddpg_her.update_graph.MODES`). The last two are ``ddpg_her.train``'s flags of their
     names, whose ``--help`` says how each changes a seed's run.
     """
 
@@ -67,7 +66,7 @@ class Trainer:
                  resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
                  command: Sequence[str] | None = None, env_backend: str = "numpy",
-                 env_dynamics: str = "torch", update_graph: str = "off"):
+                 update_graph: str = "off"):
         if env_backend not in ENV_BACKENDS:
             raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
                              f"{env_backend!r}")
@@ -93,19 +92,16 @@ class Trainer:
         self._flush_denormals()
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
-        self.envs = make_envs(env_backend, env_id, per_agent, 1, self.device, env_dynamics)
-        self.eval_envs = make_envs(env_backend, env_id, per_agent, config.eval_episodes,
-                                   self.device, env_dynamics)
+        self.envs = make_envs(env_backend, env_id, per_agent, 1)
+        self.eval_envs = make_envs(env_backend, env_id, per_agent, config.eval_episodes)
         envs = self.envs
         for k, kwargs in enumerate(per_agent):
             check_recorded(env_id, kwargs, envs.task_of(k))
         self.rngs = [np.random.default_rng(stream_seed(s, EXPLORE_STREAM)) for s in seeds]
         self.sample_generators = [
             torch.Generator(self.device).manual_seed(stream_seed(s, SAMPLE_STREAM)) for s in seeds]
-        self.explore_generators = [
-            torch.Generator(self.device).manual_seed(stream_seed(s, EXPLORE_STREAM)) for s in seeds]
         self.collector = Collector(self.envs, self.eval_envs, config, self.rngs,
-                                   self.explore_generators, device=self.device, dtype=dtype)
+                                   device=self.device, dtype=dtype)
         self.layout = self.collector.layout
         check_memory(config, self.layout, self.k, dtype, self.device)
         self.agent = make_agent(
@@ -128,8 +124,6 @@ class Trainer:
         self.wall_s = 0.0
         self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
         process = {} if self.update_step is None else {"update_graph": "on"}
-        if env_dynamics != "torch":
-            process["env_dynamics"] = env_dynamics
         self.specs = [{**process, **spec_entry(self.agent, k),
                        **run_spec(env_backend=env_backend, env_id=env_id,
                                   env_kwargs=per_agent[k], task=envs.task_of(k), seed=seeds[k],
@@ -153,8 +147,6 @@ class Trainer:
                 "agent": self.agent.agent_state(k),
                 "rng": {"explore": self.rngs[k].bit_generator.state,
                         "sample": self.sample_generators[k].get_state(),
-                        **({"explore_torch": self.explore_generators[k].get_state()}
-                           if self.env_backend == "torch" else {}),
                         **({"sample_counter": self.update_step.state()}
                            if self.update_step is not None else {})}}
 
@@ -167,8 +159,6 @@ class Trainer:
             self.sample_generators[k].set_state(s["rng"]["sample"])
             if self.update_step is not None:
                 self.update_step.load_state(s["rng"]["sample_counter"])
-            if "explore_torch" in s["rng"]:
-                self.explore_generators[k].set_state(s["rng"]["explore_torch"])
             self.env_steps[k] = s["env_steps"]
             self.rows[k] = list(s["rows"])
         self.folders.restore_buffer(episode, states, chunks, self.buffer)

@@ -366,3 +366,22 @@ def test_trainer_flushes_subnormals_as_configured(tmp_path, flush):
         assert bool((tiny * 1.0 == 0).item()) is flush
     finally:
         torch.set_flush_denormal(False)
+
+
+@pytest.mark.parametrize("module, argv, named", [
+    ("ddpg_her.train", ["--env-backend", "torch"], "--env-backend torch"),
+    ("ddpg_her.train", ["--env-backend=torch"], "--env-backend torch"),
+    ("ddpg_her.train", ["--env-dynamics", "numba"], "--env-dynamics"),
+    ("ddpg_her.train_many", ["--env-dynamics=numba"], "--env-dynamics"),
+    ("analysis.sweep", ["--env-backend", "torch"], "--env-backend torch"),
+])
+def test_a_removed_flag_is_refused_naming_what_replaced_it(module, argv, named, capsys):
+    """The flags issue 35's training program replaced get a usage error that names the
+    program, where argparse alone would say "invalid choice" or "unrecognized arguments"."""
+    import importlib
+
+    with pytest.raises(SystemExit) as exit_:
+        importlib.import_module(module).main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and f"{named} was removed (issue 35)" in err, err
+    assert "use --env-backend program" in err, err
