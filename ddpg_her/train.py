@@ -78,16 +78,6 @@ def add_process_flags(group: Any, what: str) -> None:
                             "counter-based streams (spec.json's 'program'), so a seed trains "
                             "otherwise than under the other backends, and alike alone or in "
                             "any stack")
-    group.add_argument("--update-graph", choices=["auto", "on", "off"], default="auto",
-                       help="how the updates run (default: auto, which is 'on' for --device "
-                            "cuda with --algo ddpg without --batch-norm, else 'off'): 'on', each "
-                            "stacked update (minibatch draw, critic and actor steps, target "
-                            "update) is one device step with no host synchronisation, captured "
-                            "once as a CUDA graph and replayed on cuda, run eagerly on the cpu; "
-                            "its minibatches come from a counter-based stream on the device, "
-                            "so a seed trains otherwise than under 'off', and spec.json "
-                            "records update_graph 'on' (a run resumes only with its own "
-                            "setting). 'off', the update loop of earlier runs")
     group.add_argument("--tf32", action="store_true",
                        help="with --env-backend program on cuda: let the matrix products "
                             "round their operands to TF32 (10-bit mantissas; faster on "
@@ -163,8 +153,8 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     return dirs
 
 
-PROCESS_FLAGS = ("resume", "device", "env_backend", "update_graph", "tf32", "threads",
-                 "no_progress", "no_tensorboard")
+PROCESS_FLAGS = ("resume", "device", "env_backend", "tf32", "threads", "no_progress",
+                 "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
 
 
@@ -172,6 +162,7 @@ REMOVED_FLAGS: dict[str, str] = {
     "--env-backend torch": "--env-backend program (ddpg_her.program: the training program on "
                            "the device)",
     "--env-dynamics": "--env-backend program (its arm: envs.physics.stack)",
+    "--update-graph": "--env-backend program (its updates are one captured step)",
 }
 """Flags (or flag values) that issue 35's training program replaced -> what replaced them."""
 
@@ -415,8 +406,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         trainer = build_trainer(parser, lambda: Trainer(
         args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
-            env_backend=args.env_backend, update_graph=args.update_graph,
-            progress=not args.no_progress,
+            env_backend=args.env_backend, progress=not args.no_progress,
             tensorboard=not args.no_tensorboard,
             command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
     rows = run_to_end(trainer)

@@ -34,7 +34,7 @@ def make_parser() -> argparse.ArgumentParser:
                     "stacked agent, the others form further stacks trained in turn. Each run "
                     "folder is the one the unit's own ddpg_her.train command writes.",
         epilog="Arguments after -- are appended to every unit (e.g. -- --episodes 1000). A "
-               "unit's own --device, --env-backend, --update-graph, "
+               "unit's own --device, --env-backend, "
                "--threads, --resume, "
                "--no-progress or "
                "--no-tensorboard is an error: give them once, to this command.")
@@ -161,7 +161,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     trainer = train.build_trainer(parser, lambda: MultiTrainer(
         todo, resume=args.resume, device=args.device, env_backend=args.env_backend,
-        update_graph=args.update_graph,
         progress=not args.no_progress, tensorboard=not args.no_tensorboard, command=command))
     print(f"{trainer.agents} agents of {len(todo)} units in {len(trainer.groups)} stack(s): "
           + ", ".join(f"{t.k}" for t in trainer.trainers), file=sys.stderr)
