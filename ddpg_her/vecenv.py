@@ -324,8 +324,6 @@ class HostEnvs(_Layout):
     `GoalVecEnv`'s."""
 
     device = torch.device("cpu")
-    on_host = True
-    """Whether reading a result (such as whether any episode still runs) is free."""
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
                  *, merge: bool = False, **kwargs: Any):
