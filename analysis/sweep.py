@@ -337,7 +337,7 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
-    parser.add_argument("--env-backend", choices=("numpy", "batched", "torch", "program"),
+    parser.add_argument("--env-backend", choices=("numpy", "batched", "program"),
                         default="numpy",
                         help="the training processes' env backend (ddpg_her.train "
                              "--env-backend): 'batched' steps the envs of all agents of a "
@@ -353,11 +353,6 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--tf32", action="store_true",
                         help="with the program on cuda: TF32 matrix products "
                              "(ddpg_her.train --tf32; recorded in spec.json)")
-    parser.add_argument("--env-dynamics", choices=("torch", "numba"), default="torch",
-                        help="the arm dynamics of --env-backend torch (ddpg_her.train "
-                             "--env-dynamics): 'numba', the numba kernels (--device cuda: the "
-                             "fused CUDA kernel, one launch per control step; cpu: the CPU "
-                             "kernel), instead of the vectorised torch step")
     parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=False,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
@@ -402,9 +397,6 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.project and args.ray_address:
         parser.error("--project times the units on this machine, not on a Ray cluster; drop "
                      "--ray-address")
-    if args.env_dynamics != "torch" and args.env_backend != "torch":
-        parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
-                     f"torch; got --env-backend {args.env_backend}")
     return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
 
 
@@ -424,10 +416,9 @@ def one_process_command(plan: Path | str, threads: int, args: argparse.Namespace
 
 
 def backend_args(args: argparse.Namespace) -> list[str]:
-    """The training command's arguments for ``--env-backend`` and ``--env-dynamics`` (none
-    for the defaults)."""
+    """The training command's arguments for ``--env-backend`` and ``--tf32`` (none for the
+    defaults)."""
     return ((["--env-backend", args.env_backend] if args.env_backend != "numpy" else [])
-            + (["--env-dynamics", args.env_dynamics] if args.env_dynamics != "torch" else [])
             + (["--tf32"] if args.tf32 else []))
 
 
@@ -691,6 +682,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="only the settings with this many controlled joints (2-6): a "
                              "part of the grid that fits one GPU window with --program")
     add_execution_arguments(parser, Path("runs/sweep"))
+    from ddpg_her import train
+
+    train.refuse_removed(parser, argv)
     args = parser.parse_args(argv)
     threads = check_execution_arguments(parser, args)
     settings = args.setting or GRIDS[args.grid]

@@ -23,12 +23,6 @@ machine's load cancel):
   ``update_gflops`` over it;
 - ``stack_*`` (with ``--stack K``): the same update for one stack of K agents, e.g. the 55 of
   the paper's grid in one ``ddpg_her.train_many`` process (without peers, fewer rounds);
-- ``graph_*`` (with ``--graph K``): one stack of K agents updated through the capturable step
-  (``--update-graph on``: minibatches drawn on the device, a CUDA graph replayed on CUDA, the
-  same step run eagerly on the CPU) against today's update loop (``--update-graph off``), in
-  alternating rounds: agent-updates/s of each and ``graph_speedup``, the median of the rounds'
-  ratios (55 agents is the paper's grid in one process; issue 24 asks for >= 100k
-  agent-updates/s there);
 - ``rollout_*`` (with ``--rollout K``): one training episode (random actions) of K agents
   whose regions cycle through the paper's four, through the trainer's ``numpy`` env backend
   (one env per agent) and its ``batched`` one (the agents' copies merged into one vector env
@@ -100,7 +94,7 @@ class _Ours:
     """K stacked agents on buffers filled with real transitions; ``run(n)`` times n updates."""
 
     def __init__(self, k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig,
-                 fill_episodes: int, device: str, update_graph: str = "off"):
+                 fill_episodes: int, device: str):
         import torch
         from torch.utils.flop_counter import FlopCounterMode
 
@@ -112,14 +106,14 @@ class _Ours:
         self._tmp = tempfile.TemporaryDirectory()
         self.trainer = Trainer(env_id, env_kwargs, config, list(range(k)),
                                [f"{self._tmp.name}/s{s}" for s in range(k)], device=device,
-                               progress=False, tensorboard=False, update_graph=update_graph)
+                               progress=False, tensorboard=False)
         for _ in range(fill_episodes):
             self.trainer.train_episode()
             self.trainer.episode += 1
-        self.trainer.learn(10)  # with --update-graph on CUDA: the warm-up and the capture
+        self.trainer.learn(10)  # warm-up: Adam's state, the first kernels' set-up
         with FlopCounterMode(display=False) as counter:
             self.trainer.learn(1)
-        self.flops = counter.get_total_flops()  # 0 for a replayed graph: no op dispatched
+        self.flops = counter.get_total_flops()
 
     def run(self, updates: int) -> float:
         if self.device == "cuda":
@@ -257,35 +251,6 @@ def measure(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig
     return result
 
 
-def measure_graph(k: int, env_id: str, env_kwargs: dict[str, Any], config: AgentConfig,
-                  updates: int, rounds: int, fill_episodes: int, device: str
-                  ) -> dict[str, Any]:
-    """One stack of ``k`` agents under ``--update-graph on`` and ``off``, alternating rounds of
-    ``updates`` updates (minibatch draws included): agent-updates/s of each (medians), and
-    ``graph_speedup``, the median of the rounds' off/on time ratios (and their quartiles,
-    ``graph_speedup_quartiles``). The two stacks hold the
-    same agents on the same buffers (same seeds); only the update's path differs."""
-    paths = {mode: _Ours(k, env_id, env_kwargs, config, fill_episodes, device, mode)
-             for mode in ("on", "off")}
-    times: dict[str, list[float]] = {mode: [] for mode in paths}
-    try:
-        for _ in range(rounds):
-            for mode, ours in paths.items():
-                times[mode].append(ours.run(updates))
-    finally:
-        for ours in paths.values():
-            ours.close()
-    ratios = [off / on for on, off in zip(times["on"], times["off"], strict=True)]
-    return {"graph_agents": k, "graph_rounds": rounds,
-            "graph_agent_updates_per_s": k * updates / statistics.median(times["on"]),
-            "eager_agent_updates_per_s": k * updates / statistics.median(times["off"]),
-            "graph_ms_per_update": 1e3 * statistics.median(times["on"]) / updates,
-            "eager_ms_per_update": 1e3 * statistics.median(times["off"]) / updates,
-            "graph_speedup": statistics.median(ratios),
-            "graph_speedup_quartiles": statistics.quantiles(ratios, n=4)[::2]
-            if len(ratios) > 1 else [ratios[0], ratios[0]]}
-
-
 ROLLOUT_REGIONS = ("unconstrained", "zheight", "closebox", "farbox")
 """The regions of the paper's grid, which agent k of ``--rollout`` cycles through."""
 
@@ -300,7 +265,7 @@ def measure_rollouts(k: int, joints: int, rounds: int) -> dict[str, float]:
 
     groups = [{"region": ROLLOUT_REGIONS[i % len(ROLLOUT_REGIONS)], "n_joints": joints}
               for i in range(k)]
-    envs = {name: make_envs(name, "UR5Reach-v0", groups, 1, torch.device("cpu"))
+    envs = {name: make_envs(name, "UR5Reach-v0", groups, 1)
             for name in ("numpy", "batched")}
     scale = envs["numpy"].scale
     generator = torch.Generator().manual_seed(0)
@@ -351,14 +316,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--stack", type=int, default=0, metavar="K",
                         help="also time one stack of K agents (count, >= 0; 55 is "
                              "the paper's grid in one process; 0: skip)")
-    parser.add_argument("--graph", type=int, default=0, metavar="K",
-                        help="also time one stack of K agents (count, >= 0; 55 is the paper's "
-                             "grid) through the capturable update step (--update-graph on: a "
-                             "CUDA graph on cuda, eager on the cpu) against today's update "
-                             "loop, in alternating rounds (0: skip)")
-    parser.add_argument("--only-graph", action="store_true",
-                        help="time only the --graph comparison (skip ours against the peers, "
-                             "the peak and the rest)")
     parser.add_argument("--rollout", type=int, default=0, metavar="K",
                         help="also time one training episode of K agents under the numpy and "
                              "the batched env backends (count, >= 0; 20 is the paper grid's "
@@ -373,10 +330,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"{args.seeds}, {args.updates}, {args.rounds}, {args.fill_episodes}")
     if args.stack < 0 or args.rollout < 0:
         parser.error(f"--stack and --rollout must be >= 0, got {args.stack}, {args.rollout}")
-    if args.graph < 0:
-        parser.error(f"--graph must be >= 0, got {args.graph}")
-    if args.only_graph and not args.graph:
-        parser.error("--only-graph needs --graph K with K >= 1")
     if not 2 <= args.joints <= 6:
         parser.error(f"--joints must be in 2..6, got {args.joints}")
 
@@ -393,12 +346,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                               "device": args.device, "env_id": env_id, **env_kwargs,
                               "batch_size": config.batch_size,
                               "hidden_sizes": list(config.hidden_sizes)}
-    if args.graph:
-        result.update(measure_graph(args.graph, env_id, env_kwargs, config, args.updates,
-                                    args.rounds, args.fill_episodes, args.device))
-    if args.only_graph:
-        result["machine"] = machine()
-        return _report(result, args.json)
     try:
         result.update(measure(args.seeds, env_id, env_kwargs, config, args.updates,
                               args.rounds, args.fill_episodes, args.device, not args.no_sb3,

@@ -14,9 +14,8 @@ With ``--device``, two more rows time the batched dynamics alone (no env around 
 same protocol (uniform random commands of the control mode drawn before the clock, every copy
 restarted at the start pose each ``max_episode_steps`` steps): the vectorised torch path of
 :mod:`envs.physics.torch_kernel` on that device, and the numba kernel of
-:mod:`envs.physics.numba_kernel` on the CPU beside it; a third times the whole torch env
-(:class:`envs.torchreach.TorchReach`, actions on the device, autoreset and goal-pool top-ups on the
-clock). On CUDA the clock is read after ``torch.cuda.synchronize()``.
+:mod:`envs.physics.numba_kernel` on the CPU beside it. On CUDA the clock is read after
+``torch.cuda.synchronize()``.
 
     python -m benchmarks.env_steps                 # the table
     python -m benchmarks.env_steps --json          # machine-readable
@@ -184,27 +183,6 @@ def dynamics_runner(dyn: Any, task: TaskSpec, copy_steps: int, seed: int,
     return lambda: _rate(step, calls, synchronize) * dyn.num_copies
 
 
-def torch_env_runner(env: Any, copy_steps: int, seed: int) -> Callable[[], float]:
-    """A round of random steps of a :class:`envs.torchreach.TorchReach` (actions uniform in
-    the command box, drawn on its device before the clock); returns copy-steps/s."""
-    import torch
-
-    calls = max(1, copy_steps // env.num_envs)
-    low, high = action_bounds(env.task)
-    actions = torch.as_tensor(np.random.default_rng(seed).uniform(
-        low, high, (calls, env.num_envs, len(low))), device=env.device, dtype=env.dtype)
-    synchronize = torch.cuda.synchronize if env.device.type == "cuda" else None
-    env.reset(seed=seed)
-    env.step(actions[0])  # off the clock: lazy initialisations, a CUDA graph's recording
-    state = {"i": 0}
-
-    def step() -> None:
-        env.step(actions[state["i"] % calls])
-        state["i"] += 1
-
-    return lambda: _rate(step, calls, synchronize) * env.num_envs
-
-
 def make_peer(env_id: str) -> gymnasium.Env | str:
     """The peer env, or a sentence saying why it is unavailable."""
     try:
@@ -224,11 +202,10 @@ def make_peer(env_id: str) -> gymnasium.Env | str:
 
 def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int, notes: dict[str, str]
                   ) -> dict[str, Callable[[], float]]:
-    """The rows of ``--device``: the torch dynamics and the torch env on the device, the numba
-    dynamics on the CPU (a note in ``notes`` where numba is missing)."""
+    """The rows of ``--device``: the torch dynamics on the device, the numba dynamics on the
+    CPU (a note in ``notes`` where numba is missing)."""
     import torch
 
-    from envs import torchreach
     from envs.physics import numba_kernel, torch_kernel
 
     N = config.num_envs
@@ -243,11 +220,6 @@ def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int, notes: d
             f"{', ' + config.compile if compiled else ''}"
             f"{', CUDA graph' if config.cuda_graph else ''})")
     rows[name] = dynamics_runner(dyn, task, copy_steps, config.seed, config.device)
-    env = torchreach.TorchReach(N, task, device=config.device, dtype=config.torch_dtype,
-                                cuda_graph=config.cuda_graph)
-    env_name = (f"TorchReach (N={N}, {config.device}, {config.torch_dtype}"
-                f"{', CUDA graph' if config.cuda_graph else ''})")
-    rows[env_name] = torch_env_runner(env, copy_steps, config.seed)
     numba_row = f"NumbaDynamics (N={N}, numba, cpu)"
     if numba_kernel.available():
         fast = numba_kernel.NumbaDynamics(task, N, threads=config.threads)

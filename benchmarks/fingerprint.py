@@ -1,7 +1,7 @@
 """Bit-for-bit fingerprints of the envs' behaviour, to hold a refactor against the code before it.
 
 ``python -m benchmarks.fingerprint record OUT.json`` steps fixed-seed rollouts of every dynamics
-backend (pinocchio, numba, torch on the CPU; the single env; the tensor env) under several tasks
+backend (pinocchio, numba, torch on the CPU; the single env) under several tasks
 (held joints locked and pd; zheight and unconstrained; 3 and 6 joints; the compliant contact;
 velocity and torque control) with random actions from a fixed generator (a third of them outside
 the action box), and hashes every step's observation, reward, flags and info (SHA-256 of the
@@ -127,25 +127,6 @@ def single_rollout(fields: dict[str, Any]) -> str:
     return digest.hexdigest()
 
 
-def torch_env_rollout(fields: dict[str, Any]) -> str:
-    import gymnasium
-    import torch
-
-    import envs  # noqa: F401
-
-    env = gymnasium.make_vec("UR5TorchReach-v0", num_envs=COPIES,
-                             vectorization_mode="vector_entry_point", device="cpu", **fields)
-    rng, digest = np.random.default_rng(4), Digest()
-    obs, info = env.reset(seed=5)
-    digest.add(obs)
-    digest.add(info)
-    for _ in range(STEPS):
-        a = torch.as_tensor(actions(env.single_action_space, rng, (COPIES,)))
-        for part in env.step(a):
-            digest.add(part)
-    return digest.hexdigest()
-
-
 def train_eval(backend: str, root: Path) -> str:
     out = root / backend
     subprocess.run([sys.executable, "-m", "ddpg_her.train", *TRAIN, "--env-backend", backend,
@@ -169,7 +150,6 @@ def record(train: bool) -> dict[str, str]:
             result[f"batched/{dynamics}/{name}"] = batched_rollout(fields, dynamics)
             print(f"batched/{dynamics}/{name}", flush=True)
         result[f"single/{name}"] = single_rollout(fields)
-        result[f"torch_env/{name}"] = torch_env_rollout(fields)
         print(name, flush=True)
     for name, fields in COMPLIANT.items():
         result[f"batched/pinocchio/{name}"] = batched_rollout(fields, "pinocchio")
@@ -177,7 +157,7 @@ def record(train: bool) -> dict[str, str]:
         print(name, flush=True)
     if train:
         with tempfile.TemporaryDirectory() as tmp:
-            for backend in ("numpy", "batched", "torch"):
+            for backend in ("numpy", "batched"):
                 result[f"train/{backend}"] = train_eval(backend, Path(tmp))
                 print(f"train/{backend}", flush=True)
     return result

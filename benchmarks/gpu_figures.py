@@ -15,17 +15,15 @@ seconds since the start at which it began and ended; a figure that fails records
   step's seconds less a steady step's: compiling the step kernel) apart; beside it the torch
   kernel's control step replayed as a CUDA graph (:class:`envs.physics.torch_kernel.
   TorchDynamics`, ``cuda_graph=True``) at the same sizes;
-- ``numba_in_graph``: the numba launch captured in a torch CUDA graph and replayed, against
-  the same launches made eagerly: ``steps`` control steps of
-  :class:`envs.physics.numba_torch.NumbaTorchDynamics` (each a torch copy of the step's
-  command into one fixed tensor, then the kernel's launch on torch's current stream), the
-  array wrapping done once before the capture, ``NUMBA_CUDA_ARRAY_INTERFACE_SYNC=0``;
-  microseconds per step of each, and whether the replay's final state equals the eager
-  one's bit for bit (a replay that launched nothing would be fast and wrong);
+- ``kernel_in_graph``: the grid's stack (`envs.physics.stack.StackDynamics`: copies of the
+  grid's 11 settings in turn, the Triton kernel on CUDA) stepped ``steps`` control steps
+  eagerly and as one replayed CUDA graph: microseconds per step of each, the first call
+  (compilation) apart, and whether the replay's final state equals the eager one's bit for
+  bit (a replay that launched nothing would be fast and wrong);
 - ``updates``: the stacked update of K = 55 agents (400-300 networks, batch 64, float32,
-  minibatches drawn on the device) through ``ddpg_her.update_graph.UpdateStep``: today's
-  captured graph in the 3-joint layout (inputs 9 + 3 + 3, actions 3), and the padded stack
-  (inputs padded to 6 joints: 18 + 3 + 3, actions 6) in float32 and in TF32
+  minibatches drawn on the device by ``buffer.CounterSampler``, the body captured as the
+  training program captures it, ``ddpg_her.program.Graphed``): the 3-joint layout (inputs
+  9 + 3 + 3, actions 3), and the padded stack (inputs padded to 6 joints: 18 + 3 + 3, actions 6) in float32 and in TF32
   (``torch.backends.cuda.matmul.allow_tf32``), each eager and captured: milliseconds per
   update of all K and agent-updates/s (buffers of random rows: the cost does not depend on
   their values);
@@ -258,32 +256,45 @@ def numba_kernel(ctx: Context) -> dict[str, Any]:
             "simulator": ctx.dry_run}
 
 
-def numba_in_graph(ctx: Context) -> dict[str, Any]:
-    """``steps`` control steps of the numba kernel behind torch's tensors, eager and as one
-    replayed CUDA graph (CUDA only; a dry run times the eager launches under the simulator)."""
+def kernel_in_graph(ctx: Context) -> dict[str, Any]:
+    """``steps`` control steps of the grid's stack (`envs.physics.stack.StackDynamics`: the
+    Triton kernel on CUDA, numba on the CPU), eager and as one replayed CUDA graph (CUDA only;
+    a dry run times the eager calls). The numba-CUDA kernel's own launches are timed by
+    ``dynamics``; its tensor face (NumbaTorchDynamics) went with the torch env backend."""
     import torch
 
-    from envs.physics.numba_torch import NumbaTorchDynamics
+    from envs.physics.stack import StackDynamics
+    from envs.spec import TaskSpec
 
-    task, s = _task(), ctx.sizes
-    out: dict[str, Any] = {SYNC_VARIABLE: os.environ.get(SYNC_VARIABLE), "rows": []}
+    s = ctx.sizes
+    out: dict[str, Any] = {"rows": []}
+    grid = [TaskSpec(region=r, n_joints=j) for r, j in
+            (("unconstrained", 2), ("unconstrained", 3), ("unconstrained", 4),
+             ("unconstrained", 5), ("unconstrained", 6), ("zheight", 3), ("zheight", 6),
+             ("closebox", 3), ("closebox", 6), ("farbox", 3), ("farbox", 6))]
     for n in s.copies:
-        dyn = NumbaTorchDynamics(task, n, device=ctx.device, dtype="float64")
-        commands = torch.as_tensor(_commands(task, n, s.steps, seed=1), device=ctx.device)
-        command = commands[0].clone()  # the one tensor numba sees: wrapped once, below
+        tasks = [grid[b % len(grid)] for b in range(n)]
+        dyn = StackDynamics(tasks, device=ctx.device, dtype="float64")
+        gen = torch.Generator().manual_seed(1)
+        commands = ((torch.rand(s.steps, n, 6, generator=gen, dtype=torch.float64) * 2 - 1)
+                    * 3.14159).to(ctx.device)
+        command = commands[0].clone()
+        everyone = torch.ones(n, dtype=torch.bool, device=ctx.device)
 
         def eager(dyn: Any = dyn, command: Any = command, commands: Any = commands) -> None:
             for c in commands:
                 command.copy_(c)
                 dyn.step(command)
 
-        def restart(dyn: Any = dyn) -> None:
-            dyn.reset(task.start_q)
+        def restart(dyn: Any = dyn, everyone: Any = everyone) -> None:
+            dyn.reset_where(everyone)
 
-        eager()  # wraps ``command`` and the stream's handle once, compiles on a first call
+        tic = time.perf_counter()
+        eager()  # compiles on a first call
         ctx.sync()
+        row: dict[str, Any] = {"copies": n, "first_call_s": time.perf_counter() - tic}
         median, _ = ctx.median_seconds(eager, restart)
-        row: dict[str, Any] = {"copies": n, "eager_us_per_step": 1e6 * median / s.steps}
+        row["eager_us_per_step"] = 1e6 * median / s.steps
         if ctx.device != "cuda":
             row["graph"] = "skipped: a CUDA graph needs a GPU (dry run)"
             out["rows"].append(row)
@@ -299,7 +310,7 @@ def numba_in_graph(ctx: Context) -> dict[str, Any]:
         expected = dyn.q.clone()
         graph = torch.cuda.CUDAGraph()
         tic = time.perf_counter()
-        with warnings.catch_warnings(record=True) as caught:  # "The CUDA Graph is empty" ...
+        with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             with torch.cuda.graph(graph):
                 eager()
@@ -309,7 +320,6 @@ def numba_in_graph(ctx: Context) -> dict[str, Any]:
         graph.replay()
         ctx.sync()
         row["replay_equals_eager"] = bool(torch.equal(dyn.q, expected))
-        row["replay_max_abs_diff_rad"] = float((dyn.q - expected).abs().max())
         median, _ = ctx.median_seconds(graph.replay, restart)
         row["graph_us_per_step"] = 1e6 * median / s.steps
         row["eager_over_graph"] = row["eager_us_per_step"] / row["graph_us_per_step"]
@@ -322,9 +332,9 @@ def _update_row(ctx: Context, joints: int, graph: bool, tf32: bool) -> dict[str,
     import torch
 
     from ddpg_her.agents import make_agent
-    from ddpg_her.buffer import Layout, ReplayBuffer
+    from ddpg_her.buffer import CounterSampler, Layout, ReplayBuffer
     from ddpg_her.config import AgentConfig
-    from ddpg_her.update_graph import WARMUP_UPDATES, UpdateStep
+    from ddpg_her.program import WARMUP_REPLAYS, Graphed
 
     s = ctx.sizes
     layout = Layout(OBS_PER_JOINT * joints + 2 * GOAL_DIM, joints)
@@ -343,13 +353,23 @@ def _update_row(ctx: Context, joints: int, graph: bool, tf32: bool) -> dict[str,
         rows[:, -1] = 0.0  # terminated: none, every target bootstraps
         for k in range(s.agents):
             buffer.put(k, 0, rows)
-        step = UpdateStep(agent, buffer, list(range(s.agents)), s.batch, graph=graph)
+        # the program's update body: minibatches from the counter stream, captured as one
+        # graph of s.updates updates after its eager warm-up runs (ddpg_her.program.Graphed)
+        agent.capturable()
+        sampler = CounterSampler(list(range(s.agents)), ctx.device)
+
+        def body() -> None:
+            for _ in range(s.updates):
+                agent.update(*sampler.sample(buffer, s.batch))
+
+        step = Graphed(body, capture=graph)
         in_effect = torch.backends.cuda.matmul.allow_tf32  # as torch reads it back
         tic = time.perf_counter()
-        step.run(WARMUP_UPDATES + 2)  # the capture, where graph
+        for _ in range(WARMUP_REPLAYS + 1):  # the capture, where graph
+            step()
         ctx.sync()
         first = time.perf_counter() - tic
-        median, _ = ctx.median_seconds(lambda: step.run(s.updates))
+        median, _ = ctx.median_seconds(step)
     finally:
         torch.backends.cuda.matmul.allow_tf32 = previous
     ms = 1e3 * median / s.updates
@@ -386,7 +406,7 @@ def updates(ctx: Context) -> dict[str, Any]:
 
 FIGURES: dict[str, Callable[[Context], dict[str, Any]]] = {
     "bandwidth": bandwidth, "updates": updates, "numba_kernel": numba_kernel,
-    "numba_in_graph": numba_in_graph}
+    "kernel_in_graph": kernel_in_graph}
 """The figures measured in this process, in their order (the capture last: a capture that
 fails may leave the CUDA context unusable). ``grid_episode`` runs in its own process."""
 
@@ -496,10 +516,10 @@ def summary(figures: dict[str, Any]) -> dict[str, Any]:
         block = row.get("threads_per_block")
         name = row["kernel"].split()[0] + (f"_{block}tpb" if block else "")
         out[f"{name}_us_per_step_at_{row['copies']}"] = row.get("us_per_step")
-    for row in get("numba_in_graph", "rows") or []:
+    for row in get("kernel_in_graph", "rows") or []:
         for key in ("eager_us_per_step", "graph_us_per_step", "replay_equals_eager"):
             if key in row:
-                out[f"numba_in_graph_{key}_at_{row['copies']}"] = row[key]
+                out[f"kernel_in_graph_{key}_at_{row['copies']}"] = row[key]
     for row in get("updates", "rows") or []:
         out[f"update_ms {row['name']}"] = row.get("ms_per_update")
     return out

@@ -108,11 +108,12 @@ except Exception as err:
     print(f"FAIL UR5 model: {type(err).__name__}: {err}")
 EOF
         # the device tests: every test marked gpu (skipped without a GPU); first those that
-        # decide the kernel's route and have never run on a GPU (the kernel, TorchReach on it,
-        # the update graph, the grid episode's counters), then the rest; -v: each test's line
-        # as it ends, so a cut at the budget still says how far it got
-        local first=(tests/test_numba_cuda.py tests/test_torchreach_numba.py
-                     tests/test_update_graph.py tests/test_grid_episode.py)
+        # decide the kernel's route and have never run on a GPU (the program's captured bodies
+        # against eager, the Triton stack kernel, the numba kernel, the grid episode's
+        # counters), then the rest; -v: each test's line as it ends, so a cut at the budget
+        # still says how far it got
+        local first=(tests/test_program.py tests/test_stack_dynamics.py tests/test_numba_cuda.py
+                     tests/test_counter_sampler.py tests/test_grid_episode.py)
         local files=() f
         for f in "${first[@]}" $(grep -l "mark.gpu" tests/test_*.py); do
             [[ -f $f && " ${files[*]} " != *" $f "* ]] && files+=("$f")
@@ -123,21 +124,6 @@ EOF
         timeout --kill-after=5 "$left" $PY -m pytest -p no:cacheprovider \
             -v -m gpu --continue-on-collection-errors "${files[@]}" 2>&1 | tail -n 80 \
             || stamp "device tests FAILED or cut at the budget (exit ${PIPESTATUS[0]})"
-        # the training program's own tests, whole, once they exist
-        local program=()
-        for f in tests/test_stack_dynamics.py tests/test_program.py; do
-            [[ -f $f ]] && program+=("$f")
-        done
-        if (( ${#program[@]} )); then
-            if (( deadline - SECONDS > 15 )); then
-                stamp "program tests: ${program[*]}"
-                timeout --kill-after=5 $((deadline - SECONDS - 5)) $PY -m pytest \
-                    -p no:cacheprovider -v "${program[@]}" 2>&1 | tail -n 60 \
-                    || stamp "program tests FAILED or cut at the budget (exit ${PIPESTATUS[0]})"
-            else
-                stamp "program tests skipped: the stage's budget is spent"
-            fi
-        fi
         stamp "stage 1 done"
     } 2>&1 | tee "$OUT/smoke.txt"
 }

@@ -29,8 +29,8 @@ place (the timed episodes run without them, so the counting costs them nothing).
 
 Paths (``--path``, :data:`PATHS`): ``today``, ``ddpg_her.multi.MultiTrainer`` as
 ``ddpg_her.train_many`` builds it for ``analysis.sweep --grid paper --one-process``: one stack
-per joint count, stepped in turn, ``--env-backend torch`` with ``--env-dynamics numba`` on CUDA
-(``torch`` on the CPU) and ``--update-graph auto``, run folders in a temporary folder. A new
+per joint count, stepped in turn, ``--env-backend batched``, run folders in a temporary folder;
+``program``, the training program (``ddpg_her.program``): the whole grid as one stack. A new
 path is one more entry of :data:`PATHS`: a function from a :class:`GridSpec` to a
 :class:`GridRunner`.
 
@@ -144,8 +144,9 @@ class TodayRunner:
 
 def today_path(spec: GridSpec) -> TodayRunner:
     """Today's grid in one process (``analysis.sweep --grid paper --one-process``'s
-    ``ddpg_her.train_many``): on CUDA ``--env-backend torch --env-dynamics numba``, on the CPU
-    ``--env-backend torch --env-dynamics torch``, ``--update-graph auto`` on both."""
+    ``ddpg_her.train_many``) with ``--env-backend batched``: the host envs, one compiled call
+    per control step for each stack's copies (the torch env backend it measured before, 0.55 s
+    per grid episode on an H200, gave way to the program)."""
     from ddpg_her.multi import MultiTrainer
     from ddpg_her.train_many import settings_of
     from ddpg_her.vecenv import register_env
@@ -157,10 +158,8 @@ def today_path(spec: GridSpec) -> TodayRunner:
               *spec.unit_args, "--out", str(spec.folder / f"{region}-j{joints}" / "s{seed}")]
              for region, joints in spec.settings]
     settings = settings_of(units)
-    dynamics = "numba" if spec.device == "cuda" else "torch"
-    trainer = MultiTrainer(settings, device=spec.device, env_backend="torch",
-                           env_dynamics=dynamics, update_graph="auto", progress=False,
-                           tensorboard=False)
+    trainer = MultiTrainer(settings, device=spec.device, env_backend="batched",
+                           progress=False, tensorboard=False)
     return TodayRunner(trainer, spec.device)
 
 

@@ -38,7 +38,7 @@ LEARN = ["--warmup-episodes", "2", "--updates-per-episode", "8", "--hidden-sizes
 """Small networks that learn from episode 3 on, so that updates and exploration noise count
 (the defaults' 100 warm-up episodes would leave both out of 6 episodes)."""
 
-BACKENDS = ("numpy", "batched", "torch")
+BACKENDS = ("numpy", "batched")
 ALGOS = ("ddpg", "td3", "sac")
 
 
@@ -173,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rec.add_argument("--python", default=sys.executable,
                      help="the interpreter (default: this one)")
     rec.add_argument("--only", nargs="+", default=[], metavar="PREFIX",
-                     help="only the runs whose name starts so (e.g. numpy- torch-ddpg)")
+                     help="only the runs whose name starts so (e.g. numpy- batched-ddpg)")
     cmp = sub.add_parser("compare", help="compare two recorded folders")
     cmp.add_argument("a", type=Path, help="the recording to compare against (e.g. before)")
     cmp.add_argument("b", type=Path, help="the recording compared (e.g. after; --only allowed)")

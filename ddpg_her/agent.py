@@ -258,7 +258,7 @@ class DDPG:
         rates as device tensors (`_AdamStep.capturable`). The rest of the hand-written update
         already reads only device tensors (parameters, gradients, Adam's moments and step
         counts, the normaliser's mean and std, all updated in place) and Python constants of
-        the config; ``tests/test_update_graph.py`` proves it by compiling the update with
+        the config; ``tests/test_counter_sampler.py`` proves it by compiling the update with
         ``torch.compile(fullgraph=True)``. On the CPU the update stays bit for bit the same.
 
         Raises ValueError with ``batch_norm`` (its update goes through autograd) or without

@@ -279,8 +279,8 @@ class CounterSampler:
     modulo's bias is below filled / 2**62). ``counter`` is a device tensor that every `sample`
     advances in place, so a CUDA graph replays a fresh minibatch each time, and agent k's
     draws depend on its key and the update count alone (not on K, nor on the device). This is
-    the minibatch stream of ``--update-graph on``; `ReplayBuffer.sample` (torch generators,
-    one per agent) stays the default's.
+    the training program's minibatch stream (``ddpg_her.program``); `ReplayBuffer.sample`
+    (torch generators, one per agent) stays the trainer's.
 
     keys : one 32-bit key per agent (``ddpg_her.trainer`` derives them from the seeds).
     """
@@ -296,7 +296,7 @@ class CounterSampler:
         self.counter = torch.zeros((), dtype=torch.int64, device=device)
         self.updates = 0
         """The host's count of the draws made, kept equal to ``counter`` by its caller
-        (`ddpg_her.update_graph.UpdateStep`), so a checkpoint never reads the device."""
+        (``ddpg_her.program``), so a checkpoint never reads the device."""
 
     def indices(self, filled: torch.Tensor, batch_size: int) -> torch.Tensor:
         """(K, batch_size) int64 row indices, row < filled[k], for the current counter (which

@@ -28,16 +28,23 @@ from ddpg_her.units import json_equal
 DEFAULT_BACKEND = "numpy"
 """The env backend a ``spec.json`` without ``env_backend`` was trained with."""
 
-DEFAULT_DYNAMICS = "torch"
-"""The torch env backend's dynamics of a ``spec.json`` without ``env_dynamics`` (the tensor
-step; every run before the fused kernel's flag)."""
+REMOVED_SETTINGS: dict[tuple[str, str], str] = {
+    ("env_backend", "torch"): "--env-backend torch (the torch env backend)",
+    ("update_graph", "on"): "--update-graph on (the captured update step)",
+}
+"""(spec key, value) of runs trained by a path that issue 35's training program replaced ->
+that path, named for the message that refuses to resume them (their folders stay readable:
+``ddpg_her.load``, ``analysis``)."""
+
+REMOVED_AT = "a6dcb59"
+"""The last revision with those paths, where such a run can still be continued."""
 
 RESUMABLE_CHANGES = ("episodes", "flush_denormals")
 """Agent fields a resumed run may change: the budget, and how the CPU rounds subnormals
 (an execution setting like the thread count; runs from before the field existed resume)."""
 
 CONFIG_KEYS = ("format", "env_id", "env_kwargs", "task", "seed", "agent", "dims",
-               "env_backend", "env_dynamics", "update_graph")
+               "env_backend")
 """Keys of the spec that each checkpoint carries as its ``config``: what it was trained
 with, compared with the command's on resume."""
 
@@ -77,10 +84,14 @@ def differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
 
 def check_continues(where: Any, old: dict[str, Any], new: dict[str, Any]) -> None:
     """Raise ValueError if ``new`` may not continue the run ``old`` (a spec or config)."""
-    # a spec records env_backend (env_dynamics) only when it is not the default; name the
-    # default too
-    old, new = ({"env_backend": DEFAULT_BACKEND, "env_dynamics": DEFAULT_DYNAMICS,
-                 "update_graph": "off", **x} for x in (old, new))
+    for (key, value), path in REMOVED_SETTINGS.items():
+        if old.get(key) == value:
+            raise ValueError(
+                f"{where} was trained with {path}, which the training program (--env-backend "
+                f"program) replaced: the run stays readable but does not resume here; "
+                f"continue it at revision {REMOVED_AT}, or train it afresh")
+    # a spec records env_backend only when it is not the default; name the default too
+    old, new = ({"env_backend": DEFAULT_BACKEND, **x} for x in (old, new))
     diffs = differences(old, new)
     if diffs:
         raise ValueError(

@@ -1,10 +1,9 @@
 """The K agents' episodes: rollout, exploration, HER storage and test sessions, written once.
 
-One `Collector` serves every env backend through the envs' one tensor interface (`HostEnvs`
-for Gymnasium's envs on the host, `TorchGoalVecEnv` for the tensor twin on the device; see
-`ddpg_her.vecenv`). What the backends keep apart is only what makes a seed's run what it always
-was: where the exploration noise is drawn (`ddpg_her.exploration`), and the host's numpy sums
-(normaliser, test returns) against the device's, which read back only the logged numbers.
+One `Collector` serves the host env backends (``numpy``, ``batched``) through the envs' tensor
+interface (`HostEnvs`, see `ddpg_her.vecenv`): the exploration noise drawn by numpy generators
+(`ddpg_her.exploration`), the normaliser's and the test returns' sums numpy's. The training
+program (``--env-backend program``) keeps its episodes on the device: ``ddpg_her.program``.
 """
 
 from __future__ import annotations
@@ -25,51 +24,36 @@ from ddpg_her.buffer import (
     pack_tensors,
 )
 from ddpg_her.config import AgentConfig
-from ddpg_her.exploration import Explorer, NumpyDraws, TorchDraws
+from ddpg_her.exploration import Explorer, NumpyDraws
 from ddpg_her.spaces import goal_input
-from ddpg_her.vecenv import HostEnvs, TorchGoalVecEnv
+from ddpg_her.vecenv import HostEnvs
 
-ENV_BACKENDS = ("numpy", "batched", "torch")
+ENV_BACKENDS = ("numpy", "batched")
 """The trainer's ``--env-backend``: ``numpy``, Gymnasium's envs on the host, one group of copies
 per agent; ``batched``, the same envs merged where the tasks differ only in their goals
-(``GoalVecEnv(merge=True)``); ``torch``, the env id's tensor twin on the trainer's device
-(`TorchGoalVecEnv`). What each keeps equal: ``python -m ddpg_her.train --help``."""
+(``GoalVecEnv(merge=True)``). What each keeps equal: ``python -m ddpg_her.train --help``.
+(``program``, the training program, is not a `Trainer`'s: ``ddpg_her.program``.)"""
 
-ENV_DYNAMICS = ("torch", "numba")
-"""The arm dynamics of the ``torch`` env backend (``envs.torchreach.DYNAMICS``, the trainer's
-``--env-dynamics``): ``torch``, the vectorised tensor step; ``numba``, the numba kernels."""
-
-Envs = HostEnvs | TorchGoalVecEnv
+Envs = HostEnvs
 
 Policy = Callable[[dict[str, torch.Tensor], torch.Tensor], torch.Tensor]
 """``policy(obs, active) -> action``: obs tensors (N, ...), active (N,) bool -> (N, act_dim)
 float64 action in env units on the envs' device (rows of copies not active are ignored)."""
 
 
-def make_envs(env_backend: str, env_id: str, per_agent: Sequence[dict[str, Any]], copies: int,
-              device: torch.device, env_dynamics: str = "torch") -> Envs:
-    """``copies`` copies per agent of ``env_id`` in the env backend ``env_backend``, the
-    ``torch`` backend's arm by ``env_dynamics`` (one of `ENV_DYNAMICS`; ValueError for another,
-    or for ``numba`` with a host backend)."""
-    if env_dynamics not in ENV_DYNAMICS:
-        raise ValueError(f"env_dynamics must be one of {list(ENV_DYNAMICS)}; got "
-                         f"{env_dynamics!r}")
-    if env_backend == "torch":
-        return TorchGoalVecEnv(env_id, per_agent, copies, device=device,
-                               dynamics=None if env_dynamics == "torch" else env_dynamics)
-    if env_dynamics != "torch":
-        raise ValueError(f"env_dynamics={env_dynamics!r} is the dynamics of the torch env "
-                         f"backend; got env_backend={env_backend!r}")
+def make_envs(env_backend: str, env_id: str, per_agent: Sequence[dict[str, Any]],
+              copies: int) -> Envs:
+    """``copies`` copies per agent of ``env_id`` in the env backend ``env_backend`` (one of
+    `ENV_BACKENDS`; ValueError for another)."""
+    if env_backend not in ENV_BACKENDS:
+        raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}; got "
+                         f"{env_backend!r}")
     return HostEnvs(env_id, per_agent, copies, merge=env_backend == "batched")
 
 
 def rollout(envs: Envs, policy: Policy, seeds: Sequence[int]) -> TensorEpisodes:
-    """One episode in each of the N copies, in lockstep, on the envs' device.
-
-    On the host the rollout stops once every episode has ended; on the device all
-    ``max_steps`` steps run (copies whose episode ended are stepped and ignored), since asking
-    whether any copy still runs would read the device.
-    """
+    """One episode in each of the N copies, in lockstep, on the host; the rollout stops once
+    every episode has ended."""
     n, t_max, dev = envs.num_envs, envs.max_steps, envs.device
     obs = envs.reset(seeds)
     f64 = {"dtype": torch.float64, "device": dev}
@@ -92,9 +76,9 @@ def rollout(envs: Envs, policy: Policy, seeds: Sequence[int]) -> TensorEpisodes:
         length += active
         success = torch.where(active, succ, success)
         active = active & ~(terminated | truncated)
-        if envs.on_host and not active.any():
+        if not active.any():
             break
-    if envs.on_host and active.any():
+    if active.any():
         raise RuntimeError(f"episodes still running after the time limit of {t_max} steps")
     return TensorEpisodes(observation=o, achieved_goal=ag, desired_goal=goal, action=a,
                           reward=r, terminated=term, length=length, success=success)
@@ -104,20 +88,17 @@ class Collector:
     """Training episodes and test sessions of K agents in one env backend.
 
     envs : one copy per agent (training), eval_envs : ``config.eval_episodes`` copies per agent
-    (tests), both of one backend; rngs : (K,) numpy generators (HER goals, and on the host the
-    exploration noise); generators : (K,) torch generators of the exploration noise on the
-    device (``torch`` backend); device, dtype : the agents' (their networks' inputs).
+    (tests), both of one backend; rngs : (K,) numpy generators (HER goals and the exploration
+    noise); device, dtype : the agents' (their networks' inputs).
     """
 
     def __init__(self, envs: Envs, eval_envs: Envs, config: AgentConfig,
-                 rngs: Sequence[np.random.Generator], generators: Sequence[torch.Generator],
-                 *, device: torch.device, dtype: torch.dtype):
+                 rngs: Sequence[np.random.Generator], *, device: torch.device, dtype: torch.dtype):
         self.envs, self.eval_envs, self.config, self.rngs = envs, eval_envs, config, rngs
         self.device, self.dtype = device, dtype
         self.k, self.scale = len(rngs), envs.scale
         self.layout = Layout(envs.obs_dim + 2 * envs.goal_dim, envs.scale.dim)
-        draws = NumpyDraws(rngs) if envs.on_host else TorchDraws(generators, envs.device)
-        self.explorer = Explorer(config, draws, self.k, envs.scale.dim)
+        self.explorer = Explorer(config, NumpyDraws(rngs), self.k, envs.scale.dim)
 
     def _inputs(self, obs: dict[str, torch.Tensor], m: int) -> torch.Tensor:
         """Observations of K * m copies (agent-major) -> network input (K, m, in_dim)."""
@@ -127,11 +108,7 @@ class Collector:
     def train_episode(self, agent: Any, buffer: ReplayBuffer, seeds: Sequence[int],
                       warm: bool) -> tuple[np.ndarray, np.ndarray]:
         """One exploring episode per agent (uniformly random actions while ``warm``), stored
-        with its HER copies in ``buffer``; returns the episodes' lengths and successes (K,).
-
-        On the device the host reads, per episode, the K lengths and successes, the lengths
-        of the HER copies and the normaliser's sums; transitions never leave the device.
-        """
+        with its HER copies in ``buffer``; returns the episodes' lengths and successes (K,)."""
         envs, dev = self.envs, self.envs.device
         self.explorer.reset()
 
@@ -164,8 +141,7 @@ class Collector:
             all_rows = torch.cat([rows[k], *copies[k]])
             buffer.put(k, int(buffer.total[k]), all_rows)
             inputs = all_rows[:, :self.layout.in_dim]
-            # the host's statistics are numpy's sums, the device's torch's (read back once)
-            agent.normalizer.update(k, inputs.numpy() if envs.on_host else inputs)
+            agent.normalizer.update(k, inputs.numpy())  # numpy's sums, as the host always summed
         return length, success
 
     def test_session(self, agent: Any, seeds: Sequence[int]
@@ -181,11 +157,7 @@ class Collector:
         eps = rollout(envs, policy, seeds)
         n = torch.arange(len(eps.length), device=envs.device)
         miss = eps.achieved_goal[n, eps.length] - eps.desired_goal
-        if envs.on_host:  # numpy's sums, episode by episode, as the host always summed
-            returns = [eps.reward[i, :eps.length[i]].numpy().sum() for i in n]
-            distance = [np.linalg.norm(x) for x in miss.numpy()]
-            return eps.success.numpy(), np.array(returns), np.array(distance)
-        logged = torch.stack([eps.success.double(), eps.reward.sum(-1),
-                              torch.linalg.vector_norm(miss, dim=-1)])
-        success, returns, distance = logged.cpu().numpy()  # the one read of the session
-        return success.astype(bool), returns, distance
+        # numpy's sums, episode by episode, as the host always summed
+        returns = [eps.reward[i, :eps.length[i]].numpy().sum() for i in n]
+        distance = [np.linalg.norm(x) for x in miss.numpy()]
+        return eps.success.numpy(), np.array(returns), np.array(distance)

@@ -1,17 +1,18 @@
 """Exploration noise of the K agents, each agent drawing from its own generator.
 
 `Explorer` holds the noise's arithmetic, written once on float64 tensors; where the random
-numbers come from is the env backend's choice (`NumpyDraws` for envs on the host, `TorchDraws`
-for envs on the device), and only the draws differ between the two. Both draw (K, act_dim)
-float64 tensors on their ``device`` in actor units: ``drawing(active)`` says which agents draw
-at a step (active : (K,) bool, the agents whose episode runs), ``uniform`` and ``normal`` draw
-for those rows (the others are unused), and ``coin(rows, p, dim)`` gives (K,) bool, True with
-probability p, and where True a uniform action.
+numbers come from is the caller's choice (`NumpyDraws` for the trainer's envs on the host,
+``ddpg_her.program.CounterDraws`` for the training program), and only the draws differ. Both
+draw (K, act_dim) float64 tensors on their ``device`` in actor units: ``drawing(active)`` says
+which agents draw at a step (active : (K,) bool, the agents whose episode runs), ``uniform``
+and ``normal`` draw for those rows (the others are unused), and ``coin(rows, p, dim)`` gives
+(K,) bool, True with probability p, and where True a uniform action.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -53,42 +54,11 @@ class NumpyDraws:
         return torch.from_numpy(hit), self.uniform(torch.from_numpy(hit), dim)
 
 
-class TorchDraws:
-    """`Draws` of ``torch.Generator`` s on the device: agent k draws from ``generators[k]`` at
-    every step of every episode, whether its episode still runs or not, so its stream depends
-    on its seed alone and is never read back.
-
-    Its draws are not `NumpyDraws`' (numpy's generators, drawn only while an episode runs):
-    the two backends explore alike in law, not sample by sample.
-    """
-
-    def __init__(self, generators: Sequence[torch.Generator], device: torch.device):
-        self.generators, self.device = generators, device
-
-    def drawing(self, active: torch.Tensor) -> torch.Tensor:
-        return torch.ones_like(active)
-
-    def _draw(self, fn, size: int) -> torch.Tensor:
-        return torch.stack([fn(size, generator=g, dtype=F64, device=self.device)
-                            for g in self.generators])
-
-    def uniform(self, rows: torch.Tensor, dim: int) -> torch.Tensor:
-        return 2.0 * self._draw(torch.rand, dim) - 1.0
-
-    def normal(self, rows: torch.Tensor, dim: int) -> torch.Tensor:
-        return self._draw(torch.randn, dim)
-
-    def coin(self, rows: torch.Tensor, p: float, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
-        draw = self._draw(torch.rand, dim + 1)
-        return draw[:, 0] < p, 2.0 * draw[:, 1:] - 1.0
-
-
 class Explorer:
     """Perturbs the actors' actions during training, as set by ``config.exploration``, with
     the random numbers of ``draws``."""
 
-    def __init__(self, config: AgentConfig, draws: NumpyDraws | TorchDraws, k: int,
-                 act_dim: int):
+    def __init__(self, config: AgentConfig, draws: Any, k: int, act_dim: int):
         self.kind, self.nu, self.theta = config.exploration, config.exploration_rate, \
             config.ou_theta
         self.draws, self.act_dim = draws, act_dim

@@ -63,8 +63,7 @@ class MultiTrainer:
     `group_settings`; the keyword arguments are `Trainer`'s."""
 
     def __init__(self, settings: Sequence[Setting], *, resume: bool = False,
-                 device: str = "cpu", env_backend: str = "numpy", env_dynamics: str = "torch",
-                 update_graph: str = "off",
+                 device: str = "cpu", env_backend: str = "numpy",
                  dtype: torch.dtype = torch.float32, progress: bool = True,
                  tensorboard: bool = True, command: Sequence[str] | None = None):
         if not settings:
@@ -82,8 +81,7 @@ class MultiTrainer:
                     group[0].env_id, [s.env_kwargs for s in group for _ in s.seeds],
                     group[0].config, [seed for s in group for seed in s.seeds],
                     [d for s in group for d in s.run_dirs], resume=resume, device=device,
-                    env_backend=env_backend, env_dynamics=env_dynamics,
-                    update_graph=update_graph, dtype=dtype,
+                    env_backend=env_backend, dtype=dtype,
                     progress=False,
                     tensorboard=tensorboard, command=command))
         except BaseException:

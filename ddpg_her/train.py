@@ -61,19 +61,15 @@ def add_process_flags(group: Any, what: str) -> None:
     group.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
                        help=f"torch device of {what} (default: cpu); runs are bitwise "
                             "repeatable on the CPU")
-    group.add_argument("--env-backend", choices=["numpy", "batched", "torch", "program"],
+    group.add_argument("--env-backend", choices=["numpy", "batched", "program"],
                        default="numpy",
                        help="where the envs live (default: numpy): 'numpy', Gymnasium's envs "
                             "on the host, one group per agent; 'batched', the same envs with "
                             "the copies of all agents whose tasks differ only in their goals "
                             "(region, sampler) in one vector env (UR5Reach-v0: one compiled "
                             "call per step for all of them; the same goals and exploration as "
-                            "'numpy', trajectories equal to rounding); 'torch', the env's "
-                            "tensor twin (UR5TorchReach-v0, "
-                            "UR5Reach-v0 only, the stop contact model only) on --device, so "
-                            "rollout, HER and replay stay on the device. Its exploration "
-                            "noise comes from torch generators: the same seed explores "
-                            "otherwise than under 'numpy'. 'program': the training program "
+                            "'numpy', trajectories equal to rounding). 'program': the training "
+                            "program "
                             "(ddpg_her.program; DDPG + HER, UR5Reach-v0 with the stop contact, "
                             "locked held joints and the joint goal sampler): every agent of "
                             "the process, whatever its task and joint count, as one stack on "
@@ -82,25 +78,6 @@ def add_process_flags(group: Any, what: str) -> None:
                             "counter-based streams (spec.json's 'program'), so a seed trains "
                             "otherwise than under the other backends, and alike alone or in "
                             "any stack")
-    group.add_argument("--env-dynamics", choices=["torch", "numba"], default="torch",
-                       help="the arm dynamics of --env-backend torch (default: torch): "
-                            "'torch', the vectorised tensor step (any --device); 'numba', the "
-                            "numba kernels behind the same tensors, zero copy, and faster "
-                            "(docs/design.md, Dynamics): on --device cuda the fused CUDA "
-                            "kernel (one launch per control step), on cpu the CPU kernel "
-                            "(trajectories equal to --env-backend batched's bit for bit). The "
-                            "two give the same trajectories to rounding; spec.json records "
-                            "'numba', and a run resumes only with its own setting")
-    group.add_argument("--update-graph", choices=["auto", "on", "off"], default="auto",
-                       help="how the updates run (default: auto, which is 'on' for --device "
-                            "cuda with --algo ddpg without --batch-norm, else 'off'): 'on', each "
-                            "stacked update (minibatch draw, critic and actor steps, target "
-                            "update) is one device step with no host synchronisation, captured "
-                            "once as a CUDA graph and replayed on cuda, run eagerly on the cpu; "
-                            "its minibatches come from a counter-based stream on the device, "
-                            "so a seed trains otherwise than under 'off', and spec.json "
-                            "records update_graph 'on' (a run resumes only with its own "
-                            "setting). 'off', the update loop of earlier runs")
     group.add_argument("--tf32", action="store_true",
                        help="with --env-backend program on cuda: let the matrix products "
                             "round their operands to TF32 (10-bit mantissas; faster on "
@@ -176,15 +153,38 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     return dirs
 
 
-PROCESS_FLAGS = ("resume", "device", "env_backend", "env_dynamics", "update_graph", "tf32",
-                 "threads", "no_progress", "no_tensorboard")
+PROCESS_FLAGS = ("resume", "device", "env_backend", "tf32", "threads", "no_progress",
+                 "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
+
+
+REMOVED_FLAGS: dict[str, str] = {
+    "--env-backend torch": "--env-backend program (ddpg_her.program: the training program on "
+                           "the device)",
+    "--env-dynamics": "--env-backend program (its arm: envs.physics.stack)",
+    "--update-graph": "--env-backend program (its updates are one captured step)",
+}
+"""Flags (or flag values) that issue 35's training program replaced -> what replaced them."""
+
+
+def refuse_removed(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> None:
+    """A usage error naming a flag of `REMOVED_FLAGS` in ``argv`` (default: ``sys.argv[1:]``)
+    and what replaced it, where argparse would only say "invalid choice" or "unrecognized"."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    for i, word in enumerate(words):
+        name, eq, value = word.partition("=")
+        if not eq and i + 1 < len(words):
+            value = words[i + 1]
+        for key in (name, f"{name} {value}"):
+            if key in REMOVED_FLAGS:
+                parser.error(f"{key} was removed (issue 35); use {REMOVED_FLAGS[key]}")
 
 
 def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None
                ) -> argparse.Namespace:
     """``parser.parse_args(argv)``, noting in ``args.episodes_given`` whether --episodes was
     given: a resume keeps the recorded budget unless it was (see `request`)."""
+    refuse_removed(parser, argv)
     args = parser.parse_args(argv, namespace=argparse.Namespace(episodes=None))
     args.episodes_given = args.episodes is not None
     if not args.episodes_given:
@@ -343,15 +343,12 @@ def run_to_end(trainer: Any) -> Any:
 
 
 def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Refuse a --threads below 1, and --env-dynamics numba without --env-backend torch
-    (before any unit is parsed)."""
+    """Refuse a --threads below 1, and --tf32 without --env-backend program (before any unit
+    is parsed)."""
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
     if args.tf32 and args.env_backend != "program":
         parser.error("--tf32 is a setting of --env-backend program")
-    if args.env_dynamics != "torch" and args.env_backend != "torch":
-        parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
-                     f"torch; got --env-backend {args.env_backend}")
 
 
 def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -409,8 +406,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         trainer = build_trainer(parser, lambda: Trainer(
         args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
-            env_backend=args.env_backend, env_dynamics=args.env_dynamics,
-            update_graph=args.update_graph, progress=not args.no_progress,
+            env_backend=args.env_backend, progress=not args.no_progress,
             tensorboard=not args.no_tensorboard,
             command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
     rows = run_to_end(trainer)

@@ -34,7 +34,7 @@ def make_parser() -> argparse.ArgumentParser:
                     "stacked agent, the others form further stacks trained in turn. Each run "
                     "folder is the one the unit's own ddpg_her.train command writes.",
         epilog="Arguments after -- are appended to every unit (e.g. -- --episodes 1000). A "
-               "unit's own --device, --env-backend, --env-dynamics, --update-graph, "
+               "unit's own --device, --env-backend, "
                "--threads, --resume, "
                "--no-progress or "
                "--no-tensorboard is an error: give them once, to this command.")
@@ -91,6 +91,7 @@ def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
 def main(argv: Sequence[str] | None = None) -> int:
     own, common = split_passthrough(sys.argv[1:] if argv is None else argv)
     parser = make_parser()
+    train.refuse_removed(parser, own)
     args = parser.parse_args(own)
     train.check_process_flags(parser, args)
     units = [shlex.split(u) for u in args.unit]
@@ -160,7 +161,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     trainer = train.build_trainer(parser, lambda: MultiTrainer(
         todo, resume=args.resume, device=args.device, env_backend=args.env_backend,
-        env_dynamics=args.env_dynamics, update_graph=args.update_graph,
         progress=not args.no_progress, tensorboard=not args.no_tensorboard, command=command))
     print(f"{trainer.agents} agents of {len(todo)} units in {len(trainer.groups)} stack(s): "
           + ", ".join(f"{t.k}" for t in trainer.trainers), file=sys.stderr)

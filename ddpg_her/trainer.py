@@ -30,8 +30,6 @@ from ddpg_her.collect import ENV_BACKENDS, Collector, make_envs
 from ddpg_her.config import AgentConfig
 from ddpg_her.ensemble import make_buffer, spec_entry, task_partitions
 from ddpg_her.logs import Interval, eval_rows, postfix, progress_bar
-from ddpg_her.update_graph import UpdateStep
-from ddpg_her.update_graph import resolve as resolve_update_graph
 
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
 INIT_STREAM, EXPLORE_STREAM, SAMPLE_STREAM, TRAIN_ENV_STREAM, EVAL_ENV_STREAM = range(5)
@@ -56,18 +54,15 @@ class Trainer:
     seeds : (K,) ints, distinct among agents of one task; run_dirs : K distinct folders;
     resume : continue the runs in ``run_dirs`` from their last common checkpoint (runs absent
     there start afresh) instead of refusing existing folders; env_backend : one of
-    `ENV_BACKENDS`; env_dynamics : the ``torch`` backend's arm, one of
-    `ddpg_her.collect.ENV_DYNAMICS`; update_graph : ``auto``, ``on`` or ``off``
-    (`ddpg_her.update_graph.MODES`). The last three are ``ddpg_her.train``'s flags of their
-    names, whose ``--help`` says how each changes a seed's run.
+    `ENV_BACKENDS` (``ddpg_her.train``'s flag, whose ``--help`` says how each changes a seed's
+    run).
     """
 
     def __init__(self, env_id: str, env_kwargs: dict[str, Any] | Sequence[dict[str, Any]],
                  config: AgentConfig, seeds: Sequence[int], run_dirs: Sequence[str | Path], *,
                  resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
-                 command: Sequence[str] | None = None, env_backend: str = "numpy",
-                 env_dynamics: str = "torch", update_graph: str = "off"):
+                 command: Sequence[str] | None = None, env_backend: str = "numpy"):
         if env_backend not in ENV_BACKENDS:
             raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
                              f"{env_backend!r}")
@@ -93,19 +88,16 @@ class Trainer:
         self._flush_denormals()
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
-        self.envs = make_envs(env_backend, env_id, per_agent, 1, self.device, env_dynamics)
-        self.eval_envs = make_envs(env_backend, env_id, per_agent, config.eval_episodes,
-                                   self.device, env_dynamics)
+        self.envs = make_envs(env_backend, env_id, per_agent, 1)
+        self.eval_envs = make_envs(env_backend, env_id, per_agent, config.eval_episodes)
         envs = self.envs
         for k, kwargs in enumerate(per_agent):
             check_recorded(env_id, kwargs, envs.task_of(k))
         self.rngs = [np.random.default_rng(stream_seed(s, EXPLORE_STREAM)) for s in seeds]
         self.sample_generators = [
             torch.Generator(self.device).manual_seed(stream_seed(s, SAMPLE_STREAM)) for s in seeds]
-        self.explore_generators = [
-            torch.Generator(self.device).manual_seed(stream_seed(s, EXPLORE_STREAM)) for s in seeds]
         self.collector = Collector(self.envs, self.eval_envs, config, self.rngs,
-                                   self.explore_generators, device=self.device, dtype=dtype)
+                                   device=self.device, dtype=dtype)
         self.layout = self.collector.layout
         check_memory(config, self.layout, self.k, dtype, self.device)
         self.agent = make_agent(
@@ -116,21 +108,12 @@ class Trainer:
             if config.ensemble > 1 else None)
         self.buffer: ReplayBuffer = make_buffer(config, self.k, self.layout, self.agent,
                                                 dtype=dtype, device=self.device)
-        # --update-graph (ddpg_her.update_graph): the updates as one device step, minibatches
-        # from a counter-based stream keyed by the sampling seeds; None: `learn`'s own loop
-        self.update_step = UpdateStep(
-            self.agent, self.buffer, [stream_seed(s, SAMPLE_STREAM) for s in seeds],
-            config.batch_size) if resolve_update_graph(update_graph, self.device, config) \
-            else None
 
         self.episode = 0
         self.env_steps = np.zeros(self.k, dtype=np.int64)
         self.wall_s = 0.0
         self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
-        process = {} if self.update_step is None else {"update_graph": "on"}
-        if env_dynamics != "torch":
-            process["env_dynamics"] = env_dynamics
-        self.specs = [{**process, **spec_entry(self.agent, k),
+        self.specs = [{**spec_entry(self.agent, k),
                        **run_spec(env_backend=env_backend, env_id=env_id,
                                   env_kwargs=per_agent[k], task=envs.task_of(k), seed=seeds[k],
                                   config=config, dims=envs.dims, command=command)}
@@ -152,11 +135,7 @@ class Trainer:
         return {"env_steps": int(self.env_steps[k]), "wall_s": self.wall_s, "rows": self.rows[k],
                 "agent": self.agent.agent_state(k),
                 "rng": {"explore": self.rngs[k].bit_generator.state,
-                        "sample": self.sample_generators[k].get_state(),
-                        **({"explore_torch": self.explore_generators[k].get_state()}
-                           if self.env_backend == "torch" else {}),
-                        **({"sample_counter": self.update_step.state()}
-                           if self.update_step is not None else {})}}
+                        "sample": self.sample_generators[k].get_state()}}
 
     def _restore(self, episode: int, states: list[dict[str, Any]],
                  chunks: list[list[tuple[int, Any]]]) -> None:
@@ -165,10 +144,6 @@ class Trainer:
         for k, s in enumerate(states):
             self.rngs[k].bit_generator.state = s["rng"]["explore"]
             self.sample_generators[k].set_state(s["rng"]["sample"])
-            if self.update_step is not None:
-                self.update_step.load_state(s["rng"]["sample_counter"])
-            if "explore_torch" in s["rng"]:
-                self.explore_generators[k].set_state(s["rng"]["explore_torch"])
             self.env_steps[k] = s["env_steps"]
             self.rows[k] = list(s["rows"])
         self.folders.restore_buffer(episode, states, chunks, self.buffer)
@@ -207,8 +182,6 @@ class Trainer:
 
     def learn(self, updates: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``updates`` steps of every agent (its --algo); mean critic and actor losses (K,)."""
-        if self.update_step is not None:
-            return self.update_step.run(updates)
         losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
         updates //= self.config.ensemble  # each steps all M members: the M share the budget
         for _ in range(updates):

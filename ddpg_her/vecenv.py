@@ -4,8 +4,9 @@ The agent sees the env only through the Gymnasium goal-env API: a Dict observati
 ``observation``, ``achieved_goal`` and ``desired_goal``, a Box action, ``info["is_success"]``, and
 the vectorised ``compute_reward`` / ``compute_terminated`` of the env. The trainer sees every env
 backend through one interface of tensors: `HostEnvs` (a `GoalVecEnv`, its arrays entering torch
-without a copy) and `TorchGoalVecEnv` (the env's tensor twin on a device); ``ddpg_her.collect``
-rolls out either. How groups merge into one batch, and why: docs/design.md, "Dynamics".
+without a copy), which ``ddpg_her.collect`` rolls out; the training program on the device steps
+its own env (``ddpg_her.program``). How groups merge into one batch, and why: docs/design.md,
+"Dynamics".
 """
 
 from __future__ import annotations
@@ -32,8 +33,8 @@ GOAL_FIELDS = ("region", "goal_sampler")
 Step = tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 PROJECT_ENVS = "envs"
-"""The package whose import registers this project's env ids (``UR5Reach-v0``) and says which
-have a tensor twin (``envs.tensor_twin``): imported for an id given without a module."""
+"""The package whose import registers this project's env ids (``UR5Reach-v0``): imported for an
+id given without a module."""
 
 
 def register_env(env_id: str) -> str:
@@ -46,18 +47,6 @@ def register_env(env_id: str) -> str:
     if module or name not in gymnasium.registry:
         importlib.import_module(module or PROJECT_ENVS)
     return name
-
-
-def tensor_twin(env_id: str) -> str:
-    """The id of ``env_id``'s tensor twin (torch in and out, state on one device), which the
-    ``torch`` env backend makes; registered. Raises ValueError for an env without one."""
-    name = register_env(env_id)
-    envs = importlib.import_module(PROJECT_ENVS)
-    twin = envs.tensor_twin(name)
-    if twin is None:
-        raise ValueError(f"{env_id} has no tensor twin for the torch env backend; ids that "
-                         f"have one: {sorted(envs.TENSOR_TWINS)}")
-    return register_env(twin)
 
 
 def _make(env_id: str, kwargs: dict[str, Any]) -> gymnasium.Env:
@@ -128,9 +117,7 @@ class _Vector:
     def step(self, action: np.ndarray, active: np.ndarray) -> tuple:
         # Copies whose episode ended are stepped too (the batch moves as one) and ignored.
         o, r, term, trunc, info = self.env.step(action)
-        success = info.get("is_success", term)  # a tensor twin's stays on its device
-        return o, r, term, trunc, success if isinstance(success, torch.Tensor) else \
-            np.asarray(success, dtype=bool)
+        return o, r, term, trunc, np.asarray(info.get("is_success", term), dtype=bool)
 
     def close(self) -> None:
         self.env.close()
@@ -161,7 +148,7 @@ def _per_group(groups: int | Sequence[dict[str, Any]], copies: int,
 
 
 class _Layout:
-    """What `GoalVecEnv` and `TorchGoalVecEnv` share: groups of copies of one layout."""
+    """What `GoalVecEnv` and `HostEnvs` share: groups of copies of one layout."""
 
     groups: list[Any]
     kwargs: list[dict[str, Any]]
@@ -184,8 +171,7 @@ class _Layout:
     @property
     def dims(self) -> dict[str, Any]:
         """The layout every group shares, as a run's ``spec.json`` records it: obs_dim,
-        goal_dim, act_dim, action_low, action_high (env units), max_episode_steps (the same
-        for an env and its tensor twin)."""
+        goal_dim, act_dim, action_low, action_high (env units), max_episode_steps."""
         return _dims(self.groups[0])
 
     def task_of(self, group: int) -> dict[str, Any]:
@@ -334,12 +320,10 @@ class GoalVecEnv(_Layout):
 class HostEnvs(_Layout):
     """A `GoalVecEnv` seen through tensors, for the trainer's host env backends (``numpy``,
     ``batched``): the one place where the host's arrays enter torch (zero-copy
-    ``torch.from_numpy``, float64 on the CPU) and the actions leave it, with the interface of
-    `TorchGoalVecEnv`. The arguments are `GoalVecEnv`'s."""
+    ``torch.from_numpy``, float64 on the CPU) and the actions leave it. The arguments are
+    `GoalVecEnv`'s."""
 
     device = torch.device("cpu")
-    on_host = True
-    """Whether reading a result (such as whether any episode still runs) is free."""
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
                  *, merge: bool = False, **kwargs: Any):
@@ -355,7 +339,8 @@ class HostEnvs(_Layout):
     def step(self, action: torch.Tensor, active: torch.Tensor,
              obs: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor,
                                                     torch.Tensor, torch.Tensor, torch.Tensor]:
-        """`GoalVecEnv.step` of tensors (see `TorchGoalVecEnv.step`)."""
+        """`GoalVecEnv.step` of tensors: action (N, act_dim) env units, active (N,) bool; the
+        copies not active keep their observation and get 0 / False."""
         o, *rest = self.vec.step(action.numpy(), active.numpy(),
                                  {key: v.numpy() for key, v in obs.items()})
         reward, terminated, truncated, success = (torch.from_numpy(x) for x in rest)
@@ -378,115 +363,3 @@ class HostEnvs(_Layout):
 
 def _tensors(obs: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
     return {key: torch.from_numpy(obs[key]) for key in KEYS}
-
-
-class TorchGoalVecEnv(_Layout):
-    """`HostEnvs` on the device: ``groups`` groups of ``copies`` copies of ``env_id``'s tensor
-    twin (`tensor_twin`), everything float64 on ``device``.
-
-    The same layout, seeding and reward functions as `GoalVecEnv`, with torch tensors in and
-    out. Resetting with seeds uploads each copy's one goal (drawn on the host by the task's
-    sampler, as `GoalVecEnv`'s envs draw it); ``step`` moves nothing between host and device.
-    ``dynamics``: the twin's ``dynamics`` argument (``envs.TorchReach``'s: ``"torch"`` or
-    ``"numba"``), None to leave the twin's default.
-
-    ``merge=True`` (the default; the trainer's ``torch`` env backend) steps the copies of all
-    groups whose tasks are equal but for `GOAL_FIELDS` in one twin on the device, as
-    `GoalVecEnv(merge=True)` does on the host. Each group keeps a twin of its own on the CPU
-    that only draws its copies' goals (``draw_goals(seeds)``), handed to the merged twin by
-    ``reset(options={"goal": (n, goal_dim)})``; a group's reward and termination are its merged
-    twin's (docs/design.md, "Dynamics", says why both are exact). ``merge=False``: one twin per
-    group on the device, each stepped alone.
-    """
-
-    on_host = False
-
-    def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1, *,
-                 device: str | torch.device = "cpu", dynamics: str | None = None,
-                 merge: bool = True, **kwargs: Any):
-        per_group = _per_group(groups, copies, kwargs)
-        twin = tensor_twin(env_id)
-        self.device = torch.device(device)
-        self.kwargs = per_group
-        own = {} if dynamics is None else {"dynamics": dynamics}
-        # one goal per copy and reset, each copy reseeded at every reset: BatchedReach's goals
-        drawn = {"dtype": "float64", "goal_source": "per_copy", "goal_pool": 1}
-        # a merged twin's own draws are replaced by the groups' goals at once: the cheap source
-        handed = {"dtype": "float64", "goal_source": "batched"}
-        self.merged = merge
-        if not merge:
-            self.groups = [_Vector(twin, copies, {**kw, "device": self.device, **drawn, **own})
-                           for kw in per_group]
-            self._take_layout(env_id, copies)
-            self.batches: list[_Batch] = []
-            stepped, order = self.groups, np.arange(self.num_envs)
-        else:
-            self.groups = [_Vector(twin, copies, {**kw, "device": "cpu", **drawn})
-                           for kw in per_group]
-            self._take_layout(env_id, copies)
-            sets = self._merge_sets()
-            if not sets:
-                raise ValueError(f"{twin} has no task specification (task.to_dict()) to merge "
-                                 "its groups by; use merge=False")
-            self.batches = [_Batch(twin, len(rows), {**per_group[ks[0]], "device": self.device,
-                                                     **handed, **own}, rows)
-                            for ks, rows in sets]
-            self._batch_of = {k: b for (ks, _), b in zip(sets, self.batches, strict=True)
-                              for k in ks}
-            stepped, order = self.batches, np.concatenate([b.index for b in self.batches])
-        self._stepped: list[_Vector] = list(stepped)
-        """The twins on the device that ``step`` steps, in turn: the batches, or the groups."""
-        self._sizes = [int(v.env.num_envs) for v in self._stepped]
-        # flat copy n is row _flat[n] of the batches' outputs stacked; None: already in order
-        self._order = None if (order == np.arange(self.num_envs)).all() else \
-            torch.as_tensor(order, device=self.device)
-        self._flat = None if self._order is None else \
-            torch.as_tensor(np.argsort(order), device=self.device)
-
-    def reset(self, seeds: Sequence[int]) -> dict[str, torch.Tensor]:
-        """Reset every copy n with ``seeds[n]``; the observation tensors are (N, ...)."""
-        if not self.merged:
-            return self._stacked(self._reset_groups(seeds))
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
-        c = self.copies
-        goals = torch.cat([g.goal_env.draw_goals([int(s) for s in seeds[i * c:(i + 1) * c]])
-                           for i, g in enumerate(self.groups)]).to(self.device)
-        if self._order is not None:
-            goals = goals[self._order]
-        return self._stacked([b.env.reset(options={"goal": g})[0] for b, g in
-                              zip(self.batches, goals.split(self._sizes), strict=True)])
-
-    def step(self, action: torch.Tensor, active: torch.Tensor,
-             obs: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor,
-                                                    torch.Tensor, torch.Tensor, torch.Tensor]:
-        """`GoalVecEnv.step` on tensors: action (N, act_dim) env units, active (N,) bool; the
-        copies not active keep their observation and get 0 / False."""
-        if self._order is not None:
-            action = action[self._order]
-        out = [v.step(a, active) for v, a in zip(self._stepped, action.split(self._sizes),
-                                                  strict=True)]
-        o = self._stacked([x[0] for x in out])
-        on = active.unsqueeze(-1)
-        obs = {key: torch.where(on, o[key], obs[key]) for key in KEYS}
-        flags = [self._flat_order(torch.cat([x[j] for x in out])) & active for j in (2, 3, 4)]
-        reward = torch.where(active, self._flat_order(torch.cat([x[1] for x in out])), 0.0)
-        return obs, reward, flags[0], flags[1], flags[2]
-
-    def _flat_order(self, x: torch.Tensor) -> torch.Tensor:
-        """Rows (N, ...) of the batches' outputs, stacked batch by batch, in flat order."""
-        return x if self._flat is None else x[self._flat]
-
-    def _stacked(self, parts: Sequence[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
-        """The batches' observations (or the groups', unmerged) as (N, ...) in flat order."""
-        return {key: self._flat_order(torch.cat([p[key] for p in parts])) for key in KEYS}
-
-    def _rules(self, group: int) -> Any:
-        # merged: the batch's twin on the device (the group's own lives on the CPU)
-        return self._batch_of[group].goal_env if self.merged else self.groups[group].goal_env
-
-    def close(self) -> None:
-        for g in self.groups:
-            g.close()
-        for b in self.batches:
-            b.close()

@@ -32,17 +32,6 @@ for _env_id in ENV_IDS:
             max_episode_steps=DEFAULT_EPISODE_STEPS,
         )
 
-TORCH_ENV_IDS: tuple[str, ...] = ("UR5TorchReach-v0",)
-"""Ids of the tensor envs registered on import: ``gymnasium.make_vec(id, num_envs=N,
-vectorization_mode="vector_entry_point", **kwargs)`` makes an `envs.torchreach.TorchReach`
-(torch in and out, stop contact model only); there is no single-env entry point."""
-
-for _env_id in TORCH_ENV_IDS:
-    if _env_id not in gymnasium.registry:
-        gymnasium.register(_env_id, entry_point=None,
-                           vector_entry_point="envs.torchreach:TorchReach",
-                           max_episode_steps=DEFAULT_EPISODE_STEPS)
-
 if "UR5StackReach-v0" not in gymnasium.registry:
     gymnasium.register("UR5StackReach-v0", entry_point=None,
                        vector_entry_point="envs.stackreach:StackReach")
@@ -53,16 +42,6 @@ num_envs=B, vectorization_mode="vector_entry_point", tasks=[...])`` makes an
 `envs.stackreach.StackReach` (copies of several tasks, tensors on one device), the env of
 ``ddpg_her.program``."""
 
-TENSOR_TWINS: dict[str, str] = {"UR5Reach-v0": "UR5TorchReach-v0"}
-"""Each env id that has a tensor twin, and the twin's id (see `tensor_twin`)."""
-
-
-def tensor_twin(env_id: str) -> str | None:
-    """The id of the tensor twin of ``env_id`` (the same task, torch in and out, state on one
-    device: what ``ddpg_her``'s ``torch`` env backend makes), or None when it has none."""
-    return TENSOR_TWINS.get(env_id)
-
-
 _LAZY: dict[str, str] = {
     "BatchedReach": "envs.batched",
     "FlatObservation": "envs.wrappers",
@@ -71,8 +50,8 @@ _LAZY: dict[str, str] = {
 }
 """Public names that load their module (and with it Pinocchio) on first use."""
 
-__all__ = ["ENV_IDS", "TENSOR_TWINS", "TORCH_ENV_IDS", "BatchedReach", "FlatObservation",
-           "TaskSpec", "UR5ReachEnv", "compute_reward", "tensor_twin", "validate"]
+__all__ = ["ENV_IDS", "BatchedReach", "FlatObservation", "TaskSpec",
+           "UR5ReachEnv", "compute_reward", "validate"]
 
 
 __getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

@@ -135,7 +135,7 @@ def _missing_action() -> ValueError:
 
 def reach_reward(distance: Any, action: Any, task: TaskSpec, scale: Any) -> Any:
     """The task's reward (eq. 2), unchecked, for numpy arrays and torch tensors alike: the one
-    definition the envs (:class:`envs.task.TaskRules`, :class:`envs.torchreach.TorchReach`),
+    definition the envs (:class:`envs.task.TaskRules`, :class:`envs.stackreach.StackReach`),
     :func:`envs.task.compute_reward` and the studies read.
 
     Parameters

@@ -1,9 +1,10 @@
-"""What the two vector envs share, written once for numpy arrays and torch tensors alike: the
-checks of their arguments and reset options, and Gymnasium's autoreset modes.
+"""The vector env's checks of its arguments and reset options, and Gymnasium's autoreset modes,
+written for numpy arrays and torch tensors alike.
 
-:class:`envs.batched.BatchedReach` (numpy) and :class:`envs.torchreach.TorchReach` (torch on
-one device) derive from :class:`VectorReach` and supply its few array hooks; the single env
-(:class:`envs.reach.UR5ReachEnv`) checks its options with :func:`reset_options` too.
+:class:`envs.batched.BatchedReach` derives from :class:`VectorReach` and supplies its few array
+hooks (the torch twin that shared them, ``envs.torchreach``, gave way to the training program's
+:class:`envs.stackreach.StackReach`); the single env (:class:`envs.reach.UR5ReachEnv`) checks its
+options with :func:`reset_options` too.
 """
 
 from __future__ import annotations

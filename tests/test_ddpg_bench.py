@@ -7,8 +7,6 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from benchmarks import agent_updates as bench
-from ddpg_her.config import AgentConfig
-from ddpg_her.vecenv import register_env
 
 
 @pytest.mark.parametrize("n", [3, 64, 200])
@@ -46,19 +44,3 @@ def test_rollout_timing_runs_both_backends_and_refuses_a_negative_count(capsys):
     with pytest.raises(SystemExit):
         bench.main(["--rollout", "-1"])
     assert "--rollout must be >= 0, got 0, -1" in capsys.readouterr().err
-
-
-def test_graph_timing_runs_both_update_paths_and_refuses_a_negative_count(capsys):
-    """--graph K: the captured step (eager on the CPU) against today's loop, same agents."""
-    config = AgentConfig(hidden_sizes=(16, 16), buffer_size=2000)
-    result = bench.measure_graph(2, register_env("UR5Reach-v0"),
-                                 {"region": "farbox", "n_joints": 3}, config, updates=3,
-                                 rounds=2, fill_episodes=1, device="cpu")
-    assert result["graph_agents"] == 2 and result["graph_rounds"] == 2
-    assert result["graph_agent_updates_per_s"] > 0 and result["eager_agent_updates_per_s"] > 0
-    assert result["graph_speedup"] > 0
-    for bad, message in ((["--graph", "-1"], "--graph must be >= 0, got -1"),
-                         (["--only-graph"], "--only-graph needs --graph K")):
-        with pytest.raises(SystemExit):
-            bench.main(bad)
-        assert message in capsys.readouterr().err

@@ -159,8 +159,8 @@ def test_every_process_flag_a_unit_refuses_is_a_flag_of_train_many():
 
     dests = {a.dest for a in train_many.make_parser()._actions}
     assert set(train.PROCESS_FLAGS) <= dests
-    args = train_many.make_parser().parse_args(["--env-backend", "torch", "--device", "cuda"])
-    assert (args.env_backend, args.device) == ("torch", "cuda")
+    args = train_many.make_parser().parse_args(["--env-backend", "batched", "--device", "cuda"])
+    assert (args.env_backend, args.device) == ("batched", "cuda")
 
 
 @pytest.mark.gpu

@@ -366,3 +366,59 @@ def test_trainer_flushes_subnormals_as_configured(tmp_path, flush):
         assert bool((tiny * 1.0 == 0).item()) is flush
     finally:
         torch.set_flush_denormal(False)
+
+
+@pytest.mark.parametrize("module, argv, named", [
+    ("ddpg_her.train", ["--env-backend", "torch"], "--env-backend torch"),
+    ("ddpg_her.train", ["--env-backend=torch"], "--env-backend torch"),
+    ("ddpg_her.train", ["--env-dynamics", "numba"], "--env-dynamics"),
+    ("ddpg_her.train_many", ["--env-dynamics=numba"], "--env-dynamics"),
+    ("ddpg_her.train", ["--update-graph", "on"], "--update-graph"),
+    ("analysis.sweep", ["--env-backend", "torch"], "--env-backend torch"),
+])
+def test_a_removed_flag_is_refused_naming_what_replaced_it(module, argv, named, capsys):
+    """The flags issue 35's training program replaced get a usage error that names the
+    program, where argparse alone would say "invalid choice" or "unrecognized arguments"."""
+    import importlib
+
+    with pytest.raises(SystemExit) as exit_:
+        importlib.import_module(module).main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and f"{named} was removed (issue 35)" in err, err
+    assert "use --env-backend program" in err, err
+
+
+@pytest.mark.parametrize("removed", [{"env_backend": "torch", "env_dynamics": "numba"},
+                                     {"update_graph": "on"}])
+def test_a_run_of_a_removed_path_stays_readable_but_does_not_resume(tmp_path, removed):
+    """A run folder whose spec.json records the torch env backend or the captured update step
+    (both replaced by the training program) loads and reads as before; a resume is refused
+    with a message naming the path and what replaced it, before any training."""
+    from analysis.runs import read_run
+
+    train([tmp_path / "old"])
+    spec_path = tmp_path / "old" / "spec.json"
+    spec_path.write_text(json.dumps({**json.loads(spec_path.read_text()), **removed}))
+    before = eval_table(tmp_path / "old")
+    policy = ddpg_her.load(tmp_path / "old")
+    obs, _ = gymnasium.make(ENV_ID, **TASK).reset(seed=0)
+    assert policy.episode == TINY.episodes and np.all(np.isfinite(policy(obs)))
+    run = read_run(tmp_path / "old")
+    assert run.finished and list(run.episode) == [3, 6, 9, 12]
+    longer = AgentConfig(**{**TINY.to_dict(), "episodes": 15})
+    key, value = next(iter(removed.items()))
+    with pytest.raises(ValueError, match=f"trained with --{key.replace('_', '-')} {value}.*"
+                                         "--env-backend program"):
+        train([tmp_path / "old"], config=longer, resume=True)
+    assert eval_table(tmp_path / "old") == before
+
+
+def test_the_committed_runs_of_the_device_path_read_as_results():
+    """results/device_path_farbox (--env-backend torch --env-dynamics numba --update-graph on,
+    trained before issue 35 removed them) is read by analysis like any run folder."""
+    from analysis.runs import find_runs
+
+    root = Path(__file__).resolve().parents[1] / "results" / "device_path_farbox" / "runs"
+    runs = find_runs([root])
+    assert len(runs) == 5 and {r.spec["env_backend"] for r in runs} == {"torch"}
+    assert all(r.finished and r.episode[-1] == 1000 for r in runs)

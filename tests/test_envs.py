@@ -239,16 +239,10 @@ def test_make_accepts_overrides_a_spec_and_region_objects():
         env.step(np.array([0.0, np.nan, 0.0]))
 
 
-def _torch_reach(num_envs: int, **kw):
-    from envs.torchreach import TorchReach  # torch is imported only where it is used
-
-    return TorchReach(num_envs, **kw)
-
-
 @pytest.mark.parametrize("make_env", [
     lambda **kw: gymnasium.make("UR5Reach-v0", **kw).unwrapped,
-    lambda **kw: envs.BatchedReach(2, **kw), lambda **kw: _torch_reach(2, **kw)],
-    ids=["UR5Reach-v0", "BatchedReach", "TorchReach"])
+    lambda **kw: envs.BatchedReach(2, **kw)],
+    ids=["UR5Reach-v0", "BatchedReach"])
 def test_spec_is_the_deprecated_name_of_task_in_every_env(make_env):
     """``spec=`` (the keyword's old name, which clashed with Gymnasium's ``env.spec``) still
     gives the same task as ``task=``, with a DeprecationWarning; both at once is an error."""

@@ -320,11 +320,9 @@ def test_ddpg_her_load_reads_a_program_run(tmp_path):
 
 
 # ---------------------------------------------------------------------------- on a GPU
-cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (the GPU "
-                          "window's stage 1 runs it: benchmarks/gpu_grid.sh)")
-
-
-@cuda
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (the GPU window's "
+                    "stage 1 runs it: benchmarks/gpu_grid.sh)")
 @pytest.mark.parametrize("arm", ["stand-in", "kernel"])
 def test_the_captured_bodies_equal_the_same_bodies_run_eagerly_on_cuda(tmp_path, arm):
     """The four bodies replayed from CUDA graphs give what the same code gives eagerly on

@@ -2,9 +2,8 @@
 
 Every backend (:data:`BACKENDS`) advances B copies of the UR5 under the task's joint PD
 controller, one control step per call, with the same physics (docs/design.md, "Dynamics") read
-from the same :class:`envs.physics.model.ArmModel`. The device-resident env
-(:class:`envs.torchreach.TorchReach`) reads tensors instead: ``TorchDynamics``, or the numba
-kernels behind the same tensor face (:class:`envs.physics.numba_torch.NumbaTorchDynamics`).
+from the same :class:`envs.physics.model.ArmModel`. The training program's env
+(:class:`envs.stackreach.StackReach`) steps its own tensors on the device.
 """
 
 from __future__ import annotations
