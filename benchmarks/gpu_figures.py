@@ -23,7 +23,8 @@ seconds since the start at which it began and ended; a figure that fails records
 - ``updates``: the stacked update of K = 55 agents (400-300 networks, batch 64, float32,
   minibatches drawn on the device by ``buffer.CounterSampler``, the body captured as the
   training program captures it, ``ddpg_her.program.Graphed``): the 3-joint layout (inputs
-  9 + 3 + 3, actions 3), and the padded stack (inputs padded to 6 joints: 18 + 3 + 3, actions 6) in float32 and in TF32
+  9 + 3 + 3, actions 3), and the padded stack (inputs padded to 6 joints: 18 + 3 + 3,
+  actions 6) in float32 and in TF32
   (``torch.backends.cuda.matmul.allow_tf32``), each eager and captured: milliseconds per
   update of all K and agent-updates/s (buffers of random rows: the cost does not depend on
   their values);
