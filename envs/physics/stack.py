@@ -201,7 +201,6 @@ class StackDynamics:
             setattr(self, key, tensors[key])
         self._bias, self._dw = tensors["bias"], tensors["dw"]
         self._gain = self._tensor(np.where(held, 0.0, arm.command_gain).astype(cast))
-        self._held = self._tensor(held)
         self._start_q = self._tensor(start_q.astype(cast))
         self._start_heights = self._tensor(heights.astype(cast))
         self._start_tool = self._tensor(start_tool)
@@ -257,8 +256,9 @@ class StackDynamics:
             the rest are ignored (any value, NaN included).
         """
         command = self._input(command, self.dtype, "command")
+        # a locked joint's torque never enters the kernels' dynamics (its gain is 0 here,
+        # and a NaN there is ignored: tested)
         torch.mul(self._gain, command, out=self._bias)
-        self._bias.masked_fill_(self._held, 0.0)
         if self.kernel == "numba":
             control_step(*self._args)
         else:
