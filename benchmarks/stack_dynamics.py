@@ -16,7 +16,10 @@ Each row runs ``eager`` and ``graph`` (its control step captured once in a
 first call (Triton's or numba's compilation, torch's first kernels) is timed apart, and so is
 the capture. Protocol as :mod:`benchmarks.cuda_dynamics`: rounds of ``--steps`` steps from the
 start pose, the clock read after a device synchronisation, the median over rounds reported.
-A row that fails records its error in the JSON instead of ending the run.
+A row that fails records its error in the JSON instead of ending the run. The Triton kernel's
+first call compiles it: minutes of one CPU core (measured offline for sm_90: 338 s of CPU in
+float64; envs/physics/triton_kernel.py), once per dtype and ``--block`` value (Triton caches it
+on disk after), so a short GPU window should run one block size first.
 
 Two checks ride along on a GPU: ``check``, the Triton stack on the device against the numba
 CPU kernel's stack over ``--check-steps`` steps of the same commands (max |difference| of q,
@@ -83,7 +86,8 @@ class BenchConfig:
     modes: tuple[str, ...] = MODES
     """Eager and/or graph rows."""
     block: tuple[int, ...] = (32,)
-    """Copies per program of the Triton kernel (powers of two), a row each."""
+    """Copies per program of the Triton kernel (powers of two), a row each (32:
+    :data:`envs.physics.stack.BLOCK`, the default)."""
     check_steps: int = 20
     """Steps of the Triton-against-numba check (0: none)."""
     seed: int = 0
@@ -131,11 +135,11 @@ class Row:
 
         self.device = torch.device(config.device)
         if kernel.startswith("stack"):
-            from envs.physics.stack import StackDynamics
+            from envs.physics.stack import BLOCK, StackDynamics
 
             self.dyn = StackDynamics(grid_tasks(n), device=config.device, dtype=config.dtype,
                                      kernel=kernel.removeprefix("stack-"),
-                                     block=block or 32)
+                                     block=block or BLOCK)
             everyone = torch.ones(n, dtype=torch.bool, device=self.device)
             self.reset = lambda: self.dyn.reset_where(everyone)
             self.width = 6

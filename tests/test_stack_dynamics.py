@@ -45,7 +45,7 @@ unconstrained, the constrained regions' other)."""
 
 STATE = ("q", "w", "v", "acceleration", "height_bound", "tool", "contact", "limit_stop")
 
-FLOAT32_TOLERANCE = 1e-3
+FLOAT32_TOLERANCE = 1e-5
 """Bound (rad, m) of the float32 Triton kernel against the float32 numba kernel over
 :func:`test_the_triton_kernel_is_the_numba_kernel`'s steps; the two round differently (numba's
 CPU kernel sums float32 arrays with float64 literals)."""

@@ -43,6 +43,10 @@ UNREAD_FIELDS = ("region", "goal_sampler", "reward_type", "distance_weight", "ac
 episode, the compliant contact model's constants): free to differ. The three tuples partition
 TaskSpec's fields (tested), so a new field must be placed in one."""
 
+BLOCK = 32
+"""Copies per program of the Triton kernel by default (one warp's 32 lanes, one copy each);
+untuned until a GPU measures it (``benchmarks.stack_dynamics --block``)."""
+
 TORCH_DTYPES = {"float64": torch.float64, "float32": torch.float32}
 """The state's torch type per dtype name."""
 
@@ -134,8 +138,7 @@ class StackDynamics:
         None: numba on the CPU, triton on CUDA. ``"triton"`` on the CPU runs Triton's
         interpreter (``TRITON_INTERPRET=1``; slow, for tests).
     block : int
-        Copies per program of the Triton kernel, a power of two
-        (:data:`envs.physics.triton_kernel.BLOCK` by default; untuned).
+        Copies per program of the Triton kernel, a power of two (:data:`BLOCK`).
 
     Attributes
     ----------
@@ -164,7 +167,7 @@ class StackDynamics:
     """
 
     def __init__(self, tasks: Sequence[TaskSpec], device: Any = "cpu", dtype: str = "float64",
-                 kernel: str | None = None, block: int = 32) -> None:
+                 kernel: str | None = None, block: int = BLOCK) -> None:
         self.tasks = check_stack(tasks)
         if isinstance(block, bool) or not isinstance(block, int) or block < 1 \
                 or block & (block - 1):
