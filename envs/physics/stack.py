@@ -192,7 +192,7 @@ class StackDynamics:
         heights = np.concatenate([rest_heights(t, t.start_q)[None] for t in self.tasks])
         start_tool = np.zeros((B, 3), cast)
         tool_batch(start_q.astype(cast), np.arange(B), chain.rotation, chain.translation,
-                    chain.axis, tool_pos, float(first.base_height), start_tool)
+                   chain.axis, tool_pos, float(first.base_height), start_tool)
         host = dict(q=start_q.astype(cast), w=np.zeros((B, NJ), cast),
                     v=np.zeros((B, NJ), cast), acceleration=np.zeros((B, NJ), cast),
                     height_bound=heights.astype(cast), tool=start_tool.copy(),
