@@ -5,6 +5,7 @@ Triton's CPU interpreter) against the numba one."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -44,7 +45,7 @@ unconstrained, the constrained regions' other)."""
 
 STATE = ("q", "w", "v", "acceleration", "height_bound", "tool", "contact", "limit_stop")
 
-FLOAT32_TOLERANCE = 1e-3
+FLOAT32_TOLERANCE = 1e-5
 """Bound (rad, m) of the float32 Triton kernel against the float32 numba kernel over
 :func:`test_the_triton_kernel_is_the_numba_kernel`'s steps; the two round differently (numba's
 CPU kernel sums float32 arrays with float64 literals)."""
@@ -290,3 +291,29 @@ def test_the_triton_kernel_is_the_numba_kernel(dtype):
             assert err <= tolerance, (step, key, err)
         stops += numba.contact.sum().item(), numba.limit_stop.sum().item()
     assert stops.min() > 0, f"the steps must hit the plane and the limits; got {stops}"
+
+
+@needs_triton
+def test_the_benchmark_runs_in_its_dry_run():
+    # benchmarks.stack_dynamics on the CPU: the stack on numba and on Triton's interpreter (4
+    # copies, 1 step), the single-task rows, the Triton-against-numba check
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {k: v for k, v in os.environ.items() if k not in ("TRITON_INTERPRET",
+                                                            "NUMBA_ENABLE_CUDASIM")}
+    run = subprocess.run([sys.executable, "-m", "benchmarks.stack_dynamics", "--dry-run",
+                          "--json"], cwd=root, capture_output=True, text=True, env=env,
+                         timeout=900)
+    assert run.returncode == 0, run.stderr[-3000:]
+    result = json.loads(run.stdout)
+    rows = result["rows"]
+    assert [row["kernel"] for row in rows] == ["stack-triton", "stack-numba", "numba-cuda",
+                                               "torch"]
+    assert all("error" not in row and row["copy_steps_per_s"] > 0 and row["N"] == 4
+               for row in rows), rows
+    [check] = result["checks"]
+    assert check["max_abs_q_rad"] <= 1e-9 and check["stop_flags_agree"], check
+    usage = subprocess.run([sys.executable, "-m", "benchmarks.stack_dynamics", "--help"],
+                           cwd=root, capture_output=True, text=True, env=env)
+    for flag in ("--copies", "--steps", "--rounds", "--device", "--dtype", "--kernels",
+                 "--modes", "--block", "--check-steps", "--dry-run", "--json"):
+        assert flag in usage.stdout

@@ -599,9 +599,9 @@ def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
 
 @_njit
 def control_step(Q, W, bias, kp, kd, effort, w_max, gravity_comp, substeps, q_mid, q_half,
-                  vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
-                  rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
-                  tool, free, first, stop):  # pragma: no cover - compiled
+                 vh, bounds, lift, wrist, lipschitz, base_height, margin, clearance,
+                 rot0, p, axis, inertia, armature, grav, tool_pos, dW, contact, limit_stop,
+                 tool, free, first, stop):  # pragma: no cover - compiled
     """One control step of copies ``first .. stop - 1`` (:func:`step_copy` each): the batch
     loop and the scratch it lends the body. Writes ``Q, W`` (the new state), ``dW = W_new -
     W_old``, ``clearance`` (the height bounds), the stop flags and the tool's world position.
@@ -718,7 +718,7 @@ class NumbaDynamics:
     def _update_tools(self, rows: np.ndarray) -> None:
         c = self._chain
         tool_batch(self.q, rows.astype(np.int64), c.rotation, c.translation, c.axis,
-                    self._tool_pos, float(self.task.base_height), self.tool)
+                   self._tool_pos, float(self.task.base_height), self.tool)
 
     def reset(self, q: Any, index: Any = None) -> None:
         """Put copies at rest at configurations ``q`` (``q (6,)`` or ``(m, 6)`` rad, ``index``

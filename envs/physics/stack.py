@@ -43,6 +43,10 @@ UNREAD_FIELDS = ("region", "goal_sampler", "reward_type", "distance_weight", "ac
 episode, the compliant contact model's constants): free to differ. The three tuples partition
 TaskSpec's fields (tested), so a new field must be placed in one."""
 
+BLOCK = 32
+"""Copies per program of the Triton kernel by default (one warp's 32 lanes, one copy each);
+untuned until a GPU measures it (``benchmarks.stack_dynamics --block``)."""
+
 TORCH_DTYPES = {"float64": torch.float64, "float32": torch.float32}
 """The state's torch type per dtype name."""
 
@@ -134,8 +138,7 @@ class StackDynamics:
         None: numba on the CPU, triton on CUDA. ``"triton"`` on the CPU runs Triton's
         interpreter (``TRITON_INTERPRET=1``; slow, for tests).
     block : int
-        Copies per program of the Triton kernel, a power of two
-        (:data:`envs.physics.triton_kernel.BLOCK` by default; untuned).
+        Copies per program of the Triton kernel, a power of two (:data:`BLOCK`).
 
     Attributes
     ----------
@@ -164,7 +167,7 @@ class StackDynamics:
     """
 
     def __init__(self, tasks: Sequence[TaskSpec], device: Any = "cpu", dtype: str = "float64",
-                 kernel: str | None = None, block: int = 32) -> None:
+                 kernel: str | None = None, block: int = BLOCK) -> None:
         self.tasks = check_stack(tasks)
         if isinstance(block, bool) or not isinstance(block, int) or block < 1 \
                 or block & (block - 1):
@@ -189,7 +192,7 @@ class StackDynamics:
         heights = np.concatenate([rest_heights(t, t.start_q)[None] for t in self.tasks])
         start_tool = np.zeros((B, 3), cast)
         tool_batch(start_q.astype(cast), np.arange(B), chain.rotation, chain.translation,
-                    chain.axis, tool_pos, float(first.base_height), start_tool)
+                   chain.axis, tool_pos, float(first.base_height), start_tool)
         host = dict(q=start_q.astype(cast), w=np.zeros((B, NJ), cast),
                     v=np.zeros((B, NJ), cast), acceleration=np.zeros((B, NJ), cast),
                     height_bound=heights.astype(cast), tool=start_tool.copy(),
@@ -201,7 +204,6 @@ class StackDynamics:
             setattr(self, key, tensors[key])
         self._bias, self._dw = tensors["bias"], tensors["dw"]
         self._gain = self._tensor(np.where(held, 0.0, arm.command_gain).astype(cast))
-        self._held = self._tensor(held)
         self._start_q = self._tensor(start_q.astype(cast))
         self._start_heights = self._tensor(heights.astype(cast))
         self._start_tool = self._tensor(start_tool)
@@ -257,8 +259,9 @@ class StackDynamics:
             the rest are ignored (any value, NaN included).
         """
         command = self._input(command, self.dtype, "command")
+        # a locked joint's torque never enters the kernels' dynamics (its gain is 0 here,
+        # and a NaN there is ignored: tested)
         torch.mul(self._gain, command, out=self._bias)
-        self._bias.masked_fill_(self._held, 0.0)
         if self.kernel == "numba":
             control_step(*self._args)
         else:

@@ -14,6 +14,10 @@ as in ``step_copy``; the block pays for the slowest lane). Same operations in th
 as ``step_copy``, so the interpreter (``TRITON_INTERPRET=1``, numpy) agrees with the numba
 kernel to rounding (tested to 1e-9 in float64).
 
+Compiling it is slow (sm_90, float64: 338 s of CPU on the development machine, 99.8% in
+Triton's ``TritonGPUCoalesce`` pass, which walks the unrolled step once per memory access, and
+the model tables' scalar loads are most of the ~460): the first launch on a machine pays it.
+
 This module imports Triton (``@triton.jit`` reads ``TRITON_INTERPRET`` when it is imported);
 :mod:`envs.physics.stack` imports it only for ``kernel="triton"``.
 """
@@ -21,7 +25,6 @@ This module imports Triton (``@triton.jit`` reads ``TRITON_INTERPRET`` when it i
 # ruff: noqa: RUF005 - tuples grow by concatenation, the form Triton 3.6's front end compiles here
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -34,28 +37,18 @@ from envs.physics.model import ChainModel, PlaneModel
 if TYPE_CHECKING:
     import torch
 
-BLOCK = 32
-"""Copies per program (lanes of one Triton program), a power of two. Untuned until a GPU
-measures it (``benchmarks.stack_dynamics``); on the interpreter every program is a numpy
-call per operation, so fewer, wider programs are faster there."""
-
 ROW_TILE = 64
 """Rows of the plane check's vertex table summed at once (a (BLOCK, ROW_TILE) tile): the table
 has 359 rows, one per vertex that can be a link's lowest."""
 
 NUM_WARPS = 1
-"""Warps per program: ``BLOCK = 32`` lanes are one warp's threads, one copy per thread."""
+"""Warps per program: 32 lanes (:data:`envs.physics.stack.BLOCK`) are one warp's threads, one
+copy per thread."""
 
 PLANE_SCALARS = ("lift", "wrist", "base_height", "margin")
 """The order of :attr:`TritonModel.scalars`: the plane check's pitch offsets (rad), the base's
 height (m) and the plane margin (m). Kept in a tensor of the kernel's type: a Python float
 argument of a Triton kernel is float32."""
-
-
-def interpreted() -> bool:
-    """Whether Triton's interpreter is on (``TRITON_INTERPRET=1``): kernels then run on the CPU
-    as numpy, over CPU tensors."""
-    return os.environ.get("TRITON_INTERPRET", "0") not in ("", "0")
 
 
 @dataclass(frozen=True)
@@ -135,7 +128,7 @@ class TritonModel:
 
 def launch(model: TritonModel, q: torch.Tensor, w: torch.Tensor, height_bound: torch.Tensor,
            bias: torch.Tensor, free: torch.Tensor, dw: torch.Tensor, contact: torch.Tensor,
-           limit_stop: torch.Tensor, tool: torch.Tensor, block: int = BLOCK) -> None:
+           limit_stop: torch.Tensor, tool: torch.Tensor, block: int) -> None:
     """One control step of the B copies, one launch on torch's current stream; every tensor
     contiguous, on the model's device, nothing read on the host.
 
