@@ -13,9 +13,11 @@ sweep continues where it stopped when run again; a setting another ``ddpg_her.tr
 ``ddpg_her.train_many`` process is training (it holds a run folder's lock) is left to it.
 Each process's output goes to ``ROOT/logs/<region>-j<joints>.log`` (one process:
 ``ROOT/logs/one-process.log``). Arguments after ``--`` pass to ``ddpg_her.train`` unchanged
-(e.g. ``-- --her-strategy future``). A unit that could not start (a region that does not
-parse, an argument the trainer refuses, a run folder two units share) is refused before any
-starts, in a dry run too.
+(e.g. ``-- --her-strategy future``), but for the options the study sets itself (`STUDY_FLAGS`:
+its setting, seeds, budget, folder and process flags) and those a unit's reading sets: those are
+refused, naming the flag, as the last flag would win. A unit that could not start (a region
+that does not parse, an argument the trainer refuses, a run folder two units share) is refused
+before any starts, in a dry run too.
 """
 
 from __future__ import annotations
@@ -450,11 +452,73 @@ def busy(unit: Unit) -> bool:
     return any(RunFolder(unit.run_dir(seed)).holder() is not None for seed in unit.seeds)
 
 
+STUDY_FLAGS = ("region", "joints", "seeds", "seed", "episodes", "out", "resume", "no_progress",
+               "threads", "device", "env_backend", "env_dynamics")
+"""The ``ddpg_her.train`` options (by dest) that a study sets itself for every unit: its setting,
+seeds, budget and folder, and the process flags it has options of its own for. Arguments after
+``--`` and a reading's arguments may not set them: the last flag would win, and a unit would
+train something else than the study counts (issue 37: ``-- --region zheight`` trained z-height
+into ``farbox-j3``, ``-- --out X`` trained into X while the study counted the unit done)."""
+
+
+def option_dests(parser: argparse.ArgumentParser, args: Sequence[str]) -> list[tuple[str, str]]:
+    """(option as typed, its dest) for each option of ``args`` that ``parser`` knows, with
+    argparse's unique-prefix abbreviations (``--reg``) resolved as argparse resolves them."""
+    strings = parser._option_string_actions  # noqa: SLF001 (argparse has no public lookup)
+    out = []
+    for arg in args:
+        if not arg.startswith("-") or arg == "--" or len(arg) < 2:
+            continue
+        name = arg.partition("=")[0] if arg.startswith("--") else arg
+        if name in strings:
+            out.append((name, strings[name].dest))
+            continue
+        if name.startswith("--"):
+            dests = {strings[s].dest for s in strings if s.startswith(name)}
+            if len(dests) == 1:
+                out.append((name, dests.pop()))
+    return out
+
+
+def task_keys(args: Sequence[str]) -> list[str]:
+    """The TaskSpec fields that the ``--task KEY=VALUE`` options of ``args`` set (a malformed
+    one is left to ``ddpg_her.train`` to name)."""
+    values = [v for f, v in zip(args, args[1:]) if f == "--task"]
+    values += [a.partition("=")[2] for a in args if a.startswith("--task=")]
+    return [v.partition("=")[0] for v in values if "=" in v]
+
+
+def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
+                        extra: Sequence[str]) -> list[str]:
+    """Where ``unit``'s own arguments or ``extra`` (the arguments after ``--``) set what the
+    study sets (`STUDY_FLAGS`), or ``extra`` sets an option or ``--task`` field that the unit's
+    reading sets: one line each, naming the flag."""
+    problems = []
+    for where, args in (("its reading's arguments", unit.train_args),
+                        ("the arguments after --", extra)):
+        for flag, dest in option_dests(parser, args):
+            if dest in STUDY_FLAGS:
+                problems.append(f"{unit.name}: {flag} in {where}: the study sets it for every "
+                                "unit (use the study's own option, or drop it)")
+        problems += [f"{unit.name}: --task {key}=... in {where}: the study sets it for every "
+                     "unit (its setting)" for key in task_keys(args)
+                     if key in ("region", "n_joints")]
+    own = {dest for _, dest in option_dests(parser, unit.train_args)} - {"task"}
+    problems += [f"{unit.name}: {flag} after --: the unit's reading sets it "
+                 f"({' '.join(unit.train_args)})"
+                 for flag, dest in option_dests(parser, extra) if dest in own]
+    own_task = task_keys(unit.train_args)
+    problems += [f"{unit.name}: --task {key}=... after --: the unit's reading sets it "
+                 f"({' '.join(unit.train_args)})" for key in task_keys(extra) if key in own_task]
+    return problems
+
+
 def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
-    """Why units could not start, one line each: a command line ``ddpg_her.train`` refuses
-    (an unknown flag, a bad value), a region that does not parse, or two units (or two seeds)
-    with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks what
-    needs neither the robot nor torch."""
+    """Why units could not start, one line each: an option the study sets itself given again
+    after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
+    refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
+    seeds) with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks
+    what needs neither the robot nor torch."""
     import io
 
     from ddpg_her import train
@@ -464,6 +528,10 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
     problems = []
     parser = train.make_parser()
     for unit in units:
+        owned = owned_flag_problems(parser, unit, extra)
+        if owned:
+            problems += owned
+            continue
         args = unit.run_args(extra)
         err = io.StringIO()
         try:
