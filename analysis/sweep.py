@@ -36,7 +36,7 @@ from typing import IO
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.runfolder import RunFolder, run_status
-from ddpg_her.units import split_passthrough
+from ddpg_her.units import DEFAULT_THREADS, split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": PAPER_GRID,
@@ -334,8 +334,9 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                        help="run on this Ray cluster ('auto', 'ray://host:port', or 'local' "
                             "to start one on this machine)")
     parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads per training process (count, >= 1; default: the "
-                             "machine's cores divided by --workers)")
+                        help="torch threads per training process (count, >= 1; default: "
+                             f"{DEFAULT_THREADS}, ddpg_her.train's, which keeps a fair share "
+                             "of the cores when other work runs)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
@@ -389,7 +390,7 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.env_dynamics != "torch" and args.env_backend != "torch":
         parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
                      f"torch; got --env-backend {args.env_backend}")
-    return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+    return args.threads or DEFAULT_THREADS
 
 
 ONE_PROCESS_LOG = "logs/one-process.log"

@@ -92,7 +92,9 @@ def add_process_flags(group: Any, what: str) -> None:
                             "records update_graph 'on' (a run resumes only with its own "
                             "setting). 'off', the update loop of earlier runs")
     group.add_argument("--threads", type=int, default=None,
-                       help="torch CPU threads (count, >= 1; default: torch's choice)")
+                       help="torch CPU threads (count, >= 1; default: 1, which keeps a fair "
+                            "share of the cores when other work runs and is about as fast "
+                            "alone: ddpg_her.units.DEFAULT_THREADS)")
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
     group.add_argument("--no-tensorboard", action="store_true",
                        help="no TensorBoard logs even when tensorboard is installed")
@@ -325,8 +327,9 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
 
     if args.device == "cuda" and not torch.cuda.is_available():
         parser.error("--device cuda: no CUDA device is available to torch")
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
+    from ddpg_her.units import DEFAULT_THREADS
+
+    torch.set_num_threads(args.threads or DEFAULT_THREADS)
     torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
 
 
