@@ -390,6 +390,13 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.env_dynamics != "torch" and args.env_backend != "torch":
         parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
                      f"torch; got --env-backend {args.env_backend}")
+    if not args.dry_run and getattr(args, "collect", None) is None:
+        from analysis.outputs import OutputError, check_folder
+
+        try:  # the root of the runs (and its logs), before any unit starts
+            check_folder(args.out / "logs", "--out")
+        except OutputError as err:
+            parser.error(str(err))
     return args.threads or DEFAULT_THREADS
 
 

@@ -143,12 +143,15 @@ def write_failure(path: Path, err: OSError, what: str = "write") -> RunFolderWri
 
 
 def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part.
+    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part:
+    the one writer of every file the commands write (run folders, and the analysis outputs
+    through `analysis.outputs.write_bytes`).
 
     Raises
     ------
     RunFolderWriteError
-        When the file cannot be written (its temporary file is removed, the old file kept).
+        When the file cannot be written (its temporary file is removed, the old file kept; the
+        temporary file is removed on any other exception too, Ctrl-C included).
     """
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     try:
@@ -157,10 +160,12 @@ def atomic_write(path: Path, data: bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except OSError as err:
+    except BaseException as err:
         with contextlib.suppress(OSError):
             tmp.unlink()
-        raise write_failure(path, err) from err
+        if isinstance(err, OSError):
+            raise write_failure(path, err) from err
+        raise
 
 
 def make_folder(path: Path) -> None:

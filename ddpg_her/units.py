@@ -127,5 +127,8 @@ def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
 
 def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
     """Write a plan file that `read_plan` reads back as ``units``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
+    from ddpg_her.runfolder import atomic_write, make_folder
+
+    make_folder(path.parent)
+    atomic_write(path, (json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
+                 .encode())
