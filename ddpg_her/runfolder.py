@@ -32,6 +32,7 @@ import csv
 import datetime
 import io
 import json
+import math
 import os
 import re
 import socket
@@ -133,6 +134,23 @@ def _alive(pid: int) -> bool:
 class RunFolderWriteError(RunFolderError):
     """A file of a run folder that cannot be written (read-only, full disk, no permission, a
     file where a folder should be); the file as it was is left in place."""
+
+
+NONFINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
+"""How ``spec.json`` writes a non-finite number (strict JSON has none): as Python's ``float``
+spells it, the text a flag takes (``--obs-clip inf``). Files written before read their
+``Infinity`` as before."""
+
+NONFINITE_SECTIONS = ("agent", "task", "env_kwargs")
+"""The ``spec.json`` sections whose values may be non-finite numbers, written as `NONFINITE`'s
+strings; none of their string fields takes one of those words."""
+
+
+def _nonfinite_text(value: Any) -> Any:
+    """``value``, or its `NONFINITE` string when it is a non-finite float."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
 
 
 def write_failure(path: Path, err: OSError, what: str = "write") -> RunFolderWriteError:
@@ -341,11 +359,33 @@ class RunFolder:
         if not isinstance(spec, dict):
             raise RunFolderError(f"{path} holds a JSON {type(spec).__name__}, not a run "
                                  "specification (a JSON object)")
+        for key in NONFINITE_SECTIONS:
+            if isinstance(spec.get(key), dict):
+                spec[key] = {k: NONFINITE.get(v, v) if isinstance(v, str) else v
+                             for k, v in spec[key].items()}
         return spec
 
     def write_spec(self, spec: dict[str, Any]) -> None:
+        """Write ``spec.json`` as strict JSON (RFC 8259): a non-finite number of a section of
+        `NONFINITE_SECTIONS` is written as the string of `NONFINITE` (``--obs-clip inf`` as
+        ``"inf"``, not ``Infinity``, which strict readers refuse); `read_spec` reads it back.
+
+        Raises
+        ------
+        ValueError
+            For a non-finite number elsewhere in ``spec``, which no reader could tell apart.
+        """
         make_folder(self.path)
-        atomic_write(self.spec_path, (json.dumps(spec, indent=2) + "\n").encode())
+        strict = {key: {k: _nonfinite_text(v) for k, v in value.items()}
+                  if key in NONFINITE_SECTIONS and isinstance(value, dict) else value
+                  for key, value in spec.items()}
+        try:
+            text = json.dumps(strict, indent=2, allow_nan=False)
+        except ValueError as err:
+            raise ValueError(f"{self.spec_path}: a non-finite number outside the sections "
+                             f"{', '.join(NONFINITE_SECTIONS)} cannot be written as JSON "
+                             f"({err})") from None
+        atomic_write(self.spec_path, (text + "\n").encode())
 
     def write_eval(self, rows: Sequence[dict[str, Any]]) -> None:
         buf = io.StringIO()
