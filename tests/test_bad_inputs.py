@@ -143,6 +143,10 @@ def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step(
     (["--friction", "nan"], "--friction must be a finite number"),
     (["--n-joints", "7"], "n_joints must be an integer 2..6; got 7"),
     (["--region", "nowhere"], "cannot read region 'nowhere'"),
+    # issue 37, kind 7: numpy's ValueError and the sampler's error were tracebacks
+    (["--seed", "-1"], "--seed must be an integer >= 0 (numpy's seeds are); got -1"),
+    (["--region", "box:5,6,5,6,5,6", "--goals", "2", "--steps", "2", "--rounds", "1"],
+     "--region box:5,6,5,6,5,6: region 'box:5,6,5,6,5,6' has no goals reachable with 3 joints"),
 ])
 def test_the_contact_study_refuses_what_it_cannot_measure(args, message, capsys):
     from analysis import contact
