@@ -157,7 +157,12 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     template = out or DEFAULT_OUT
     if len(seeds) > 1 and "{seed}" not in template:
         template = template.rstrip("/") + "/s{seed}"
-    dirs = [template.format(region=safe_region, joints=joints, seed=s) for s in seeds]
+    try:
+        dirs = [template.format(region=safe_region, joints=joints, seed=s) for s in seeds]
+    except (KeyError, IndexError, ValueError) as err:  # {foo}, {0}, an unmatched brace
+        raise ValueError(f"--out {template!r}: the only fields it may use are {{region}}, "
+                         f"{{joints}} and {{seed}} (double a literal brace); got "
+                         f"{type(err).__name__}: {err}") from None
     if len(set(dirs)) != len(dirs):
         raise ValueError(f"--out {template!r} gives several seeds the same folder")
     return dirs

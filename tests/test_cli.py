@@ -264,3 +264,15 @@ def test_a_training_process_and_a_study_default_to_one_torch_thread(monkeypatch)
     sweep.add_execution_arguments(study, Path("runs"))
     assert sweep.check_execution_arguments(study, study.parse_args([])) == DEFAULT_THREADS
     assert sweep.check_execution_arguments(study, study.parse_args(["--threads", "3"])) == 3
+
+
+@pytest.mark.parametrize("template", ["runs/{foo}", "runs/{0}", "runs/{seed"])
+def test_an_out_template_with_a_field_train_does_not_fill_is_a_usage_error(template, capsys):
+    """Issue 37, kind 4: ``--out runs/{foo}`` was a KeyError traceback from str.format."""
+    from ddpg_her import train
+
+    with pytest.raises(SystemExit) as exit_:
+        train.main(["--region", "farbox", "--out", template])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert f"--out {template!r}: the only fields it may use are {{region}}" in err, err
