@@ -300,6 +300,15 @@ class RunFolder:
                 if holder is not None and holder.get("pid") == os.getpid() and \
                         holder.get("host") == me["host"]:
                     return  # this process holds it already
+                if holder is not None and holder.get("unreadable"):
+                    try:
+                        text = repr(self.lock_path.read_text()[:80])
+                    except (OSError, UnicodeDecodeError) as err:
+                        text = f"unreadable: {err}"
+                    raise RunFolderBusy(
+                        f"{self.lock_path} is not a lock this code wrote (JSON with pid and "
+                        f"host; it holds {text}): another program, or a write cut short, left "
+                        f"it. If no process trains {self.path}, delete it") from None
                 if holder is not None:
                     raise RunFolderBusy(
                         f"{self.path} is being trained by process {holder.get('pid')} on host "
