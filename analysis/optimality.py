@@ -850,6 +850,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         overrides = check_overrides(args.task, args.readings)
     except ValueError as err:
         parser.error(str(err))
+    missing = [str(p) for p in args.curves or [] if not p.is_dir()]
+    if missing:  # found only after the whole computation before
+        parser.error(f"--curves: {', '.join(missing)} is not a folder of runs")
     try:  # before any computing
         check_folder(args.out, "--out")
         for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):
