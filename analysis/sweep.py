@@ -521,12 +521,14 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
     return problems
 
 
-def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
+def unit_problems(units: Sequence[Unit], extra: Sequence[str],
+                  process: Sequence[str] = ()) -> list[str]:
     """Why units could not start, one line each: an option the study sets itself given again
     after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
     refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
     seeds) with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks
-    what needs neither the robot nor torch."""
+    what needs neither the robot nor torch. ``process``: the study's own process arguments
+    (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through."""
     import io
 
     from ddpg_her import train
@@ -540,7 +542,7 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
         if owned:
             problems += owned
             continue
-        args = unit.run_args(extra)
+        args = unit.run_args([*extra, *process])
         err = io.StringIO()
         try:
             with contextlib.redirect_stderr(err):
@@ -568,9 +570,10 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
     return problems
 
 
-def refuse_problems(units: Sequence[Unit], extra: Sequence[str]) -> None:
+def refuse_problems(units: Sequence[Unit], extra: Sequence[str],
+                    process: Sequence[str] = ()) -> None:
     """Exit with status 2 and every line of `unit_problems` when a unit could not start."""
-    problems = unit_problems(units, extra)
+    problems = unit_problems(units, extra, process)
     if problems:
         for line in problems:
             print(f"error: {line}", file=sys.stderr)
@@ -586,7 +589,7 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     ``--project``, `print_projection`. Units that could not start are refused first
     (`refuse_problems`), as a real run would."""
     process = backend_args(args)
-    refuse_problems(units, [*extra, *process])
+    refuse_problems(units, extra, process)
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
             "python " + " ".join(unit.command(threads, [*extra, *process], args.device)[1:])
@@ -704,7 +707,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
     process = backend_args(args)
-    refuse_problems(units, [*extra, *process])
+    refuse_problems(units, extra, process)
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)

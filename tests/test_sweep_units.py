@@ -199,3 +199,10 @@ def test_what_follows_dash_dash_that_the_study_leaves_open_still_passes(tmp_path
                        "--task", "action_weight=0.5"]) == 0
     out = capsys.readouterr().out
     assert "--tau 0.01 --no-tensorboard --task action_weight=0.5" in out
+    # the study's own process options are not passed-through ones
+    assert sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                       str(tmp_path), "--dry-run", "--env-backend", "batched", "--one-process",
+                       "--", "--tau", "0.01"]) == 0
+    assert sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                       str(tmp_path), "--dry-run", "--env-backend", "batched"]) == 0
+    assert capsys.readouterr().out.rstrip().endswith("--env-backend batched")
