@@ -355,7 +355,8 @@ class RunFolder:
         Raises
         ------
         RunFolderError
-            When the file is missing, is not JSON (e.g. truncated) or is not a JSON object.
+            When the file is missing, is not JSON (e.g. truncated), is not a JSON object, or is
+            a run of another format version than `FORMAT`.
         """
         path = self.spec_path
         try:
@@ -368,6 +369,10 @@ class RunFolder:
         if not isinstance(spec, dict):
             raise RunFolderError(f"{path} holds a JSON {type(spec).__name__}, not a run "
                                  "specification (a JSON object)")
+        if is_run_spec(spec) and spec["format"] != FORMAT:  # every reader, --resume included
+            raise RunFolderError(f"{path} is a run of format {spec['format']!r}, written by "
+                                 f"another version of this code; this one reads {FORMAT!r} "
+                                 "(read it with the version that wrote it)")
         for key in NONFINITE_SECTIONS:
             if isinstance(spec.get(key), dict):
                 spec[key] = {k: NONFINITE.get(v, v) if isinstance(v, str) else v
@@ -412,7 +417,7 @@ class RunFolder:
         Raises
         ------
         RunFolderError
-            When its header is not `EVAL_COLUMNS`, a row has another number of cells, or a row
+            When it is empty (not even a header), its header is not `EVAL_COLUMNS`, a row has another number of cells, or a row
             cannot be a test session: ``episode``, ``successes``, ``tests`` or ``env_steps`` not
             a whole number, another column not a finite number, ``tests`` < 1, ``successes``
             outside [0, tests], or ``episode`` not above the row before. The message names the
@@ -428,8 +433,9 @@ class RunFolder:
                 body = list(reader)
         except (OSError, UnicodeDecodeError, csv.Error) as err:
             raise RunFolderError(f"{path} cannot be read ({err})") from err
-        if header is None:
-            return []
+        if header is None:  # the trainer writes the header before any row, atomically
+            raise RunFolderError(f"{path} is empty, not even its header: truncated by an "
+                                 "interrupted copy? (a run writes its header at its start)")
         if tuple(header) != EVAL_COLUMNS:
             raise RunFolderError(f"{path} has columns {header}, expected {list(EVAL_COLUMNS)}")
         rows, last = [], None
