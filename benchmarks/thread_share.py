@@ -7,7 +7,8 @@ kind 9). This script times, for each ``--threads`` setting (``default``: the fla
 the training program's own default), ``--repeats`` rounds of one run alone and of two identical
 runs started together, and prints one JSON line per run and a summary (median wall seconds per
 setting and case). It also says whether the runs' ``eval.csv`` agree with the first setting's
-(all columns but ``wall_s``): the thread count must not change what is computed.
+(all columns but ``wall_s``): the thread count must not change what is computed. Each line
+records the machine's 1-minute load average before the case: other work shares the cores.
 
 Examples::
 
@@ -19,6 +20,8 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
+import os
 import statistics
 import subprocess
 import sys
@@ -41,14 +44,21 @@ def command(out: Path, episodes: int, threads: str) -> list[str]:
             "--eval-every", str(episodes), "--out", str(out), *extra]
 
 
-def timed(commands: Sequence[Sequence[str]]) -> list[float]:
-    """Start ``commands`` together; each one's wall seconds (a failed one stops the script)."""
+def timed(commands: Sequence[Sequence[str]], limit_s: float) -> list[float | None]:
+    """Start ``commands`` together; each one's wall seconds, None for one still running after
+    ``limit_s`` (then ended); a failed one stops the script."""
     start = time.perf_counter()
     procs = [subprocess.Popen(c, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
              for c in commands]
-    walls = []
+    walls: list[float | None] = []
     for c, p in zip(commands, procs, strict=True):
-        _, err = p.communicate()
+        try:
+            _, err = p.communicate(timeout=max(1.0, limit_s - (time.perf_counter() - start)))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.communicate()
+            walls.append(None)
+            continue
         walls.append(time.perf_counter() - start)
         if p.returncode:
             sys.exit(f"thread_share: {' '.join(c)} failed ({p.returncode}): {err[-2000:]}")
@@ -61,11 +71,19 @@ def eval_rows(run: Path) -> list[dict[str, str]]:
         return [{k: v for k, v in row.items() if k != "wall_s"} for row in csv.DictReader(f)]
 
 
+def _round(seconds: float) -> float | None:
+    """Seconds to 0.1 s for JSON; None for a run ended at the limit (inf)."""
+    return None if math.isinf(seconds) else round(seconds, 1)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.thread_share",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=int, default=50, help="episodes per run (count)")
     parser.add_argument("--repeats", type=int, default=2, help="rounds per setting (count)")
+    parser.add_argument("--limit-s", type=float, default=900.0,
+                        help="a run still going after this many seconds is ended and recorded "
+                             "as null (s)")
     parser.add_argument("--settings", nargs="+", default=["default", "1"],
                         help="--threads values to time; 'default' leaves the flag out")
     args = parser.parse_args(argv)
@@ -76,19 +94,25 @@ def main(argv: Sequence[str] | None = None) -> int:
             for threads in args.settings:
                 for case, n in (("alone", 1), ("two_together", 2)):
                     outs = [Path(tmp, f"{threads}-{case}-{r}-{i}") for i in range(n)]
-                    walls = timed([command(o, args.episodes, threads) for o in outs])
-                    rows = [eval_rows(o) for o in outs]
-                    reference = reference if reference is not None else rows[0]
+                    load = os.getloadavg()[0]
+                    walls = timed([command(o, args.episodes, threads) for o in outs],
+                                  args.limit_s)
+                    rows = [eval_rows(o) for o, w in zip(outs, walls, strict=True)
+                            if w is not None]
+                    reference = reference if reference is not None or not rows else rows[0]
                     same = all(x == reference for x in rows)
-                    summary.setdefault(threads, {}).setdefault(case, []).extend(walls)
+                    summary.setdefault(threads, {}).setdefault(case, []).extend(
+                        w if w is not None else math.inf for w in walls)
                     print(json.dumps({"threads": threads, "case": case, "round": r,
-                                      "wall_s": [round(w, 1) for w in walls],
-                                      "eval_same_as_first": same}), flush=True)
+                                      "wall_s": [None if w is None else round(w, 1)
+                                                 for w in walls],
+                                      "eval_same_as_first": same,
+                                      "load_1min_before": round(load, 2)}), flush=True)
     print(json.dumps({"episodes": args.episodes, "repeats": args.repeats,
-                      "median_wall_s": {t: {c: round(statistics.median(w), 1)
+                      "median_wall_s": {t: {c: _round(statistics.median(w))
                                             for c, w in cases.items()}
                                         for t, cases in summary.items()},
-                      "all_wall_s": {t: {c: [round(x, 1) for x in w] for c, w in cases.items()}
+                      "all_wall_s": {t: {c: [_round(x) for x in w] for c, w in cases.items()}
                                      for t, cases in summary.items()}}))
     return 0
 
