@@ -20,6 +20,11 @@ from envs.spec import TaskSpec
 from envs.task import TaskRules, action_bounds, single_spaces
 
 
+GOAL_TOLERANCE = 1e-6
+"""m: how far past the plane or the reach ball a given goal may lie and still be taken: goals
+handed back from float32 observations (ddpg_her's envs) round by up to about 1e-7 m."""
+
+
 def check_reachable_goals(goals: np.ndarray, base_height: float) -> None:
     """Raise ValueError naming the first of ``goals (m, 3) m, world frame`` that lies under the
     ground plane or outside the arm's reach ball (centre at the shoulder, radius
@@ -29,10 +34,10 @@ def check_reachable_goals(goals: np.ndarray, base_height: float) -> None:
     ball = reach_ball(base_height)
     distance = np.linalg.norm(goals - np.asarray(ball.center), axis=-1)
     for i, (goal, d) in enumerate(zip(goals, distance, strict=True)):
-        if goal[2] < 0.0:
+        if goal[2] < -GOAL_TOLERANCE:
             raise ValueError(f"goal {i} {goal.tolist()} m lies under the ground plane (z < 0): "
                              "no episode can reach it")
-        if d > ball.radius:
+        if d > ball.radius + GOAL_TOLERANCE:
             raise ValueError(f"goal {i} {goal.tolist()} m lies {d:.3f} m from the shoulder, "
                              f"beyond the arm's reach of {ball.radius:.3f} m: no episode can "
                              "reach it")
