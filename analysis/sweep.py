@@ -371,6 +371,36 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "--eval-every / --episodes of the real run (1 %% of the paper's)")
 
 
+RAY_CONNECT_S = 5.0
+"""s: how long a Ray address's host may take to accept a connection before the study says no
+cluster answers there (ray.init itself kept trying for over 120 s)."""
+
+
+def ray_address_problem(address: str) -> str | None:
+    """Why ``address`` cannot be a Ray cluster to run on, in our words, or None: the ``ray``
+    package missing, an address that is not 'local', 'auto', ``HOST:PORT`` or
+    ``ray://HOST:PORT``, or nothing accepting a connection at HOST:PORT within
+    `RAY_CONNECT_S`. 'auto' is left to Ray, which finds the cluster of this machine."""
+    import importlib.util
+    import socket
+
+    if importlib.util.find_spec("ray") is None:
+        return "the ray package is not installed (pip install 'ray[default]')"
+    if address in ("local", "auto"):
+        return None
+    hostport = address.removeprefix("ray://")
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        return ("expected 'local', 'auto', HOST:PORT or ray://HOST:PORT (a port in "
+                "1..65535)")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_CONNECT_S):
+            return None
+    except OSError as err:
+        return (f"no Ray cluster answers at {host}:{port} ({err.strerror or err}); start one "
+                "(ray start --head) or use 'local'")
+
+
 def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     """Exit through ``parser.error`` on a count below 1; the threads per process to use."""
     for flag in ("episodes", "seeds", "workers", "threads"):
@@ -390,6 +420,10 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.env_dynamics != "torch" and args.env_backend != "torch":
         parser.error(f"--env-dynamics {args.env_dynamics} is the dynamics of --env-backend "
                      f"torch; got --env-backend {args.env_backend}")
+    if args.ray_address and not args.dry_run and getattr(args, "collect", None) is None:
+        problem = ray_address_problem(args.ray_address)
+        if problem:
+            parser.error(f"--ray-address {args.ray_address}: {problem}")
     if not args.dry_run and getattr(args, "collect", None) is None:
         from analysis.outputs import OutputError, check_folder
 

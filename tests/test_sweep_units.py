@@ -206,3 +206,25 @@ def test_what_follows_dash_dash_that_the_study_leaves_open_still_passes(tmp_path
     assert sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
                        str(tmp_path), "--dry-run", "--env-backend", "batched"]) == 0
     assert capsys.readouterr().out.rstrip().endswith("--env-backend batched")
+
+
+@pytest.mark.parametrize("address, message", [
+    ("127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
+    ("ray://127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
+    ("nohost", "expected 'local', 'auto', HOST:PORT or ray://HOST:PORT"),
+    ("127.0.0.1:99999", "a port in 1..65535"),
+])
+def test_a_ray_address_with_no_cluster_is_refused_in_one_line_before_ray_starts(
+        tmp_path, capsys, address, message):
+    """Issue 37, kind 4: --ray-address 127.0.0.1:6999 with no cluster hung over 120 s in
+    ray.init, and other bad addresses ended in Ray's tracebacks."""
+    import time
+
+    start = time.perf_counter()
+    with pytest.raises(SystemExit) as exit_:
+        sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                    str(tmp_path), "--ray-address", address])
+    assert exit_.value.code == 2 and time.perf_counter() - start < 60
+    err = capsys.readouterr().err
+    assert f"--ray-address {address}: " in err and message in err, err
+    assert "Traceback" not in err
