@@ -113,6 +113,12 @@ def cases(tmp: Path) -> list[tuple[str, str, list[str], str, str]]:
                     ["--settings", "unconstrained:2", "--goals", "2", "--readings", "ours",
                      "actor_penalty", "--out", str(tmp / "opt"), "--no-progress", "--task",
                      task], "usage", words))
+    for address, words in (("127.0.0.1:6999", "no Ray cluster answers"),
+                           ("ray://127.0.0.1:6999", "no Ray cluster answers"),
+                           ("nohost", "HOST:PORT"), ("127.0.0.1:0", "1..65535")):
+        out.append((f"sweep --ray-address {address}", "analysis.sweep",
+                    ["--setting", "farbox:3", *sweep_root, "--ray-address", address], "usage",
+                    words))
     # kind 7: analysis commands end bad input in one line
     out += [
         ("contact --seed -1", "analysis.contact", ["--seed", "-1"], "usage", "--seed"),
