@@ -329,6 +329,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--size must be at least 64 x 64 pixels; got {args.size}")
     if args.at is not None and args.at < 0:
         parser.error(f"--at must be a time >= 0 (s); got {args.at}")
+    from analysis.outputs import OutputError, check_writable, write_bytes
+
+    try:
+        check_writable(args.out, "--out")
+    except OutputError as err:
+        parser.error(str(err))
     try:
         with Browser(size=args.size) as browser:
             page = ViewerPage(browser, args.page)
@@ -338,8 +344,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrowserError as err:
         print(f"analysis.browser: {err}", file=sys.stderr)
         return 1
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_bytes(png)
+    try:
+        write_bytes(args.out, png)
+    except OutputError as err:
+        parser.exit(1, f"error: {err}\n")
     print(f"-> {args.out}", file=sys.stderr)
     return 0
 

@@ -170,6 +170,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name in ("goals", "steps", "rounds"):
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be >= 1; got {getattr(args, name)}")
+    if args.seed < 0:
+        parser.error(f"--seed must be an integer >= 0 (numpy's seeds are); got {args.seed}")
     if not math.isfinite(args.friction):
         parser.error(f"--friction must be a finite number (dimensionless); got {args.friction}")
     try:
@@ -177,7 +179,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as err:
         parser.error(str(err))
     config = ContactConfig(**vars(args))
-    rows = measure(config)
+    from regions.samplers import UnreachableRegionError
+
+    try:
+        rows = measure(config)  # its first step samples the goals: no work is lost
+    except UnreachableRegionError as err:
+        parser.error(f"--region {args.region}: {err}")
     if config.json:
         print(json.dumps({"config": asdict(config), "rows": [asdict(r) for r in rows]},
                          indent=2))

@@ -581,6 +581,46 @@ def missing_fields(fields: Mapping[str, Any]) -> list[str]:
     return sorted(set(fields) - known)
 
 
+def check_overrides(overrides: Sequence[tuple[str, Any]], readings: Sequence[str]
+                    ) -> dict[str, Any]:
+    """The ``--task KEY=VALUE`` pairs as the TaskSpec fields they set, checked before any
+    computing as ``ddpg_her.train`` checks its own: every key a TaskSpec field, none the study
+    sets itself (region and n_joints, from --regions, --joints or --settings; a field one of
+    ``readings`` sets, which would win over it unseen), none given twice with two values, and
+    the values ones TaskSpec accepts.
+
+    Raises
+    ------
+    ValueError
+        Naming the key and what was expected.
+    """
+    from ddpg_her.units import json_equal
+    from envs.spec import TaskSpec
+
+    known = [f.name for f in dataclasses.fields(TaskSpec)]
+    fields: dict[str, Any] = {}
+    for key, value in overrides:
+        if key not in known:
+            raise ValueError(f"--task {key}: TaskSpec has no field {key!r}; its fields are "
+                             f"{', '.join(known)}")
+        if key in ("region", "n_joints"):
+            raise ValueError(f"--task {key}: the study sets it for every setting (--regions, "
+                             "--joints or --settings)")
+        owners = [name for name in readings if key in READINGS.get(name, {})]
+        if owners:
+            raise ValueError(f"--task {key}: the reading(s) {', '.join(owners)} set it "
+                             "themselves; drop it or choose other --readings")
+        if key in fields and not json_equal(fields[key], value):
+            raise ValueError(f"--task {key} given two values ({fields[key]!r}, {value!r}); "
+                             "give it once")
+        fields[key] = value
+    try:
+        TaskSpec(**fields)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"--task: {err}") from None
+    return fields
+
+
 def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
           overrides: Mapping[str, Any], goals: int, gamma: float, seed: int,
           grid: int = 0, progress: bool = True) -> tuple[list[dict[str, Any]], list[str]]:
@@ -806,6 +846,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--seed must be >= 0; got {args.seed}")
     if args.grid != 0 and args.grid < 2:
         parser.error(f"--grid must be 0 (off) or >= 2 angles per joint; got {args.grid}")
+    try:
+        overrides = check_overrides(args.task, args.readings)
+    except ValueError as err:
+        parser.error(str(err))
+    missing = [str(p) for p in args.curves or [] if not p.is_dir()]
+    if missing:  # found only after the whole computation before
+        parser.error(f"--curves: {', '.join(missing)} is not a folder of runs")
     try:  # before any computing
         check_folder(args.out, "--out")
         for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):
@@ -825,7 +872,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
     try:
-        rows, skipped = study(settings, args.readings, dict(args.task),
+        rows, skipped = study(settings, args.readings, overrides,
                               args.goals, args.gamma, args.seed, grid=args.grid,
                               progress=not args.no_progress)
     except ValueError as err:

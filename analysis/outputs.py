@@ -9,7 +9,6 @@ the work starts, and each file is written to a temporary name and moved into pla
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import os
@@ -101,23 +100,26 @@ def _read_only(path: Path) -> bool:
 
 
 def write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` whole or not at all (a temporary name, then a move).
+    """Write ``data`` to ``path`` whole or not at all, by the one atomic writer
+    (`ddpg_her.runfolder.atomic_write`: a temporary name, then a move); a file there before
+    stays as it was when the write fails.
 
     Raises
     ------
     OutputError
         When the write fails (full disk, ...); nothing is left of it.
     """
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    from ddpg_her.runfolder import RunFolderWriteError, atomic_write
+
+    path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
     except OSError as err:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise OutputError(f"cannot write {path}: {err.strerror or err}") from err
+        raise OutputError(f"cannot create the folder of {path}: {err.strerror or err}") from err
+    try:
+        atomic_write(path, data)
+    except RunFolderWriteError as err:
+        raise OutputError(str(err)) from err
 
 
 def write_text(path: Path, text: str) -> None:

@@ -249,6 +249,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_run(args.run)
     except ReplayError as err:
         parser.error(str(err))
+    from analysis.outputs import OutputError, check_writable
+
+    if not args.serve:
+        try:  # before the rollout, which takes minutes
+            check_writable(args.out, "--out")
+        except OutputError as err:
+            parser.error(str(err))
     from analysis import scene as scenes
 
     try:
@@ -272,7 +279,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"serving at {vis.url()} (Ctrl-C ends it)", flush=True)
         serve_until_stopped()
         return 0
-    size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)
+    try:
+        size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)
+    except OutputError as err:
+        parser.exit(1, f"error: {err}\n")
     print(f"-> {args.out} ({size / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 

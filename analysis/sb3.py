@@ -16,6 +16,7 @@ of ``VecNormalize``'s keyword arguments) trains under SB3's input normaliser, as
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import datetime
 import json
@@ -139,10 +140,8 @@ def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episode
     """Train SB3's ``algo`` for ``episodes`` training episodes into the run folder ``out``;
     returns the eval rows (also in ``out/eval.csv``)."""
     import gymnasium
-    from stable_baselines3.common.callbacks import BaseCallback
 
     from ddpg_her.runfolder import FORMAT, RunFolder, git_revision, versions
-    from ddpg_her.trainer import EVAL_ENV_STREAM, stream_seed
     from ddpg_her.vecenv import register_env
 
     folder = RunFolder(out)
@@ -164,7 +163,27 @@ def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episode
         "versions": versions(), "git": git_revision(), "command": list(command),
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }
+    created = not folder.path.exists()
     folder.write_spec(spec)
+    try:
+        return _learn(model, env, make_env, folder, seed, episodes, eval_every,
+                      eval_episodes)
+    except BaseException:
+        if not (folder.path / "eval.csv").exists():  # nothing learnt is kept: leave no folder behind
+            with contextlib.suppress(OSError):
+                folder.spec_path.unlink()
+                if created:
+                    folder.path.rmdir()
+        raise
+
+
+def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes: int,
+           eval_every: int, eval_episodes: int) -> list[dict[str, Any]]:
+    """`train`'s loop: learn with a test session every ``eval_every`` episodes."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from ddpg_her.trainer import EVAL_ENV_STREAM, stream_seed
+
     rows: list[dict[str, Any]] = []
     start = time.perf_counter()
 

@@ -401,12 +401,11 @@ class Scene:
         window = self.vis.window
         if not isinstance(window, RecordingWindow):
             raise TypeError("write_html needs a scene of offline_visualizer()")
+        from analysis.outputs import write_text
+
         page = meshcat_page(window.commands(), title, caption)
         out = pathlib.Path(out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(page, encoding="utf-8")
-        tmp.replace(out)
+        write_text(out, page)  # whole or not at all; raises OutputError
         return out.stat().st_size
 
 

@@ -39,7 +39,15 @@ from typing import Any
 import numpy as np
 
 from analysis.curves import curve_rows as setting_curve_rows
-from analysis.outputs import pyplot, save_figure, write_csv
+from analysis.outputs import (
+    OutputError,
+    check_folder,
+    check_writable,
+    pyplot,
+    save_figure,
+    write_csv,
+    write_text,
+)
 from analysis.paper import PAPER_EPISODES
 from analysis.readings import CHOICES, READINGS, Reading, run_choices
 from analysis.report import (
@@ -157,8 +165,7 @@ def write_reading(root: Path, reading: Reading) -> None:
                              f"{old.get('args')}, not {list(reading.args)}: choose another "
                              "name or --out")
         return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({**asdict(reading), "args": list(reading.args)}, indent=2) + "\n")
+    write_text(path, json.dumps({**asdict(reading), "args": list(reading.args)}, indent=2) + "\n")
 
 
 def missing_task_fields(reading: Reading, extra: Sequence[str] = ()) -> list[str]:
@@ -795,7 +802,7 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
         plot_worth(cells, settings, run, out / "worth_reaching.png")
         files.append(out / "worth_reaching.png")
     text = render(cells, rows, names, known, budget, seeds, level, reps, note, boot_seed)
-    (out / "report.md").write_text(text)
+    write_text(out / "report.md", text)
     files.append(out / "report.md")
     return StudyReport(cells, rows, names, text, files)
 
@@ -862,10 +869,20 @@ def report_main(argv: Sequence[str]) -> int:
         parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
     if args.worth_goals < 0:
         parser.error(f"--worth-goals must be >= 0; got {args.worth_goals}")
+    out = args.out or args.root
+    try:  # before any computing
+        check_folder(out, "--out" if args.out else "ROOT")
+        for name in ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
+                     "worth_reaching.png", "report.md"):
+            check_writable(out / name, "--out" if args.out else "ROOT")
+    except OutputError as err:
+        parser.error(str(err))
     try:
         result = report(args.root, args.out or args.root, args.episodes, args.seeds,
                         args.confidence, args.reps, args.bootstrap_seed, args.worth_goals,
                         args.readings, _user_readings(parser, args))
+    except OutputError as err:
+        parser.exit(1, f"error: {err}\n")
     except (FileNotFoundError, ValueError) as err:
         parser.error(str(err))
     print(result.text, end="")
@@ -895,6 +912,11 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
     ``settings``): a dry run, ``--collect``, or training them with each reading recorded
     (`write_reading`) in the root."""
     threads = check_execution_arguments(parser, args)
+    if args.collect is not None:
+        try:
+            check_folder(args.collect / "runs", "--collect")
+        except OutputError as err:
+            parser.error(str(err))
     units = units_for(readings, args.setting or settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
         dry_run(units, args, threads, extra)

@@ -13,9 +13,11 @@ sweep continues where it stopped when run again; a setting another ``ddpg_her.tr
 ``ddpg_her.train_many`` process is training (it holds a run folder's lock) is left to it.
 Each process's output goes to ``ROOT/logs/<region>-j<joints>.log`` (one process:
 ``ROOT/logs/one-process.log``). Arguments after ``--`` pass to ``ddpg_her.train`` unchanged
-(e.g. ``-- --her-strategy future``). A unit that could not start (a region that does not
-parse, an argument the trainer refuses, a run folder two units share) is refused before any
-starts, in a dry run too.
+(e.g. ``-- --her-strategy future``), but for the options the study sets itself (`STUDY_FLAGS`:
+its setting, seeds, budget, folder and process flags) and those a unit's reading sets: those are
+refused, naming the flag, as the last flag would win. A unit that could not start (a region
+that does not parse, an argument the trainer refuses, a run folder two units share) is refused
+before any starts, in a dry run too.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from typing import IO
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.runfolder import RunFolder, run_status
-from ddpg_her.units import split_passthrough
+from ddpg_her.units import DEFAULT_THREADS, split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": PAPER_GRID,
@@ -332,8 +334,9 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                        help="run on this Ray cluster ('auto', 'ray://host:port', or 'local' "
                             "to start one on this machine)")
     parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads per training process (count, >= 1; default: the "
-                             "machine's cores divided by --workers)")
+                        help="torch threads per training process (count, >= 1; default: "
+                             f"{DEFAULT_THREADS}, ddpg_her.train's, which keeps a fair share "
+                             "of the cores when other work runs)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
@@ -373,6 +376,36 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "--eval-every / --episodes of the real run (1 %% of the paper's)")
 
 
+RAY_CONNECT_S = 5.0
+"""s: how long a Ray address's host may take to accept a connection before the study says no
+cluster answers there (ray.init itself kept trying for over 120 s)."""
+
+
+def ray_address_problem(address: str) -> str | None:
+    """Why ``address`` cannot be a Ray cluster to run on, in our words, or None: the ``ray``
+    package missing, an address that is not 'local', 'auto', ``HOST:PORT`` or
+    ``ray://HOST:PORT``, or nothing accepting a connection at HOST:PORT within
+    `RAY_CONNECT_S`. 'auto' is left to Ray, which finds the cluster of this machine."""
+    import importlib.util
+    import socket
+
+    if importlib.util.find_spec("ray") is None:
+        return "the ray package is not installed (pip install 'ray[default]')"
+    if address in ("local", "auto"):
+        return None
+    hostport = address.removeprefix("ray://")
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        return ("expected 'local', 'auto', HOST:PORT or ray://HOST:PORT (a port in "
+                "1..65535)")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_CONNECT_S):
+            return None
+    except OSError as err:
+        return (f"no Ray cluster answers at {host}:{port} ({err.strerror or err}); start one "
+                "(ray start --head) or use 'local'")
+
+
 def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     """Exit through ``parser.error`` on a count below 1; the threads per process to use.
     ``--program`` becomes ``--one-process --env-backend program``."""
@@ -397,7 +430,18 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.project and args.ray_address:
         parser.error("--project times the units on this machine, not on a Ray cluster; drop "
                      "--ray-address")
-    return args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+    if args.ray_address and not args.dry_run and getattr(args, "collect", None) is None:
+        problem = ray_address_problem(args.ray_address)
+        if problem:
+            parser.error(f"--ray-address {args.ray_address}: {problem}")
+    if not args.dry_run and getattr(args, "collect", None) is None:
+        from analysis.outputs import OutputError, check_folder
+
+        try:  # the root of the runs (and its logs), before any unit starts
+            check_folder(args.out / "logs", "--out")
+        except OutputError as err:
+            parser.error(str(err))
+    return args.threads or DEFAULT_THREADS
 
 
 GPU_COMMAND_S = 600
@@ -464,11 +508,75 @@ def busy(unit: Unit) -> bool:
     return any(RunFolder(unit.run_dir(seed)).holder() is not None for seed in unit.seeds)
 
 
-def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
-    """Why units could not start, one line each: a command line ``ddpg_her.train`` refuses
-    (an unknown flag, a bad value), a region that does not parse, or two units (or two seeds)
-    with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks what
-    needs neither the robot nor torch."""
+STUDY_FLAGS = ("region", "joints", "seeds", "seed", "episodes", "out", "resume", "no_progress",
+               "threads", "device", "env_backend", "tf32")
+"""The ``ddpg_her.train`` options (by dest) that a study sets itself for every unit: its setting,
+seeds, budget and folder, and the process flags it has options of its own for. Arguments after
+``--`` and a reading's arguments may not set them: the last flag would win, and a unit would
+train something else than the study counts (issue 37: ``-- --region zheight`` trained z-height
+into ``farbox-j3``, ``-- --out X`` trained into X while the study counted the unit done)."""
+
+
+def option_dests(parser: argparse.ArgumentParser, args: Sequence[str]) -> list[tuple[str, str]]:
+    """(option as typed, its dest) for each option of ``args`` that ``parser`` knows, with
+    argparse's unique-prefix abbreviations (``--reg``) resolved as argparse resolves them."""
+    strings = parser._option_string_actions  # noqa: SLF001 (argparse has no public lookup)
+    out = []
+    for arg in args:
+        if not arg.startswith("-") or arg == "--" or len(arg) < 2:
+            continue
+        name = arg.partition("=")[0] if arg.startswith("--") else arg
+        if name in strings:
+            out.append((name, strings[name].dest))
+            continue
+        if name.startswith("--"):
+            dests = {strings[s].dest for s in strings if s.startswith(name)}
+            if len(dests) == 1:
+                out.append((name, dests.pop()))
+    return out
+
+
+def task_keys(args: Sequence[str]) -> list[str]:
+    """The TaskSpec fields that the ``--task KEY=VALUE`` options of ``args`` set (a malformed
+    one is left to ``ddpg_her.train`` to name)."""
+    values = [v for f, v in zip(args, args[1:]) if f == "--task"]
+    values += [a.partition("=")[2] for a in args if a.startswith("--task=")]
+    return [v.partition("=")[0] for v in values if "=" in v]
+
+
+def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
+                        extra: Sequence[str]) -> list[str]:
+    """Where ``unit``'s own arguments or ``extra`` (the arguments after ``--``) set what the
+    study sets (`STUDY_FLAGS`), or ``extra`` sets an option or ``--task`` field that the unit's
+    reading sets: one line each, naming the flag."""
+    problems = []
+    for where, args in (("its reading's arguments", unit.train_args),
+                        ("the arguments after --", extra)):
+        for flag, dest in option_dests(parser, args):
+            if dest in STUDY_FLAGS:
+                problems.append(f"{unit.name}: {flag} in {where}: the study sets it for every "
+                                "unit (use the study's own option, or drop it)")
+        problems += [f"{unit.name}: --task {key}=... in {where}: the study sets it for every "
+                     "unit (its setting)" for key in task_keys(args)
+                     if key in ("region", "n_joints")]
+    own = {dest for _, dest in option_dests(parser, unit.train_args)} - {"task"}
+    problems += [f"{unit.name}: {flag} after --: the unit's reading sets it "
+                 f"({' '.join(unit.train_args)})"
+                 for flag, dest in option_dests(parser, extra) if dest in own]
+    own_task = task_keys(unit.train_args)
+    problems += [f"{unit.name}: --task {key}=... after --: the unit's reading sets it "
+                 f"({' '.join(unit.train_args)})" for key in task_keys(extra) if key in own_task]
+    return problems
+
+
+def unit_problems(units: Sequence[Unit], extra: Sequence[str],
+                  process: Sequence[str] = ()) -> list[str]:
+    """Why units could not start, one line each: an option the study sets itself given again
+    after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
+    refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
+    seeds) with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks
+    what needs neither the robot nor torch. ``process``: the study's own process arguments
+    (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through."""
     import io
 
     from ddpg_her import train
@@ -478,7 +586,11 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
     problems = []
     parser = train.make_parser()
     for unit in units:
-        args = unit.run_args(extra)
+        owned = owned_flag_problems(parser, unit, extra)
+        if owned:
+            problems += owned
+            continue
+        args = unit.run_args([*extra, *process])
         err = io.StringIO()
         try:
             with contextlib.redirect_stderr(err):
@@ -506,9 +618,10 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str]) -> list[str]:
     return problems
 
 
-def refuse_problems(units: Sequence[Unit], extra: Sequence[str]) -> None:
+def refuse_problems(units: Sequence[Unit], extra: Sequence[str],
+                    process: Sequence[str] = ()) -> None:
     """Exit with status 2 and every line of `unit_problems` when a unit could not start."""
-    problems = unit_problems(units, extra)
+    problems = unit_problems(units, extra, process)
     if problems:
         for line in problems:
             print(f"error: {line}", file=sys.stderr)
@@ -524,7 +637,7 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     ``--project``, `print_projection`. Units that could not start are refused first
     (`refuse_problems`), as a real run would."""
     process = backend_args(args)
-    refuse_problems(units, [*extra, *process])
+    refuse_problems(units, extra, process)
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
             "python " + " ".join(unit.command(threads, [*extra, *process], args.device)[1:])
@@ -646,7 +759,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
     process = backend_args(args)
-    refuse_problems(units, [*extra, *process])
+    refuse_problems(units, extra, process)
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)

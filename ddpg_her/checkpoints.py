@@ -118,6 +118,7 @@ class RunFolders:
                  config: AgentConfig):
         self.folders = [RunFolder(d) for d in run_dirs]
         self.specs, self.buffer_size = specs, config.buffer_size
+        self.eval_every = config.eval_every
         self._locked: list[RunFolder] = []
         self._saved_total = np.zeros(len(specs), dtype=np.int64)
         self._kept_totals: list[np.ndarray] = []
@@ -156,10 +157,12 @@ class RunFolders:
             if old is not None:
                 check_continues(f.path, old, spec)
             olds.append(old)
-        episode, states, chunks = self._readable_checkpoint()
+        have = [set(f.checkpoints()) for f in self.folders]
+        first = interrupted_first_save(have, self.eval_every) and None not in olds
+        episode, states, chunks = (None, [], []) if first else self._readable_checkpoint()
         if episode is None:
-            for f, old in zip(self.folders, olds, strict=True):
-                if old is not None:
+            for f, old, h in zip(self.folders, olds, have, strict=True):
+                if old is not None and not h:
                     _refuse_lost_checkpoints(f)
         for f, spec, old in zip(self.folders, self.specs, olds, strict=True):
             # temporary files of writes that a kill interrupted; only now that this process
@@ -172,8 +175,11 @@ class RunFolders:
             else:
                 f.write_spec(spec)
                 f.write_eval([])
-        if episode is None:
+        if episode is None:  # afresh, from episode 0 (see `interrupted_first_save`)
             for f in self.folders:
+                for path in f.checkpoints().values():
+                    path.unlink(missing_ok=True)
+                f.write_eval([])
                 f.prune(upto=0, keep_from=0)
             return
         restore(episode, states, chunks)
@@ -261,13 +267,25 @@ class RunFolders:
         self._locked = []
 
 
+def interrupted_first_save(have: Sequence[set[int]], eval_every: int) -> bool:
+    """Whether the checkpoint episodes ``have`` (one set per run folder of a stack) are those
+    of a first save that a kill interrupted between two folders: some hold the checkpoint of
+    episode ``eval_every`` (the first one a run writes), the others none. The stack has no
+    common checkpoint, and nothing to lose by starting again from episode 0 (its test sessions
+    are those of that first checkpoint alone), which gives the uninterrupted run's bytes. The
+    caller also asks that every folder holds a spec.json (the killed process opened them all):
+    a folder new to the stack means runs started apart, which are not rolled back."""
+    return set().union(*have) == {eval_every} and not all(have)
+
+
 def _refuse_lost_checkpoints(f: RunFolder) -> None:
-    """Raise ValueError when the run in ``f`` has finished work (test sessions, buffer chunks)
-    but no checkpoint: resuming would train it again from episode 0 over its eval.csv. A run
-    killed before its first checkpoint has none of either and starts afresh."""
+    """Raise ValueError when the run in ``f`` has finished work (test sessions) but no
+    checkpoint: resuming would train it again from episode 0 over its eval.csv. A run killed
+    before or during its first checkpoint (its buffer chunk may be whole, its checkpoint a
+    temporary file) has no test session: nothing to lose, it starts afresh (issue 37)."""
     sessions = len(f.read_eval())
     chunks = sorted(p.name for p in (f.path / "buffer").glob("episode-*.npz"))
-    if sessions or chunks:
+    if sessions:
         raise ValueError(
             f"{f.path} holds a run with {sessions} test session(s) in eval.csv"
             + (f" and {len(chunks)} buffer chunk(s)" if chunks else "")

@@ -47,15 +47,46 @@ def layout(env_id: str, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         envs.close()
 
 
+def one_stack(group: Sequence[Setting]) -> bool:
+    """Whether the run folders of ``group`` (settings of one configuration) are where one
+    stack leaves them, a kill included: each folder's latest checkpoint is the stack's common
+    one or the save after it (a kill between two folders' checkpoint writes), no checkpoint
+    counting as episode 0, and every folder holding a spec.json where they differ (one process
+    opened them all). Such settings resume as one stack from the common checkpoint (their
+    `Trainer` picks it), which gives the uninterrupted run's bytes; split into stacks by resume
+    point, they trained otherwise from there on (issue 37)."""
+    folders = [RunFolder(d) for s in group for d in s.run_dirs]
+    have = [set(f.checkpoints()) for f in folders]
+    latest = [max(h) if h else 0 for h in have]
+    if len(set(latest)) == 1:
+        return True
+    common = set.intersection(*have)
+    base = max(common) if common else 0
+    every = group[0].config.eval_every
+    return all(f.spec_path.exists() for f in folders) and \
+        all(n in (base, base + every) for n in latest)
+
+
 def group_settings(settings: Sequence[Setting], resume: bool) -> list[list[Setting]]:
-    """The settings grouped into stacks: equal env id, layout, agent configuration and (with
-    ``resume``) resume point; groups in the order of their first setting."""
+    """The settings grouped into stacks: equal env id, layout and agent configuration and
+    (with ``resume``) one resume point: a group whose folders `one_stack` accepts stays whole,
+    another is split by each setting's `resume_point`; groups in the order of their first
+    setting."""
     groups: dict[str, list[Setting]] = {}
     for s in settings:
-        key = json.dumps([s.env_id, layout(s.env_id, s.env_kwargs), s.config.to_dict(),
-                          resume_point(s.run_dirs) if resume else None], sort_keys=True)
+        key = json.dumps([s.env_id, layout(s.env_id, s.env_kwargs), s.config.to_dict()],
+                         sort_keys=True)
         groups.setdefault(key, []).append(s)
-    return list(groups.values())
+    out: list[list[Setting]] = []
+    for group in groups.values():
+        if not resume or one_stack(group):
+            out.append(group)
+            continue
+        by_point: dict[int | None, list[Setting]] = {}
+        for s in group:
+            by_point.setdefault(resume_point(s.run_dirs), []).append(s)
+        out += by_point.values()
+    return out
 
 
 class MultiTrainer:

@@ -32,6 +32,7 @@ import csv
 import datetime
 import io
 import json
+import math
 import os
 import re
 import socket
@@ -135,6 +136,23 @@ class RunFolderWriteError(RunFolderError):
     file where a folder should be); the file as it was is left in place."""
 
 
+NONFINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
+"""How ``spec.json`` writes a non-finite number (strict JSON has none): as Python's ``float``
+spells it, the text a flag takes (``--obs-clip inf``). Files written before read their
+``Infinity`` as before."""
+
+NONFINITE_SECTIONS = ("agent", "task", "env_kwargs")
+"""The ``spec.json`` sections whose values may be non-finite numbers, written as `NONFINITE`'s
+strings; none of their string fields takes one of those words."""
+
+
+def _nonfinite_text(value: Any) -> Any:
+    """``value``, or its `NONFINITE` string when it is a non-finite float."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
 def write_failure(path: Path, err: OSError, what: str = "write") -> RunFolderWriteError:
     """The `RunFolderWriteError` of an ``OSError`` while writing ``path``: names the path and
     the system's reason."""
@@ -143,12 +161,15 @@ def write_failure(path: Path, err: OSError, what: str = "write") -> RunFolderWri
 
 
 def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part.
+    """Write ``data`` to ``path`` so that a reader sees the old file or the new, never a part:
+    the one writer of every file the commands write (run folders, and the analysis outputs
+    through `analysis.outputs.write_bytes`).
 
     Raises
     ------
     RunFolderWriteError
-        When the file cannot be written (its temporary file is removed, the old file kept).
+        When the file cannot be written (its temporary file is removed, the old file kept; the
+        temporary file is removed on any other exception too, Ctrl-C included).
     """
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     try:
@@ -157,10 +178,12 @@ def atomic_write(path: Path, data: bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except OSError as err:
+    except BaseException as err:
         with contextlib.suppress(OSError):
             tmp.unlink()
-        raise write_failure(path, err) from err
+        if isinstance(err, OSError):
+            raise write_failure(path, err) from err
+        raise
 
 
 def make_folder(path: Path) -> None:
@@ -277,6 +300,15 @@ class RunFolder:
                 if holder is not None and holder.get("pid") == os.getpid() and \
                         holder.get("host") == me["host"]:
                     return  # this process holds it already
+                if holder is not None and holder.get("unreadable"):
+                    try:
+                        text = repr(self.lock_path.read_text()[:80])
+                    except (OSError, UnicodeDecodeError) as err:
+                        text = f"unreadable: {err}"
+                    raise RunFolderBusy(
+                        f"{self.lock_path} is not a lock this code wrote (JSON with pid and "
+                        f"host; it holds {text}): another program, or a write cut short, left "
+                        f"it. If no process trains {self.path}, delete it") from None
                 if holder is not None:
                     raise RunFolderBusy(
                         f"{self.path} is being trained by process {holder.get('pid')} on host "
@@ -323,7 +355,8 @@ class RunFolder:
         Raises
         ------
         RunFolderError
-            When the file is missing, is not JSON (e.g. truncated) or is not a JSON object.
+            When the file is missing, is not JSON (e.g. truncated), is not a JSON object, or is
+            a run of another format version than `FORMAT`.
         """
         path = self.spec_path
         try:
@@ -336,11 +369,37 @@ class RunFolder:
         if not isinstance(spec, dict):
             raise RunFolderError(f"{path} holds a JSON {type(spec).__name__}, not a run "
                                  "specification (a JSON object)")
+        if is_run_spec(spec) and spec["format"] != FORMAT:  # every reader, --resume included
+            raise RunFolderError(f"{path} is a run of format {spec['format']!r}, written by "
+                                 f"another version of this code; this one reads {FORMAT!r} "
+                                 "(read it with the version that wrote it)")
+        for key in NONFINITE_SECTIONS:
+            if isinstance(spec.get(key), dict):
+                spec[key] = {k: NONFINITE.get(v, v) if isinstance(v, str) else v
+                             for k, v in spec[key].items()}
         return spec
 
     def write_spec(self, spec: dict[str, Any]) -> None:
+        """Write ``spec.json`` as strict JSON (RFC 8259): a non-finite number of a section of
+        `NONFINITE_SECTIONS` is written as the string of `NONFINITE` (``--obs-clip inf`` as
+        ``"inf"``, not ``Infinity``, which strict readers refuse); `read_spec` reads it back.
+
+        Raises
+        ------
+        ValueError
+            For a non-finite number elsewhere in ``spec``, which no reader could tell apart.
+        """
         make_folder(self.path)
-        atomic_write(self.spec_path, (json.dumps(spec, indent=2) + "\n").encode())
+        strict = {key: {k: _nonfinite_text(v) for k, v in value.items()}
+                  if key in NONFINITE_SECTIONS and isinstance(value, dict) else value
+                  for key, value in spec.items()}
+        try:
+            text = json.dumps(strict, indent=2, allow_nan=False)
+        except ValueError as err:
+            raise ValueError(f"{self.spec_path}: a non-finite number outside the sections "
+                             f"{', '.join(NONFINITE_SECTIONS)} cannot be written as JSON "
+                             f"({err})") from None
+        atomic_write(self.spec_path, (text + "\n").encode())
 
     def write_eval(self, rows: Sequence[dict[str, Any]]) -> None:
         buf = io.StringIO()
@@ -358,7 +417,7 @@ class RunFolder:
         Raises
         ------
         RunFolderError
-            When its header is not `EVAL_COLUMNS`, a row has another number of cells, or a row
+            When it is empty (not even a header), its header is not `EVAL_COLUMNS`, a row has another number of cells, or a row
             cannot be a test session: ``episode``, ``successes``, ``tests`` or ``env_steps`` not
             a whole number, another column not a finite number, ``tests`` < 1, ``successes``
             outside [0, tests], or ``episode`` not above the row before. The message names the
@@ -374,8 +433,9 @@ class RunFolder:
                 body = list(reader)
         except (OSError, UnicodeDecodeError, csv.Error) as err:
             raise RunFolderError(f"{path} cannot be read ({err})") from err
-        if header is None:
-            return []
+        if header is None:  # the trainer writes the header before any row, atomically
+            raise RunFolderError(f"{path} is empty, not even its header: truncated by an "
+                                 "interrupted copy? (a run writes its header at its start)")
         if tuple(header) != EVAL_COLUMNS:
             raise RunFolderError(f"{path} has columns {header}, expected {list(EVAL_COLUMNS)}")
         rows, last = [], None

@@ -84,7 +84,9 @@ def add_process_flags(group: Any, what: str) -> None:
                             "Ampere and later, recorded in spec.json). Off by default until "
                             "its effect on learning is measured")
     group.add_argument("--threads", type=int, default=None,
-                       help="torch CPU threads (count, >= 1; default: torch's choice)")
+                       help="torch CPU threads (count, >= 1; default: 1, which keeps a fair "
+                            "share of the cores when other work runs and is about as fast "
+                            "alone: ddpg_her.units.DEFAULT_THREADS)")
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
     group.add_argument("--no-tensorboard", action="store_true",
                        help="no TensorBoard logs even when tensorboard is installed")
@@ -147,7 +149,12 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     template = out or DEFAULT_OUT
     if len(seeds) > 1 and "{seed}" not in template:
         template = template.rstrip("/") + "/s{seed}"
-    dirs = [template.format(region=safe_region, joints=joints, seed=s) for s in seeds]
+    try:
+        dirs = [template.format(region=safe_region, joints=joints, seed=s) for s in seeds]
+    except (KeyError, IndexError, ValueError) as err:  # {foo}, {0}, an unmatched brace
+        raise ValueError(f"--out {template!r}: the only fields it may use are {{region}}, "
+                         f"{{joints}} and {{seed}} (double a literal brace); got "
+                         f"{type(err).__name__}: {err}") from None
     if len(set(dirs)) != len(dirs):
         raise ValueError(f"--out {template!r} gives several seeds the same folder")
     return dirs
@@ -358,8 +365,9 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
 
     if args.device == "cuda" and not torch.cuda.is_available():
         parser.error("--device cuda: no CUDA device is available to torch")
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
+    from ddpg_her.units import DEFAULT_THREADS
+
+    torch.set_num_threads(args.threads or DEFAULT_THREADS)
     torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
 
 

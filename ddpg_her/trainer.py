@@ -85,7 +85,11 @@ class Trainer:
             raise ValueError(f"need a distinct run folder per agent, got {list(run_dirs)}")
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.device = torch.device(device)
-        self._flush_denormals()
+        # Set-up in exact arithmetic: the flush is process-wide and reaches Python's own floats
+        # (under it 1e-310 > 0 is False and json.dumps(1e-320) is '0.0'), so a subnormal task
+        # field or flag was refused or recorded as 0.0 (issue 37, kind 5); the flush starts
+        # once the set-up (checks, spec.json) is done, and `step` sets it again each episode.
+        torch.set_flush_denormal(False)
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
         self.envs = make_envs(env_backend, env_id, per_agent, 1)
@@ -122,6 +126,7 @@ class Trainer:
         self.folders.open(resume, self._restore)
         self._log: Interval | None = None
         self._tick = 0.0
+        self._flush_denormals()
 
     def _flush_denormals(self) -> None:
         """Set the CPU's subnormal flush to this trainer's config: process-wide in torch, so

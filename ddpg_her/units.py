@@ -16,6 +16,13 @@ from ddpg_her.config import AgentConfig
 DEFAULT_JOINTS = 3
 """Controlled joints when neither --joints nor --task n_joints is given."""
 
+DEFAULT_THREADS = 1
+"""torch CPU threads of a training process when --threads is not given (``ddpg_her.train``,
+``ddpg_her.train_many``, and each process of the studies). torch's own choice, one per core,
+lets two trainers' thread pools fight over the cores: on 2 cores two 200-episode far-box runs
+took 303 s each together against 41 s alone, and 48 s together, 43 s alone with one thread each
+(issue 37); the networks are too small for more threads to pay (results/throughput)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class Setting:
@@ -120,5 +127,8 @@ def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
 
 def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
     """Write a plan file that `read_plan` reads back as ``units``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
+    from ddpg_her.runfolder import atomic_write, make_folder
+
+    make_folder(path.parent)
+    atomic_write(path, (json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
+                 .encode())

@@ -20,6 +20,29 @@ from envs.spec import TaskSpec
 from envs.task import TaskRules, action_bounds, single_spaces
 
 
+GOAL_TOLERANCE = 1e-6
+"""m: how far past the plane or the reach ball a given goal may lie and still be taken: goals
+handed back from float32 observations (ddpg_her's envs) round by up to about 1e-7 m."""
+
+
+def check_reachable_goals(goals: np.ndarray, base_height: float) -> None:
+    """Raise ValueError naming the first of ``goals (m, 3) m, world frame`` that lies under the
+    ground plane or outside the arm's reach ball (centre at the shoulder, radius
+    `regions.reach.reach_radius`)."""
+    from regions.reach import reach_ball
+
+    ball = reach_ball(base_height)
+    distance = np.linalg.norm(goals - np.asarray(ball.center), axis=-1)
+    for i, (goal, d) in enumerate(zip(goals, distance, strict=True)):
+        if goal[2] < -GOAL_TOLERANCE:
+            raise ValueError(f"goal {i} {goal.tolist()} m lies under the ground plane (z < 0): "
+                             "no episode can reach it")
+        if d > ball.radius + GOAL_TOLERANCE:
+            raise ValueError(f"goal {i} {goal.tolist()} m lies {d:.3f} m from the shoulder, "
+                             f"beyond the arm's reach of {ball.radius:.3f} m: no episode can "
+                             "reach it")
+
+
 class TaskCopies:
     """B copies of the task, stepped together.
 
@@ -93,8 +116,17 @@ class TaskCopies:
             Each copy's generator; copy ``index[j]``'s goal is drawn from ``rngs[j]`` alone.
         goals : (m, 3) float, m, world frame, optional
             Goals to use instead of drawing them.
+
+        Raises
+        ------
+        ValueError
+            When a given goal lies under the ground plane (z < 0) or outside the ball that
+            holds every tool0 position of the arm (`regions.reach.reach_ball`): no episode
+            could reach it, and its success rate would be 0 without a word.
         """
         index = np.asarray(index, dtype=np.intp)
+        if goals is not None:
+            check_reachable_goals(np.asarray(goals, dtype=float), self.task.base_height)
         if goals is None:
             goals = self.rules.sample_goals(rngs)
         self.goal[index] = goals

@@ -15,7 +15,7 @@ functions (:func:`compute_reward`, :func:`compute_success`) check what a caller 
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium
@@ -178,7 +178,18 @@ def compute_reward(achieved_goal: Any, desired_goal: Any, info: Any, task: TaskS
     except ValueError:
         raise ValueError(f"info['action'] {action.shape} does not fit the goals' batch shape "
                          f"{distance.shape}: one action per transition") from None
-    return reach_reward(distance, action, task, action_penalty_scale(task))
+    if not isinstance(info, Mapping) and action.shape[:-1] != distance.shape:
+        # one info per transition: a shorter list would be broadcast over the batch silently
+        raise ValueError(f"{action.shape[:-1]} infos for goals of batch shape {distance.shape}: "
+                         "pass one info per transition")
+    with np.errstate(over="ignore", invalid="ignore"):  # named below instead
+        reward = reach_reward(distance, action, task, action_penalty_scale(task))
+    if not np.all(np.isfinite(reward)):
+        at = np.argwhere(~np.isfinite(np.asarray(reward)))[0].tolist()
+        raise ValueError(f"the reward is not finite at {at} ({np.asarray(reward)[tuple(at)]}): "
+                         "its action's penalty overflows (an action far outside the action "
+                         "space?)")
+    return reward
 
 
 def compute_success(achieved_goal: Any, desired_goal: Any, task: TaskSpec) -> np.ndarray:

@@ -474,3 +474,34 @@ def test_an_eval_row_that_cannot_be_is_an_error_in_every_tool(tmp_path: Path, ca
         assert f"{run / 'eval.csv'} line 3: " in err and "cannot be trusted" in err, err
         assert re.search(message, err), err
     assert not (tmp_path / "c.png").exists()
+
+
+def test_readers_name_a_run_of_another_format_and_an_empty_eval_csv(tmp_path, capsys):
+    """Issue 37, kind 6: curves, report and summary read a run folder of another format
+    version without a word (--resume refuses it), and an empty eval.csv read as no session."""
+    from analysis import curves
+    from ddpg_her.summary import main as summary_main
+
+    _fake_run(tmp_path / "other" / "s0", "farbox", 3, 0, [10, 20])
+    spec = json.loads((tmp_path / "other" / "s0" / "spec.json").read_text())
+    (tmp_path / "other" / "s0" / "spec.json").write_text(
+        json.dumps({**spec, "format": "ddpg_her-run-2"}))
+    with pytest.raises(runs.RunFolderError, match="format 'ddpg_her-run-2', written by another "
+                                                  "version of this code"):
+        runs.read_run(tmp_path / "other" / "s0")
+    _fake_run(tmp_path / "empty" / "s0", "farbox", 3, 0, [10])
+    (tmp_path / "empty" / "s0" / "eval.csv").write_text("")
+    with pytest.raises(runs.RunFolderError, match="eval.csv is empty, not even its header"):
+        runs.read_run(tmp_path / "empty" / "s0")
+    for folder in ("other", "empty"):
+        for main, args in ((curves.main, [str(tmp_path / folder), "--out",
+                                          str(tmp_path / f"{folder}.png")]),
+                           (summary_main, [str(tmp_path / folder / "s0")])):
+            code = None
+            try:
+                code = main(args)
+            except SystemExit as stop:
+                code = stop.code
+            err = capsys.readouterr().err
+            assert code not in (0, None) and ("ddpg_her-run-2" in err or "is empty" in err), \
+                (folder, main, err)

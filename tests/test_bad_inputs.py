@@ -143,6 +143,10 @@ def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step(
     (["--friction", "nan"], "--friction must be a finite number"),
     (["--n-joints", "7"], "n_joints must be an integer 2..6; got 7"),
     (["--region", "nowhere"], "cannot read region 'nowhere'"),
+    # issue 37, kind 7: numpy's ValueError and the sampler's error were tracebacks
+    (["--seed", "-1"], "--seed must be an integer >= 0 (numpy's seeds are); got -1"),
+    (["--region", "box:5,6,5,6,5,6", "--goals", "2", "--steps", "2", "--rounds", "1"],
+     "--region box:5,6,5,6,5,6: region 'box:5,6,5,6,5,6' has no goals reachable with 3 joints"),
 ])
 def test_the_contact_study_refuses_what_it_cannot_measure(args, message, capsys):
     from analysis import contact
@@ -167,3 +171,21 @@ def test_a_success_map_that_cannot_fit_is_refused_before_any_rollout(args, messa
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert message in err and "GiB of memory available" in err
+
+
+def test_compute_reward_refuses_a_list_of_infos_that_does_not_match_the_batch():
+    """Issue 37, kind 8: one info for four transitions was broadcast over them silently."""
+    env = reward_env()
+    goals = np.random.default_rng(0).normal(size=(4, 3))
+    infos = [{"action": np.full(3, 0.5)}]
+    with pytest.raises(ValueError, match=r"\(1,\) infos for goals of batch shape \(4,\)"):
+        env.compute_reward(goals, goals[0], infos)
+    one_each = env.compute_reward(goals, goals[0], infos * 4)  # one per transition: fine
+    np.testing.assert_allclose(one_each, env.compute_reward(goals, goals[0],
+                                                            {"action": np.full((4, 3), 0.5)}))
+
+
+def test_a_reward_that_is_not_finite_is_an_error_naming_where():
+    env = reward_env()
+    with pytest.raises(ValueError, match=r"the reward is not finite at \[\]"):
+        env.compute_reward(np.zeros(3), np.zeros(3), {"action": np.full(3, 1e200)})

@@ -232,3 +232,47 @@ def test_train_help_lists_every_task_field_with_its_default():
     text = " ".join(parser_of("ddpg_her.train").format_help().split())
     for f in dataclasses.fields(TaskSpec):
         assert f"{f.name}={f.default!r}".replace(" ", "") in text.replace(" ", ""), f.name
+
+
+def test_a_training_process_and_a_study_default_to_one_torch_thread(monkeypatch):
+    """Issue 37, kind 9: with torch's own choice (one thread per core) two trainers on 2 cores
+    took 303 s each together against 41 s alone; one thread each, 48 s and 43 s. Without
+    --threads, ``ddpg_her.train`` (and so ``dev.sh demo``) and every study run on
+    DEFAULT_THREADS, whatever the cores and --workers."""
+    import argparse
+
+    import torch
+
+    from analysis import sweep
+    from ddpg_her import train
+    from ddpg_her.units import DEFAULT_THREADS
+
+    assert DEFAULT_THREADS == 1
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)  # what torch chooses on a 2-core machine
+        parser = train.make_parser()
+        train.start_process(parser, train.parse_args(parser, ["--region", "farbox"]))
+        assert torch.get_num_threads() == DEFAULT_THREADS
+        train.start_process(parser, train.parse_args(parser, ["--region", "farbox",
+                                                              "--threads", "2"]))
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(threads)
+    monkeypatch.setattr("os.cpu_count", lambda: 16)
+    study = argparse.ArgumentParser()
+    sweep.add_execution_arguments(study, Path("runs"))
+    assert sweep.check_execution_arguments(study, study.parse_args([])) == DEFAULT_THREADS
+    assert sweep.check_execution_arguments(study, study.parse_args(["--threads", "3"])) == 3
+
+
+@pytest.mark.parametrize("template", ["runs/{foo}", "runs/{0}", "runs/{seed"])
+def test_an_out_template_with_a_field_train_does_not_fill_is_a_usage_error(template, capsys):
+    """Issue 37, kind 4: ``--out runs/{foo}`` was a KeyError traceback from str.format."""
+    from ddpg_her import train
+
+    with pytest.raises(SystemExit) as exit_:
+        train.main(["--region", "farbox", "--out", template])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert f"--out {template!r}: the only fields it may use are {{region}}" in err, err

@@ -422,3 +422,49 @@ def test_the_committed_runs_of_the_device_path_read_as_results():
     runs = find_runs([root])
     assert len(runs) == 5 and {r.spec["env_backend"] for r in runs} == {"torch"}
     assert all(r.finished and r.episode[-1] == 1000 for r in runs)
+
+
+def _strict_json(text: str):
+    """json.loads as strict RFC 8259 readers parse: Infinity and NaN are errors."""
+    def refuse(name):
+        raise ValueError(f"not strict JSON: {name}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_subnormal_values_are_recorded_and_checked_as_typed(tmp_path):
+    """Issue 37, kind 5: with the default --flush-denormals the trainer's set-up ran under the
+    flush, which reaches Python's floats: --exploration-rate 1e-320 was recorded as 0.0 and
+    success_radius=1e-310 refused as 'got 0.0'. The flush still holds for training."""
+    config = AgentConfig(**{**TINY.to_dict(), "exploration_rate": 1e-320})
+    assert config.flush_denormals
+    task = {"region": "farbox", "n_joints": 3, "success_radius": 1e-310}
+    try:
+        trainer = Trainer("UR5Reach-v0", task, config, [0], [str(tmp_path / "r")],
+                          progress=False, tensorboard=False)
+        trainer.close()
+        assert bool((torch.tensor([1e-39]) * 1.0 == 0).item())  # flushing once set up
+    finally:
+        torch.set_flush_denormal(False)
+    spec = _strict_json((tmp_path / "r" / "spec.json").read_text())
+    assert spec["agent"]["exploration_rate"] == 1e-320
+    assert spec["task"]["success_radius"] == 1e-310 and spec["env_kwargs"]["success_radius"] \
+        == 1e-310
+
+
+def test_spec_json_is_strict_json_and_a_non_finite_value_reads_back(tmp_path):
+    """Issue 37, kind 5: --obs-clip inf wrote Infinity into spec.json; it is written as "inf",
+    read back as float('inf') (a resume accepts it), and a spec written before the change,
+    with Infinity, still reads."""
+    config = AgentConfig(**{**TINY.to_dict(), "obs_clip": float("inf"), "episodes": 3})
+    train([tmp_path / "r"], config=config)
+    text = (tmp_path / "r" / "spec.json").read_text()
+    assert _strict_json(text)["agent"]["obs_clip"] == "inf"
+    assert RunFolder(tmp_path / "r").read_spec()["agent"]["obs_clip"] == float("inf")
+    train([tmp_path / "r"], config=AgentConfig(**{**config.to_dict(), "episodes": 6}),
+          resume=True)
+    assert len(RunFolder(tmp_path / "r").read_eval()) == 2
+    old = json.loads(text)
+    old["agent"]["obs_clip"] = float("inf")
+    (tmp_path / "r" / "spec.json").write_text(json.dumps(old))  # as before: Infinity
+    assert "Infinity" in (tmp_path / "r" / "spec.json").read_text()
+    assert RunFolder(tmp_path / "r").read_spec()["agent"]["obs_clip"] == float("inf")

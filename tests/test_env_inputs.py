@@ -87,3 +87,21 @@ def test_task_copies_refuse_dynamics_of_another_size_or_task():
         TaskCopies(task, 2, make_dynamics(task, 3, "pinocchio"))
     with pytest.raises(ValueError, match="got 2 copies of another task"):
         TaskCopies(task, 2, make_dynamics(other, 2, "pinocchio"))
+
+
+@pytest.mark.parametrize("goal, message", [
+    ((0.5, 0.1, -0.01), r"lies under the ground plane \(z < 0\)"),
+    ((2.0, 0.0, 0.3), r"beyond the arm's reach of 0\.9\d\d m"),
+])
+def test_a_goal_no_episode_can_reach_is_refused_by_reset(goal, message):
+    """Issue 37, kind 8: reset(options={'goal': ...}) took a goal under the plane or out of
+    reach, and the episode's failure was the only sign."""
+    import envs
+
+    env = envs.UR5ReachEnv(region="farbox", n_joints=3)
+    with pytest.raises(ValueError, match=message):
+        env.reset(seed=0, options={"goal": goal})
+    vec = envs.BatchedReach(2, region="farbox", n_joints=3)
+    with pytest.raises(ValueError, match="goal 1 .*" + message):
+        vec.reset(seed=0, options={"goal": [(0.5, 0.1, 0.2), goal]})
+    env.reset(seed=0, options={"goal": (0.5, 0.1, 0.0)})  # on the plane, in reach: fine

@@ -212,7 +212,9 @@ def test_success_terminates_with_the_bonus_and_time_truncates():
     _, reward, terminated, truncated, info = env.step(hold)
     assert terminated and not truncated and info["is_success"]
     assert reward == pytest.approx(100.0 - info["distance"] - float(hold @ hold))
-    env.reset(seed=0, options={"goal": [5.0, 5.0, 5.0]})  # out of reach
+    # a goal in reach but not where holding still goes: tool0 mirrored through the base axis
+    # (a goal out of reach, as here before, is refused since issue 37)
+    env.reset(seed=0, options={"goal": start_tool * np.array([-1.0, -1.0, 1.0])})
     for t in range(task.max_episode_steps):
         _, _, terminated, truncated, _ = env.step(hold)
         assert not terminated

@@ -220,3 +220,28 @@ def test_the_plot_draws_a_missing_grid_check_as_nothing_and_refuses_a_missing_sh
     for key in ("share_worth", "ci_low", "ci_high", "share_reachable"):
         with pytest.raises(ValueError, match="could not convert"):
             opt.plot([{**row, key: ""}], out=tmp_path / f"{key}.png")
+
+
+@pytest.mark.parametrize("task, message", [
+    (["nosuch=1"], "--task nosuch: TaskSpec has no field 'nosuch'"),
+    (["region=zheight"], "--task region: the study sets it for every setting"),
+    (["n_joints=3"], "--task n_joints: the study sets it for every setting"),
+    (["action_penalty_unit=command"],
+     "--task action_penalty_unit: the reading(s) actor_penalty set it themselves"),
+    (["action_weight=0.5", "action_weight=0.7"], "--task action_weight given two values"),
+    (["action_weight=-1"], "--task: "),
+    ([], "--curves: "),
+])
+def test_task_overrides_are_checked_in_our_words_before_any_computing(tmp_path, capsys, task,
+                                                                      message):
+    """Issue 37, kinds 2, 4 and 7: an unknown key or region/n_joints went to TaskSpec(...) as a
+    TypeError traceback after the run started, a key a reading sets was overruled by the
+    reading without a word, and a missing --curves folder was found after the computation."""
+    args = [a for t in task for a in ("--task", t)] or ["--curves", str(tmp_path / "nosuch")]
+    with pytest.raises(SystemExit) as exit_:
+        opt.main(["--settings", "unconstrained:2", "--goals", "2", "--readings", "ours",
+                  "actor_penalty", "--out", str(tmp_path / "o"), "--no-progress", *args])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err
+    assert not (tmp_path / "o" / "optimality.csv").exists()

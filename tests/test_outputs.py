@@ -111,3 +111,77 @@ def test_a_voxel_resolution_that_cannot_fit_is_refused_up_front(capsys):
                        "--resolution", "0.00001"])
     assert "--resolution 1e-05 m: the workspace's voxel grids would need about" in err
     assert "GiB of memory available" in err
+
+
+# --- issue 37, kind 3: outputs checked before work, written by the one atomic writer ---------
+
+@pytest.mark.parametrize("module, args", [
+    ("analysis.sweep", ["--setting", "farbox:3", "--episodes", "200", "--seeds", "1"]),
+    ("analysis.sensitivity", ["--setting", "farbox:3", "--readings", "ours"]),
+    ("analysis.algorithms", ["--setting", "farbox:3", "--algos", "td3"]),
+])
+def test_a_study_root_under_a_file_is_refused_before_any_unit_starts(tmp_path, capsys, module,
+                                                                     args):
+    """The root went to RunFolder and mkdir as a NotADirectoryError traceback."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    err = usage_error(capsys, module, [*args, "--out", str(blocker / "runs")])
+    assert f"--out {blocker / 'runs' / 'logs'}: {blocker} is a file, not a folder" in err
+
+
+def test_sensitivity_collect_and_report_check_their_folders_up_front(tmp_path, capsys):
+    from analysis import sensitivity
+
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    err = usage_error(capsys, "analysis.sensitivity",
+                      ["--setting", "farbox:3", "--readings", "ours", "--out",
+                       str(tmp_path / "runs"), "--collect", str(blocker / "c")])
+    assert f"--collect {blocker / 'c' / 'runs'}: {blocker} is a file" in err
+    with pytest.raises(SystemExit) as exit_:
+        sensitivity.main(["report", str(tmp_path), "--out", str(blocker / "r")])
+    assert exit_.value.code == 2
+    assert f"--out {blocker / 'r'}: {blocker} is a file" in capsys.readouterr().err
+
+
+def test_every_output_goes_through_the_one_atomic_writer(tmp_path, monkeypatch):
+    """analysis.outputs writes by ddpg_her.runfolder.atomic_write (fsync, then a move), and a
+    write that fails keeps the old file and leaves no temporary file, Ctrl-C included."""
+    import errno
+
+    from analysis import outputs
+    from ddpg_her import runfolder
+
+    calls = []
+    real = runfolder.atomic_write
+    monkeypatch.setattr(runfolder, "atomic_write", lambda p, d: (calls.append(p), real(p, d)))
+    target = tmp_path / "report.md"
+    outputs.write_text(target, "old")
+    assert calls == [target] and target.read_text() == "old"
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(runfolder.os, "fsync", full)
+    with pytest.raises(outputs.OutputError, match="No space left on device"):
+        outputs.write_text(target, "new")
+    assert target.read_text() == "old" and sorted(tmp_path.iterdir()) == [target]
+
+    def interrupted(fd):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runfolder.os, "fsync", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        runfolder.atomic_write(target, b"new")
+    assert target.read_text() == "old" and sorted(tmp_path.iterdir()) == [target]
+
+
+def test_a_plan_file_is_written_whole(tmp_path, monkeypatch):
+    from ddpg_her import runfolder, units
+
+    calls = []
+    real = runfolder.atomic_write
+    monkeypatch.setattr(runfolder, "atomic_write", lambda p, d: (calls.append(p), real(p, d)))
+    units.write_plan(tmp_path / "logs" / "plan.json", [["--region", "farbox"]])
+    assert calls == [tmp_path / "logs" / "plan.json"]
+    assert units.read_plan(tmp_path / "logs" / "plan.json") == [["--region", "farbox"]]

@@ -616,3 +616,19 @@ def test_flags_that_agree_are_accepted(tmp_path):
                          "--her-k", "2", "--her-strategy", "future", "--ou-theta", "0.3",
                          "--exploration", "ou")
     assert spec["agent"]["her_k"] == 2 and spec["agent"]["ou_theta"] == 0.3
+
+
+@pytest.mark.parametrize("content", ["garbage", "", '{"pid": "x"}', "[1, 2]"])
+def test_a_garbage_lock_is_named_as_such_not_as_process_none(tmp_path, content):
+    """Issue 37, kind 6: an unreadable lock.json said 'process None on host None'."""
+    from ddpg_her.runfolder import RunFolder, RunFolderBusy
+
+    folder = RunFolder(tmp_path / "run")
+    (tmp_path / "run").mkdir()
+    folder.lock_path.write_text(content)
+    with pytest.raises(RunFolderBusy) as err:
+        folder.lock()
+    message = str(err.value)
+    assert "None" not in message and f"{folder.lock_path} is not a lock this code wrote" in \
+        message and repr(content) in message, message
+    assert folder.lock_path.read_text() == content  # left for its owner or a person

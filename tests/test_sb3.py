@@ -119,3 +119,32 @@ def test_making_a_model_leaves_the_hyperparameters_as_they_were():
     before = json.dumps(params, sort_keys=True)
     sb3.make_model("sac", gymnasium.make(toy_goal_env.ENV_ID, n_joints=2), params, seed=0)
     assert json.dumps(params, sort_keys=True) == before
+
+
+def test_a_run_that_fails_before_its_first_test_leaves_no_folder_to_block_the_rerun(
+        tmp_path: Path, monkeypatch):
+    """Issue 37, kind 3: a failed run left a spec.json, and the corrected rerun was refused
+    ("exists; SB3 runs do not resume")."""
+    made = sb3.make_model
+
+    def failing(*args, **kwargs):
+        model = made(*args, **kwargs)
+
+        def learn(**_):
+            raise RuntimeError("diverged")
+
+        model.learn = learn
+        return model
+
+    monkeypatch.setattr(sb3, "make_model", failing)
+    out = tmp_path / "run"
+    toy = {"region": "box", "n_joints": 2}
+    with pytest.raises(RuntimeError, match="diverged"):
+        sb3.train("ddpg", "toy_goal_env:ToyReach-v0", toy, 0, 2, 1, 1, TINY_DDPG, out)
+    assert not out.exists()
+    monkeypatch.setattr(sb3, "make_model", made)
+    rows = sb3.train("ddpg", "toy_goal_env:ToyReach-v0", toy, 0, 2, 1, 1, TINY_DDPG, out)
+    assert [r["episode"] for r in rows] == [1, 2]
+
+
+TINY_DDPG = sb3.load_hyperparams_dict(TINY, "ddpg")

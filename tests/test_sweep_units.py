@@ -143,3 +143,88 @@ def test_a_projection_is_refused_where_it_cannot_time_the_run(tmp_path, capsys, 
     with pytest.raises(SystemExit) as exit_:
         sweep.main(["--setting", "farbox:3", "--out", str(tmp_path), *flags])
     assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra, flag", [
+    (["--region", "zheight"], "--region"), (["--out", "elsewhere"], "--out"),
+    (["--seeds", "7"], "--seeds"), (["--episodes", "9"], "--episodes"),
+    (["--joints", "6"], "--joints"), (["--reg", "zheight"], "--reg"),
+    (["--out=elsewhere"], "--out"), (["--threads", "4"], "--threads"),
+    (["--task", "region=zheight"], "--task region=..."),
+])
+def test_a_study_refuses_what_follows_dash_dash_where_it_sets_the_flag_itself(
+        tmp_path, capsys, extra, flag):
+    """Issue 37, kind 2: argparse lets the last flag win, so ``-- --region zheight`` trained
+    z-height into farbox-j3 and ``-- --out X`` trained into X while the sweep counted its own
+    folder; both the dry run and the real run (the same check) refuse, naming the flag."""
+    for dry in (["--dry-run"], []):
+        with pytest.raises(SystemExit) as exit_:
+            sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                        str(tmp_path), *dry, "--", *extra])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert f"farbox-j3: {flag} " in err and "the study sets it" in err, err
+    assert not any(tmp_path.iterdir()) and not Path("elsewhere").exists()
+
+
+def test_a_study_refuses_what_follows_dash_dash_where_a_reading_sets_it(tmp_path, capsys):
+    """Issue 37, kind 2, for the studies of readings: ``-- --algo sac`` would train SAC in the
+    td3 folder; ``-- --task action_penalty_unit=command`` would undo the actor_penalty reading;
+    a reading of one's own may not move the unit's folder either."""
+    from analysis import algorithms, sensitivity
+
+    cases = [
+        (algorithms.main, ["--algos", "td3", "--", "--algo", "sac"],
+         "td3/farbox-j3: --algo after --: the unit's reading sets it (--algo td3)"),
+        (algorithms.main, ["--algos", "sac", "--", "--exploration-rate", "0.1"],
+         "sac/farbox-j3: --exploration-rate after --: the unit's reading sets it"),
+        (sensitivity.main, ["--readings", "actor_penalty", "--", "--task",
+                            "action_penalty_unit=command"],
+         "actor_penalty/farbox-j3: --task action_penalty_unit=... after --: the unit's "
+         "reading sets it"),
+        (sensitivity.main, ["--reading", "moved=--out elsewhere", "--readings", "moved"],
+         "moved/farbox-j3: --out in its reading's arguments: the study sets it"),
+    ]
+    for main, args, message in cases:
+        with pytest.raises(SystemExit) as exit_:
+            main(["--setting", "farbox:3", "--out", str(tmp_path), "--dry-run", *args])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert message in err, err
+
+
+def test_what_follows_dash_dash_that_the_study_leaves_open_still_passes(tmp_path, capsys):
+    assert sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                       str(tmp_path), "--dry-run", "--", "--tau", "0.01", "--no-tensorboard",
+                       "--task", "action_weight=0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "--tau 0.01 --no-tensorboard --task action_weight=0.5" in out
+    # the study's own process options are not passed-through ones
+    assert sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                       str(tmp_path), "--dry-run", "--env-backend", "batched", "--one-process",
+                       "--", "--tau", "0.01"]) == 0
+    assert sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                       str(tmp_path), "--dry-run", "--env-backend", "batched"]) == 0
+    assert capsys.readouterr().out.rstrip().endswith("--env-backend batched")
+
+
+@pytest.mark.parametrize("address, message", [
+    ("127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
+    ("ray://127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
+    ("nohost", "expected 'local', 'auto', HOST:PORT or ray://HOST:PORT"),
+    ("127.0.0.1:99999", "a port in 1..65535"),
+])
+def test_a_ray_address_with_no_cluster_is_refused_in_one_line_before_ray_starts(
+        tmp_path, capsys, address, message):
+    """Issue 37, kind 4: --ray-address 127.0.0.1:6999 with no cluster hung over 120 s in
+    ray.init, and other bad addresses ended in Ray's tracebacks."""
+    import time
+
+    start = time.perf_counter()
+    with pytest.raises(SystemExit) as exit_:
+        sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                    str(tmp_path), "--ray-address", address])
+    assert exit_.value.code == 2 and time.perf_counter() - start < 60
+    err = capsys.readouterr().err
+    assert f"--ray-address {address}: " in err and message in err, err
+    assert "Traceback" not in err
