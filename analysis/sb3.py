@@ -169,7 +169,8 @@ def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episode
         return _learn(model, env, make_env, folder, seed, episodes, eval_every,
                       eval_episodes)
     except BaseException:
-        if not (folder.path / "eval.csv").exists():  # nothing learnt is kept: leave no folder behind
+        # nothing learnt is kept: leave no folder behind
+        if not (folder.path / "eval.csv").exists():
             with contextlib.suppress(OSError):
                 folder.spec_path.unlink()
                 if created:

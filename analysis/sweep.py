@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import os
 import subprocess
 import sys
@@ -520,7 +521,7 @@ into ``farbox-j3``, ``-- --out X`` trained into X while the study counted the un
 def option_dests(parser: argparse.ArgumentParser, args: Sequence[str]) -> list[tuple[str, str]]:
     """(option as typed, its dest) for each option of ``args`` that ``parser`` knows, with
     argparse's unique-prefix abbreviations (``--reg``) resolved as argparse resolves them."""
-    strings = parser._option_string_actions  # noqa: SLF001 (argparse has no public lookup)
+    strings = parser._option_string_actions
     out = []
     for arg in args:
         if not arg.startswith("-") or arg == "--" or len(arg) < 2:
@@ -539,7 +540,7 @@ def option_dests(parser: argparse.ArgumentParser, args: Sequence[str]) -> list[t
 def task_keys(args: Sequence[str]) -> list[str]:
     """The TaskSpec fields that the ``--task KEY=VALUE`` options of ``args`` set (a malformed
     one is left to ``ddpg_her.train`` to name)."""
-    values = [v for f, v in zip(args, args[1:]) if f == "--task"]
+    values = [v for f, v in itertools.pairwise(args) if f == "--task"]
     values += [a.partition("=")[2] for a in args if a.startswith("--task=")]
     return [v.partition("=")[0] for v in values if "=" in v]
 

@@ -2,7 +2,8 @@
 ``main`` in this process and records what kind of answer it gave: ``python -m
 benchmarks.reliability_probe --out results/reliability/probe.csv``.
 
-Kinds of answer: ``refusal`` (expected: either of the next two), ``usage`` (exit 2 with an ``error:`` line naming the problem), ``error``
+Kinds of answer: ``refusal`` (expected: either of the next two), ``usage`` (exit 2 with an
+``error:`` line naming the problem), ``error``
 (another non-zero exit with a message), ``ok`` (exit 0), ``traceback`` (an exception escaped
 ``main``), ``hang`` (over ``--limit-s``; the case is abandoned). A case is *as expected* when
 the kind matches and, for refusals, the message holds the case's key words. Every case here
@@ -237,7 +238,7 @@ def run_case(module: str, argv: list[str]) -> tuple[str, str]:
             code = importlib.import_module(module).main(list(argv))
     except SystemExit as stop:
         code = stop.code if isinstance(stop.code, int) else 1
-    except BaseException as exc:  # noqa: BLE001 (an escaped exception is what is probed)
+    except BaseException as exc:
         lines = traceback.format_exception_only(type(exc), exc)
         return "traceback", lines[-1].strip()
     message = next((ln for ln in err.getvalue().splitlines() if "error" in ln.lower()), "")
@@ -258,7 +259,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             got, message = run_case(module, case_argv)
             good = (got in ("usage", "error") if expected == "refusal" else got == expected) \
                 and words in message
-            rows.append({"case": case.replace(tmp, "TMP"), "entry_point": module, "expected": expected,
+            rows.append({"case": case.replace(tmp, "TMP"), "entry_point": module,
+                         "expected": expected,
                          "got": got, "as_expected": good,
                          "message": message.replace(tmp, "TMP")[:300]})
             print(f"{'ok ' if good else 'BAD'} {module:<22} {case}: {got}", flush=True)

@@ -417,7 +417,8 @@ class RunFolder:
         Raises
         ------
         RunFolderError
-            When it is empty (not even a header), its header is not `EVAL_COLUMNS`, a row has another number of cells, or a row
+            When it is empty (not even a header), its header is not `EVAL_COLUMNS`, a row has
+            another number of cells, or a row
             cannot be a test session: ``episode``, ``successes``, ``tests`` or ``env_steps`` not
             a whole number, another column not a finite number, ``tests`` < 1, ``successes``
             outside [0, tests], or ``episode`` not above the row before. The message names the

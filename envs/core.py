@@ -19,7 +19,6 @@ from envs.physics.protocol import Dynamics
 from envs.spec import TaskSpec
 from envs.task import TaskRules, action_bounds, single_spaces
 
-
 GOAL_TOLERANCE = 1e-6
 """m: how far past the plane or the reach ball a given goal may lie and still be taken: goals
 handed back from float32 observations (ddpg_her's envs) round by up to about 1e-7 m."""

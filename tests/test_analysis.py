@@ -491,7 +491,7 @@ def test_readers_name_a_run_of_another_format_and_an_empty_eval_csv(tmp_path, ca
         runs.read_run(tmp_path / "other" / "s0")
     _fake_run(tmp_path / "empty" / "s0", "farbox", 3, 0, [10])
     (tmp_path / "empty" / "s0" / "eval.csv").write_text("")
-    with pytest.raises(runs.RunFolderError, match="eval.csv is empty, not even its header"):
+    with pytest.raises(runs.RunFolderError, match=r"eval\.csv is empty, not even its header"):
         runs.read_run(tmp_path / "empty" / "s0")
     for folder in ("other", "empty"):
         for main, args in ((curves.main, [str(tmp_path / folder), "--out",
