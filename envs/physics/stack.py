@@ -104,7 +104,7 @@ def _resolve_kernel(kernel: str | None, device: torch.device) -> str:
         import triton  # noqa: F401
     except ImportError:
         raise ValueError("kernel='triton' needs Triton (pip install triton)") from None
-    from envs.physics import triton_kernel
+    import envs.physics.triton_kernel as triton_kernel
 
     if device.type == "cpu":
         from triton.runtime.interpreter import InterpretedFunction
@@ -223,7 +223,7 @@ class StackDynamics:
                           chain.gravity, tool_pos, host["dw"], host["contact"],
                           host["limit_stop"], host["tool"], host["n_joints"], 0, B)
         else:
-            from envs.physics import triton_kernel
+            import envs.physics.triton_kernel as triton_kernel
 
             self._model = triton_kernel.TritonModel.build(
                 controller, chain, plane, tool_pos, first.base_height, first.plane_margin,
@@ -265,7 +265,7 @@ class StackDynamics:
         if self.kernel == "numba":
             control_step(*self._args)
         else:
-            from envs.physics import triton_kernel
+            import envs.physics.triton_kernel as triton_kernel
 
             triton_kernel.launch(self._model, self.q, self.w, self.height_bound, self._bias,
                                  self.n_joints, self._dw, self.contact, self.limit_stop,
