@@ -162,6 +162,21 @@ class _StubTrainer:
         pass
 
 
+class _StubProgram(_StubTrainer):
+    """Stands in for ddpg_her.program.Program: checks every agent's task as one stack (the
+    program's own check), builds each env, and trains nothing."""
+
+    def __init__(self, env_id, env_kwargs, config, seeds, dirs, **kwargs):
+        import gymnasium
+
+        from envs.stackreach import stack_tasks
+
+        stack_tasks(env_kwargs)
+        for kwargs_k in env_kwargs:
+            gymnasium.make(env_id, **kwargs_k).close()
+        self.seeds = seeds
+
+
 def _run_train(argv: list[str], monkeypatch) -> None:
     """``python -m ddpg_her.train ARGV`` in this process, without training."""
     import torch
@@ -169,6 +184,7 @@ def _run_train(argv: list[str], monkeypatch) -> None:
     from ddpg_her import train
 
     monkeypatch.setattr("ddpg_her.trainer.Trainer", _StubTrainer)
+    monkeypatch.setattr("ddpg_her.program.Program", _StubProgram)
     deterministic, threads = torch.are_deterministic_algorithms_enabled(), torch.get_num_threads()
     try:
         assert train.main(argv) == 0
