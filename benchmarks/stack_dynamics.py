@@ -7,8 +7,8 @@ Rows, for each N of ``--copies``:
 - ``stack-triton``: :class:`envs.physics.stack.StackDynamics` with the Triton kernel, the N
   copies cycling through the grid's tasks (:data:`GRID`: unconstrained with 2..6 joints,
   z-height, close box and far box with 3 and 6: 11 tasks, so N = 55 is the paper's 55 runs);
-- ``numba-cuda``: :class:`envs.physics.numba_torch.NumbaTorchDynamics`, N copies of ONE task
-  (unconstrained, 3 joints), for comparison;
+- (the numba-CUDA kernel of one task is timed by ``benchmarks.gpu_figures``' ``numba_kernel``
+  figure, at the same sizes; its tensor face here went with the torch env backend)
 - ``torch``: :class:`envs.physics.torch_kernel.TorchDynamics`, the same single task.
 
 Each row runs ``eager`` and ``graph`` (its control step captured once in a
@@ -59,7 +59,7 @@ GRID = (("unconstrained", 2), ("unconstrained", 3), ("unconstrained", 4), ("unco
 MODES = ("eager", "graph")
 """How a row runs: eager, or its control step replayed from a CUDA graph."""
 
-KERNELS = ("stack-triton", "stack-numba", "numba-cuda", "torch")
+KERNELS = ("stack-triton", "stack-numba", "torch")
 """The rows' kernels (``stack-numba``: the stack on the CPU's numba kernel)."""
 
 DRY_RUN = {"copies": (4,), "steps": 1, "rounds": 1, "device": "cpu", "modes": ("eager",),
@@ -81,7 +81,7 @@ class BenchConfig:
     """The GPU: ``cuda`` or ``cuda:N``."""
     dtype: str = "float64"
     """Arithmetic of every kernel."""
-    kernels: tuple[str, ...] = ("stack-triton", "numba-cuda", "torch")
+    kernels: tuple[str, ...] = ("stack-triton", "torch")
     """Rows' kernels, of :data:`KERNELS`."""
     modes: tuple[str, ...] = MODES
     """Eager and/or graph rows."""
@@ -143,13 +143,6 @@ class Row:
             everyone = torch.ones(n, dtype=torch.bool, device=self.device)
             self.reset = lambda: self.dyn.reset_where(everyone)
             self.width = 6
-        elif kernel == "numba-cuda":
-            from envs.physics.numba_torch import NumbaTorchDynamics
-
-            self.dyn = NumbaTorchDynamics(single_task(), n, device=config.device,
-                                          dtype=config.dtype)
-            self.reset = lambda: self.dyn.reset(single_task().start_q)
-            self.width = single_task().n_joints
         else:
             from envs.physics.torch_kernel import TorchDynamics
 
