@@ -142,22 +142,29 @@ class TodayRunner:
         self.trainer.close()
 
 
+def grid_units(spec: GridSpec) -> list[Any]:
+    """The `ddpg_her.units.Setting` of each setting of ``spec``, as ``ddpg_her.train_many``
+    parses its units (both paths train these)."""
+    from ddpg_her.train_many import settings_of
+
+    return settings_of([
+        ["--region", region, "--joints", str(joints), "--seeds", *map(str, range(spec.seeds)),
+         "--episodes", str(spec.budget), "--eval-every", str(spec.budget),
+         "--warmup-episodes", str(RL_WARMUP_EPISODES), *spec.unit_args,
+         "--out", str(spec.folder / f"{region}-j{joints}" / "s{seed}")]
+        for region, joints in spec.settings])
+
+
 def today_path(spec: GridSpec) -> TodayRunner:
     """Today's grid in one process (``analysis.sweep --grid paper --one-process``'s
     ``ddpg_her.train_many``) with ``--env-backend batched``: the host envs, one compiled call
     per control step for each stack's copies (the torch env backend it measured before, 0.55 s
     per grid episode on an H200, gave way to the program)."""
     from ddpg_her.multi import MultiTrainer
-    from ddpg_her.train_many import settings_of
     from ddpg_her.vecenv import register_env
 
     register_env("UR5Reach-v0")
-    units = [["--region", region, "--joints", str(joints),
-              "--seeds", *map(str, range(spec.seeds)), "--episodes", str(spec.budget),
-              "--eval-every", str(spec.budget), "--warmup-episodes", str(RL_WARMUP_EPISODES),
-              *spec.unit_args, "--out", str(spec.folder / f"{region}-j{joints}" / "s{seed}")]
-             for region, joints in spec.settings]
-    settings = settings_of(units)
+    settings = grid_units(spec)
     trainer = MultiTrainer(settings, device=spec.device, env_backend="batched",
                            progress=False, tensorboard=False)
     return TodayRunner(trainer, spec.device)
@@ -187,14 +194,8 @@ def program_path(spec: GridSpec) -> ProgramRunner:
     """The grid as ``analysis.sweep --grid paper --program`` trains it: every agent in one
     `ddpg_her.program.Program` on ``spec.device`` (captured on CUDA, eager on the CPU)."""
     from ddpg_her.program import Program
-    from ddpg_her.train_many import settings_of
 
-    units = [["--region", region, "--joints", str(joints),
-              "--seeds", *map(str, range(spec.seeds)), "--episodes", str(spec.budget),
-              "--eval-every", str(spec.budget), "--warmup-episodes", str(RL_WARMUP_EPISODES),
-              *spec.unit_args, "--out", str(spec.folder / f"{region}-j{joints}" / "s{seed}")]
-             for region, joints in spec.settings]
-    settings = settings_of(units)
+    settings = grid_units(spec)
     program = Program(settings[0].env_id, [s.env_kwargs for s in settings for _ in s.seeds],
                       settings[0].config, [seed for s in settings for seed in s.seeds],
                       [d for s in settings for d in s.run_dirs], device=spec.device,

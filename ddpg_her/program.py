@@ -263,10 +263,8 @@ class PaddedBuffer:
         return self.buffer.total
 
     def since(self, k: int, start: int) -> tuple[int, np.ndarray]:
-        first = max(start, int(self.buffer.total[k]) - self.buffer.capacity)
-        pos = (first + np.arange(int(self.buffer.total[k]) - first)) % self.buffer.capacity
-        rows = self.buffer.rows[k, torch.from_numpy(pos).to(self.buffer.rows.device)]
-        return first, rows[:, self.index[k]].cpu().numpy()
+        first, rows = self.buffer.since(k, start)
+        return first, rows[:, self.index[k].cpu().numpy()]
 
     def put(self, k: int, start: int, rows: np.ndarray) -> None:
         padded = torch.zeros(len(rows), PADDED.width, dtype=self.buffer.rows.dtype,
