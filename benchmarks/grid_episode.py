@@ -196,10 +196,7 @@ def program_path(spec: GridSpec) -> ProgramRunner:
     from ddpg_her.program import Program
 
     settings = grid_units(spec)
-    program = Program(settings[0].env_id, [s.env_kwargs for s in settings for _ in s.seeds],
-                      settings[0].config, [seed for s in settings for seed in s.seeds],
-                      [d for s in settings for d in s.run_dirs], device=spec.device,
-                      progress=False)
+    program = Program.of_settings(settings, device=spec.device, progress=False)
     return ProgramRunner(program, spec.device)
 
 

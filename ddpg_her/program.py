@@ -407,6 +407,16 @@ class Program:
             "learn": Graphed(self._learn, self.capture),
             "test": Graphed(self._test_session, self.capture)}
 
+    @classmethod
+    def of_settings(cls, settings: Sequence[Any], **kwargs: Any) -> Program:
+        """The program of every run of ``settings`` (`ddpg_her.units.Setting` s of one env id
+        and agent configuration: the first's are taken), one agent per seed, in order;
+        ``kwargs`` as the constructor's."""
+        first = settings[0]
+        return cls(first.env_id, [s.env_kwargs for s in settings for _ in s.seeds],
+                   first.config, [seed for s in settings for seed in s.seeds],
+                   [d for s in settings for d in s.run_dirs], **kwargs)
+
     # ------------------------------------------------------------------ set-up
     def _dims(self, k: int) -> dict[str, Any]:
         n, t = self.joints[k], self.env.tasks[k]

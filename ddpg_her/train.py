@@ -313,12 +313,9 @@ def build_program(parser: argparse.ArgumentParser, args: argparse.Namespace,
                      "id and agent configuration (flags and --episodes)")
     from ddpg_her.program import Program
 
-    first = settings[0]
-    return build_trainer(parser, lambda: Program(
-        first.env_id, [s.env_kwargs for s in settings for _ in s.seeds], first.config,
-        [seed for s in settings for seed in s.seeds],
-        [d for s in settings for d in s.run_dirs], resume=args.resume, device=args.device,
-        progress=not args.no_progress, command=command, tf32=args.tf32))
+    return build_trainer(parser, lambda: Program.of_settings(
+        settings, resume=args.resume, device=args.device, progress=not args.no_progress,
+        command=command, tf32=args.tf32))
 
 
 def run_to_end(trainer: Any) -> Any:
