@@ -26,6 +26,8 @@ from cli_tools import (
     takes_a_number,
 )
 
+from ddpg_her.program import Program
+
 CLIS = cli_modules() + example_scripts()
 
 DEFAULT = re.compile(r"\(default: (?:%\(default\)s|[^)]*)\)|%\(default\)s")
@@ -175,6 +177,8 @@ class _StubProgram(_StubTrainer):
         for kwargs_k in env_kwargs:
             gymnasium.make(env_id, **kwargs_k).close()
         self.seeds = seeds
+
+    of_settings = classmethod(Program.of_settings.__func__)  # the real one, building a stub
 
 
 def _run_train(argv: list[str], monkeypatch) -> None:
