@@ -143,16 +143,23 @@ def test_agent_state_round_trip_continues_identically(algo):
 
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_learns_the_toy_task(tmp_path, algo):
-    """TD3 and SAC learn the toy goal env with HER in the same protocol as DDPG's test."""
-    config = AgentConfig(algo=algo, episodes=60, eval_every=10, eval_episodes=30,
+    """TD3 and SAC learn the toy goal env with HER in the protocol of DDPG's test, judged over
+    six seeds trained as one stack (one seed's curve depends on the CPU's rounding: TD3 seed 0
+    scored 15 and 15.3 over its last three of six sessions on two machines, under an earlier
+    threshold of 18). Measured on the development machine (100 episodes), each seed's mean over
+    its last three sessions: TD3 23.3, 18.7, 27.7, 30, 22.3, 28.3 of 30 (mean 25.1); SAC 23,
+    19.3, 23, 24.7, 29.3, 26.7 (mean 24.3); the first session (episode 10) 0 to 3."""
+    config = AgentConfig(algo=algo, episodes=100, eval_every=10, eval_episodes=30,
                          hidden_sizes=(64, 64), updates_per_episode=40, actor_lr=1e-3, tau=0.05,
                          exploration="epsilon",
                          exploration_rate=0.3 if algo == "td3" else 0.0, warmup_episodes=0)
-    rows = train([tmp_path / algo], seeds=[0], config=config)[0]
-    hits = [r["successes"] for r in rows]
-    assert hits[0] <= 3, hits
-    assert np.mean(hits[-3:]) >= 18, hits
-    assert rows[-1]["mean_final_distance_m"] < 0.3 * rows[0]["mean_final_distance_m"]
+    seeds = range(6)
+    runs = train([tmp_path / f"{algo}-s{s}" for s in seeds], seeds=seeds, config=config)
+    hits = np.array([[r["successes"] for r in rows] for rows in runs])  # (seed, session)
+    assert hits[:, 0].mean() <= 3, hits  # next to nothing before learning ...
+    assert hits[:, -3:].mean() >= 18, hits  # ... most goals after 100 episodes
+    first, last = (np.mean([rows[i]["mean_final_distance_m"] for rows in runs]) for i in (0, -1))
+    assert last < 0.3 * first, (first, last)
 
 
 def test_spec_records_the_algo_a_resume_across_algos_is_refused_and_a_sac_run_loads(tmp_path):

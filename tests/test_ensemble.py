@@ -269,20 +269,22 @@ def test_k_stacked_ensembles_train_as_they_would_alone(tmp_path):
 # --- learning -------------------------------------------------------------------------------------
 def test_an_ensemble_of_ddpg_learns_the_toy_task(tmp_path):
     """Two members on the halves of the toy plane, each making the 40 updates per episode of
-    DDPG's toy test (80 in all), learn it, though slower than one agent: measured, the last
-    three of twelve sessions score 14, 16, 17 / 12, 15, 16 / 6, 15, 17 of 30 with seeds 0, 1,
-    2. At one agent's budget (40 in all, 20 each) they score at most 5 of 30 in 160 episodes
-    (seed 0), where one agent scores 27 at episode 80: the toy's one linear policy fits the
-    whole plane, and each member sees only half of the episodes."""
-    config = AgentConfig(episodes=120, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
+    DDPG's toy test (80 in all), learn it, though slower than one agent (each member sees half
+    of the episodes); judged over six seeds trained as one stack, since one seed's curve depends
+    on the CPU's rounding (seed 0 at episode 40: 7 successes on one machine, 13 on another).
+    Measured on the development machine (240 episodes), each seed's mean over its last three
+    sessions: 20, 20, 22.3, 12.3, 24.7, 24.3 of 30 (mean 20.6); the first session 0 or 1."""
+    config = AgentConfig(episodes=240, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
                          updates_per_episode=80, actor_lr=1e-3, tau=0.05,
                          exploration="epsilon", exploration_rate=0.3, warmup_episodes=0,
                          ensemble=2)
-    rows = train([tmp_path / "ens"], seeds=[0], config=config)[0]
-    hits = [r["successes"] for r in rows]
-    assert hits[0] <= 3, hits
-    assert np.mean(hits[-3:]) >= 12, hits
-    assert rows[-1]["mean_final_distance_m"] < 0.5 * rows[0]["mean_final_distance_m"], rows
+    seeds = range(6)
+    runs = train([tmp_path / f"ens-s{s}" for s in seeds], seeds=seeds, config=config)
+    hits = np.array([[r["successes"] for r in rows] for rows in runs])  # (seed, session)
+    assert hits[:, 0].mean() <= 3, hits
+    assert hits[:, -3:].mean() >= 14, hits
+    first, last = (np.mean([rows[i]["mean_final_distance_m"] for rows in runs]) for i in (0, -1))
+    assert last < 0.5 * first, (first, last)
 
 
 def test_nearest_cell_of_the_partition_module_and_the_agents_routing_agree():
