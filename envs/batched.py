@@ -40,11 +40,11 @@ class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
         copy's dicts) or ``disabled``.
     render_mode : {"rgb_array", "human"}, optional
         ``render()`` draws every copy (one frame each).
-    dynamics : {"auto", "pinocchio", "numba", "torch"}
+    dynamics : {"auto", "pinocchio", "numba"}
         Which backend advances the arms (:data:`envs.physics.BACKENDS`); the same physics to
         floating-point rounding. ``auto`` (default) takes the compiled numba path for N > 1.
     device : str
-        Where the ``torch`` backend runs (default ``"cpu"``; ``"cuda"`` for a GPU).
+        Where the arms are stepped (default ``"cpu"``; ``"cuda"`` runs ``numba``'s CUDA kernel).
     threads : int
         CPU threads of the fast path (default 1: the two-core machines this runs on share
         their cores with the learner; more pay on many-core hosts at large N).

@@ -289,28 +289,3 @@ def test_compiled_steps_are_the_eager_ones(device):
         compiled.step(command)
         np.testing.assert_allclose(host(compiled.q), host(eager.q), atol=1e-12)
         np.testing.assert_array_equal(host(compiled.contact), host(eager.contact))
-
-
-# ------------------------------------------------------------------ in the batched env
-def rollout(env, steps: int, seed: int) -> np.ndarray:
-    obs, _ = env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
-    space = env.action_space
-    log = [obs["observation"]]
-    for _ in range(steps):
-        obs, reward, _, _, info = env.step(rng.uniform(space.low, space.high))
-        log += [obs["observation"], obs["achieved_goal"], reward[:, None],
-                info["contact"][:, None]]
-    return np.concatenate(log, axis=1)
-
-
-@pytest.mark.parametrize("device", DEVICES)
-def test_batched_env_on_the_torch_path_is_the_default_one(device):
-    import envs
-
-    task = TaskSpec(region="unconstrained", n_joints=3)
-    env = envs.BatchedReach(8, task, dynamics="torch", device=device)
-    assert isinstance(env._core.dynamics, torch_kernel.HostMirror)
-    assert env._core.dynamics.dyn.device.type == device
-    default = rollout(envs.BatchedReach(8, task), 30, seed=5)
-    np.testing.assert_allclose(rollout(env, 30, seed=5), default, atol=1e-6)

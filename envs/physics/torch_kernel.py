@@ -1,4 +1,4 @@
-"""The torch backend: one control step of B arm copies as vectorised tensor operations, any device.
+"""The torch dynamics: one control step of B arm copies as vectorised tensor operations, any device.
 
 The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynamics/README.md``)
 with a loop over the six joints in Python and over nothing else: every operation acts on
@@ -605,47 +605,3 @@ class TorchDynamics:
         plane check's exact heights, :func:`link_heights`)."""
         return plane_heights(self.q, self._plane, self._base_height).amin(-1)
 
-
-class HostMirror:
-    """A :class:`TorchDynamics` behind NumbaDynamics' numpy interface, for the env.
-
-    :class:`envs.core.TaskCopies` reads ``q``, ``v``, ``acceleration``, ``contact`` and
-    ``limit_stop`` as numpy arrays and has ``tool_positions`` write into one; this view copies
-    the state to float64 host arrays after every step and reset (on CUDA a device-to-host copy,
-    hence a sync, per step: the price of a numpy env around GPU dynamics).
-
-    Parameters
-    ----------
-    dyn : TorchDynamics
-        The dynamics; stepped through this view.
-    """
-
-    def __init__(self, dyn: TorchDynamics) -> None:
-        self.dyn, self.task, self.num_copies = dyn, dyn.task, dyn.num_copies
-        B = dyn.num_copies
-        self.q, self.v, self.acceleration = np.zeros((B, NJ)), np.zeros((B, NJ)), np.zeros((B, NJ))
-        self.contact, self.limit_stop = np.zeros(B, dtype=bool), np.zeros(B, dtype=bool)
-        self.tool = np.zeros((B, 3))
-        self._pull()
-
-    def _pull(self) -> None:
-        d = self.dyn
-        for host, tensor in ((self.q, d.q), (self.v, d.v), (self.acceleration, d.acceleration),
-                             (self.contact, d.contact), (self.limit_stop, d.limit_stop),
-                             (self.tool, d.tool)):
-            np.copyto(host, tensor.cpu().numpy())
-
-    def step(self, command: np.ndarray) -> None:
-        """:meth:`TorchDynamics.step`, then the state to the host."""
-        self.dyn.step(command)
-        self._pull()
-
-    def reset(self, q: Any, index: Any = None) -> None:
-        """:meth:`TorchDynamics.reset`, then the state to the host."""
-        self.dyn.reset(q, index)
-        self._pull()
-
-    def tool_positions(self, out: np.ndarray) -> np.ndarray:
-        """Write tool0's world position ``(B, 3)`` m into ``out``."""
-        out[:] = self.tool
-        return out
