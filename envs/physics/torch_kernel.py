@@ -577,31 +577,3 @@ class TorchDynamics:
         self.limit_stop[sel] = False
         self.tool.copy_(tool_position(placements(self.q, self._chain), self._chain,
                                        self._tool_pos, self._base_height))
-
-    def reset_where(self, mask: torch.Tensor, q: torch.Tensor) -> None:
-        """Put the copies where ``mask`` is True at rest at ``q``, on the device: no
-        host-device synchronisation (the env's masked autoreset).
-
-        Parameters
-        ----------
-        mask : (B,) bool tensor on ``device``
-            Which copies.
-        q : (6,) tensor on ``device``, ``dtype``, rad
-            One configuration for all of them, unchecked: the caller has checked it clear of
-            the plane and within the limits once (as :meth:`reset` does on the host).
-        """
-        rows = mask.unsqueeze(-1)
-        self.q.copy_(torch.where(rows, q, self.q))
-        for state in (self.v, self.w, self.acceleration):
-            state.masked_fill_(rows, 0.0)
-        self.contact.masked_fill_(mask, False)
-        self.limit_stop.masked_fill_(mask, False)
-        start_tool = tool_position(placements(q.unsqueeze(0), self._chain), self._chain,
-                                   self._tool_pos, self._base_height)
-        self.tool.copy_(torch.where(rows, start_tool, self.tool))
-
-    def clearance(self) -> torch.Tensor:
-        """Lowest point ``(B,)`` (m, world z) of the moving links now, on the device (the
-        plane check's exact heights, :func:`link_heights`)."""
-        return plane_heights(self.q, self._plane, self._base_height).amin(-1)
-
