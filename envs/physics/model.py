@@ -3,8 +3,9 @@
 One job: turn a :class:`envs.spec.TaskSpec` into the numbers a control step needs, so that the
 Pinocchio loop (:mod:`envs.physics.pinocchio_loop`), the numba kernels
 (:mod:`envs.physics.numba_kernel`, :mod:`envs.physics.numba_cuda`) and the stack's
-(:mod:`envs.physics.stack`) cannot drift apart: the controller in time-scaled units (scaled PD gains per control mode, the
-command's gain, effort and velocity limits, joint-limit box, held joints), the serial chain
+(:mod:`envs.physics.stack`) cannot drift apart: the controller in time-scaled units (scaled PD
+gains per control mode, the command's gain, effort and velocity limits, joint-limit box, held
+joints), the serial chain
 (:class:`ChainModel`, read from Pinocchio) and the plane check's tables (:class:`PlaneModel`,
 read from :mod:`ur5kin.collision`), and the checks of a reset configuration.
 
