@@ -10,18 +10,13 @@ The table gives each env's median over the rounds, the median over rounds of its
 single env's steps/s in the same round, and its ratio to the peer's median. Vector rows count
 copy-steps (N per call).
 
-With ``--device``, two more rows time the batched dynamics alone (no env around them), on the
-same protocol (uniform random commands of the control mode drawn before the clock, every copy
-restarted at the start pose each ``max_episode_steps`` steps): the vectorised torch path of
-:mod:`envs.physics.torch_kernel` on that device, and the numba kernel of
-:mod:`envs.physics.numba_kernel` on the CPU beside it. On CUDA the clock is read after
-``torch.cuda.synchronize()``.
+``--device`` and its rows of the dynamics alone (the torch kernel on a device, the numba one on
+the CPU beside it) went with ``envs.physics.torch_kernel`` after commit 401ca32, the last that
+runs them.
 
     python -m benchmarks.env_steps                 # the table
     python -m benchmarks.env_steps --json          # machine-readable
     python -m benchmarks.env_steps --num-envs 4096 --peer none --sync 0   # a large batch
-    python -m benchmarks.env_steps --device cpu --steps 200 --rounds 3 --sync 0 --reference 0 \
-        --peer none
 """
 
 from __future__ import annotations
@@ -43,7 +38,6 @@ import numpy as np
 
 import envs
 from envs.spec import TaskSpec
-from envs.task import action_bounds
 
 
 @dataclass(frozen=True)
@@ -57,18 +51,8 @@ class BenchConfig:
     """Interleaved rounds; the table reports each env's median over them."""
     num_envs: int = 64
     """Copies N of the batched and sync-vector rows (0 skips both)."""
-    device: str | None = None
-    """Where to also time the torch dynamics (:mod:`envs.physics.torch_kernel`): ``cpu`` or
-    ``cuda``, next to the numba dynamics on the CPU; None: neither dynamics row."""
-    torch_dtype: str = "float64"
-    """Arithmetic of the torch dynamics: float64 (the env's) or float32."""
-    compile: str = "none"
-    """``torch.compile`` mode of the torch dynamics' substep (compiled before the clock):
-    none (eager), default, reduce-overhead (CUDA graphs on a GPU) or max-autotune."""
-    cuda_graph: bool = False
-    """Record the torch dynamics' control step as one CUDA graph (``--device cuda``, eager)."""
     threads: int = 1
-    """CPU threads of the batched env's fast dynamics (and of torch on the CPU)."""
+    """CPU threads of the batched env's fast dynamics."""
     batched: bool = True
     """Measure the batched env (its fast dynamics; Pinocchio's where numba is missing, as on
     the GPU machine, where it is too slow at large N to time)."""
@@ -92,17 +76,11 @@ class BenchConfig:
     """Print JSON instead of the table."""
 
 
-def _rate(step: Callable[[], Any], count: int, synchronize: Callable[[], Any] | None = None
-          ) -> float:
-    """Calls of ``step`` per second over ``count`` calls; ``synchronize`` (a device's) runs
-    before each reading of the clock, so that queued work is counted."""
-    if synchronize is not None:
-        synchronize()
+def _rate(step: Callable[[], Any], count: int) -> float:
+    """Calls of ``step`` per second over ``count`` calls."""
     start = time.perf_counter()
     for _ in range(count):
         step()
-    if synchronize is not None:
-        synchronize()
     return count / (time.perf_counter() - start)
 
 
@@ -147,42 +125,6 @@ def vector_runner(env: gymnasium.vector.VectorEnv, copy_steps: int, seed: int
     return lambda: _rate(step, calls) * env.num_envs
 
 
-def dynamics_runner(dyn: Any, task: TaskSpec, copy_steps: int, seed: int,
-                    device: str | None = None) -> Callable[[], float]:
-    """A round of random control steps of a batched dynamics (``envs.physics.numba_kernel`` or
-    ``envs.physics.torch_kernel``); returns copy-steps/s.
-
-    Commands are uniform in :func:`envs.task.action_bounds`, drawn before the clock (on
-    ``device`` for the torch path, as a trainer on that device would hand them over); every
-    copy goes back to the start pose each ``task.max_episode_steps`` steps, as the env's
-    episodes end at the latest. With ``device`` "cuda" the clock waits for the GPU.
-    """
-    calls = max(1, copy_steps // dyn.num_copies)
-    low, high = action_bounds(task)
-    commands: Any = np.random.default_rng(seed).uniform(low, high,
-                                                        (calls, dyn.num_copies, len(low)))
-    synchronize = None
-    if device is not None:
-        import torch
-
-        commands = torch.as_tensor(commands, device=device, dtype=dyn.dtype)
-        if torch.device(device).type == "cuda":
-            synchronize = torch.cuda.synchronize
-    start = np.asarray(task.start_q, dtype=float)
-    dyn.step(commands[0])  # off the clock: kernels load or compile on the first call
-    dyn.reset(start)
-    state = {"i": 0}
-
-    def step() -> None:
-        i = state["i"]
-        if i and i % task.max_episode_steps == 0:
-            dyn.reset(start)
-        dyn.step(commands[i % calls])
-        state["i"] = i + 1
-
-    return lambda: _rate(step, calls, synchronize) * dyn.num_copies
-
-
 def make_peer(env_id: str) -> gymnasium.Env | str:
     """The peer env, or a sentence saying why it is unavailable."""
     try:
@@ -198,35 +140,6 @@ def make_peer(env_id: str) -> gymnasium.Env | str:
 
         return (f"{env_id} failed to build under mujoco {mujoco.__version__} "
                 f"({type(err).__name__}: {err}); FetchReach-v4 needs mujoco < 3.12")
-
-
-def dynamics_rows(config: BenchConfig, task: TaskSpec, copy_steps: int, notes: dict[str, str]
-                  ) -> dict[str, Callable[[], float]]:
-    """The rows of ``--device``: the torch dynamics on the device, the numba dynamics on the
-    CPU (a note in ``notes`` where numba is missing)."""
-    import torch
-
-    from envs.physics import numba_kernel, torch_kernel
-
-    N = config.num_envs
-    if config.device == "cpu":
-        torch.set_num_threads(config.threads)
-    rows = {}
-    compiled = config.compile != "none"
-    dyn = torch_kernel.TorchDynamics(task, N, device=config.device, dtype=config.torch_dtype,
-                                    compile=config.compile if compiled else False,
-                                    cuda_graph=config.cuda_graph)
-    name = (f"TorchDynamics (N={N}, {config.device}, {config.torch_dtype}"
-            f"{', ' + config.compile if compiled else ''}"
-            f"{', CUDA graph' if config.cuda_graph else ''})")
-    rows[name] = dynamics_runner(dyn, task, copy_steps, config.seed, config.device)
-    numba_row = f"NumbaDynamics (N={N}, numba, cpu)"
-    if numba_kernel.available():
-        fast = numba_kernel.NumbaDynamics(task, N, threads=config.threads)
-        rows[numba_row] = dynamics_runner(fast, task, copy_steps, config.seed)
-    else:
-        notes[numba_row] = "numba is not installed"
-    return rows
 
 
 def run(config: BenchConfig) -> dict[str, Any]:
@@ -249,8 +162,6 @@ def run(config: BenchConfig) -> dict[str, Any]:
             reference = envs.BatchedReach(config.num_envs, task, dynamics="pinocchio")
             rows[f"BatchedReach (N={config.num_envs}, pinocchio)"] = vector_runner(
                 reference, copy_steps, config.seed)
-        if config.device is not None:
-            rows.update(dynamics_rows(config, task, copy_steps, notes))
         if config.sync:
             sync = gymnasium.make_vec("UR5Reach-v0", num_envs=config.num_envs,
                                       vectorization_mode="sync", task=task)
@@ -284,7 +195,6 @@ def run(config: BenchConfig) -> dict[str, Any]:
         "substeps_per_step": task.substeps,
         "contact_fraction": counted["contacts"] / max(counted["i"], 1),
         "peer": peer_name,
-        "device": config.device,
         "notes": notes,
         "machine": {"python": sys.version.split()[0], "platform": platform.platform(),
                     "processor": platform.processor() or platform.machine()},
@@ -293,7 +203,7 @@ def run(config: BenchConfig) -> dict[str, Any]:
 
 
 NAME_WIDTH = 60
-"""Characters of the table's first column (the longest row name, a compiled torch row)."""
+"""Characters of the table's first column (wider than the longest row name)."""
 
 
 def format_table(result: dict[str, Any]) -> str:
@@ -331,24 +241,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="interleaved rounds; each env's median is reported")
     parser.add_argument("--num-envs", type=int, default=d.num_envs,
                         help="copies N of the batched and sync-vector rows (0 skips them)")
-    parser.add_argument("--device", default=d.device, choices=("cpu", "cuda"),
-                        help="also time the torch dynamics (envs.physics.torch_kernel) on this "
-                        "device, next to the numba dynamics on the CPU, in copy-steps/s "
-                        "(default: neither)")
-    parser.add_argument("--torch-dtype", default=d.torch_dtype, choices=("float64", "float32"),
-                        help="arithmetic of the torch dynamics (with --device)")
-    parser.add_argument("--compile", default=d.compile,
-                        choices=("none", "default", "reduce-overhead", "max-autotune"),
-                        help="torch.compile mode of the torch dynamics' substep, with --device "
-                        "(none: eager; compiled before the clock; reduce-overhead adds CUDA "
-                        "graphs)")
-    parser.add_argument("--cuda-graph", type=int, default=int(d.cuda_graph), choices=(0, 1),
-                        help="0..1; 1: record the torch dynamics' control step as one CUDA graph "
-                        "and replay it (with --device cuda and --compile none) (default: "
-                        "%(default)s)")
     parser.add_argument("--threads", type=int, default=d.threads,
-                        help="CPU threads (>= 1) of the batched env's compiled dynamics, and of "
-                        "torch with --device cpu")
+                        help="CPU threads (>= 1) of the batched env's compiled dynamics")
     parser.add_argument("--batched", type=int, default=int(d.batched), choices=(0, 1),
                         help="0..1; 1: time BatchedReach (N) (default: %(default)s)")
     parser.add_argument("--reference", type=int, default=int(d.reference), choices=(0, 1),
@@ -376,19 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.steps < 1 or args.rounds < 1 or args.num_envs < 0:
         raise SystemExit("--steps and --rounds must be >= 1 and --num-envs >= 0")
-    if args.device is not None and args.num_envs < 1:
-        raise SystemExit("--device times the batched dynamics: give --num-envs >= 1")
-    if args.cuda_graph and (args.device != "cuda" or args.compile != "none"):
-        raise SystemExit("--cuda-graph 1 needs --device cuda and --compile none")
-    if args.device == "cuda":
-        import torch
-
-        if not torch.cuda.is_available():
-            raise SystemExit(f"--device cuda: torch {torch.__version__} sees no CUDA device "
-                             "on this machine")
     config = BenchConfig(steps=args.steps, rounds=args.rounds, num_envs=args.num_envs,
-                         device=args.device, torch_dtype=args.torch_dtype,
-                         compile=args.compile, cuda_graph=bool(args.cuda_graph),
                          threads=args.threads,
                          batched=bool(args.batched), reference=bool(args.reference),
                          sync=bool(args.sync), region=args.region, n_joints=args.n_joints,

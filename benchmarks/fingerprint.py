@@ -1,7 +1,7 @@
 """Bit-for-bit fingerprints of the envs' behaviour, to hold a refactor against the code before it.
 
 ``python -m benchmarks.fingerprint record OUT.json`` steps fixed-seed rollouts of every dynamics
-backend (pinocchio, numba, torch on the CPU; the single env) under several tasks
+backend (pinocchio and numba on the CPU; the single env) under several tasks
 (held joints locked and pd; zheight and unconstrained; 3 and 6 joints; the compliant contact;
 velocity and torque control) with random actions from a fixed generator (a third of them outside
 the action box), and hashes every step's observation, reward, flags and info (SHA-256 of the
@@ -146,7 +146,7 @@ def train_eval(backend: str, root: Path) -> str:
 def record(train: bool) -> dict[str, str]:
     result: dict[str, str] = {}
     for name, fields in TASKS.items():
-        for dynamics in ("pinocchio", "numba", "torch"):
+        for dynamics in ("pinocchio", "numba"):
             result[f"batched/{dynamics}/{name}"] = batched_rollout(fields, dynamics)
             print(f"batched/{dynamics}/{name}", flush=True)
         result[f"single/{name}"] = single_rollout(fields)

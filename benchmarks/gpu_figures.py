@@ -12,9 +12,8 @@ seconds since the start at which it began and ended; a figure that fails records
   per copy) at 55 copies (one per agent of the grid) and 5,500 (a test session's, 100 per
   agent), at 32, 64 and 128 threads per block: microseconds per step (the median of rounds of
   ``steps`` steps), with ``import_s`` (``import numba.cuda``) and ``compile_s`` (the first
-  step's seconds less a steady step's: compiling the step kernel) apart; beside it the torch
-  kernel's control step replayed as a CUDA graph (:class:`envs.physics.torch_kernel.
-  TorchDynamics`, ``cuda_graph=True``) at the same sizes;
+  step's seconds less a steady step's: compiling the step kernel) apart (the torch kernel's
+  CUDA graph beside it went with ``envs.physics.torch_kernel`` after commit 401ca32);
 - ``kernel_in_graph``: the grid's stack (`envs.physics.stack.StackDynamics`: copies of the
   grid's 11 settings in turn, the Triton kernel on CUDA) stepped ``steps`` control steps
   eagerly and as one replayed CUDA graph: microseconds per step of each, the first call
@@ -190,16 +189,12 @@ def _commands(task: Any, n: int, steps: int, seed: int = 0) -> Any:
 
 
 def numba_kernel(ctx: Context) -> dict[str, Any]:
-    """The numba kernel's control step at each size and block (compilation apart), and the
-    torch kernel's graph beside it."""
-    import torch
-
+    """The numba kernel's control step at each size and block (compilation apart)."""
     tic = time.perf_counter()
     from numba import cuda
 
     import_s = time.perf_counter() - tic
     from envs.physics.numba_cuda import NumbaCudaDynamics
-    from envs.physics.torch_kernel import TorchDynamics
 
     task, s = _task(), ctx.sizes
     rows: list[dict[str, Any]] = []
@@ -235,23 +230,6 @@ def numba_kernel(ctx: Context) -> dict[str, Any]:
                 row["compile_s"] = first - step_s
                 first_row = False
             rows.append(row)
-        mode = "eager" if ctx.dry_run else "graph"
-        tdyn = TorchDynamics(task, n, device=ctx.device, dtype="float64",
-                             cuda_graph=mode == "graph")
-        tcommands = torch.as_tensor(commands, device=ctx.device)
-        tic = time.perf_counter()
-        tdyn.step(tcommands[0])
-        ctx.sync()
-        first = time.perf_counter() - tic
-
-        def teps(tdyn: Any = tdyn, tcommands: Any = tcommands) -> None:
-            for c in tcommands:
-                tdyn.step(c)
-
-        median, _ = ctx.median_seconds(teps, lambda tdyn=tdyn: tdyn.reset(task.start_q))
-        step_s = median / len(tcommands)
-        rows.append({"kernel": f"torch ({mode})", "copies": n, "us_per_step": 1e6 * step_s,
-                     "copy_steps_per_s": n / step_s, "first_step_s": first})
     return {"task": task.to_dict(), "substeps_per_step": task.substeps, "dtype": "float64",
             "import_s": import_s, "rows": rows,
             "simulator": ctx.dry_run}

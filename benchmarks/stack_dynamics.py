@@ -8,12 +8,13 @@ Rows, for each N of ``--copies``:
   copies cycling through the grid's tasks (:data:`GRID`: unconstrained with 2..6 joints,
   z-height, close box and far box with 3 and 6: 11 tasks, so N = 55 is the paper's 55 runs);
 - (the numba-CUDA kernel of one task is timed by ``benchmarks.gpu_figures``' ``numba_kernel``
-  figure, at the same sizes; its tensor face here went with the torch env backend)
-- ``torch``: :class:`envs.physics.torch_kernel.TorchDynamics`, the same single task.
+  figure, at the same sizes; its tensor face here went with the torch env backend, and the
+  single-task torch row, ``envs.physics.torch_kernel.TorchDynamics``, with that module after
+  commit 401ca32)
 
 Each row runs ``eager`` and ``graph`` (its control step captured once in a
 ``torch.cuda.CUDAGraph`` and replayed; the command copied into the graph's input first). The
-first call (Triton's or numba's compilation, torch's first kernels) is timed apart, and so is
+first call (Triton's or numba's compilation) is timed apart, and so is
 the capture. Protocol as :mod:`benchmarks.cuda_dynamics`: rounds of ``--steps`` steps from the
 start pose, the clock read after a device synchronisation, the median over rounds reported.
 A row that fails records its error in the JSON instead of ending the run. The Triton kernel's
@@ -59,7 +60,7 @@ GRID = (("unconstrained", 2), ("unconstrained", 3), ("unconstrained", 4), ("unco
 MODES = ("eager", "graph")
 """How a row runs: eager, or its control step replayed from a CUDA graph."""
 
-KERNELS = ("stack-triton", "stack-numba", "torch")
+KERNELS = ("stack-triton", "stack-numba")
 """The rows' kernels (``stack-numba``: the stack on the CPU's numba kernel)."""
 
 DRY_RUN = {"copies": (4,), "steps": 1, "rounds": 1, "device": "cpu", "modes": ("eager",),
@@ -81,7 +82,7 @@ class BenchConfig:
     """The GPU: ``cuda`` or ``cuda:N``."""
     dtype: str = "float64"
     """Arithmetic of every kernel."""
-    kernels: tuple[str, ...] = ("stack-triton", "torch")
+    kernels: tuple[str, ...] = ("stack-triton",)
     """Rows' kernels, of :data:`KERNELS`."""
     modes: tuple[str, ...] = MODES
     """Eager and/or graph rows."""
@@ -106,13 +107,6 @@ def grid_tasks(n: int) -> list[Any]:
             for i in range(n)]
 
 
-def single_task() -> Any:
-    """The one task of the single-task rows: unconstrained, 3 joints."""
-    from envs.spec import TaskSpec
-
-    return TaskSpec(region="unconstrained", n_joints=3)
-
-
 def make_commands(tasks: list[Any], steps: int, rng: np.random.Generator) -> np.ndarray:
     """Position targets ``(steps, N, 6)`` rad, uniform in each task's action box on its
     first n joints, 0 on the others (ignored by the stack)."""
@@ -126,35 +120,23 @@ def make_commands(tasks: list[Any], steps: int, rng: np.random.Generator) -> np.
 
 
 class Row:
-    """One kernel on the device: ``step(command)`` (a tensor), ``reset()`` (all copies at
-    their start pose), ``sync()``."""
+    """One stack kernel on the device: ``step(command)`` (a tensor), ``reset()`` (all copies
+    at their start pose), ``sync()``."""
 
-    def __init__(self, kernel: str, mode: str, n: int, config: BenchConfig,
-                 block: int | None) -> None:
+    def __init__(self, kernel: str, n: int, config: BenchConfig, block: int | None) -> None:
         import torch
 
+        from envs.physics.stack import BLOCK, StackDynamics
+
         self.device = torch.device(config.device)
-        if kernel.startswith("stack"):
-            from envs.physics.stack import BLOCK, StackDynamics
-
-            self.dyn = StackDynamics(grid_tasks(n), device=config.device, dtype=config.dtype,
-                                     kernel=kernel.removeprefix("stack-"),
-                                     block=block or BLOCK)
-            everyone = torch.ones(n, dtype=torch.bool, device=self.device)
-            self.reset = lambda: self.dyn.reset_where(everyone)
-            self.width = 6
-        else:
-            from envs.physics.torch_kernel import TorchDynamics
-
-            # its own capture: TorchDynamics records its step as a graph and replays it
-            self.dyn = TorchDynamics(single_task(), n, device=config.device, dtype=config.dtype,
-                                     cuda_graph=mode == "graph")
-            self.reset = lambda: self.dyn.reset(single_task().start_q)
-            self.width = single_task().n_joints
+        self.dyn = StackDynamics(grid_tasks(n), device=config.device, dtype=config.dtype,
+                                 kernel=kernel.removeprefix("stack-"), block=block or BLOCK)
+        everyone = torch.ones(n, dtype=torch.bool, device=self.device)
+        self.reset = lambda: self.dyn.reset_where(everyone)
         self.dtype = self.dyn.dtype
 
     def step(self, command: Any) -> None:
-        self.dyn.step(command[:, : self.width])
+        self.dyn.step(command)
 
     def sync(self) -> None:
         import torch
@@ -171,14 +153,14 @@ def measure(kernel: str, mode: str, n: int, commands: np.ndarray, config: BenchC
 
     record: dict[str, Any] = {"kernel": kernel, "mode": mode, "N": n, "block": block}
     try:
-        row = Row(kernel, mode, n, config, block)
+        row = Row(kernel, n, config, block)
         on_device = torch.as_tensor(commands, device=config.device, dtype=row.dtype)
         tic = time.perf_counter()
         row.step(on_device[0])
         row.sync()
         record["first_call_s"] = time.perf_counter() - tic
         step: Callable[[Any], None] = row.step
-        if mode == "graph" and kernel != "torch":
+        if mode == "graph":
             static = on_device[0].clone()
             side = torch.cuda.Stream(row.device)
             side.wait_stream(torch.cuda.current_stream(row.device))

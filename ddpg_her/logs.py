@@ -52,6 +52,23 @@ def postfix(bar, rows: list[list[dict[str, Any]]]) -> str:
     return text
 
 
+def run_with_progress(trainer: Any, desc: str) -> list[list[dict[str, Any]]]:
+    """Step ``trainer`` (a `ddpg_her.trainer.Trainer` or a `ddpg_her.program.Program`: its
+    ``done``, ``step()``, ``rows``, ``progress``, ``config.episodes`` and ``episode``) until
+    it is done, under a progress bar of training episodes; returns its eval rows."""
+    bar = progress_bar(trainer.progress, trainer.config.episodes, trainer.episode, "ep", desc)
+    try:
+        while not trainer.done:
+            trainer.step()
+            if bar is not None:
+                bar.set_postfix_str(postfix(bar, trainer.rows), refresh=False)
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    return trainer.rows
+
+
 def _tb_writer(path: Path, episode: int):
     """A TensorBoard writer in ``path/tb``, or None when tensorboard is not installed."""
     try:

@@ -35,7 +35,7 @@ from ddpg_her.buffer import CounterSampler, Layout, ReplayBuffer, counter_draws,
 from ddpg_her.checkpoints import RunFolders, run_spec
 from ddpg_her.config import AgentConfig, Algo, HERStrategy
 from ddpg_her.exploration import Explorer
-from ddpg_her.logs import eval_rows, postfix, progress_bar
+from ddpg_her.logs import eval_rows, run_with_progress
 from ddpg_her.normalizer import RunningNormalizer
 from ddpg_her.spaces import goal_input
 from ddpg_her.trainer import (
@@ -662,20 +662,8 @@ class Program:
 
     def run(self) -> list[list[dict[str, Any]]]:
         """Train to ``config.episodes``; returns every agent's eval rows."""
-        bar = progress_bar(self.progress, self.config.episodes, self.episode, "ep",
-                           f"program: {self.k} agent{'s' if self.k > 1 else ''}")
         self._tick = time.perf_counter()
-        try:
-            while not self.done:
-                self.step()
-                if bar is not None:
-                    if self.rows[0]:
-                        bar.set_postfix_str(postfix(bar, self.rows), refresh=False)
-                    bar.update(1)
-        finally:
-            if bar is not None:
-                bar.close()
-        return self.rows
+        return run_with_progress(self, f"program: {self.k} agent{'s' if self.k > 1 else ''}")
 
     def close(self) -> None:
         self.folders.close()

@@ -29,7 +29,7 @@ from ddpg_her.checkpoints import RunFolders, check_recorded, run_spec
 from ddpg_her.collect import ENV_BACKENDS, Collector, make_envs
 from ddpg_her.config import AgentConfig
 from ddpg_her.ensemble import make_buffer, spec_entry, task_partitions
-from ddpg_her.logs import Interval, eval_rows, postfix, progress_bar
+from ddpg_her.logs import Interval, eval_rows, run_with_progress
 
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
 INIT_STREAM, EXPLORE_STREAM, SAMPLE_STREAM, TRAIN_ENV_STREAM, EVAL_ENV_STREAM = range(5)
@@ -262,20 +262,11 @@ class Trainer:
 
     def run(self) -> list[list[dict[str, Any]]]:
         """Train to ``config.episodes``; returns every agent's eval rows."""
-        bar = progress_bar(self.progress, self.config.episodes, self.episode, "ep",
-                           f"train {self.k} agent{'s' if self.k > 1 else ''}")
         self.start()
         try:
-            while not self.done:
-                self.step()
-                if bar is not None:
-                    bar.set_postfix_str(postfix(bar, self.rows), refresh=False)
-                    bar.update(1)
+            return run_with_progress(self, f"train {self.k} agent{'s' if self.k > 1 else ''}")
         finally:
-            if bar is not None:
-                bar.close()
             self.finish()
-        return self.rows
 
     def close(self) -> None:
         """Close the envs and release the run folders' locks."""

@@ -147,15 +147,51 @@ def _per_group(groups: int | Sequence[dict[str, Any]], copies: int,
     return per_group
 
 
-class _Layout:
-    """What `GoalVecEnv` and `HostEnvs` share: groups of copies of one layout."""
+class _Batch(_Vector):
+    """One vector env stepping the copies ``index`` (flat indices) of several groups."""
 
-    groups: list[Any]
-    kwargs: list[dict[str, Any]]
+    def __init__(self, env_id: str, n: int, kwargs: dict[str, Any], index: np.ndarray):
+        super().__init__(env_id, n, kwargs)
+        self.index = index
 
-    def _take_layout(self, env_id: str, copies: int) -> None:
-        """Set the layout attributes from group 0; every group must have the same layout."""
+
+class GoalVecEnv:
+    """``groups`` groups of ``copies`` copies of ``gymnasium.make(env_id, **kwargs)``.
+
+    ``groups`` is a count (every group the same task) or one dict per group, whose keys
+    override ``kwargs`` for that group (K agents of different tasks, e.g. regions or reward
+    readings, in one lockstep batch). Every group must then have the same observation and
+    action layout (`dims`). Copy m of group k sits at flat index ``k * copies + m``. Each copy
+    is reseeded at every reset from the seed given for it, so an episode depends only on its
+    own seed and its group's task: nothing about the env needs saving in a checkpoint.
+
+    A group of several copies is the env's own vector implementation (its
+    ``vector_entry_point``, e.g. ``envs.BatchedReach``) when it has one, a single copy
+    ``gymnasium.make``. ``merge=True`` steps the copies of all groups whose tasks (``task_of``)
+    are equal but for `GOAL_FIELDS` in one vector env, which must accept ``reset(seed=[...],
+    options={"goal": (m, goal_dim)})``; each group still draws its copies' goals, so the goals
+    are exactly those of ``merge=False`` and the trajectories equal to rounding. Envs without a
+    vector entry point or a task specification are not merged.
+    """
+
+    def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
+                 *, merge: bool = False, **kwargs: Any):
+        per_group = _per_group(groups, copies, kwargs)
+        env_id = register_env(env_id)
+        vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
+        make = _Vector if vector else _Singles
+        self.kwargs = per_group
+        self.groups = [make(env_id, copies, kw) for kw in per_group]
         g = self.groups[0]
+        space = g.observation_space
+        if not isinstance(space, gymnasium.spaces.Dict) or set(KEYS) - set(space.spaces):
+            raise ValueError(f"{env_id} is not a goal env: its observations must be a Dict with "
+                             f"keys {KEYS}, got {space}")
+        if not isinstance(g.action_space, gymnasium.spaces.Box):
+            raise ValueError(f"{env_id}: need a Box action space, got {g.action_space}")
+        if g.max_steps is None:
+            raise ValueError(f"{env_id} has no time limit (max_episode_steps)")
+        # the layout is group 0's; every group must have the same
         self.copies, self.num_envs = copies, len(self.groups) * copies
         self.max_steps: int = int(g.max_steps)
         self.obs_dim = g.observation_space["observation"].shape[0]
@@ -167,6 +203,7 @@ class _Layout:
                 raise ValueError(
                     f"{env_id}: group {i} ({self.kwargs[i]}) has the layout {_dims(other)}, "
                     f"group 0 ({self.kwargs[0]}) {_dims(g)}; one batch needs one layout")
+        self.batches: list[_Batch] = self._merged(env_id) if merge else []
 
     @property
     def dims(self) -> dict[str, Any]:
@@ -219,54 +256,6 @@ class _Layout:
         """The env whose ``compute_reward`` and ``compute_terminated`` are group ``group``'s."""
         return self.groups[group].goal_env
 
-
-class _Batch(_Vector):
-    """One vector env stepping the copies ``index`` (flat indices) of several groups."""
-
-    def __init__(self, env_id: str, n: int, kwargs: dict[str, Any], index: np.ndarray):
-        super().__init__(env_id, n, kwargs)
-        self.index = index
-
-
-class GoalVecEnv(_Layout):
-    """``groups`` groups of ``copies`` copies of ``gymnasium.make(env_id, **kwargs)``.
-
-    ``groups`` is a count (every group the same task) or one dict per group, whose keys
-    override ``kwargs`` for that group (K agents of different tasks, e.g. regions or reward
-    readings, in one lockstep batch). Every group must then have the same observation and
-    action layout (`dims`). Copy m of group k sits at flat index ``k * copies + m``. Each copy
-    is reseeded at every reset from the seed given for it, so an episode depends only on its
-    own seed and its group's task: nothing about the env needs saving in a checkpoint.
-
-    A group of several copies is the env's own vector implementation (its
-    ``vector_entry_point``, e.g. ``envs.BatchedReach``) when it has one, a single copy
-    ``gymnasium.make``. ``merge=True`` steps the copies of all groups whose tasks (``task_of``)
-    are equal but for `GOAL_FIELDS` in one vector env, which must accept ``reset(seed=[...],
-    options={"goal": (m, goal_dim)})``; each group still draws its copies' goals, so the goals
-    are exactly those of ``merge=False`` and the trajectories equal to rounding. Envs without a
-    vector entry point or a task specification are not merged.
-    """
-
-    def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
-                 *, merge: bool = False, **kwargs: Any):
-        per_group = _per_group(groups, copies, kwargs)
-        env_id = register_env(env_id)
-        vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
-        make = _Vector if vector else _Singles
-        self.kwargs = per_group
-        self.groups = [make(env_id, copies, kw) for kw in per_group]
-        g = self.groups[0]
-        space = g.observation_space
-        if not isinstance(space, gymnasium.spaces.Dict) or set(KEYS) - set(space.spaces):
-            raise ValueError(f"{env_id} is not a goal env: its observations must be a Dict with "
-                             f"keys {KEYS}, got {space}")
-        if not isinstance(g.action_space, gymnasium.spaces.Box):
-            raise ValueError(f"{env_id}: need a Box action space, got {g.action_space}")
-        if g.max_steps is None:
-            raise ValueError(f"{env_id} has no time limit (max_episode_steps)")
-        self._take_layout(env_id, copies)
-        self.batches: list[_Batch] = self._merged(env_id) if merge else []
-
     def _merged(self, env_id: str) -> list[_Batch]:
         """One `_Batch` per set of groups whose tasks differ only in `GOAL_FIELDS`; none when
         the env has no vector entry point or no task specification."""
@@ -317,7 +306,7 @@ class GoalVecEnv(_Layout):
 
 
 # ------------------------------------------------------------------ tensors
-class HostEnvs(_Layout):
+class HostEnvs(GoalVecEnv):
     """A `GoalVecEnv` seen through tensors, for the trainer's host env backends (``numpy``,
     ``batched``): the one place where the host's arrays enter torch (zero-copy
     ``torch.from_numpy``, float64 on the CPU) and the actions leave it. The arguments are
@@ -325,24 +314,17 @@ class HostEnvs(_Layout):
 
     device = torch.device("cpu")
 
-    def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
-                 *, merge: bool = False, **kwargs: Any):
-        self.vec = GoalVecEnv(env_id, groups, copies, merge=merge, **kwargs)
-        self.groups, self.kwargs, self.batches = self.vec.groups, self.vec.kwargs, \
-            self.vec.batches
-        self._take_layout(env_id, copies)
-
     def reset(self, seeds: Sequence[int]) -> dict[str, torch.Tensor]:
         """`GoalVecEnv.reset`, the observations (N, ...) as tensors."""
-        return _tensors(self.vec.reset(seeds))
+        return _tensors(super().reset(seeds))
 
     def step(self, action: torch.Tensor, active: torch.Tensor,
              obs: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], torch.Tensor,
                                                     torch.Tensor, torch.Tensor, torch.Tensor]:
         """`GoalVecEnv.step` of tensors: action (N, act_dim) env units, active (N,) bool; the
         copies not active keep their observation and get 0 / False."""
-        o, *rest = self.vec.step(action.numpy(), active.numpy(),
-                                 {key: v.numpy() for key, v in obs.items()})
+        o, *rest = super().step(action.numpy(), active.numpy(),
+                                {key: v.numpy() for key, v in obs.items()})
         reward, terminated, truncated, success = (torch.from_numpy(x) for x in rest)
         return _tensors(o), reward, terminated, truncated, success
 
@@ -356,9 +338,6 @@ class HostEnvs(_Layout):
                       action: torch.Tensor, group: int = 0) -> torch.Tensor:
         return torch.from_numpy(np.asarray(super().terminated_fn(
             achieved_goal.numpy(), desired_goal.numpy(), action.numpy(), group), dtype=bool))
-
-    def close(self) -> None:
-        self.vec.close()
 
 
 def _tensors(obs: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:

@@ -16,10 +16,10 @@ from envs.physics import make_dynamics
 from envs.render import RENDER_MODES, check_render_mode
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec, make_task
 from envs.task import INFO_KEYS, as_autoreset_mode, real_actions
-from envs.vector import VectorReach, check_num_envs, copy_seeds, reset_options
+from envs.vector import check_num_envs, copy_seeds, reset_options
 
 
-class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
+class BatchedReach(gymnasium.vector.VectorEnv):
     """N copies of ``UR5Reach-v0`` advanced together by one batched dynamics call.
 
     Copy i behaves exactly like ``gymnasium.make("UR5Reach-v0", ...)`` reset with seed
@@ -35,16 +35,22 @@ class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
         The task (defaults as :class:`TaskSpec`); ``**overrides`` change fields.
     autoreset_mode : gymnasium.vector.AutoresetMode or str
         What happens to a copy whose episode ended (terminated or truncated):
-        :class:`envs.vector.VectorReach`'s modes, ``next_step`` (default, Gymnasium's),
-        ``same_step`` (``info["final_obs"]``, ``info["final_info"]``: object arrays of one
-        copy's dicts) or ``disabled``.
+
+        - ``next_step`` (Gymnasium's default): the next ``step`` resets it instead of stepping
+          it; its action is ignored, and it returns the first observation of the new episode
+          with reward 0 and both flags False.
+        - ``same_step``: it is reset within the same ``step``; the returned observation is the
+          new episode's first, the episode's last observation and info are in
+          ``info["final_obs"]`` / ``info["final_info"]`` (object arrays of one copy's dicts;
+          masks ``info["_final_obs"]``, ``info["_final_info"]``).
+        - ``disabled``: never reset automatically; ``reset(options={"reset_mask": done})``.
     render_mode : {"rgb_array", "human"}, optional
         ``render()`` draws every copy (one frame each).
-    dynamics : {"auto", "pinocchio", "numba", "torch"}
+    dynamics : {"auto", "pinocchio", "numba"}
         Which backend advances the arms (:data:`envs.physics.BACKENDS`); the same physics to
         floating-point rounding. ``auto`` (default) takes the compiled numba path for N > 1.
     device : str
-        Where the ``torch`` backend runs (default ``"cpu"``; ``"cuda"`` for a GPU).
+        Where the arms are stepped (default ``"cpu"``; ``"cuda"`` runs ``numba``'s CUDA kernel).
     threads : int
         CPU threads of the fast path (default 1: the two-core machines this runs on share
         their cores with the learner; more pay on many-core hosts at large N).
@@ -80,7 +86,10 @@ class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
         self._true = np.ones(self.num_envs, dtype=bool)
         self._renderers: list[Any] = []
 
-    _where = staticmethod(np.where)
+    @property
+    def dt(self) -> float:
+        """Duration of one step (s)."""
+        return self.task.dt
 
     # ------------------------------------------------------------------ VectorEnv API
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
@@ -115,8 +124,32 @@ class BatchedReach(VectorReach, gymnasium.vector.VectorEnv):
         self._ended[index] = False
         return self._observation(), self._info()
 
-    # step: VectorReach.step. Raises ValueError when ``actions`` is not a finite real (N, n)
-    # array, gymnasium.error.ResetNeeded when a copy has never been reset.
+    def step(self, actions: Any
+             ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step every copy with ``actions (N, n)``; see ``autoreset_mode`` for episode ends.
+
+        Returns observations (dict of (N, ...)), rewards (N,), terminations (N,), truncations
+        (N,) and infos (dict of (N, ...) with ``_key`` masks). Raises ValueError when
+        ``actions`` is not a finite real (N, n) array, gymnasium.error.ResetNeeded when a copy
+        has never been reset.
+        """
+        reward, terminated, truncated = self._advance(self._checked_actions(actions))
+        mode = self.metadata["autoreset_mode"]
+        if mode == AutoresetMode.NEXT_STEP:
+            ended = self._ended
+            self._reset_where(ended)  # the copies that ended last step start anew instead
+            keep = ~ended
+            reward = np.where(keep, reward, 0.0)
+            terminated, truncated = terminated & keep, truncated & keep
+            self._ended = terminated | truncated
+            return self._observation(), reward, terminated, truncated, self._info()
+        info = self._info()
+        if mode == AutoresetMode.SAME_STEP:
+            done = terminated | truncated
+            info.update(self._final(info, done))
+            self._reset_where(done)
+        return self._observation(), reward, terminated, truncated, info
+
     def _checked_actions(self, actions: Any) -> np.ndarray:
         a, n = real_actions(actions), self.task.n_joints
         if a is None or a.shape != (self.num_envs, n) or not np.isfinite(a).all():

@@ -23,8 +23,7 @@ import torch
 
 import regions
 import ur5kin
-from envs.physics.model import NJ, ur5_plane
-from envs.physics.torch_kernel import TorchPlane, plane_heights
+from envs.physics.model import NJ, PlaneModel, ur5_plane
 from envs.reward import goal_distance, reach_reward
 from envs.spec import TaskSpec, make_task
 from envs.task import action_bounds, action_penalty_scale, task_sampler
@@ -44,6 +43,58 @@ GOAL_MISS_PROBABILITY = 1e-9
 """The largest chance that `StackReach.draw_goals` finds no goal among its proposals for one
 copy (the number of proposals is sized from each task's acceptance to stay below it; a miss
 keeps the copy's last goal and is counted in `StackReach.goal_misses`)."""
+
+
+@dataclass(frozen=True)
+class TorchPlane:
+    """:class:`envs.physics.model.PlaneModel` as tensors, laid out for one matrix product.
+
+    Attributes
+    ----------
+    vertex_heights : (13, V) float, m
+        Per feature, the height above base_link of the candidate lowest vertices of the moving
+        links, link by link.
+    bounds : tuple of 7 int
+        Columns ``bounds[k]:bounds[k + 1]`` belong to moving link k = 0..5 (their sizes differ
+        sixfold: one slice each, where padding to the longest tripled the product).
+    lift_offset, wrist_offset : float, rad
+        Offsets of the pitches the features use.
+    """
+
+    vertex_heights: torch.Tensor
+    bounds: tuple[int, ...]
+    lift_offset: float
+    wrist_offset: float
+
+    @classmethod
+    def from_plane(cls, plane: PlaneModel, device: torch.device | str,
+                   dtype: torch.dtype) -> TorchPlane:
+        """The table of ``plane`` (float64 there) without base_link's rows, on ``device`` as
+        ``dtype``."""
+        bounds = [int(b) for b in plane.bounds]
+        vh = np.asarray(plane.vertex_heights, dtype=np.float64)[bounds[1] :]
+        table = torch.as_tensor(np.ascontiguousarray(vh.T))
+        return cls(table.to(device=device, dtype=dtype), tuple(b - bounds[1] for b in bounds[1:]),
+                   float(plane.lift_offset), float(plane.wrist_offset))
+
+
+def plane_heights(q: torch.Tensor, plane: TorchPlane, base_height: float) -> torch.Tensor:
+    """Lowest point ``(B, 6)`` (m, world z) of each moving link at ``q (B, 6)`` rad: the 13
+    trigonometric features (:data:`ur5kin.collision.FEATURES`) times the vertex table, the
+    minimum per link (the numba kernel's ``copy_link_heights``; :func:`ur5kin.link_heights`
+    without the fixed base link)."""
+    a = q[:, 1] + plane.lift_offset
+    b = a + q[:, 2]
+    c = b + q[:, 3] + plane.wrist_offset
+    sc, cc = torch.sin(c), torch.cos(c)
+    s5, c5, s6, c6 = torch.sin(q[:, 4]), torch.cos(q[:, 4]), torch.sin(q[:, 5]), torch.cos(q[:, 5])
+    sc5 = sc * c5
+    feat = torch.stack([torch.ones_like(a), torch.sin(a), torch.cos(a), torch.sin(b),
+                        torch.cos(b), sc, cc, sc5, sc * s5, sc5 * c6, cc * s6, cc * c6,
+                        sc5 * s6], -1)
+    heights = torch.matmul(feat, plane.vertex_heights)  # (B, V)
+    b = plane.bounds
+    return torch.stack([heights[:, b[k] : b[k + 1]].amin(-1) for k in range(NJ)], -1) + base_height
 
 
 @dataclass(frozen=True)

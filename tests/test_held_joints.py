@@ -12,13 +12,12 @@ import pinocchio as pin
 import pytest
 
 import ur5kin
-from envs.physics import numba_kernel, torch_kernel
+from envs.physics import numba_kernel
 from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.spec import TaskSpec
 from envs.task import task_sampler
 
-BACKENDS = {"pinocchio": PinocchioDynamics, "numba": numba_kernel.NumbaDynamics,
-            "torch": torch_kernel.TorchDynamics}
+BACKENDS = {"pinocchio": PinocchioDynamics, "numba": numba_kernel.NumbaDynamics}
 
 
 def free_block_reference(q: np.ndarray, v: np.ndarray, tau: np.ndarray, free: int
@@ -51,8 +50,6 @@ def test_locked_aba_of_the_kernels_is_the_full_models_free_block(free):
     q, v, tau = random_state(free, seed=free)
     ref = free_block_reference(q, v, tau, free)
     np.testing.assert_allclose(numba_kernel.aba(q, v, tau, free=free), ref, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(torch_kernel.aba(q, v, tau, free=free).numpy(), ref, rtol=0,
-                               atol=1e-9)
     assert np.all(numba_kernel.aba(q, v, tau, free=free)[:, free:] == 0.0)
 
 
@@ -78,10 +75,8 @@ def rollout(dyn, commands: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     qs, contacts = [], []
     for command in commands:
         dyn.step(command)
-        q = dyn.q.numpy() if hasattr(dyn.q, "numpy") else dyn.q
-        qs.append(np.array(q, dtype=float))
-        contacts.append(np.array(dyn.contact.numpy() if hasattr(dyn.contact, "numpy")
-                                 else dyn.contact))
+        qs.append(np.array(dyn.q, dtype=float))
+        contacts.append(np.array(dyn.contact))
     return np.array(qs), np.array(contacts)
 
 
@@ -122,13 +117,10 @@ def test_pd_held_joints_give_way_where_locked_ones_do_not():
 def test_backends_agree_step_for_step(held):
     task = TaskSpec(region="closebox", n_joints=4, held_joints=held)
     commands = np.random.default_rng(6).uniform(-np.pi, np.pi, (120, 3, 4))
-    (qp, cp), (qn, cn), (qt, ct) = (rollout(BACKENDS[b](task, 3), commands)
-                                    for b in ("pinocchio", "numba", "torch"))
+    (qp, cp), (qn, cn) = (rollout(BACKENDS[b](task, 3), commands) for b in ("pinocchio", "numba"))
     assert cp.sum() > 5
     np.testing.assert_array_equal(cp, cn)
-    np.testing.assert_array_equal(cn, ct)
     np.testing.assert_allclose(qp, qn, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(qn, qt, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize(("region", "n", "sampler"), [("zheight", 3, "joint"),

@@ -87,6 +87,9 @@ def test_bad_inputs_are_refused():
         make_dynamics(TaskSpec(), 2, "mujoco")
     with pytest.raises(ValueError, match="dynamics='fast' is now dynamics='numba'"):
         make_dynamics(TaskSpec(), 2, "fast")
+    for removed in ("torch", "torch-cuda"):
+        with pytest.raises(ValueError, match=f"dynamics='{removed}' was removed .*StackReach"):
+            make_dynamics(TaskSpec(), 2, removed)
     with pytest.raises(ValueError, match="runs on the CPU only"):
         make_dynamics(TaskSpec(), 2, "pinocchio", device="cuda")
     assert isinstance(make_dynamics(TaskSpec(), 2, "numba"), numba_kernel.NumbaDynamics)

@@ -23,7 +23,8 @@ from ddpg_her.config import AgentConfig, HERStrategy
 from ddpg_her.program import PADDED, Program, input_index, pad_state, unpad_state
 from ddpg_her.runfolder import RunFolder
 from ddpg_her.spaces import ActionScale
-from envs.stackreach import StackReach, proposals_for
+from envs.physics.model import ur5_plane
+from envs.stackreach import StackReach, TorchPlane, plane_heights, proposals_for
 from envs.task import action_bounds, compute_reward, compute_success
 
 TINY = dict(hidden_sizes=(16, 16), warmup_episodes=2, eval_every=3, eval_episodes=4,
@@ -152,6 +153,15 @@ def test_device_goals_follow_the_joint_space_samplers_law(task):
     # both are binomial estimates of one acceptance: their difference within 3.3 sigma
     sigma = math.sqrt(ref_rate * (1 - ref_rate) * (1 / proposals + 1 / batch.proposals))
     assert abs(rate - ref_rate) < 3.3 * sigma, (rate, ref_rate)
+
+
+def test_the_device_plane_check_is_ur5kins():
+    """The goals' plane test on the device against ur5kin.link_heights (the numpy check every
+    host path uses), moving links only."""
+    q = np.random.default_rng(3).uniform(-np.pi, np.pi, (300, 6))
+    plane = TorchPlane.from_plane(ur5_plane(), "cpu", torch.float64)
+    heights = plane_heights(torch.from_numpy(q), plane, 0.5)
+    np.testing.assert_allclose(heights.numpy(), ur5kin.link_heights(q, 0.5)[:, 1:], atol=1e-12)
 
 
 def test_proposals_bound_the_miss_probability():

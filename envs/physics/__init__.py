@@ -18,16 +18,20 @@ if TYPE_CHECKING:
 
 __all__ = ["BACKENDS", "Dynamics", "make_dynamics"]
 
-BACKENDS = ("auto", "pinocchio", "numba", "torch")
+BACKENDS = ("auto", "pinocchio", "numba")
 """Dynamics backends, named for their tool (BatchedReach's ``dynamics`` option): ``pinocchio``
 the reference, ``numba`` the compiled kernel (on the CPU, or one CUDA kernel launch a step on
-``device="cuda"``), ``torch`` the vectorised path on ``device`` (its
-state copied to the host every step; never chosen by ``auto``: on the CPU it is far slower than
-``numba``), ``auto`` numba for B > 1 where it is installed and implements the task, else
+``device="cuda"``), ``auto`` numba for B > 1 where it is installed and implements the task, else
 pinocchio."""
 
-RENAMED_BACKENDS = {"fast": "numba", "torch-cuda": "torch"}
+RENAMED_BACKENDS = {"fast": "numba"}
 """Former backend names, for the message that gives the new spelling."""
+
+REMOVED_BACKENDS = ("torch", "torch-cuda")
+"""Backends that were removed, for the message that says what replaced them: ``torch`` (the
+vectorised torch dynamics behind the numpy env, its state copied to the host every step; last
+at commit 401ca32) gave way to the training program's device env,
+:class:`envs.stackreach.StackReach`."""
 
 
 def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device: str = "cpu",
@@ -35,37 +39,35 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
     """The arm dynamics of ``num_copies`` copies of ``task``: the one place a backend is chosen.
 
     Every backend checks ``task`` against the robot (:func:`envs.validate`): the one check of
-    an env. The backends are imported here, on first use: torch only for ``torch``, numba only
-    for ``numba``.
+    an env. The backends are imported here, on first use: numba only for ``numba`` and
+    ``auto``.
 
     Parameters
     ----------
     backend : one of :data:`BACKENDS`
         The backend, named for its tool.
     device : str
-        Where the ``torch`` backend runs (``"cpu"``, ``"cuda"``, ``"cuda:1"``); ``numba`` runs
-        on ``"cpu"`` or a GPU (``"cuda"``, ``"cuda:N"``, numba's CUDA kernel); the others
-        accept ``"cpu"`` only.
+        ``numba`` runs on ``"cpu"`` or a GPU (``"cuda"``, ``"cuda:N"``, numba's CUDA kernel);
+        the others accept ``"cpu"`` only.
     threads : int
         CPU threads of the numba backend on the CPU (the Pinocchio loop uses one).
 
     Raises
     ------
     ValueError
-        When ``backend`` is not one of :data:`BACKENDS` (a former name gets its new one), a
+        When ``backend`` is not one of :data:`BACKENDS` (a former name gets its new one, a
+        removed one what replaced it), a
         CPU-only backend is given another device, or the backend cannot run the task here
         (numba missing, a contact model it does not implement, no GPU).
     """
     if backend in RENAMED_BACKENDS:
-        raise ValueError(f"dynamics={backend!r} is now dynamics="
-                         f"{RENAMED_BACKENDS[backend]!r}" + (", device='cuda'"
-                                                            if backend == "torch-cuda" else ""))
+        raise ValueError(f"dynamics={backend!r} is now dynamics={RENAMED_BACKENDS[backend]!r}")
+    if backend in REMOVED_BACKENDS:
+        raise ValueError(f"dynamics={backend!r} was removed (its device path is the training "
+                         "program's env, envs.stackreach.StackReach); one of "
+                         f"{list(BACKENDS)} steps BatchedReach")
     if backend not in BACKENDS:
         raise ValueError(f"dynamics must be one of {list(BACKENDS)}; got {backend!r}")
-    if backend == "torch":
-        from envs.physics.torch_kernel import HostMirror, TorchDynamics
-
-        return HostMirror(TorchDynamics(task, num_copies, device=device))
     from envs.physics import numba_kernel
 
     fast_ok = numba_kernel.available() and supports_kernels(task)
@@ -73,7 +75,7 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
         return _numba_cuda(task, num_copies, device, fast_ok)
     if str(device) != "cpu":
         raise ValueError(f"dynamics={backend!r} runs on the CPU only; got device={device!r} "
-                         "(dynamics='torch' runs on any device, 'numba' on 'cuda' too)")
+                         "(dynamics='numba' runs on 'cuda' too)")
     if backend == "numba" and not fast_ok:
         raise ValueError("dynamics='numba' needs numba and the stop contact model; use "
                          "'pinocchio' (or 'auto')")

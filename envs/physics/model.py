@@ -1,10 +1,11 @@
 """The arm model every dynamics backend reads, built once per task.
 
 One job: turn a :class:`envs.spec.TaskSpec` into the numbers a control step needs, so that the
-Pinocchio loop (:mod:`envs.physics.pinocchio_loop`), the numba kernel
-(:mod:`envs.physics.numba_kernel`) and the torch path (:mod:`envs.physics.torch_kernel`) cannot
-drift apart: the controller in time-scaled units (scaled PD gains per control mode, the
-command's gain, effort and velocity limits, joint-limit box, held joints), the serial chain
+Pinocchio loop (:mod:`envs.physics.pinocchio_loop`), the numba kernels
+(:mod:`envs.physics.numba_kernel`, :mod:`envs.physics.numba_cuda`) and the stack's
+(:mod:`envs.physics.stack`) cannot drift apart: the controller in time-scaled units (scaled PD
+gains per control mode, the command's gain, effort and velocity limits, joint-limit box, held
+joints), the serial chain
 (:class:`ChainModel`, read from Pinocchio) and the plane check's tables (:class:`PlaneModel`,
 read from :mod:`ur5kin.collision`), and the checks of a reset configuration.
 
@@ -58,7 +59,7 @@ def moving_joints(task: TaskSpec) -> int:
 
 
 def supports_kernels(task: TaskSpec) -> bool:
-    """Whether the compiled backends (numba, torch) implement ``task``'s physics: the stop
+    """Whether the compiled backends (the numba kernels) implement ``task``'s physics: the stop
     contact model (the compliant one runs on the Pinocchio loop only)."""
     return task.contact_model == "stop"
 
@@ -79,7 +80,7 @@ def check_num_copies(num_copies: Any) -> int:
 
 
 def check_aba_batch(q: Any, v: Any, tau: Any, free: int) -> None:
-    """The checks of the batched ``aba`` functions (numba and torch) on ``(B, 6)`` arrays or
+    """The checks of the batched ``aba`` function (numba's) on ``(B, 6)`` arrays or
     tensors: one shape, and zero velocity in the locked joints' columns ``free ..``."""
     if not q.shape == v.shape == tau.shape:
         raise ValueError(f"q, v and tau must have one shape; got {tuple(q.shape)}, "
