@@ -700,12 +700,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write the Markdown to this file")
     args = parser.parse_args(argv)
+    if args.out is not None:
+        from analysis.outputs import OutputError, check_writable
+
+        try:  # before reading any run
+            check_writable(args.out, "--out")
+        except OutputError as err:
+            parser.error(str(err))
     groups = settings_from_args(parser, args)
     summaries = {k: summarise(v, args.confidence) for k, v in groups.items()}
     text = render(summaries, args.confidence)
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+        from analysis.outputs import OutputError, write_text
+
+        try:  # whole or not at all: a failed write keeps the previous report
+            write_text(args.out, text)
+        except OutputError as err:
+            parser.exit(1, f"error: {err}\n")
     print(text, end="")
     return 0
 

@@ -10,7 +10,8 @@ same seed; one row each in ``eval.csv`` (``ddpg_her.runfolder.EVAL_COLUMNS``) be
 ``spec.json``. The hyperparameters are one JSON file (default ``examples/sb3_her.json``: Table I
 where SB3 has the knob, and where it has not, said there); a ``vec_normalize`` entry (an object
 of ``VecNormalize``'s keyword arguments) trains under SB3's input normaliser, as
-``examples/sb3_her_vecnormalize.json``. A run is not resumable: an existing folder is refused.
+``examples/sb3_her_vecnormalize.json``. Every key and value is checked against what SB3 declares
+before SB3 sees it (`check_hyperparams`). A run is not resumable: an existing folder is refused.
 """
 
 from __future__ import annotations
@@ -58,11 +59,243 @@ def load_hyperparams(path: Path, algo: str) -> dict[str, Any]:
         raise ValueError(f"{path}: {err}") from err
 
 
+SECTIONS = ("common", *ALGOS)
+"""The sections of a hyperparameter file (besides comments, keys that start with ``_``)."""
+
+OWN_KEYWORDS = {
+    "seed": "--seed",
+    "env": "--env-id, --region, --joints and --task",
+    "policy": "analysis.sb3 itself (MultiInputPolicy)",
+    "replay_buffer_class": "analysis.sb3 itself (HerReplayBuffer)",
+    "device": "analysis.sb3 itself (cpu)",
+    "verbose": "analysis.sb3 itself (0)",
+    "action_noise": "the file's action_noise_std (Gaussian noise of that std)",
+}
+"""SB3 keyword arguments the command sets itself -> what sets them; a file giving one is
+refused, as the command's value would silently win or clash."""
+
+RECIPE_KEYS: dict[str, Any] = {"action_noise_std": float | None,
+                               "vec_normalize": dict[str, Any] | None}
+"""Keys of a section that this recipe reads itself (not SB3's): name -> expected type (null:
+no noise, no normaliser)."""
+
+SET_BY_SB3 = {
+    "policy_kwargs": ("observation_space", "action_space", "lr_schedule", "use_sde"),
+    "replay_buffer_kwargs": ("buffer_size", "observation_space", "action_space", "env",
+                             "device", "n_envs", "optimize_memory_usage"),
+    "vec_normalize": ("venv",),
+}
+"""Of each nested object's keyword arguments, those SB3 (or this recipe) passes itself."""
+
+CHOICES = {"goal_selection_strategy": ("future", "final", "episode")}
+"""String values SB3 accepts for a keyword (HerReplayBuffer's GoalSelectionStrategy)."""
+
+TRAIN_FREQ_UNITS = ("step", "episode")
+"""The units of ``train_freq`` = [count, unit] (SB3's TrainFrequencyUnit)."""
+
+
 def load_hyperparams_dict(data: dict[str, Any], algo: str) -> dict[str, Any]:
-    """`load_hyperparams` of a file's content already read."""
+    """`load_hyperparams` of a file's content already read, checked by `check_hyperparams`.
+
+    Raises
+    ------
+    ValueError
+        When a section is missing or unknown, or a key or value is not one SB3's ``algo``
+        takes (see `check_hyperparams`).
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f"expected a JSON object of sections {', '.join(SECTIONS)}; got "
+                         f"{type(data).__name__}")
+    unknown = [k for k in data if k not in SECTIONS and not str(k).startswith("_")]
+    if unknown:
+        raise ValueError(f"unknown section(s) {', '.join(map(repr, unknown))}; the sections "
+                         f"are {', '.join(SECTIONS)} (and comments, keys that start with _)")
     if algo not in data:
         raise ValueError(f"no section {algo!r} (sections: {sorted(data)})")
-    return {**data.get("common", {}), **data[algo]}
+    for name in ("common", algo):
+        if not isinstance(data.get(name, {}), dict):
+            raise ValueError(f"section {name!r} must be a JSON object of keyword arguments; "
+                             f"got {data[name]!r:.80}")
+    params = {**data.get("common", {}), **data[algo]}
+    check_hyperparams(params, algo)
+    return params
+
+
+def sb3_keywords(algo: str) -> dict[str, dict[str, Any]]:
+    """What SB3 itself declares: for ``algo``'s constructor and for each nested object of
+    `SET_BY_SB3` (its policy, HerReplayBuffer, VecNormalize), keyword -> annotation, less the
+    ones set for the user (`OWN_KEYWORDS`, `SET_BY_SB3`) and private ones."""
+    import inspect
+
+    import stable_baselines3 as sb3
+    from stable_baselines3 import HerReplayBuffer
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    cls = {"ddpg": sb3.DDPG, "td3": sb3.TD3, "sac": sb3.SAC}[algo]
+    nested = {"": cls, "policy_kwargs": cls.policy_aliases["MultiInputPolicy"],
+              "replay_buffer_kwargs": HerReplayBuffer, "vec_normalize": VecNormalize}
+    out = {}
+    for where, target in nested.items():
+        own = SET_BY_SB3.get(where, tuple(OWN_KEYWORDS))
+        out[where] = {name: p.annotation
+                      for name, p in inspect.signature(target.__init__).parameters.items()
+                      if name != "self" and not name.startswith("_") and name not in own
+                      and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    out[""].update(RECIPE_KEYS)
+    return out
+
+
+def check_hyperparams(params: dict[str, Any], algo: str) -> None:
+    """Check the keyword arguments ``params`` (one section merged over ``common``) in our words
+    before SB3 sees them: every key one SB3's ``algo`` takes (its constructor's keywords, the
+    recipe's `RECIPE_KEYS`; inside ``policy_kwargs``, ``replay_buffer_kwargs`` and
+    ``vec_normalize``, those of the policy, HerReplayBuffer and VecNormalize), none the
+    command sets itself (`OWN_KEYWORDS`, `SET_BY_SB3`), and every value of the type SB3
+    declares for it, as JSON can give it (a number for ``float``, an integer for ``int``, a
+    list for a tuple), ``goal_selection_strategy`` and ``train_freq``'s unit among SB3's
+    choices.
+
+    Raises
+    ------
+    ValueError
+        Naming the key, and the allowed keys, the flag that sets it, or the value and the
+        expected type.
+    """
+    keywords = sb3_keywords(algo)
+    _check_keys(params, keywords[""], algo, "")
+    for key, value in params.items():
+        _check_value(key, value, keywords[""][key], algo)
+        if key in SET_BY_SB3 and value is not None:
+            _check_keys(value, keywords[key], algo, f"{key}.")
+            for sub, subvalue in value.items():
+                _check_value(f"{key}.{sub}", subvalue, keywords[key][sub], algo)
+    std = params.get("action_noise_std")
+    if std is not None and not std >= 0:
+        raise ValueError(f"{algo}: action_noise_std = {std!r}: expected a number >= 0 (the "
+                         "std of the Gaussian action noise; 0 or null: none)")
+    freq = params.get("train_freq")
+    if isinstance(freq, list | tuple) and freq[1] not in TRAIN_FREQ_UNITS:
+        raise ValueError(f"{algo}: train_freq = {freq!r}: its unit must be one of "
+                         f"{', '.join(TRAIN_FREQ_UNITS)}; got {freq[1]!r}")
+
+
+def _check_keys(params: dict[str, Any], allowed: dict[str, Any], algo: str, where: str
+                ) -> None:
+    """Refuse a key of ``params`` (at ``where``) that is not in ``allowed``."""
+    for key in params:
+        name = f"{where}{key}"
+        if not where and key in OWN_KEYWORDS:
+            raise ValueError(f"{algo}: {key} is set by {OWN_KEYWORDS[key]}; drop it from the "
+                             "hyperparameter file")
+        if where and key in SET_BY_SB3.get(where.rstrip("."), ()):
+            raise ValueError(f"{algo}: {name} is set by SB3 itself (from the model's own "
+                             "arguments); drop it from the hyperparameter file")
+        if key not in allowed:
+            raise ValueError(f"{algo}: unknown hyperparameter {name!r}; SB3's "
+                             f"{algo.upper()} under this recipe takes "
+                             f"{', '.join(where + k for k in sorted(allowed))}")
+
+
+def _check_value(name: str, value: Any, hint: Any, algo: str) -> None:
+    """Refuse ``value`` of the key ``name`` when JSON's value is not of SB3's type ``hint``."""
+    if not _accepts(value, hint):
+        raise ValueError(f"{algo}: {name} = {json.dumps(value)[:80]} ({_json_kind(value)}): "
+                         f"expected {_describe(hint)}")
+    choices = CHOICES.get(name.rpartition(".")[2])
+    if choices and isinstance(value, str) and value not in choices:
+        raise ValueError(f"{algo}: {name} = {value!r}: expected one of {', '.join(choices)}")
+
+
+def _json_kind(value: Any) -> str:
+    """The JSON type of a value read from JSON, in JSON's words."""
+    if value is None:
+        return "null"
+    return {bool: "true/false", int: "an integer", float: "a number", str: "a string",
+            list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
+
+
+def _members(hint: Any) -> tuple[Any, ...] | None:
+    """The members of a union annotation (``a | b``, ``Optional``), or None for another."""
+    import types
+    import typing
+
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return typing.get_args(hint)
+    return None
+
+
+def _accepts(value: Any, hint: Any) -> bool:
+    """Whether a JSON value fits SB3's annotation ``hint`` (classes JSON cannot give, such as
+    a Callable or a torch module's class, fit no value)."""
+    import typing
+
+    members = _members(hint)
+    if members is not None:
+        return any(_accepts(value, m) for m in members)
+    if hint is Any or hint is _unannotated():
+        return True
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is dict or origin is dict:
+        return isinstance(value, dict) and (not args or all(
+            isinstance(k, str) and _accepts(v, args[1]) for k, v in value.items()))
+    if hint is list or origin is list:
+        return isinstance(value, list) and (not args or all(_accepts(v, args[0])
+                                                            for v in value))
+    if origin is tuple:
+        return (isinstance(value, list) and len(value) == len(args)
+                and all(_accepts(v, a) for v, a in zip(value, args, strict=True)))
+    return False
+
+
+def _unannotated() -> Any:
+    """``inspect.Parameter.empty``: a keyword SB3 did not annotate takes any value."""
+    import inspect
+
+    return inspect.Parameter.empty
+
+
+def _describe(hint: Any) -> str:
+    """SB3's annotation ``hint`` in JSON's words (the forms of it JSON can give)."""
+    import typing
+
+    members = _members(hint)
+    if members is not None:
+        words = [_describe(m) for m in members if _describe(m) != UNWRITABLE]
+        return " or ".join(dict.fromkeys(words)) or UNWRITABLE
+    simple = {type(None): "null", bool: "true or false", int: "an integer",
+              float: "a number", str: "a string", dict: "an object", list: "a list"}
+    if hint in simple:
+        return simple[hint]
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is dict:
+        if args[1] is Any:
+            return "an object"
+        return f"an object whose values are {_describe(args[1])}"
+    if origin is list:
+        return f"a list of {_plural(_describe(args[0]))}"
+    if origin is tuple:
+        return f"a list [{', '.join(_describe(a) for a in args)}]"
+    return UNWRITABLE
+
+
+UNWRITABLE = "a Python object, which a JSON file cannot give (leave it out)"
+"""What `_describe` says of an annotation no JSON value fits."""
+
+
+def _plural(words: str) -> str:
+    """'an integer' -> 'integers' (for `_describe` of a list)."""
+    return " or ".join(w.split(" ", 1)[1] + "s" if w.startswith(("a ", "an ")) else w
+                       for w in words.split(" or "))
 
 
 def make_model(algo: str, env: Any, hyperparams: dict[str, Any], seed: int) -> Any:

@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
-import shutil
 import sys
 import zlib
 from collections.abc import Mapping, Sequence
@@ -202,6 +201,8 @@ def collect(units: Sequence[Unit], dest: Path) -> tuple[int, list[str]]:
     skipped : list of str
         The unfinished units, each with its seeds' statuses.
     """
+    from analysis.outputs import write_bytes
+
     copied, skipped = 0, []
     for unit in units:
         status = [unit.status(s) for s in unit.seeds]
@@ -209,13 +210,12 @@ def collect(units: Sequence[Unit], dest: Path) -> tuple[int, list[str]]:
             skipped.append(f"{unit.name} ({', '.join(status)})")
             continue
         base = dest / "runs" / unit.tag
-        for seed in unit.seeds:
+        for seed in unit.seeds:  # each copy whole or not at all, by the one atomic writer
             target = base / unit.setting / f"s{seed}"
-            target.mkdir(parents=True, exist_ok=True)
             for name in COLLECTED_FILES:
-                shutil.copy2(unit.run_dir(seed) / name, target / name)
+                write_bytes(target / name, (unit.run_dir(seed) / name).read_bytes())
         if (unit.root / READING_FILE).exists():
-            shutil.copy2(unit.root / READING_FILE, base / READING_FILE)
+            write_bytes(base / READING_FILE, (unit.root / READING_FILE).read_bytes())
         copied += 1
     return copied, skipped
 
@@ -922,7 +922,10 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
         dry_run(units, args, threads, extra)
         return 0
     root = args.out if args.collect is None else args.collect / "runs"
-    copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
+    try:
+        copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
+    except OutputError as err:  # a full disk; every file written is whole
+        parser.exit(1, f"error: {err}\n")
     try:
         for reading in readings:  # units started by hand have no reading.json of their own
             if args.collect is None or (root / reading.name).is_dir():

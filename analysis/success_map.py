@@ -206,11 +206,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     policies = []
     for run in args.runs:
-        try:
+        try:  # load checks that the run's env (its task, region included) can be made
             policies.append(ddpg_her.load(run, episode=args.episode))
         except (FileNotFoundError, ValueError) as err:
             parser.error(str(err))
-    tasks = [TaskSpec.from_record(p.spec["task"]) for p in policies]
+    tasks = [p.task for p in policies]  # the task of the env the policy was trained on
+    not_ur5 = [run for run, t in zip(args.runs, tasks, strict=True)
+               if not isinstance(t, TaskSpec)]
+    if not_ur5:
+        parser.error(f"{not_ur5[0]} is a run of env {policies[0].spec.get('env_id')!r}, "
+                     "without a UR5 task (envs.TaskSpec): success_map draws UR5 goals")
     if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
         parser.error("the runs have different tasks (region, joints, start, sampler); maps of "
                      "one figure must share their goals")

@@ -26,10 +26,11 @@ import argparse
 import contextlib
 import itertools
 import os
+import signal
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -156,17 +157,51 @@ def child_env(threads: int) -> dict[str, str]:
     return env
 
 
+PR_SET_PDEATHSIG = 1
+"""prctl(2)'s option (Linux, <sys/prctl.h>): the signal a process gets when the thread that
+started it ends."""
+
+
+def die_with_parent() -> Callable[[], None] | None:
+    """A ``preexec_fn`` after which the started process gets SIGKILL when the thread that
+    started it ends, however it ends (SIGKILL included), so a killed study leaves no orphan
+    training on: it would hold its run folder's lock, so the study run again would leave that
+    unit to it, and its log would fill with both (issue 37, kind 1). None where prctl cannot be
+    called (not Linux): there a killed study's processes train on until they end.
+
+    Each caller of `start_unit` waits for its process in the thread that started it (the main
+    thread, or a Ray task's), so the signal comes only when that wait can no longer end.
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        if os.getppid() != parent:  # the parent died before prctl took effect
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    return preexec
+
+
 def start_unit(command: Sequence[str], log_path: str | Path, threads: int,
                cwd: str | None = None) -> tuple[subprocess.Popen, IO[str]]:
     """Start one training process, its output appended to ``log_path`` after a line with the
     command; returns the process and the open log (the caller closes it when the process ends).
+    The process dies with this one (`die_with_parent`).
     """
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     log = open(log_path, "a")  # noqa: SIM115 (outlives this function, with the process)
     log.write(f"\n$ {' '.join(command)}\n")
     log.flush()
     proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
-                            env=child_env(threads))
+                            env=child_env(threads), preexec_fn=die_with_parent())
     return proc, log
 
 

@@ -37,34 +37,21 @@ class TrainedPolicy:
     """
 
     def __init__(self, actor: torch.nn.Module, normalizer: RunningNormalizer, scale: ActionScale,
-                 spec: dict[str, Any], episode: int):
+                 spec: dict[str, Any], episode: int, task: Any = None):
         self.actor, self.normalizer, self.scale = actor, normalizer, scale
-        self.spec, self.episode = spec, episode
+        self.spec, self.episode, self._task = spec, episode, task
         self.device = actor.l1.weight.device
 
     def make_env(self, **kwargs: Any) -> Any:
-        """A fresh copy of the env the policy was trained on (``gymnasium.make`` with the run's
-        env id and arguments; ``kwargs`` go to ``gymnasium.make`` too, e.g. ``render_mode``).
+        """A fresh copy of the env the policy was trained on: `make_run_env` of its spec
+        (``kwargs`` go to ``gymnasium.make``, e.g. ``render_mode``)."""
+        return make_run_env(self.spec, **kwargs)
 
-        Where the run recorded its env's whole task (``spec.json``'s ``task``) and the env
-        takes a task record (a ``task`` parameter, as UR5Reach-v0 does), the env gets that record
-        as ``task=``: the arguments alone would take today's defaults for fields that a run of
-        an older version did not name (the env reads a record as of its time)."""
-        import inspect
-
-        import gymnasium
-        from gymnasium.envs.registration import load_env_creator
-
-        from ddpg_her.vecenv import register_env
-
-        env_id = register_env(self.spec["env_id"])
-        env_kwargs = dict(self.spec["env_kwargs"])
-        entry = gymnasium.spec(env_id).entry_point
-        creator = load_env_creator(entry) if isinstance(entry, str) else entry
-        if (self.spec.get("task") and "task" not in env_kwargs and "spec" not in env_kwargs
-                and "task" in inspect.signature(creator).parameters):
-            env_kwargs["task"] = self.spec["task"]
-        return gymnasium.make(env_id, **env_kwargs, **kwargs)
+    @property
+    def task(self) -> Any:
+        """The task of the run's env (an ``envs.TaskSpec`` for UR5Reach-v0), as `load` checked
+        it: what `make_env`'s env has as ``env.unwrapped.task`` (None for an env without one)."""
+        return self._task
 
     def _checked(self, obs: Any) -> list[np.ndarray]:
         """The three arrays of ``obs`` as float64, or ValueError naming what does not fit the
@@ -110,6 +97,55 @@ class TrainedPolicy:
         return a[0] if single else a
 
 
+def make_run_env(spec: Mapping[str, Any], **kwargs: Any) -> Any:
+    """A fresh copy of the env of the run whose ``spec.json`` is ``spec`` (``gymnasium.make``
+    with the run's env id and arguments; ``kwargs`` go to ``gymnasium.make`` too).
+
+    Where the run recorded its env's whole task (``spec.json``'s ``task``) and the env takes a
+    task record (a ``task`` parameter, as UR5Reach-v0 does), the env gets that record as
+    ``task=``: the arguments alone would take today's defaults for fields that a run of an
+    older version did not name (the env reads a record as of its time)."""
+    import inspect
+
+    import gymnasium
+    from gymnasium.envs.registration import load_env_creator
+
+    from ddpg_her.vecenv import register_env
+
+    env_id = register_env(spec["env_id"])
+    env_kwargs = dict(spec["env_kwargs"])
+    entry = gymnasium.spec(env_id).entry_point
+    creator = load_env_creator(entry) if isinstance(entry, str) else entry
+    if (spec.get("task") and "task" not in env_kwargs and "spec" not in env_kwargs
+            and "task" in inspect.signature(creator).parameters):
+        env_kwargs["task"] = spec["task"]
+    return gymnasium.make(env_id, **env_kwargs, **kwargs)
+
+
+def run_task(folder: RunFolder, spec: Mapping[str, Any]) -> Any:
+    """The task of the run's env, after making the env once as `make_run_env` makes it: a
+    spec whose env cannot be made (a region that does not parse, a field no task has, an env
+    id that is not registered) is an error naming ``spec.json``, not a traceback of whichever
+    reader makes the env first (issue 37, kind 7). None for an env without a ``task``.
+
+    Raises
+    ------
+    RunFolderError
+        Naming ``spec.json`` and why its env cannot be made (the region and what it should be).
+    """
+    import gymnasium
+
+    try:
+        env = make_run_env(spec)
+    except (KeyError, TypeError, ValueError, ImportError, gymnasium.error.Error) as err:
+        raise RunFolderError(f"{folder.spec_path}: the run's env cannot be made from it "
+                             f"({type(err).__name__}: {err})") from err
+    try:
+        return getattr(env.unwrapped, "task", None)
+    finally:
+        env.close()
+
+
 def load(run_dir: str | os.PathLike, *, episode: int | None = None,
          device: str = "cpu") -> TrainedPolicy:
     """The policy of the run in ``run_dir`` at its latest checkpoint (or at ``episode``).
@@ -120,12 +156,14 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
         When ``run_dir`` has no ``spec.json`` or no checkpoint.
     ddpg_her.runfolder.RunFolderError
         (a ValueError) When there is no checkpoint at ``episode``, or ``spec.json`` or the
-        checkpoint cannot be read; the message names the file.
+        checkpoint cannot be read, or the env of ``spec.json`` cannot be made (`run_task`); the
+        message names the file.
     """
     folder = RunFolder(run_dir)
     if not folder.spec_path.exists():
         raise FileNotFoundError(f"{run_dir} is not a run folder (no spec.json)")
     spec = folder.read_spec()
+    task = run_task(folder, spec)  # before any checkpoint is read
     ckpts = folder.checkpoints()
     if not ckpts:
         raise FileNotFoundError(f"{run_dir} has no checkpoint yet")
@@ -156,7 +194,7 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
         normalizer = RunningNormalizer(1, in_dim, eps=config.norm_eps, clip=config.obs_clip,
                                        enabled=False, **net)  # the members normalise
     scale = ActionScale(np.array(dims["action_low"]), np.array(dims["action_high"]))
-    return TrainedPolicy(actor, normalizer, scale, spec, episode)
+    return TrainedPolicy(actor, normalizer, scale, spec, episode, task)
 
 
 def _actor(config: AgentConfig, states: list[dict[str, Any]], in_dim: int, act_dim: int,

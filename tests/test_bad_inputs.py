@@ -173,6 +173,71 @@ def test_a_success_map_that_cannot_fit_is_refused_before_any_rollout(args, messa
     assert message in err and "GiB of memory available" in err
 
 
+@pytest.fixture(scope="module")
+def tiny_ur5_run(tmp_path_factory):
+    """A far-box run of 2 episodes with a checkpoint (an untrained policy)."""
+    from cli_tools import run_module
+
+    run = tmp_path_factory.mktemp("unreadable") / "run"
+    run_module("ddpg_her.train", "--region", "farbox", "--joints", "3", "--episodes", "2",
+               "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "8", "8",
+               "--warmup-episodes", "1", "--out", str(run), "--no-progress", "--threads", "1",
+               "--no-tensorboard")
+    return run
+
+
+@pytest.mark.parametrize("section", ["task", "env_kwargs"])
+@pytest.mark.parametrize(("region", "message"), [
+    ("nowhere", "cannot read region 'nowhere'"),
+    ("box:1,0,0,1", "region 'box:1,0,0,1': expected 6 numbers (m); got 4"),
+])
+@pytest.mark.parametrize("module", ["analysis.success_map", "analysis.replay"])
+def test_a_run_whose_spec_names_an_unreadable_region_is_one_line_naming_it(
+        tiny_ur5_run, tmp_path, capsys, module, region, message, section):
+    """Issue 37, kind 7: success_map and replay ended a run whose spec.json names a region
+    that does not parse in the region parser's traceback (replay after its set-up, success_map
+    after loading every checkpoint); every reader goes through ddpg_her.load, which now makes
+    the run's env once and names spec.json."""
+    import importlib
+    import json
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_ur5_run, run)
+    spec = json.loads((run / "spec.json").read_text())
+    spec[section]["region"] = region
+    (run / "spec.json").write_text(json.dumps(spec))
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit) as stop:
+        out = "out.html" if module == "analysis.replay" else "out.png"
+        main([str(run), "--out", str(tmp_path / out), "--no-progress"]
+             + (["--episodes", "1"] if module == "analysis.replay" else ["--goals", "20"]))
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert message in last and str(run / "spec.json") in last, err
+    assert not list(tmp_path.glob("out*"))
+
+
+def test_load_names_the_spec_whose_env_cannot_be_made(tiny_ur5_run, tmp_path):
+    import json
+    import shutil
+
+    import ddpg_her
+    from ddpg_her.runfolder import RunFolderError
+
+    assert ddpg_her.load(tiny_ur5_run).task.region == "farbox"
+    run = tmp_path / "run"
+    shutil.copytree(tiny_ur5_run, run)
+    spec = json.loads((run / "spec.json").read_text())
+    spec["task"]["region"] = "nowhere"
+    (run / "spec.json").write_text(json.dumps(spec))
+    with pytest.raises(RunFolderError, match=r"spec\.json: the run's env cannot be made.*"
+                                             r"cannot read region 'nowhere'"):
+        ddpg_her.load(run)
+
+
 def test_compute_reward_refuses_a_list_of_infos_that_does_not_match_the_batch():
     """Issue 37, kind 8: one info for four transitions was broadcast over them silently."""
     env = reward_env()

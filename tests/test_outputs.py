@@ -176,6 +176,47 @@ def test_every_output_goes_through_the_one_atomic_writer(tmp_path, monkeypatch):
     assert target.read_text() == "old" and sorted(tmp_path.iterdir()) == [target]
 
 
+def test_report_checks_its_out_before_reading_any_run(tmp_path, capsys):
+    """analysis.report read every run first and then sent an --out under a file to mkdir's
+    traceback; with no runs it said only that there were none."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    for root in (tmp_path / "no-runs-here", tmp_path):
+        err = usage_error(capsys, "analysis.report", [str(root), "--out", str(blocker / "r.md")])
+        assert f"--out {blocker / 'r.md'}: {blocker} is a file, not a folder" in err, err
+    err = usage_error(capsys, "analysis.report", [str(tmp_path), "--out", str(tmp_path)])
+    assert f"--out {tmp_path} is a folder, expected a file" in err
+
+
+def test_report_on_a_full_disk_keeps_the_previous_report(tmp_path, capsys, monkeypatch):
+    """analysis.report wrote with Path.write_text: a full disk left the report cut short."""
+    import errno
+
+    from test_analysis import _fake_run
+
+    from analysis import report
+    from ddpg_her import runfolder
+
+    _fake_run(tmp_path / "runs" / "farbox-j3" / "s0", "farbox", 3, 0, [40, 60])
+    out = tmp_path / "out" / "report.md"
+    assert report.main([str(tmp_path / "runs"), "--out", str(out)]) == 0
+    previous = out.read_text()
+    assert "farbox" in previous and previous == capsys.readouterr().out
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(runfolder.os, "fsync", full)
+    _fake_run(tmp_path / "runs" / "farbox-j3" / "s1", "farbox", 3, 1, [50, 70])
+    with pytest.raises(SystemExit) as exit_:
+        report.main([str(tmp_path / "runs"), "--out", str(out)])
+    assert exit_.value.code == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and str(out) in err and "No space left on device" in err
+    assert out.read_text() == previous
+    assert sorted(p.name for p in out.parent.iterdir()) == ["report.md"]
+
+
 def test_a_plan_file_is_written_whole(tmp_path, monkeypatch):
     from ddpg_her import runfolder, units
 

@@ -148,3 +148,96 @@ def test_a_run_that_fails_before_its_first_test_leaves_no_folder_to_block_the_re
 
 
 TINY_DDPG = sb3.load_hyperparams_dict(TINY, "ddpg")
+
+
+BAD_HYPERPARAMS = [
+    ("ddpg", {"gama": 0.9}, ["'gama'", "gamma", "batch_size", "tau"]),
+    ("sac", {"policy_delay": 2}, ["'policy_delay'", "ent_coef"]),
+    ("ddpg", {"gamma": "high"}, ["gamma", '"high"', "a string", "expected a number"]),
+    ("ddpg", {"batch_size": 64.0}, ["batch_size", "64.0", "expected an integer"]),
+    ("td3", {"batch_size": True}, ["batch_size", "true", "expected an integer"]),
+    ("ddpg", {"train_freq": "1"}, ["train_freq", '"1"', "an integer or a list"]),
+    ("td3", {"train_freq": [1, "epoch"]}, ["train_freq", "'epoch'", "step, episode"]),
+    ("sac", {"ent_coef": [1]}, ["ent_coef", "a list", "a string or a number"]),
+    ("ddpg", {"action_noise_std": "0.1"}, ["action_noise_std", '"0.1"', "a number"]),
+    ("ddpg", {"action_noise_std": -0.1}, ["action_noise_std", "-0.1", ">= 0"]),
+    ("ddpg", {"seed": 3}, ["seed", "--seed"]),
+    ("ddpg", {"device": "cuda"}, ["device", "analysis.sb3 itself"]),
+    ("ddpg", {"action_noise": 0.1}, ["action_noise", "action_noise_std"]),
+    ("ddpg", {"policy_kwargs": {"net_arch": [16, "16"]}},
+     ["policy_kwargs.net_arch", '[16, "16"]', "a list of integers"]),
+    ("ddpg", {"policy_kwargs": {"activation_fn": "tanh"}},
+     ["policy_kwargs.activation_fn", "JSON file cannot give"]),
+    ("ddpg", {"policy_kwargs": {"hidden": [8]}}, ["'policy_kwargs.hidden'", "net_arch"]),
+    ("ddpg", {"replay_buffer_kwargs": {"goal_selection_strategy": "past"}},
+     ["goal_selection_strategy", "'past'", "future, final, episode"]),
+    ("ddpg", {"replay_buffer_kwargs": {"n_sampled_goal": "4"}},
+     ["replay_buffer_kwargs.n_sampled_goal", '"4"', "an integer"]),
+    ("ddpg", {"replay_buffer_kwargs": {"env": None}}, ["replay_buffer_kwargs.env", "SB3 itself"]),
+    ("ddpg", {"vec_normalize": {"clipobs": 5}}, ["'vec_normalize.clipobs'",
+                                                 "vec_normalize.clip_obs"]),
+    ("ddpg", {"vec_normalize": {"clip_obs": "5"}}, ["vec_normalize.clip_obs", "a number"]),
+]
+"""(algorithm, keys merged into TINY's section, what the message must name)."""
+
+
+@pytest.mark.parametrize("algo, extra, words", BAD_HYPERPARAMS,
+                         ids=[f"{a}-{next(iter(e))}-{i}" for i, (a, e, _) in
+                              enumerate(BAD_HYPERPARAMS)])
+def test_hyperparameters_sb3_would_not_take_are_refused_in_our_words(algo, extra, words):
+    """Issue 37, kind 4: an unknown key names the key and the allowed ones, a value of the wrong
+    type names the value and the type expected, a key the command sets names what sets it;
+    before SB3 sees them (SB3's own answers: a TypeError traceback for an unknown keyword, a
+    failure deep inside the first update, or nothing at all)."""
+    data = json.loads(json.dumps(TINY))
+    data[algo] = {**data[algo], **extra}
+    with pytest.raises(ValueError) as err:
+        sb3.load_hyperparams_dict(data, algo)
+    message = str(err.value)
+    assert "\n" not in message
+    for word in words:
+        assert word in message, (word, message)
+
+
+def test_an_unknown_section_of_the_file_is_refused():
+    with pytest.raises(ValueError, match=r"'ppo'.*common, ddpg, td3, sac"):
+        sb3.load_hyperparams_dict({**TINY, "ppo": {}}, "ddpg")
+    assert sb3.load_hyperparams_dict({**TINY, "_about": "a comment"}, "ddpg") == TINY_DDPG
+
+
+@pytest.mark.parametrize("algo", sb3.ALGOS)
+def test_what_the_check_lets_through_sb3_builds(algo):
+    """The check is no stricter than SB3: keys and values of every kind it accepts (an integer
+    for a float, null for an optional, lists for tuples, nested objects) build the model."""
+    extra = {"ddpg": {"n_steps": 1, "tau": 1, "action_noise_std": None,
+                      "policy_kwargs": {"net_arch": {"pi": [8], "qf": [8]}, "n_critics": 1}},
+             "td3": {"stats_window_size": 10, "target_noise_clip": 0.5, "policy_delay": 3,
+                     "vec_normalize": {"clip_obs": 5, "norm_reward": False},
+                     "replay_buffer_kwargs": {"goal_selection_strategy": "future",
+                                              "n_sampled_goal": 2,
+                                              "handle_timeout_termination": True}},
+             "sac": {"ent_coef": 0.1, "target_entropy": -2, "use_sde": False,
+                     "train_freq": 1, "policy_kwargs": {"log_std_init": -2,
+                                                        "net_arch": [8, 8]}}}[algo]
+    data = json.loads(json.dumps(TINY))
+    data[algo] = {**data[algo], **extra}
+    params = sb3.load_hyperparams_dict(data, algo)
+    env = gymnasium.make(toy_goal_env.ENV_ID, n_joints=2)
+    model = sb3.make_model(algo, env, params, seed=0)
+    assert model.gamma == TINY["common"]["gamma"]
+
+
+def test_a_bad_hyperparameter_file_ends_the_command_in_one_line_before_any_folder(tmp_path):
+    params = tmp_path / "bad.json"
+    data = json.loads(json.dumps(TINY))
+    data["common"]["gamma"] = "high"
+    params.write_text(json.dumps(data))
+    out = tmp_path / "run"
+    proc = run_module("analysis.sb3", "--env-id", "toy_goal_env:ToyReach-v0", "--region", "box",
+                      "--joints", "2", "--episodes", "1", "--hyperparams", str(params),
+                      "--out", str(out), check=False)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "gamma" in last and '"high"' in last and str(params) in last
+    assert not out.exists()

@@ -182,7 +182,10 @@ def test_readings_from_the_command_line_and_a_file(tmp_path: Path) -> None:
 
 # --- collect --------------------------------------------------------------------------------------
 
-def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path) -> None:
+def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path, monkeypatch,
+                                                              capsys) -> None:
+    """Each copy is written whole, by the one atomic writer (issue 37, kind 3: it was
+    shutil.copy2, which a kill or a full disk leaves cut short)."""
     root, dest = tmp_path / "runs", tmp_path / "dest"
     for seed in range(2):
         run = root / "ours" / "zheight-j3" / f"s{seed}"
@@ -193,10 +196,14 @@ def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path) -> 
         _write_run(root / "ours" / "farbox-j6" / f"s{seed}", "farbox", 6, seed, 40.0, upto=500)
     (root / "ours" / "logs").mkdir()
     (root / "ours" / "logs" / "zheight-j3.log").write_text("log")
-    proc = run_module("analysis.sensitivity", "--collect", str(dest), "--out", str(root),
-                      "--seeds", "2", "--readings", "ours", "--setting", "zheight:3",
-                      "--setting", "farbox:6")
-    assert "copied 1 finished unit(s)" in proc.stderr and "ours/farbox-j6" in proc.stderr
+    from ddpg_her import runfolder
+
+    written, real = [], runfolder.atomic_write
+    monkeypatch.setattr(runfolder, "atomic_write", lambda p, d: (written.append(p), real(p, d)))
+    assert sens.main(["--collect", str(dest), "--out", str(root), "--seeds", "2", "--readings",
+                      "ours", "--setting", "zheight:3", "--setting", "farbox:6"]) == 0
+    stderr = capsys.readouterr().err
+    assert "copied 1 finished unit(s)" in stderr and "ours/farbox-j6" in stderr
     copied = sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*") if p.is_file())
     # no reading.json at the source (units started by hand): written from the reading
     assert json.loads((dest / "runs/ours/reading.json").read_text())["args"] == []
@@ -207,6 +214,8 @@ def test_collect_copies_only_spec_and_eval_of_finished_units(tmp_path: Path) -> 
         for name in ("eval.csv", "spec.json"):
             assert (dest / f"runs/ours/zheight-j3/s{seed}/{name}").read_bytes() == \
                 (root / f"ours/zheight-j3/s{seed}/{name}").read_bytes()
+    assert sorted(written) == sorted(dest / "runs" / c for c in
+                                     [c.removeprefix("runs/") for c in copied])
 
 
 # --- the verdicts ---------------------------------------------------------------------------------
