@@ -126,12 +126,15 @@ def run_task(folder: RunFolder, spec: Mapping[str, Any]) -> Any:
     """The task of the run's env, after making the env once as `make_run_env` makes it: a
     spec whose env cannot be made (a region that does not parse, a field no task has, an env
     id that is not registered) is an error naming ``spec.json``, not a traceback of whichever
-    reader makes the env first (issue 37, kind 7). None for an env without a ``task``.
+    reader makes the env first (issue 37, kind 7); a spec whose ``task`` record and
+    ``env_kwargs`` make different tasks (an edited file) is refused too, naming the fields
+    (kind 6). None for an env without a ``task``.
 
     Raises
     ------
     RunFolderError
-        Naming ``spec.json`` and why its env cannot be made (the region and what it should be).
+        Naming ``spec.json`` and why its env cannot be made (the region and what it should be),
+        or the fields on which its ``task`` and ``env_kwargs`` disagree.
     """
     import gymnasium
 
@@ -141,9 +144,28 @@ def run_task(folder: RunFolder, spec: Mapping[str, Any]) -> Any:
         raise RunFolderError(f"{folder.spec_path}: the run's env cannot be made from it "
                              f"({type(err).__name__}: {err})") from err
     try:
-        return getattr(env.unwrapped, "task", None)
+        task = getattr(env.unwrapped, "task", None)
     finally:
         env.close()
+    recorded = spec.get("task")
+    if task is not None and recorded and hasattr(task, "to_dict"):
+        made = task.to_dict()
+        differ = [f"{key} (task: {recorded[key]!r}, env: {made[key]!r})" for key in recorded
+                  if key in made and _plain(made[key]) != _plain(recorded[key])]
+        if differ:
+            raise RunFolderError(f"{folder.spec_path}: its task and its env_kwargs disagree on "
+                                 f"{', '.join(differ)}; a run's spec records one task (issue 37, "
+                                 "kind 6): was the file edited?")
+    return task
+
+
+def _plain(value: Any) -> Any:
+    """``value`` as JSON reads it back (tuples as lists), for comparing a record with a task."""
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
 
 
 def load(run_dir: str | os.PathLike, *, episode: int | None = None,

@@ -238,6 +238,32 @@ def test_load_names_the_spec_whose_env_cannot_be_made(tiny_ur5_run, tmp_path):
         ddpg_her.load(run)
 
 
+@pytest.mark.parametrize(("section", "key", "value"), [
+    ("env_kwargs", "region", "zheight"), ("task", "region", "zheight"),
+    ("env_kwargs", "n_joints", 4)])
+def test_a_spec_whose_task_and_env_kwargs_disagree_is_refused_naming_the_field(
+        tiny_ur5_run, tmp_path, section, key, value):
+    """Issue 37, kind 6 (an inconsistent spec is not noticed): a far-box run's spec edited to
+    name another region (or joint count) in one of its two records was read as the env_kwargs'
+    task, without a word; every reader goes through ddpg_her.load's run_task, which compares
+    the made env's task with the recorded one."""
+    import json
+    import shutil
+
+    import ddpg_her
+    from ddpg_her.runfolder import RunFolderError
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_ur5_run, run)
+    ddpg_her.load(run)  # the untouched spec is consistent
+    spec = json.loads((run / "spec.json").read_text())
+    spec[section][key] = value
+    (run / "spec.json").write_text(json.dumps(spec))
+    with pytest.raises(RunFolderError, match=rf"spec\.json: its task and its env_kwargs "
+                                             rf"disagree on {key} "):
+        ddpg_her.load(run)
+
+
 def test_compute_reward_refuses_a_list_of_infos_that_does_not_match_the_batch():
     """Issue 37, kind 8: one info for four transitions was broadcast over them silently."""
     env = reward_env()
