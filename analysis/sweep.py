@@ -606,13 +606,15 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
 
 
 def unit_problems(units: Sequence[Unit], extra: Sequence[str],
-                  process: Sequence[str] = ()) -> list[str]:
+                  process: Sequence[str] = (), one_process: bool = False) -> list[str]:
     """Why units could not start, one line each: an option the study sets itself given again
     after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
     refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
     seeds) with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks
     what needs neither the robot nor torch. ``process``: the study's own process arguments
-    (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through."""
+    (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through.
+    With ``one_process``, a flag of the training process (`ddpg_her.train.PROCESS_FLAGS`) after
+    ``--`` is refused too: ``ddpg_her.train_many`` takes those once, and the study sets them."""
     import io
 
     from ddpg_her import train
@@ -621,6 +623,13 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
 
     problems = []
     parser = train.make_parser()
+    if one_process:
+        problems += [f"{flag} after --: a flag of the training process, which the study's one "
+                     "ddpg_her.train_many process takes once (its own options set it, or "
+                     "drop --one-process)"
+                     for flag, dest in option_dests(parser, extra) if dest in train.PROCESS_FLAGS]
+        if problems:
+            return problems
     for unit in units:
         owned = owned_flag_problems(parser, unit, extra)
         if owned:
@@ -655,9 +664,9 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
 
 
 def refuse_problems(units: Sequence[Unit], extra: Sequence[str],
-                    process: Sequence[str] = ()) -> None:
+                    process: Sequence[str] = (), one_process: bool = False) -> None:
     """Exit with status 2 and every line of `unit_problems` when a unit could not start."""
-    problems = unit_problems(units, extra, process)
+    problems = unit_problems(units, extra, process, one_process)
     if problems:
         for line in problems:
             print(f"error: {line}", file=sys.stderr)
@@ -673,7 +682,7 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     ``--project``, `print_projection`. Units that could not start are refused first
     (`refuse_problems`), as a real run would."""
     process = backend_args(args)
-    refuse_problems(units, extra, process)
+    refuse_problems(units, extra, process, args.one_process)
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
             "python " + " ".join(unit.command(threads, [*extra, *process], args.device)[1:])
@@ -795,7 +804,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
     process = backend_args(args)
-    refuse_problems(units, extra, process)
+    refuse_problems(units, extra, process, args.one_process)
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)

@@ -208,6 +208,22 @@ def test_what_follows_dash_dash_that_the_study_leaves_open_still_passes(tmp_path
     assert capsys.readouterr().out.rstrip().endswith("--env-backend batched")
 
 
+@pytest.mark.parametrize("extra", [["--no-tensorboard"], ["--no-progress"], ["--device", "cpu"]])
+def test_one_process_refuses_a_process_flag_after_dash_dash_before_starting(tmp_path, capsys,
+                                                                          extra):
+    """Issue 37, kind 2: with --one-process every unit goes into one ddpg_her.train_many plan,
+    which refuses a unit that sets a flag of the process; the sweep passed ``-- --no-tensorboard``
+    through its dry run and its own checks, and train_many refused it after the sweep started."""
+    for dry in (["--dry-run"], []):
+        with pytest.raises(SystemExit) as exit_:
+            sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                        str(tmp_path), "--one-process", *dry, "--", *extra])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert f"{extra[0]} after --: a flag of the training process" in err, err
+    assert not any(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("address, message", [
     ("127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
     ("ray://127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
