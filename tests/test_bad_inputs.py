@@ -110,6 +110,20 @@ def lowest_link(q: np.ndarray, base_height: float) -> np.ndarray:
     return ur5kin.link_heights(q, base_height)[..., 1:].min(axis=-1)
 
 
+def test_an_env_id_gymnasium_does_not_know_is_a_usage_error_naming_it(capsys, tmp_path):
+    """Issue 37, kind 4 (found by benchmarks/reliability_probe.py): ``analysis.sb3 --env-id
+    NoSuch-v0`` ended in Gymnasium's NameNotFound traceback; it now checks the id through
+    ddpg_her.train.register_envs, as train and train_many do, before any work."""
+    from analysis import sb3
+
+    with pytest.raises(SystemExit) as stop:
+        sb3.main(["--region", "farbox", "--env-id", "NoSuch-v0", "--episodes", "2", "--out",
+                  str(tmp_path / "r")])
+    assert stop.value.code == 2
+    assert "--env-id NoSuch-v0: not a registered Gymnasium id" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
 def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step():
     env = UR5ReachEnv(**TASK)
     rng = np.random.default_rng(1)
