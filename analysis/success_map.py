@@ -48,6 +48,10 @@ CELL = 0.1
 BATCH = 1000
 """Episodes run at once in the batched env (copies)."""
 
+MAPPED_ENV_IDS = ("UR5Reach-v0",)
+"""Env ids whose runs can be mapped: the maps roll the policy out in the UR5 env of the run's
+task record (a run of another env has another task, or none)."""
+
 CSV_COLUMNS = ("run", "x_min_m", "x_max_m", "y_min_m", "y_max_m", "goals", "successes",
                "success_rate")
 
@@ -210,6 +214,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             policies.append(ddpg_her.load(run, episode=args.episode))
         except (FileNotFoundError, ValueError) as err:
             parser.error(str(err))
+    for run, policy in zip(args.runs, policies, strict=True):  # before reading their tasks
+        if policy.spec.get("env_id") not in MAPPED_ENV_IDS:
+            parser.error(f"{run} is a run of env {policy.spec.get('env_id')!r}; only runs of "
+                         f"{', '.join(MAPPED_ENV_IDS)} can be mapped")
     tasks = [TaskSpec.from_record(p.spec["task"]) for p in policies]
     if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
         parser.error("the runs have different tasks (region, joints, start, sampler); maps of "

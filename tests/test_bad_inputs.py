@@ -171,6 +171,28 @@ def test_the_contact_study_refuses_what_it_cannot_measure(args, message, capsys)
     assert message in capsys.readouterr().err
 
 
+def test_a_success_map_of_a_run_of_another_env_is_refused_naming_it(capsys, tmp_path):
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): success_map of a run of
+    the toy goal env ended in TaskSpec's "unknown task field(s)" traceback (and one whose
+    spec.json lost its env_id was mapped in the UR5 env without a word)."""
+    from cli_tools import run_module
+
+    from analysis import success_map
+
+    run = tmp_path / "toy"
+    run_module("ddpg_her.train", "--env-id", "toy_goal_env:ToyReach-v0", "--region", "box",
+               "--joints", "2", "--episodes", "2", "--eval-every", "2", "--eval-episodes", "1",
+               "--hidden-sizes", "8", "8", "--warmup-episodes", "1", "--batch-size", "8",
+               "--buffer-size", "100", "--no-progress", "--no-tensorboard", "--out", str(run))
+    with pytest.raises(SystemExit) as stop:
+        success_map.main([str(run), "--goals", "4", "--z", "0.1", "0.3", "--out",
+                          str(tmp_path / "m.png"), "--no-progress"])
+    assert stop.value.code == 2
+    assert f"{run} is a run of env 'toy_goal_env:ToyReach-v0'; only runs of UR5Reach-v0 " \
+           "can be mapped" in capsys.readouterr().err
+    assert not (tmp_path / "m.png").exists()
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--cell", "1e-6"], "--cell 1e-06 m would need about"),
     (["--goals", "100000000000"], "--goals 100000000000 and --cell 0.1 m would need about"),
