@@ -187,6 +187,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"{args.goals}, {args.batch}, {args.cell}")
     if not all(math.isfinite(v) for v in args.z):
         parser.error(f"--z needs two finite heights (m); got {args.z}")
+    if args.seed < 0:
+        parser.error(f"--seed must be an integer >= 0 (numpy's seeds are); got {args.seed}")
     # what a map holds: its goals and outcomes per run, and its grid (two histograms and the
     # rate per cell over the slice, at most the reach ball's diameter wide)
     cells = math.ceil(2 * WORKSPACE_REACH_M / args.cell) ** 2

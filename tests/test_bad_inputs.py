@@ -209,6 +209,20 @@ def test_a_success_map_that_cannot_fit_is_refused_before_any_rollout(args, messa
     assert message in err and "GiB of memory available" in err
 
 
+def test_a_success_map_refuses_a_negative_seed_before_loading_any_run(capsys, tmp_path):
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--seed -1`` reached
+    numpy's "expected non-negative int" after the policies were loaded, and was reported as
+    "no goals in the slice"."""
+    from analysis import success_map
+
+    with pytest.raises(SystemExit) as stop:
+        success_map.main([str(tmp_path / "no-run-needed"), "--seed", "-1", "--out",
+                          str(tmp_path / "map.png")])
+    assert stop.value.code == 2
+    assert "--seed must be an integer >= 0 (numpy's seeds are); got -1" in \
+        capsys.readouterr().err
+
+
 def test_compute_reward_refuses_a_list_of_infos_that_does_not_match_the_batch():
     """Issue 37, kind 8: one info for four transitions was broadcast over them silently."""
     env = reward_env()
