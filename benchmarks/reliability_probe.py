@@ -611,11 +611,14 @@ def train_cases(fix: Path) -> list[Case]:
         argv = [*base, *args]
         out.append(cli(f"train {' '.join(args)}", "ddpg_her.train", 4, argv, "usage", words_t))
 
+    def not_strict(constant: str) -> None:
+        raise WrongAnswer(f"spec.json holds {constant}: not strict JSON")
+
     def recorded(key: str, section: str, typed: float) -> Callable[[Path], None]:
+        """A check that spec.json (strict JSON) records ``section.key`` as ``typed``."""
         def check(case_dir: Path) -> None:
             spec = json.loads((case_dir / "r" / "spec.json").read_text(),
-                              parse_constant=lambda c: (_ for _ in ()).throw(
-                                  WrongAnswer(f"spec.json holds {c}: not strict JSON")))
+                              parse_constant=not_strict)
             value = spec[section][key]
             if not (value == typed or (isinstance(value, str) and float(value) == typed)):
                 raise WrongAnswer(f"{key} recorded as {value!r}; typed {typed!r}")
@@ -626,17 +629,12 @@ def train_cases(fix: Path) -> list[Case]:
             ("--exploration-rate", "exploration_rate", "agent", 1e-320),
             ("--obs-clip", "obs_clip", "agent", math.inf),
             ("--critic-l2", "critic_l2", "agent", 5e-324),
-            ("--tau", "tau", "agent", 1e-310), ("--actor-lr", "actor_lr", "agent", 1e-320)):
-        out.append(Case(f"train {flag} {typed!r} recorded as typed", "ddpg_her.train", 5, "ok",
-                        argv=["--region", "farbox", "--joints", "3", *TINY_TRAIN, flag,
-                              repr(typed), "--out", "r"], call=recorded(key, section, typed)))
-    out.append(Case("train --task success_radius=1e-310 recorded as typed", "ddpg_her.train", 5,
-                    "ok", argv=["--region", "farbox", "--joints", "3", *TINY_TRAIN, "--task",
-                                "success_radius=1e-310", "--out", "r"],
-                    call=lambda d: (lambda v: None if v == 1e-310 else (_ for _ in ()).throw(
-                        WrongAnswer(f"success_radius recorded as {v!r}")))(
-                        json.loads((d / "r" / "spec.json").read_text())["task"]
-                        ["success_radius"])))
+            ("--tau", "tau", "agent", 1e-310), ("--actor-lr", "actor_lr", "agent", 1e-320),
+            ("--task", "success_radius", "task", 1e-310)):
+        typed_arg = f"{key}={typed!r}" if flag == "--task" else repr(typed)
+        out.append(Case(f"train {flag} {typed_arg} recorded as typed", "ddpg_her.train", 5,
+                        "ok", argv=["--region", "farbox", "--joints", "3", *TINY_TRAIN, flag,
+                                    typed_arg, "--out", "r"], call=recorded(key, section, typed)))
     return out
 
 
