@@ -15,6 +15,7 @@ import argparse
 import base64
 import contextlib
 import json
+import math
 import os
 import pathlib
 import shutil
@@ -327,8 +328,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"{args.page} is not a file")
     if min(args.size) < 64:
         parser.error(f"--size must be at least 64 x 64 pixels; got {args.size}")
-    if args.at is not None and args.at < 0:
-        parser.error(f"--at must be a time >= 0 (s); got {args.at}")
+    if args.at is not None and not (math.isfinite(args.at) and args.at >= 0):
+        parser.error(f"--at must be a finite time >= 0 (s); got {args.at}")
     from analysis.outputs import OutputError, check_writable, write_bytes
 
     try:

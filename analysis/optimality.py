@@ -791,6 +791,34 @@ def write_outputs(rows: Sequence[Mapping[str, Any]], out: Path, curves: Any) -> 
         plot_beside_curves(rows, curves, out / "optimality_curves.png")
 
 
+def read_csvs(paths: Sequence[Path]) -> list[dict[str, str]]:
+    """The rows of optimality.csv files written by earlier runs (``--from-csv``).
+
+    Raises
+    ------
+    ValueError
+        Naming the file, when one cannot be read, lacks a column of :data:`CSV_COLUMNS` (it is
+        not an optimality.csv) or holds no row: joining it would write empty or wrong outputs.
+    """
+    rows: list[dict[str, str]] = []
+    for path in paths:
+        try:
+            with open(path, newline="") as f:
+                reader = csv.DictReader(f)
+                found = list(reader)
+                header = reader.fieldnames or []
+        except (OSError, UnicodeDecodeError, csv.Error) as err:
+            raise ValueError(f"--from-csv {path}: cannot be read ({err})") from None
+        lacking = [c for c in CSV_COLUMNS if c not in header]
+        if lacking:
+            raise ValueError(f"--from-csv {path}: not an optimality.csv (no column "
+                             f"{', '.join(lacking[:3])}{' ...' if len(lacking) > 3 else ''})")
+        if not found:
+            raise ValueError(f"--from-csv {path}: holds no row")
+        rows += found
+    return rows
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.optimality",
@@ -860,10 +888,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OutputError as err:
         parser.error(str(err))
     if args.from_csv:
-        rows = []
-        for path in args.from_csv:
-            with open(path, newline="") as f:
-                rows += list(csv.DictReader(f))
+        try:
+            rows = read_csvs(args.from_csv)
+        except ValueError as err:
+            parser.error(str(err))
         try:
             write_outputs(rows, args.out, args.curves)
         except OutputError as err:

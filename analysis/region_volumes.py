@@ -495,6 +495,8 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Sett
         parser.error(f"--resolution must be a voxel edge > 0 (m); got {args.resolution}")
     if not (math.isfinite(args.base_height) and args.base_height >= 0):
         parser.error(f"--base-height must be a height >= 0 (m); got {args.base_height}")
+    if args.seed < 0:
+        parser.error(f"--seed must be an integer >= 0 (numpy's seeds are); got {args.seed}")
     need, have = voxel_bytes(args.resolution, args.base_height), available_bytes()
     if have is not None and need > have:
         parser.error(f"--resolution {args.resolution} m: the workspace's voxel grids would need "

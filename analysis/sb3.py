@@ -494,6 +494,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         hyperparams = load_hyperparams(args.hyperparams, args.algo)
     except (ValueError, argparse.ArgumentTypeError) as err:
         parser.error(str(err))
+    from ddpg_her.train import register_envs
+
+    register_envs(parser, [args.env_id])
     out = args.out or Path(f"runs/sb3-{args.algo}/{args.region}-j{args.joints}/s{args.seed}")
     try:
         rows = train(args.algo, args.env_id, env_kwargs, args.seed, args.episodes,

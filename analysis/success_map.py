@@ -48,6 +48,10 @@ CELL = 0.1
 BATCH = 1000
 """Episodes run at once in the batched env (copies)."""
 
+MAPPED_ENV_IDS = ("UR5Reach-v0",)
+"""Env ids whose runs can be mapped: the maps roll the policy out in the UR5 env of the run's
+task record (a run of another env has another task, or none)."""
+
 CSV_COLUMNS = ("run", "x_min_m", "x_max_m", "y_min_m", "y_max_m", "goals", "successes",
                "success_rate")
 
@@ -183,6 +187,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"{args.goals}, {args.batch}, {args.cell}")
     if not all(math.isfinite(v) for v in args.z):
         parser.error(f"--z needs two finite heights (m); got {args.z}")
+    if args.seed < 0:
+        parser.error(f"--seed must be an integer >= 0 (numpy's seeds are); got {args.seed}")
     # what a map holds: its goals and outcomes per run, and its grid (two histograms and the
     # rate per cell over the slice, at most the reach ball's diameter wide)
     cells = math.ceil(2 * WORKSPACE_REACH_M / args.cell) ** 2
@@ -210,12 +216,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             policies.append(ddpg_her.load(run, episode=args.episode))
         except (FileNotFoundError, ValueError) as err:
             parser.error(str(err))
+    for run, policy in zip(args.runs, policies, strict=True):  # before reading their tasks
+        if policy.spec.get("env_id") not in MAPPED_ENV_IDS:
+            parser.error(f"{run} is a run of env {policy.spec.get('env_id')!r}; only runs of "
+                         f"{', '.join(MAPPED_ENV_IDS)} can be mapped")
     tasks = [p.task for p in policies]  # the task of the env the policy was trained on
-    not_ur5 = [run for run, t in zip(args.runs, tasks, strict=True)
-               if not isinstance(t, TaskSpec)]
-    if not_ur5:
-        parser.error(f"{not_ur5[0]} is a run of env {policies[0].spec.get('env_id')!r}, "
-                     "without a UR5 task (envs.TaskSpec): success_map draws UR5 goals")
     if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
         parser.error("the runs have different tasks (region, joints, start, sampler); maps of "
                      "one figure must share their goals")

@@ -180,7 +180,14 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
         (a ValueError) When there is no checkpoint at ``episode``, or ``spec.json`` or the
         checkpoint cannot be read, or the env of ``spec.json`` cannot be made (`run_task`); the
         message names the file.
+    ValueError
+        When ``device`` is not a torch device string.
     """
+    try:  # torch's own message is a RuntimeError listing every device type it knows
+        torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"device must be a torch device string such as 'cpu' or 'cuda:0'; "
+                         f"got {device!r}") from None
     folder = RunFolder(run_dir)
     if not folder.spec_path.exists():
         raise FileNotFoundError(f"{run_dir} is not a run folder (no spec.json)")

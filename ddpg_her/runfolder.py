@@ -355,8 +355,10 @@ class RunFolder:
         Raises
         ------
         RunFolderError
-            When the file is missing, is not JSON (e.g. truncated), is not a JSON object, or is
-            a run of another format version than `FORMAT`.
+            When the file is missing, is not JSON (e.g. truncated), is not a JSON object, is not
+            a ddpg_her run's (its ``format`` is not ``ddpg_her-run-*``), or is a run of another
+            format version than `FORMAT`. Every reader goes through here (summary, load,
+            replay, --resume, `read_run`), so none reads another program's spec as a run.
         """
         path = self.spec_path
         try:
@@ -369,7 +371,10 @@ class RunFolder:
         if not isinstance(spec, dict):
             raise RunFolderError(f"{path} holds a JSON {type(spec).__name__}, not a run "
                                  "specification (a JSON object)")
-        if is_run_spec(spec) and spec["format"] != FORMAT:  # every reader, --resume included
+        if not is_run_spec(spec):
+            raise RunFolderError(f"{path} is not a ddpg_her run (format "
+                                 f"{spec.get('format')!r}, expected {RUN_FORMAT_PREFIX}-*)")
+        if spec["format"] != FORMAT:  # every reader, --resume included
             raise RunFolderError(f"{path} is a run of format {spec['format']!r}, written by "
                                  f"another version of this code; this one reads {FORMAT!r} "
                                  "(read it with the version that wrote it)")
@@ -593,9 +598,6 @@ def read_run(path: str | os.PathLike) -> Run:
     """
     folder = RunFolder(path)
     spec = folder.read_spec()
-    if not is_run_spec(spec):
-        raise RunFolderError(f"{folder.spec_path} is not a ddpg_her run (format "
-                             f"{spec.get('format')!r}, expected {RUN_FORMAT_PREFIX}-*)")
     rows = folder.read_eval()
     try:
         kwargs = spec.get("env_kwargs", {})

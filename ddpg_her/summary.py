@@ -63,6 +63,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--project-to", type=int, default=20_000, metavar="EPISODES",
                         help="episodes of the projected run (default: 20000, the paper's)")
     args = parser.parse_args(argv)
+    if args.project_to < 1:
+        parser.error(f"--project-to must be a count of episodes >= 1; got {args.project_to}")
     try:
         print(summarize(args.run_dirs, args.project_to))
     except (OSError, ValueError) as e:

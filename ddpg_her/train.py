@@ -370,15 +370,20 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
 
 def register_envs(parser: argparse.ArgumentParser, env_ids: Sequence[str]) -> None:
     """Import the modules that register ``env_ids`` (`ddpg_her.vecenv.register_env`); a usage
-    error naming the --env-id when one cannot be imported."""
+    error naming the --env-id when one cannot be imported or Gymnasium has no such id (its
+    own error would come later, as a traceback in the commands that do not catch it)."""
+    import gymnasium
+
     from ddpg_her.vecenv import register_env
 
     for env_id in env_ids:
         try:
-            register_env(env_id)
+            gymnasium.spec(register_env(env_id))
         except ImportError as e:
             parser.error(f"--env-id {env_id}: cannot import the module that registers it "
                          f"({type(e).__name__}: {e})")
+        except gymnasium.error.Error as e:
+            parser.error(f"--env-id {env_id}: not a registered Gymnasium id ({e})")
 
 
 def last_session(rows: Sequence[dict[str, Any]]) -> str:

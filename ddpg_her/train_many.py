@@ -38,7 +38,8 @@ def make_parser() -> argparse.ArgumentParser:
                "--threads, --resume, "
                "--no-progress or "
                "--no-tensorboard is an error: give them once, to this command.")
-    parser.add_argument("--unit", action="append", default=[], metavar="ARGS",
+    parser.add_argument("--unit", type=unit_arguments, action="append", default=[],
+                        metavar="ARGS",
                         help="one ddpg_her.train command line without 'python -m "
                              "ddpg_her.train', shell-quoted, e.g. --unit='--region farbox "
                              "--seeds 0 1'; repeatable")
@@ -88,13 +89,23 @@ def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
     return out
 
 
+def unit_arguments(text: str) -> list[str]:
+    """One ``--unit``'s command line split like a shell's; argparse's error naming it when it
+    cannot be split (an unclosed quote, a trailing escape)."""
+    try:
+        return shlex.split(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"{text!r} cannot be split like a shell line "
+                                         f"({err}); quote each argument whole") from None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     own, common = split_passthrough(sys.argv[1:] if argv is None else argv)
     parser = make_parser()
     train.refuse_removed(parser, own)
     args = parser.parse_args(own)
     train.check_process_flags(parser, args)
-    units = [shlex.split(u) for u in args.unit]
+    units = list(args.unit)
     for path in args.plan:
         try:
             units += read_plan(path)

@@ -153,9 +153,15 @@ class BatchedReach(gymnasium.vector.VectorEnv):
     def _checked_actions(self, actions: Any) -> np.ndarray:
         a, n = real_actions(actions), self.task.n_joints
         if a is None or a.shape != (self.num_envs, n) or not np.isfinite(a).all():
+            if a is None:
+                got = repr(actions)
+            elif a.shape != (self.num_envs, n):
+                got = f"shape {a.shape}"
+            else:  # the real cause: the shape is right
+                at = np.argwhere(~np.isfinite(a))[0].tolist()
+                got = f"{a[tuple(at)]} at {at}"
             raise ValueError(f"actions must be a finite ({self.num_envs}, {n}) array (the "
-                             f"{self.task.control_mode} commands of joints 1..{n}); got "
-                             + (f"shape {a.shape}" if a is not None else repr(actions)))
+                             f"{self.task.control_mode} commands of joints 1..{n}); got {got}")
         return a
 
     def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -24,6 +24,41 @@ TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--eval-every", "2", "--eval-epis
        "--hidden-sizes", "8", "8", "--updates-per-episode", "2"]
 
 
+@pytest.mark.parametrize("fmt", [None, 999, "sb3-run-1"], ids=["no_format", "number", "other"])
+def test_readers_refuse_a_spec_that_is_not_a_ddpg_her_run(tmp_path, capsys, fmt):
+    """Issue 37, kind 6 (found by benchmarks/reliability_probe.py): summary, ddpg_her.load and
+    replay read a spec.json without a ddpg_her ``format`` as a run, while curves and report
+    skip it: every reader now refuses it through RunFolder.read_spec, naming the file."""
+    from ddpg_her.runfolder import RunFolder
+    from ddpg_her.summary import main as summary_main
+
+    _fake_run(tmp_path / "s0", "farbox", 3, 0, [10, 20])
+    spec_path = tmp_path / "s0" / "spec.json"
+    spec = json.loads(spec_path.read_text())
+    spec.pop("format") if fmt is None else spec.update(format=fmt)
+    spec_path.write_text(json.dumps(spec))
+    with pytest.raises(runs.RunFolderError, match=rf"{spec_path} is not a ddpg_her run"):
+        RunFolder(tmp_path / "s0").read_spec()
+    with pytest.raises(SystemExit) as stop:
+        summary_main([str(tmp_path / "s0")])
+    assert stop.value.code == 2
+    assert f"{spec_path} is not a ddpg_her run" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("episodes", ["0", "-1"])
+def test_summary_refuses_a_projection_to_no_episodes(tmp_path, capsys, episodes):
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--project-to -1`` printed
+    a projected wall time for -1 episodes (a negative time) and exited 0."""
+    from ddpg_her.summary import main as summary_main
+
+    _fake_run(tmp_path / "s0", "farbox", 3, 0, [10, 20])
+    with pytest.raises(SystemExit) as stop:
+        summary_main([str(tmp_path / "s0"), "--project-to", episodes])
+    assert stop.value.code == 2
+    assert f"--project-to must be a count of episodes >= 1; got {episodes}" in \
+        capsys.readouterr().err
+
+
 def _fake_run(folder: Path, region: str, joints: int, seed: int, successes: list[int],
               episodes: int = 10_000, task: dict | None = None, agent: dict | None = None
               ) -> None:

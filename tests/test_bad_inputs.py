@@ -110,6 +110,20 @@ def lowest_link(q: np.ndarray, base_height: float) -> np.ndarray:
     return ur5kin.link_heights(q, base_height)[..., 1:].min(axis=-1)
 
 
+def test_an_env_id_gymnasium_does_not_know_is_a_usage_error_naming_it(capsys, tmp_path):
+    """Issue 37, kind 4 (found by benchmarks/reliability_probe.py): ``analysis.sb3 --env-id
+    NoSuch-v0`` ended in Gymnasium's NameNotFound traceback; it now checks the id through
+    ddpg_her.train.register_envs, as train and train_many do, before any work."""
+    from analysis import sb3
+
+    with pytest.raises(SystemExit) as stop:
+        sb3.main(["--region", "farbox", "--env-id", "NoSuch-v0", "--episodes", "2", "--out",
+                  str(tmp_path / "r")])
+    assert stop.value.code == 2
+    assert "--env-id NoSuch-v0: not a registered Gymnasium id" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
 def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step():
     env = UR5ReachEnv(**TASK)
     rng = np.random.default_rng(1)
@@ -155,6 +169,28 @@ def test_the_contact_study_refuses_what_it_cannot_measure(args, message, capsys)
         contact.main(args)
     assert stop.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_success_map_of_a_run_of_another_env_is_refused_naming_it(capsys, tmp_path):
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): success_map of a run of
+    the toy goal env ended in TaskSpec's "unknown task field(s)" traceback (and one whose
+    spec.json lost its env_id was mapped in the UR5 env without a word)."""
+    from cli_tools import run_module
+
+    from analysis import success_map
+
+    run = tmp_path / "toy"
+    run_module("ddpg_her.train", "--env-id", "toy_goal_env:ToyReach-v0", "--region", "box",
+               "--joints", "2", "--episodes", "2", "--eval-every", "2", "--eval-episodes", "1",
+               "--hidden-sizes", "8", "8", "--warmup-episodes", "1", "--batch-size", "8",
+               "--buffer-size", "100", "--no-progress", "--no-tensorboard", "--out", str(run))
+    with pytest.raises(SystemExit) as stop:
+        success_map.main([str(run), "--goals", "4", "--z", "0.1", "0.3", "--out",
+                          str(tmp_path / "m.png"), "--no-progress"])
+    assert stop.value.code == 2
+    assert f"{run} is a run of env 'toy_goal_env:ToyReach-v0'; only runs of UR5Reach-v0 " \
+           "can be mapped" in capsys.readouterr().err
+    assert not (tmp_path / "m.png").exists()
 
 
 @pytest.mark.parametrize(("args", "message"), [
@@ -262,6 +298,20 @@ def test_a_spec_whose_task_and_env_kwargs_disagree_is_refused_naming_the_field(
     with pytest.raises(RunFolderError, match=rf"spec\.json: its task and its env_kwargs "
                                              rf"disagree on {key} "):
         ddpg_her.load(run)
+
+
+def test_a_success_map_refuses_a_negative_seed_before_loading_any_run(capsys, tmp_path):
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--seed -1`` reached
+    numpy's "expected non-negative int" after the policies were loaded, and was reported as
+    "no goals in the slice"."""
+    from analysis import success_map
+
+    with pytest.raises(SystemExit) as stop:
+        success_map.main([str(tmp_path / "no-run-needed"), "--seed", "-1", "--out",
+                          str(tmp_path / "map.png")])
+    assert stop.value.code == 2
+    assert "--seed must be an integer >= 0 (numpy's seeds are); got -1" in \
+        capsys.readouterr().err
 
 
 def test_compute_reward_refuses_a_list_of_infos_that_does_not_match_the_batch():

@@ -187,3 +187,16 @@ def test_a_multi_setting_stack_on_cuda_matches_the_runs_alone_to_rounding(tmp_pa
     for net in ("actor", "critic"):
         for key in a[net]:
             assert torch.allclose(a[net][key], b[net][key], rtol=0, atol=1e-10), (net, key)
+
+
+def test_a_unit_that_cannot_be_split_is_refused_naming_it(tmp_path, capsys):
+    """Issue 37 (found by benchmarks/reliability_probe.py): ``--unit "--region 'farbox"`` (an
+    unclosed quote) ended in shlex's "No closing quotation" traceback."""
+    from ddpg_her import train_many
+
+    with pytest.raises(SystemExit) as stop:
+        train_many.main(["--unit", "--region 'farbox --out u", "--dry-run"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--unit" in err and "\"--region 'farbox --out u\" cannot be split" in err
+    assert list(tmp_path.iterdir()) == []

@@ -105,3 +105,19 @@ def test_a_goal_no_episode_can_reach_is_refused_by_reset(goal, message):
     with pytest.raises(ValueError, match="goal 1 .*" + message):
         vec.reset(seed=0, options={"goal": [(0.5, 0.1, 0.2), goal]})
     env.reset(seed=0, options={"goal": (0.5, 0.1, 0.0)})  # on the plane, in reach: fine
+
+
+@pytest.mark.parametrize("bad, named", [(np.nan, "got nan at [1, 2]"),
+                                        (-np.inf, "got -inf at [1, 2]")])
+def test_the_vector_env_names_a_non_finite_action_not_its_right_shape(bad, named):
+    """Issue 37, kind 8 (found by benchmarks/reliability_probe.py): a NaN action of the right
+    shape was refused with "got shape (2, 3)", the shape asked for, not the NaN."""
+    vec = envs.BatchedReach(2, region="farbox", n_joints=3)
+    vec.reset(seed=0)
+    action = np.zeros((2, 3))
+    action[1, 2] = bad
+    with pytest.raises(ValueError, match=r"must be a finite \(2, 3\) array") as err:
+        vec.step(action)
+    assert named in str(err.value)
+    with pytest.raises(ValueError, match=r"got shape \(3,\)"):
+        vec.step(np.zeros(3))

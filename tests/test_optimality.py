@@ -245,3 +245,20 @@ def test_task_overrides_are_checked_in_our_words_before_any_computing(tmp_path, 
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err, err
     assert not (tmp_path / "o" / "optimality.csv").exists()
+
+
+@pytest.mark.parametrize("content", [None, "{", "region,joints\nfarbox,3\n",
+                                     ",".join(opt.CSV_COLUMNS) + "\n"],
+                         ids=["missing", "not_csv", "other_columns", "no_rows"])
+def test_from_csv_refuses_what_is_not_an_optimality_csv_naming_it(tmp_path, capsys, content):
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--from-csv`` of a missing
+    file ended in a FileNotFoundError traceback, and of a file that is not an optimality.csv
+    wrote empty outputs ("joined 0 rows") and exited 0."""
+    path = tmp_path / "in.csv"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(SystemExit) as stop:
+        opt.main(["--from-csv", str(path), "--out", str(tmp_path / "o")])
+    assert stop.value.code == 2
+    assert f"--from-csv {path}" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "optimality.csv").exists()

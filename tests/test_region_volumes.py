@@ -181,3 +181,14 @@ def test_cli_help_and_bad_flags() -> None:
     assert bad.returncode == 2 and "cannot read region 'nowhere'" in bad.stderr
     bad = _run("--joints", "7")
     assert bad.returncode == 2 and "--joints" in bad.stderr
+
+
+def test_a_negative_seed_is_refused_naming_it(capsys) -> None:
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--seed -1`` ended in
+    numpy's "expected non-negative integer" traceback after the flags were accepted."""
+    from analysis import region_volumes
+
+    with pytest.raises(SystemExit) as stop:
+        region_volumes.main(["--regions", "farbox", "--samples", "1000", "--seed", "-1"])
+    assert stop.value.code == 2
+    assert "--seed must be an integer >= 0" in capsys.readouterr().err

@@ -632,3 +632,15 @@ def test_a_garbage_lock_is_named_as_such_not_as_process_none(tmp_path, content):
     assert "None" not in message and f"{folder.lock_path} is not a lock this code wrote" in \
         message and repr(content) in message, message
     assert folder.lock_path.read_text() == content  # left for its owner or a person
+
+
+@pytest.mark.parametrize("device", ["nosuch", "cpu:x", 3])
+def test_load_refuses_a_device_that_is_not_torch_s_in_our_words(tmp_path, device):
+    """Issue 37, kind 4 (found by benchmarks/reliability_probe.py): ``ddpg_her.load(run,
+    device="nosuch")`` ended in torch's RuntimeError listing its device types; the check runs
+    before the folder is read, so a missing folder is not needed to see it."""
+    import ddpg_her
+
+    with pytest.raises(ValueError, match=rf"device must be a torch device string .*got "
+                                         rf"{device!r}"):
+        ddpg_her.load(tmp_path / "nosuch", device=device)

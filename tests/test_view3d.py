@@ -335,3 +335,17 @@ def test_serve_shows_the_scene_live_and_ends_its_server(tiny_run):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.parametrize("at", ["nan", "inf", "-1"])
+def test_browser_refuses_a_time_that_is_not_finite_before_starting_one(tmp_path, capsys, at):
+    """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--at nan`` passed the
+    check (nan < 0 is false) and was found only after a browser had been waited for 30 s."""
+    from analysis import browser
+
+    page = tmp_path / "p.html"
+    page.write_text("<html></html>")
+    with pytest.raises(SystemExit) as stop:
+        browser.main([str(page), "--at", at, "--out", str(tmp_path / "s.png")])
+    assert stop.value.code == 2
+    assert f"--at must be a finite time >= 0 (s); got {float(at)}" in capsys.readouterr().err
