@@ -208,7 +208,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--z needs two different heights; got {args.z}")
 
     import ddpg_her
-    from envs.spec import TaskSpec
 
     policies = []
     for run in args.runs:
