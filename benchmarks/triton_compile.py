@@ -23,6 +23,7 @@ import json
 import os
 import platform
 import re
+import resource
 import sys
 import time
 from typing import Any
@@ -33,6 +34,9 @@ DTYPES = ("float64", "float32")
 
 STAGES = ("ttir", "ttgir", "llir", "ptx", "cubin")
 """Triton's NVIDIA stages after the front end (``source``), in order."""
+
+OPERATION = re.compile(r"^\s*(?:%[^=\n]+= )?\"?[a-z_]+\.[a-z_.]+", re.M)
+"""A line of TTIR that is an operation (``%x = dialect.op ...`` or ``dialect.op ...``)."""
 
 LANE_MEMORY_OP = re.compile(r"\btt\.(load|store)\b[^\n]*tensor<[^\n]*!tt\.ptr<")
 """A TTIR load or store through a tensor of pointers (one address per lane)."""
@@ -87,15 +91,21 @@ def signature_of(fn: Any, args: tuple[Any, ...], constexprs: dict[str, Any]
     return signature, constants, attrs
 
 
+def cpu_seconds() -> float:
+    """CPU seconds of this process and its finished children (ptxas runs as one)."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
 def compile_kernel(dtype: str, arch: int, block: int | None, stop_after: str = "cubin"
                    ) -> dict[str, Any]:
     """Compile the stack kernel stage by stage, timed; the figures as a dict."""
     os.environ["TRITON_ALWAYS_COMPILE"] = "1"
     import torch
     import triton
+    from triton._C.libtriton import ir
     from triton.backends.compiler import GPUTarget
     from triton.compiler.compiler import ASTSource, make_backend
-    from triton._C.libtriton import ir
 
     import envs.physics.triton_kernel as triton_kernel
     from envs.physics.model import arm_model, tool_offset, ur5_plane
@@ -137,22 +147,21 @@ def compile_kernel(dtype: str, arch: int, block: int | None, stop_after: str = "
     ir.load_dialects(context)
     backend.load_dialects(context)
     cpu, wall = {}, {}
-    start_cpu, start_wall = time.process_time(), time.perf_counter()
+    start_cpu, start_wall = cpu_seconds(), time.perf_counter()
     module = src.make_ir(target, options, backend.get_codegen_implementation(options),
                          backend.get_module_map(), context)
-    cpu["source"] = time.process_time() - start_cpu
+    cpu["source"] = cpu_seconds() - start_cpu
     wall["source"] = time.perf_counter() - start_wall
     counts: dict[str, int] = {}
     ptx = None
     for name in STAGES[: STAGES.index(stop_after) + 1]:
-        t_cpu, t_wall = time.process_time(), time.perf_counter()
+        t_cpu, t_wall = cpu_seconds(), time.perf_counter()
         module = stages[name](module, metadata)
-        cpu[name] = time.process_time() - t_cpu
+        cpu[name] = cpu_seconds() - t_cpu
         wall[name] = time.perf_counter() - t_wall
         if name == "ttir":
             text = str(module)
-            counts = {"ttir_operations": sum(1 for line in text.splitlines()
-                                             if re.search(r"(^|= )\"?[a-z_]+\.[a-z_.]+", line.strip())),
+            counts = {"ttir_operations": len(OPERATION.findall(text)),
                       "ttir_lane_memory_ops": len(LANE_MEMORY_OP.findall(text)),
                       "ttir_scalar_loads": len(re.findall(r"\btt\.load\b[^\n]*: !tt\.ptr<",
                                                           text))}
@@ -164,6 +173,8 @@ def compile_kernel(dtype: str, arch: int, block: int | None, stop_after: str = "
             "cpu_s_by_stage": {k: round(v, 2) for k, v in cpu.items()},
             "wall_s": round(sum(wall.values()), 2),
             "ptx_lines": None if ptx is None else len(ptx.splitlines()),
+            "ptx_f64_lines": None if ptx is None else sum(".f64" in line
+                                                          for line in ptx.splitlines()),
             **counts, "triton": triton.__version__, "torch": torch.__version__,
             "numpy": np.__version__, "python": platform.python_version(),
             "machine": platform.machine()}

@@ -12,11 +12,18 @@ becomes a lane mask: a stopped lane keeps computing and discards it. The exact l
 are computed for a block only when one of its active lanes needs them (the skip is per copy,
 as in ``step_copy``; the block pays for the slowest lane). Same operations in the same order
 as ``step_copy``, so the interpreter (``TRITON_INTERPRET=1``, numpy) agrees with the numba
-kernel to rounding (tested to 1e-9 in float64).
+kernel: bit for bit over the tested steps in float64 (the test's bound is 1e-9), within 1e-5
+in float32. The interpreter takes about 9 s of CPU per control step of a block.
 
-Compiling it is slow (sm_90, float64: 338 s of CPU on the development machine, 99.8% in
-Triton's ``TritonGPUCoalesce`` pass, which walks the unrolled step once per memory access, and
-the model tables' scalar loads are most of the ~460): the first launch on a machine pays it.
+The model's tables are compile-time constants (:class:`TritonModel`), and each (B, 6) state
+array is read and written as one (BLOCK, 8) tile: the compile for a GPU is then about 40 s of
+CPU per dtype (sm_90 on the development machine, 39-40 s float64, 38-39 s float32:
+``python -m benchmarks.triton_compile --dtype float64``), where one scalar load per table entry
+and one access per column took 317 s. Most of it is Triton's ``TritonGPUCoalesce`` pass, which
+walks the whole kernel once per lane-tensor memory access (68 then, 12 now), so its cost grows
+with their number and with the kernel's size (9,368 TTIR operations then, 6,818 now);
+``tests/test_stack_dynamics.py`` bounds both.
+The first launch on a machine pays it (then Triton's disk cache).
 
 This module imports Triton (``@triton.jit`` reads ``TRITON_INTERPRET`` when it is imported);
 :mod:`envs.physics.stack` imports it only for ``kernel="triton"``.
@@ -215,18 +222,75 @@ def constant_rows(values, dtype: tl.constexpr, ROWS: tl.constexpr, N: tl.constex
 
 
 @triton.jit
+def split_columns(tile, W: tl.constexpr):
+    """The W columns of a (BLOCK, W) tile, W = 4 or 8, as W lane vectors (reshape and
+    ``tl.split``: data movement only, every value exact)."""
+    BLOCK: tl.constexpr = tile.shape[0]
+    if W == 8:
+        # t[b, i, j, l] = tile[b, 4 i + 2 j + l]; each split takes the last axis
+        even, odd = tl.split(tl.reshape(tile, (BLOCK, 2, 2, 2)))
+        e0, e1 = tl.split(even)
+        o0, o1 = tl.split(odd)
+        c0, c4 = tl.split(e0)
+        c2, c6 = tl.split(e1)
+        c1, c5 = tl.split(o0)
+        c3, c7 = tl.split(o1)
+        out = (c0, c1, c2, c3, c4, c5, c6, c7)
+    else:
+        # t[b, i, l] = tile[b, 2 i + l]
+        even, odd = tl.split(tl.reshape(tile, (BLOCK, 2, 2)))
+        c0, c2 = tl.split(even)
+        c1, c3 = tl.split(odd)
+        out = (c0, c1, c2, c3)
+    return out
+
+
+@triton.jit
+def join_columns(x, W: tl.constexpr):
+    """The (BLOCK, W) tile whose columns are the W lane vectors ``x``: :func:`split_columns`
+    undone."""
+    BLOCK: tl.constexpr = x[0].shape[0]
+    if W == 8:
+        even = tl.join(tl.join(x[0], x[4]), tl.join(x[2], x[6]))
+        odd = tl.join(tl.join(x[1], x[5]), tl.join(x[3], x[7]))
+    else:
+        even = tl.join(x[0], x[2])
+        odd = tl.join(x[1], x[3])
+    return tl.reshape(tl.join(even, odd), (BLOCK, W))
+
+
+@triton.jit
 def load_lanes(ptr, offs, valid, N: tl.constexpr):
-    """Columns ``0..N-1`` of the rows ``offs`` of an (B, N) tensor: N lane vectors."""
+    """Columns ``0..N-1`` of the rows ``offs`` of an (B, N) tensor, N <= 8: N lane vectors,
+    read by one load of a (BLOCK, W) tile (W = 4 or 8, the columns past N masked).
+
+    One memory access per array, not one per column: Triton's ``TritonGPUCoalesce`` pass
+    walks the whole kernel once per access, so their number multiplies the compile time."""
+    W: tl.constexpr = 4 if N <= 4 else 8
+    cols = tl.arange(0, W)
+    tile = tl.load(ptr + offs[:, None] * N + cols[None, :],
+                   mask=valid[:, None] & (cols < N)[None, :], other=0)
+    columns = split_columns(tile, W)
     out = ()
     for k in tl.static_range(N):
-        out = out + (tl.load(ptr + offs * N + k, mask=valid, other=0),)
+        out = out + (columns[k],)
     return out
 
 
 @triton.jit
 def store_lanes(ptr, offs, valid, x, N: tl.constexpr):
-    for k in tl.static_range(N):
-        tl.store(ptr + offs * N + k, x[k], mask=valid)
+    """Write the N lane vectors ``x`` as columns ``0..N-1`` of the rows ``offs`` of an (B, N)
+    tensor, N <= 8: one store of a (BLOCK, W) tile (:func:`load_lanes`' layout)."""
+    W: tl.constexpr = 4 if N <= 4 else 8
+    padded = ()
+    for k in tl.static_range(W):
+        if k < N:  # noqa: SIM108 - a compile-time branch, as Triton's front end reads it
+            padded = padded + (x[k],)
+        else:
+            padded = padded + (x[0],)  # masked out
+    cols = tl.arange(0, W)
+    tl.store(ptr + offs[:, None] * N + cols[None, :], join_columns(padded, W),
+             mask=valid[:, None] & (cols < N)[None, :])
 
 
 @triton.jit
