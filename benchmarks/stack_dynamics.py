@@ -18,7 +18,7 @@ the capture. Protocol as :mod:`benchmarks.cuda_dynamics`: rounds of ``--steps`` 
 start pose, the clock read after a device synchronisation, the median over rounds reported.
 A row that fails records its error in the JSON instead of ending the run. The Triton kernel's
 first call compiles it: about 40 s of one CPU core per dtype and ``--block`` value (measured
-offline for sm_90, 39-40 s float64 and 38-39 s float32: ``python -m benchmarks.triton_compile
+offline for sm_90, 39-42 s float64 and 38-39 s float32: ``python -m benchmarks.triton_compile
 --dtype float64``; it was 317 s before the tables became constants and the state tiles;
 envs/physics/triton_kernel.py), then Triton caches it on disk.
 

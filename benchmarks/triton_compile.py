@@ -62,33 +62,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def signature_of(fn: Any, args: tuple[Any, ...], constexprs: dict[str, Any]
-                 ) -> tuple[dict[str, str], dict[tuple[int, ...], Any], dict[tuple[int, ...],
-                                                                       Any]]:
-    """Triton's signature, constants and attributes of a launch of ``fn`` with ``args`` (tensors
-    and ints, in order) and ``constexprs`` (by name), as its JIT forms them for tensors torch
-    allocated (16-byte aligned pointers) and an int B > 1."""
-    import torch
+def launch_source(fn: Any, backend: Any, args: tuple[Any, ...], constexprs: dict[str, Any],
+                  num_warps: int) -> Any:
+    """The ``ASTSource`` Triton's JIT builds for ``fn[grid](*args, **constexprs,
+    num_warps=...)``: its own binder and packing (Triton 3.6's ``JITFunction`` internals), so
+    the signature, constants and specialisations (pointer and int alignment) are a launch's."""
+    from triton.compiler.compiler import ASTSource
+    from triton.runtime.jit import create_function_from_signature
 
-    pointee = {torch.float64: "fp64", torch.float32: "fp32", torch.int32: "i32",
-               torch.bool: "i1"}
-    names = fn.arg_names
-    signature, constants, attrs = {}, {}, {}
-    for i, name in enumerate(names):
-        if name in constexprs:
-            signature[name] = "constexpr"
-            constants[(i,)] = constexprs[name]
-            continue
-        value = args[i]
-        if isinstance(value, torch.Tensor):
-            signature[name] = "*" + pointee[value.dtype]
-            attrs[(i,)] = [["tt.divisibility", 16]]
-        elif isinstance(value, int):
-            signature[name] = "i32"
-        else:
-            raise TypeError(f"argument {name} of {fn.__name__}: no Triton type for "
-                            f"{type(value).__name__}")
-    return signature, constants, attrs
+    binder = create_function_from_signature(fn.signature, fn.params, backend)
+    bound_args, specialization, options = binder(*args, **constexprs, num_warps=num_warps)
+    _, signature, constants, attrs = fn._pack_args(backend, {"num_warps": num_warps},
+                                                   bound_args, specialization, options)
+    return ASTSource(fn, signature, constants, attrs)
 
 
 def cpu_seconds() -> float:
@@ -105,7 +91,7 @@ def compile_kernel(dtype: str, arch: int, block: int | None, stop_after: str = "
     import triton
     from triton._C.libtriton import ir
     from triton.backends.compiler import GPUTarget
-    from triton.compiler.compiler import ASTSource, make_backend
+    from triton.compiler.compiler import make_backend
 
     import envs.physics.triton_kernel as triton_kernel
     from envs.physics.model import arm_model, tool_offset, ur5_plane
@@ -131,14 +117,12 @@ def compile_kernel(dtype: str, arch: int, block: int | None, stop_after: str = "
     args, constexprs = triton_kernel.launch_arguments(
         model, lanes(6), lanes(6), lanes(6), lanes(6), lanes(0, torch.int32), lanes(6),
         lanes(0, torch.bool), lanes(0, torch.bool), lanes(3), block)
-    fn = triton_kernel.kernel()
-    signature, constants, attrs = signature_of(fn, args, constexprs)
-    src = ASTSource(fn, signature, {fn.arg_names[k[0]]: v for k, v in constants.items()},
-                    attrs)
-
-    # triton.compile's steps, each stage timed apart (compiler.compile runs the same ones)
     target = GPUTarget("cuda", arch, 32)
     backend = make_backend(target)
+    src = launch_source(triton_kernel.kernel(), backend, args, constexprs,
+                        triton_kernel.NUM_WARPS)
+
+    # triton.compile's steps, each stage timed apart (compiler.compile runs the same ones)
     options = backend.parse_options({"num_warps": triton_kernel.NUM_WARPS})
     metadata: dict[str, Any] = {"hash": "benchmark", "target": target, **options.__dict__}
     stages: dict[str, Any] = {}

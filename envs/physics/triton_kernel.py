@@ -17,7 +17,7 @@ in float32. The interpreter takes about 9 s of CPU per control step of a block.
 
 The model's tables are compile-time constants (:class:`TritonModel`), and each (B, 6) state
 array is read and written as one (BLOCK, 8) tile: the compile for a GPU is then about 40 s of
-CPU per dtype (sm_90 on the development machine, 39-40 s float64, 38-39 s float32:
+CPU per dtype (sm_90 on the development machine, 39-42 s float64, 38-39 s float32:
 ``python -m benchmarks.triton_compile --dtype float64``), where one scalar load per table entry
 and one access per column took 317 s. Most of it is Triton's ``TritonGPUCoalesce`` pass, which
 walks the whole kernel once per lane-tensor memory access (68 then, 12 now), so its cost grows
