@@ -18,9 +18,10 @@ first call (Triton's or numba's compilation) is timed apart, and so is
 the capture. Protocol as :mod:`benchmarks.cuda_dynamics`: rounds of ``--steps`` steps from the
 start pose, the clock read after a device synchronisation, the median over rounds reported.
 A row that fails records its error in the JSON instead of ending the run. The Triton kernel's
-first call compiles it: minutes of one CPU core (measured offline for sm_90: 338 s of CPU in
-float64; envs/physics/triton_kernel.py), once per dtype and ``--block`` value (Triton caches it
-on disk after), so a short GPU window should run one block size first.
+first call compiles it: about 40 s of one CPU core per dtype and ``--block`` value (measured
+offline for sm_90, 39-42 s float64 and 38-39 s float32: ``python -m benchmarks.triton_compile
+--dtype float64``; it was 317 s before the tables became constants and the state tiles;
+envs/physics/triton_kernel.py), then Triton caches it on disk.
 
 Two checks ride along on a GPU: ``check``, the Triton stack on the device against the numba
 CPU kernel's stack over ``--check-steps`` steps of the same commands (max |difference| of q,

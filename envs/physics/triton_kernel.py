@@ -12,11 +12,18 @@ becomes a lane mask: a stopped lane keeps computing and discards it. The exact l
 are computed for a block only when one of its active lanes needs them (the skip is per copy,
 as in ``step_copy``; the block pays for the slowest lane). Same operations in the same order
 as ``step_copy``, so the interpreter (``TRITON_INTERPRET=1``, numpy) agrees with the numba
-kernel to rounding (tested to 1e-9 in float64).
+kernel: bit for bit over the tested steps in float64 (the test's bound is 1e-9), within 1e-5
+in float32. The interpreter takes about 9 s of CPU per control step of a block.
 
-Compiling it is slow (sm_90, float64: 338 s of CPU on the development machine, 99.8% in
-Triton's ``TritonGPUCoalesce`` pass, which walks the unrolled step once per memory access, and
-the model tables' scalar loads are most of the ~460): the first launch on a machine pays it.
+The model's tables are compile-time constants (:class:`TritonModel`), and each (B, 6) state
+array is read and written as one (BLOCK, 8) tile: the compile for a GPU is then about 40 s of
+CPU per dtype (sm_90 on the development machine, 39-42 s float64, 38-39 s float32:
+``python -m benchmarks.triton_compile --dtype float64``), where one scalar load per table entry
+and one access per column took 317 s. Most of it is Triton's ``TritonGPUCoalesce`` pass, which
+walks the whole kernel once per lane-tensor memory access (68 then, 12 now), so its cost grows
+with their number and with the kernel's size (9,368 TTIR operations then, 6,818 now);
+``tests/test_stack_dynamics.py`` bounds both.
+The first launch on a machine pays it (then Triton's disk cache).
 
 This module imports Triton (``@triton.jit`` reads ``TRITON_INTERPRET`` when it is imported);
 :mod:`envs.physics.stack` imports it only for ``kernel="triton"``.
@@ -37,43 +44,50 @@ from envs.physics.model import ChainModel, PlaneModel
 if TYPE_CHECKING:
     import torch
 
-ROW_TILE = 64
-"""Rows of the plane check's vertex table summed at once (a (BLOCK, ROW_TILE) tile): the table
-has 359 rows, one per vertex that can be a link's lowest."""
-
 NUM_WARPS = 1
 """Warps per program: 32 lanes (:data:`envs.physics.stack.BLOCK`) are one warp's threads, one
 copy per thread."""
 
 PLANE_SCALARS = ("lift", "wrist", "base_height", "margin")
-"""The order of :attr:`TritonModel.scalars`: the plane check's pitch offsets (rad), the base's
-height (m) and the plane margin (m). Kept in a tensor of the kernel's type: a Python float
-argument of a Triton kernel is float32."""
+"""The order of :attr:`TritonModel.plane`: the plane check's pitch offsets (rad), the base's
+height (m) and the plane margin (m)."""
+
+
+def _values(x: Any, cast: Any) -> tuple[float, ...]:
+    """``x`` rounded to ``cast`` (numpy's float64 or float32), flattened in C order, as Python
+    floats: each the exact value the numba kernel reads from its ``cast`` array."""
+    return tuple(float(v) for v in np.asarray(x, dtype=float).astype(cast).ravel())
 
 
 @dataclass(frozen=True)
 class TritonModel:
-    """The model tables of the step kernel, tensors of the kernel's type on its device (small:
-    built once per stack).
+    """The step kernel's model: the tables as compile-time constants (flat tuples of Python
+    floats holding the exact values of the kernel's type, row-major), the plane's vertex table
+    as a tensor on the device.
+
+    The constants are ``tl.constexpr`` arguments of the kernel, each turned into a scalar of
+    the kernel's type by ``tl.full([], value, dtype)`` (exact: a Python float used directly in
+    Triton arithmetic would become a float32 constant). They replace the ~400 scalar loads of
+    the tables the kernel had, which fed every substep's arithmetic through memory reads.
 
     Attributes
     ----------
-    kp, kd, effort, w_max : (6,) tensors
+    kp, kd, effort, w_max : (6,) tuples
         The scaled PD gains the torque uses, effort and velocity limits
         (:class:`envs.physics.model.ArmModel`'s ``kp_eff, kd_eff, effort, w_max``).
-    q_mid, q_half : (6,) tensors, rad
+    q_mid, q_half : (6,) tuples, rad
         Centre and half-width of the joint limits.
     vertex_heights : (V, 13) tensor, m
-        :class:`envs.physics.model.PlaneModel`'s.
-    link_of_row : (V,) int32 tensor
-        The link (0 = base_link .. 6) of each row, from the plane model's row bounds.
-    lipschitz : (6, 6) tensor, m/rad
-        Its height bounds per joint.
-    scalars : (4,) tensor
+        :class:`envs.physics.model.PlaneModel`'s, of the kernel's type, on its device.
+    bounds : (8,) tuple of int
+        Its row bounds: link k's rows are ``bounds[k] .. bounds[k + 1] - 1`` (k = 0 the base).
+    lipschitz : (36,) tuple, m/rad
+        The height bounds per joint, ``[i, k]`` at ``6 i + k``.
+    plane : (4,) tuple
         :data:`PLANE_SCALARS`.
-    rotation, translation, axis, inertia, armature, gravity
-        :class:`envs.physics.model.ChainModel`'s (gravity scaled by ``h^2``).
-    tool_pos : (3,) tensor, m
+    rotation (54,), translation (18,), axis (18,), inertia (216,), armature (6,), gravity (3,)
+        :class:`envs.physics.model.ChainModel`'s, flattened (gravity scaled by ``h^2``).
+    tool_pos : (3,) tuple, m
         tool0's origin in joint 6's frame.
     substeps : int
         Substeps per control step.
@@ -81,23 +95,23 @@ class TritonModel:
         Whether the PD adds the gravity torque.
     """
 
-    kp: torch.Tensor
-    kd: torch.Tensor
-    effort: torch.Tensor
-    w_max: torch.Tensor
-    q_mid: torch.Tensor
-    q_half: torch.Tensor
+    kp: tuple[float, ...]
+    kd: tuple[float, ...]
+    effort: tuple[float, ...]
+    w_max: tuple[float, ...]
+    q_mid: tuple[float, ...]
+    q_half: tuple[float, ...]
     vertex_heights: torch.Tensor
-    link_of_row: torch.Tensor
-    lipschitz: torch.Tensor
-    scalars: torch.Tensor
-    rotation: torch.Tensor
-    translation: torch.Tensor
-    axis: torch.Tensor
-    inertia: torch.Tensor
-    armature: torch.Tensor
-    gravity: torch.Tensor
-    tool_pos: torch.Tensor
+    bounds: tuple[int, ...]
+    lipschitz: tuple[float, ...]
+    plane: tuple[float, ...]
+    rotation: tuple[float, ...]
+    translation: tuple[float, ...]
+    axis: tuple[float, ...]
+    inertia: tuple[float, ...]
+    armature: tuple[float, ...]
+    gravity: tuple[float, ...]
+    tool_pos: tuple[float, ...]
     substeps: int
     gravity_comp: bool
 
@@ -105,24 +119,26 @@ class TritonModel:
     def build(cls, controller: dict[str, np.ndarray], chain: ChainModel, plane: PlaneModel,
               tool_pos: np.ndarray, base_height: float, margin: float, substeps: int,
               gravity_comp: bool, device: Any, dtype: torch.dtype) -> TritonModel:
-        """The tables on ``device`` as ``dtype``: ``controller`` holds ``kp, kd, effort,
-        w_max, q_mid, q_half`` (6,) arrays (time-scaled units)."""
+        """The model for ``dtype`` (its tables rounded to it), the vertex table on ``device``:
+        ``controller`` holds ``kp, kd, effort, w_max, q_mid, q_half`` (6,) arrays
+        (time-scaled units)."""
         import torch
 
-        def put(x: Any, dt: torch.dtype = dtype) -> torch.Tensor:
-            return torch.tensor(np.array(x), device=device).to(dt).contiguous()
-
-        scalars = np.array([plane.lift_offset, plane.wrist_offset, base_height, margin])
-        return cls(**{k: put(controller[k]) for k in ("kp", "kd", "effort", "w_max", "q_mid",
-                                                      "q_half")},
-                   vertex_heights=put(plane.vertex_heights),
-                   link_of_row=put(np.repeat(np.arange(len(plane.bounds) - 1),
-                                             np.diff(plane.bounds)), torch.int32),
-                   lipschitz=put(plane.lipschitz), scalars=put(scalars),
-                   rotation=put(chain.rotation), translation=put(chain.translation),
-                   axis=put(chain.axis), inertia=put(chain.inertia),
-                   armature=put(chain.armature), gravity=put(chain.gravity),
-                   tool_pos=put(tool_pos), substeps=int(substeps),
+        cast = {torch.float64: np.float64, torch.float32: np.float32}[dtype]
+        vertex_heights = torch.tensor(np.asarray(plane.vertex_heights, dtype=cast),
+                                      device=device).contiguous()
+        return cls(**{k: _values(controller[k], cast) for k in ("kp", "kd", "effort", "w_max",
+                                                               "q_mid", "q_half")},
+                   vertex_heights=vertex_heights,
+                   bounds=tuple(int(b) for b in plane.bounds),
+                   lipschitz=_values(plane.lipschitz, cast),
+                   plane=_values([plane.lift_offset, plane.wrist_offset, base_height, margin],
+                                 cast),
+                   rotation=_values(chain.rotation, cast),
+                   translation=_values(chain.translation, cast),
+                   axis=_values(chain.axis, cast), inertia=_values(chain.inertia, cast),
+                   armature=_values(chain.armature, cast), gravity=_values(chain.gravity, cast),
+                   tool_pos=_values(tool_pos, cast), substeps=int(substeps),
                    gravity_comp=bool(gravity_comp))
 
 
@@ -148,15 +164,27 @@ def launch(model: TritonModel, q: torch.Tensor, w: torch.Tensor, height_bound: t
     block : int
         Copies per program (a power of two).
     """
-    B = q.shape[0]
+    args, constexprs = launch_arguments(model, q, w, height_bound, bias, free, dw, contact,
+                                        limit_stop, tool, block)
+    kernel()[(triton.cdiv(q.shape[0], block),)](*args, **constexprs, num_warps=NUM_WARPS)
+
+
+def launch_arguments(model: TritonModel, q: torch.Tensor, w: torch.Tensor,
+                     height_bound: torch.Tensor, bias: torch.Tensor, free: torch.Tensor,
+                     dw: torch.Tensor, contact: torch.Tensor, limit_stop: torch.Tensor,
+                     tool: torch.Tensor, block: int) -> tuple[tuple[Any, ...], dict[str, Any]]:
+    """The step kernel's arguments for :func:`launch`'s: the positional ones (tensors and the
+    copy count B) and the compile-time constants by name (``benchmarks.triton_compile``
+    compiles the kernel from them without a GPU)."""
     m = model
-    kernel()[(triton.cdiv(B, block),)](
-        q, w, height_bound, bias, free, dw, contact, limit_stop, tool,
-        m.kp, m.kd, m.effort, m.w_max, m.q_mid, m.q_half, m.vertex_heights, m.link_of_row,
-        m.lipschitz, m.scalars, m.rotation, m.translation, m.axis, m.inertia, m.armature,
-        m.gravity, m.tool_pos, B, SUBSTEPS=m.substeps, GRAVITY_COMP=m.gravity_comp,
-        NUM_ROWS=m.link_of_row.shape[0], ROW_TILE=ROW_TILE, BLOCK=block,
-        num_warps=NUM_WARPS)
+    args = (q, w, height_bound, bias, free, dw, contact, limit_stop, tool, m.vertex_heights,
+            q.shape[0])
+    constexprs = dict(KP=m.kp, KD=m.kd, EFFORT=m.effort, W_MAX=m.w_max, Q_MID=m.q_mid,
+                      Q_HALF=m.q_half, LIPSCHITZ=m.lipschitz, PLANE=m.plane, ROT0=m.rotation,
+                      P=m.translation, AXIS=m.axis, INERTIA=m.inertia, ARMATURE=m.armature,
+                      GRAV=m.gravity, TOOL_POS=m.tool_pos, BOUNDS=m.bounds,
+                      SUBSTEPS=m.substeps, GRAVITY_COMP=m.gravity_comp, BLOCK=block)
+    return args, constexprs
 
 
 def kernel() -> Any:
@@ -170,36 +198,99 @@ def kernel() -> Any:
 
 
 @triton.jit
-def load_vec(ptr, N: tl.constexpr):
-    """``(ptr[0], .., ptr[N - 1])``: N scalars."""
+def constants(values, dtype: tl.constexpr, N: tl.constexpr):
+    """``values[0 .. N - 1]`` (a constexpr tuple of Python floats) as N scalars of ``dtype``,
+    each exact (``tl.full``; a bare Python float in Triton arithmetic is a float32 constant)."""
     out = ()
     for k in tl.static_range(N):
-        out = out + (tl.load(ptr + k),)
+        out = out + (tl.full([], values[k], dtype),)
     return out
 
 
 @triton.jit
-def load_rows(ptr, ROWS: tl.constexpr, N: tl.constexpr):
-    """Rows ``ptr[r N : (r + 1) N]`` as a tuple of ROWS tuples of N scalars."""
+def constant_rows(values, dtype: tl.constexpr, ROWS: tl.constexpr, N: tl.constexpr):
+    """Rows ``values[r N : (r + 1) N]`` as a tuple of ROWS tuples of N scalars of ``dtype``
+    (the flat tuple is indexed here: a sub-tuple passed on to :func:`constants` would lose its
+    constexpr type in Triton 3.6's front end)."""
     out = ()
     for r in tl.static_range(ROWS):
-        out = out + (load_vec(ptr + r * N, N),)
+        row = ()
+        for k in tl.static_range(N):
+            row = row + (tl.full([], values[N * r + k], dtype),)
+        out = out + (row,)
     return out
+
+
+@triton.jit
+def split_columns(tile, W: tl.constexpr):
+    """The W columns of a (BLOCK, W) tile, W = 4 or 8, as W lane vectors (reshape and
+    ``tl.split``: data movement only, every value exact)."""
+    BLOCK: tl.constexpr = tile.shape[0]
+    if W == 8:
+        # t[b, i, j, l] = tile[b, 4 i + 2 j + l]; each split takes the last axis
+        even, odd = tl.split(tl.reshape(tile, (BLOCK, 2, 2, 2)))
+        e0, e1 = tl.split(even)
+        o0, o1 = tl.split(odd)
+        c0, c4 = tl.split(e0)
+        c2, c6 = tl.split(e1)
+        c1, c5 = tl.split(o0)
+        c3, c7 = tl.split(o1)
+        out = (c0, c1, c2, c3, c4, c5, c6, c7)
+    else:
+        # t[b, i, l] = tile[b, 2 i + l]
+        even, odd = tl.split(tl.reshape(tile, (BLOCK, 2, 2)))
+        c0, c2 = tl.split(even)
+        c1, c3 = tl.split(odd)
+        out = (c0, c1, c2, c3)
+    return out
+
+
+@triton.jit
+def join_columns(x, W: tl.constexpr):
+    """The (BLOCK, W) tile whose columns are the W lane vectors ``x``: :func:`split_columns`
+    undone."""
+    BLOCK: tl.constexpr = x[0].shape[0]
+    if W == 8:
+        even = tl.join(tl.join(x[0], x[4]), tl.join(x[2], x[6]))
+        odd = tl.join(tl.join(x[1], x[5]), tl.join(x[3], x[7]))
+    else:
+        even = tl.join(x[0], x[2])
+        odd = tl.join(x[1], x[3])
+    return tl.reshape(tl.join(even, odd), (BLOCK, W))
 
 
 @triton.jit
 def load_lanes(ptr, offs, valid, N: tl.constexpr):
-    """Columns ``0..N-1`` of the rows ``offs`` of an (B, N) tensor: N lane vectors."""
+    """Columns ``0..N-1`` of the rows ``offs`` of an (B, N) tensor, N <= 8: N lane vectors,
+    read by one load of a (BLOCK, W) tile (W = 4 or 8, the columns past N masked).
+
+    One memory access per array, not one per column: Triton's ``TritonGPUCoalesce`` pass
+    walks the whole kernel once per access, so their number multiplies the compile time."""
+    W: tl.constexpr = 4 if N <= 4 else 8
+    cols = tl.arange(0, W)
+    tile = tl.load(ptr + offs[:, None] * N + cols[None, :],
+                   mask=valid[:, None] & (cols < N)[None, :], other=0)
+    columns = split_columns(tile, W)
     out = ()
     for k in tl.static_range(N):
-        out = out + (tl.load(ptr + offs * N + k, mask=valid, other=0),)
+        out = out + (columns[k],)
     return out
 
 
 @triton.jit
 def store_lanes(ptr, offs, valid, x, N: tl.constexpr):
-    for k in tl.static_range(N):
-        tl.store(ptr + offs * N + k, x[k], mask=valid)
+    """Write the N lane vectors ``x`` as columns ``0..N-1`` of the rows ``offs`` of an (B, N)
+    tensor, N <= 8: one store of a (BLOCK, W) tile (:func:`load_lanes`' layout)."""
+    W: tl.constexpr = 4 if N <= 4 else 8
+    padded = ()
+    for k in tl.static_range(W):
+        if k < N:  # noqa: SIM108 - a compile-time branch, as Triton's front end reads it
+            padded = padded + (x[k],)
+        else:
+            padded = padded + (x[0],)  # masked out
+    cols = tl.arange(0, W)
+    tl.store(ptr + offs[:, None] * N + cols[None, :], join_columns(padded, W),
+             mask=valid[:, None] & (cols < N)[None, :])
 
 
 @triton.jit
@@ -444,10 +535,11 @@ def aba(R, p, axis, inertia, armature, grav, qd, tau, free, zero):
 
 
 @triton.jit
-def link_heights(q, vh_ptr, link_ptr, lift, wrist, base_height, zero, NUM_ROWS: tl.constexpr,
-                 ROW_TILE: tl.constexpr):
+def link_heights(q, vh_ptr, lift, wrist, base_height, zero, BOUNDS: tl.constexpr):
     """Exact lowest point (m, world z) of moving links 1..6: numba's
-    ``copy_link_heights``."""
+    ``copy_link_heights`` (link k's vertex rows ``BOUNDS[k] ..``, one row at a time, its 13
+    products summed from 0 in numba's order; the rows are scalar loads, the same address in
+    every lane)."""
     a = q[1] + lift
     b = a + q[2]
     c = b + q[3] + wrist
@@ -460,27 +552,15 @@ def link_heights(q, vh_ptr, link_ptr, lift, wrist, base_height, zero, NUM_ROWS: 
     f7 = sc * c5
     feat = (zero + 1.0, tl.sin(a), tl.cos(a), tl.sin(b), tl.cos(b), sc, cc, f7, sc * s5,
             f7 * c6, cc * s6, cc * c6, f7 * s6)
-    # every row is one vertex of one link (``link_of_row``); a tile of ROW_TILE rows at a
-    # time, each row's sum in numba's order (the minimum is exact in any order)
-    inf = zero + float("inf")
-    low = (inf, inf, inf, inf, inf, inf)
-    for first in range(0, NUM_ROWS, ROW_TILE):
-        rows = first + tl.arange(0, ROW_TILE)
-        inside = rows < NUM_ROWS
-        link = tl.load(link_ptr + rows, mask=inside, other=-1)
-        s = zero[:, None] + tl.zeros_like(tl.load(vh_ptr + rows * 13, mask=inside,
-                                                  other=0))[None, :]
-        for f in tl.static_range(13):
-            vh = tl.load(vh_ptr + rows * 13 + f, mask=inside, other=0)
-            s += vh[None, :] * feat[f][:, None]
-        low2 = ()
-        for k in tl.static_range(6):
-            low2 = low2 + (tl.minimum(low[k], tl.min(tl.where(link[None, :] == k + 1, s,
-                                                              float("inf")), axis=1)),)
-        low = low2
     out = ()
-    for k in tl.static_range(6):
-        out = out + (low[k] + base_height,)
+    for k in tl.static_range(1, 7):
+        low = zero + float("inf")
+        for row in range(BOUNDS[k], BOUNDS[k + 1]):
+            s = zero
+            for f in tl.static_range(13):
+                s += tl.load(vh_ptr + row * 13 + f) * feat[f]
+            low = tl.minimum(low, s)
+        out = out + (low + base_height,)
     return out
 
 
@@ -536,32 +616,33 @@ def lower_bounds(known, q, q_ref, lipschitz):
 
 @triton.jit
 def step_kernel(q_ptr, w_ptr, hb_ptr, bias_ptr, free_ptr, dw_ptr, contact_ptr, limit_ptr,
-                tool_ptr, kp_ptr, kd_ptr, effort_ptr, wmax_ptr, qmid_ptr, qhalf_ptr, vh_ptr,
-                link_ptr, lip_ptr, scal_ptr, rot_ptr, p_ptr, axis_ptr, inertia_ptr,
-                arm_ptr, grav_ptr, toolpos_ptr, B, SUBSTEPS: tl.constexpr,
-                GRAVITY_COMP: tl.constexpr, NUM_ROWS: tl.constexpr, ROW_TILE: tl.constexpr,
+                tool_ptr, vh_ptr, B, KP: tl.constexpr, KD: tl.constexpr, EFFORT: tl.constexpr,
+                W_MAX: tl.constexpr, Q_MID: tl.constexpr, Q_HALF: tl.constexpr,
+                LIPSCHITZ: tl.constexpr, PLANE: tl.constexpr, ROT0: tl.constexpr,
+                P: tl.constexpr, AXIS: tl.constexpr, INERTIA: tl.constexpr,
+                ARMATURE: tl.constexpr, GRAV: tl.constexpr, TOOL_POS: tl.constexpr,
+                BOUNDS: tl.constexpr, SUBSTEPS: tl.constexpr, GRAVITY_COMP: tl.constexpr,
                 BLOCK: tl.constexpr):
-    """One control step of copies ``pid BLOCK ..``: :func:`launch`'s."""
+    """One control step of copies ``pid BLOCK ..``: :func:`launch`'s (the upper-case
+    arguments are :class:`TritonModel`'s constants)."""
     offs = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     valid = offs < B
-    kp = load_vec(kp_ptr, 6)
-    kd = load_vec(kd_ptr, 6)
-    effort = load_vec(effort_ptr, 6)
-    w_max = load_vec(wmax_ptr, 6)
-    q_mid = load_vec(qmid_ptr, 6)
-    q_half = load_vec(qhalf_ptr, 6)
-    lipschitz = load_rows(lip_ptr, 6, 6)
-    lift = tl.load(scal_ptr)
-    wrist = tl.load(scal_ptr + 1)
-    base_height = tl.load(scal_ptr + 2)
-    margin = tl.load(scal_ptr + 3)
-    rot0 = load_rows(rot_ptr, 6, 9)
-    p = load_rows(p_ptr, 6, 3)
-    axis = load_rows(axis_ptr, 6, 3)
-    inertia = load_rows(inertia_ptr, 6, 36)
-    armature = load_vec(arm_ptr, 6)
-    grav = load_vec(grav_ptr, 3)
-    tool_pos = load_vec(toolpos_ptr, 3)
+    dt = q_ptr.dtype.element_ty
+    kp = constants(KP, dt, 6)
+    kd = constants(KD, dt, 6)
+    effort = constants(EFFORT, dt, 6)
+    w_max = constants(W_MAX, dt, 6)
+    q_mid = constants(Q_MID, dt, 6)
+    q_half = constants(Q_HALF, dt, 6)
+    lipschitz = constant_rows(LIPSCHITZ, dt, 6, 6)
+    lift, wrist, base_height, margin = constants(PLANE, dt, 4)
+    rot0 = constant_rows(ROT0, dt, 6, 9)
+    p = constant_rows(P, dt, 6, 3)
+    axis = constant_rows(AXIS, dt, 6, 3)
+    inertia = constant_rows(INERTIA, dt, 6, 36)
+    armature = constants(ARMATURE, dt, 6)
+    grav = constants(GRAV, dt, 3)
+    tool_pos = constants(TOOL_POS, dt, 3)
 
     q = load_lanes(q_ptr, offs, valid, 6)
     w0 = load_lanes(w_ptr, offs, valid, 6)
@@ -606,8 +687,7 @@ def step_kernel(q_ptr, w_ptr, hb_ptr, bias_ptr, free_ptr, dw_ptr, contact_ptr, l
         need = unsure & active
         plane = offs < 0
         if tl.max(need.to(tl.int32), 0) > 0:
-            heights = link_heights(q1, vh_ptr, link_ptr, lift, wrist, base_height, zero,
-                                   NUM_ROWS, ROW_TILE)
+            heights = link_heights(q1, vh_ptr, lift, wrist, base_height, zero, BOUNDS)
             known2 = ()
             ref2 = ()
             for k in tl.static_range(6):
