@@ -138,6 +138,9 @@ def run_task(folder: RunFolder, spec: Mapping[str, Any]) -> Any:
     """
     import gymnasium
 
+    if not spec.get("env_id"):
+        raise RunFolderError(f"{folder.spec_path} names no env_id (the Gymnasium id of the "
+                             "run's env), so the run's env cannot be made")
     try:
         env = make_run_env(spec)
     except (KeyError, TypeError, ValueError, ImportError, gymnasium.error.Error) as err:

@@ -300,6 +300,24 @@ def test_a_spec_whose_task_and_env_kwargs_disagree_is_refused_naming_the_field(
         ddpg_her.load(run)
 
 
+def test_load_of_a_spec_without_env_id_names_it(tiny_ur5_run, tmp_path):
+    """Issue 37, kind 6: load makes the run's env once; a spec without ``env_id`` was a
+    ``KeyError: 'env_id'`` inside the message, now a sentence naming the key and the file."""
+    import json
+    import shutil
+
+    import ddpg_her
+    from ddpg_her.runfolder import RunFolderError
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_ur5_run, run)
+    spec = json.loads((run / "spec.json").read_text())
+    del spec["env_id"]
+    (run / "spec.json").write_text(json.dumps(spec))
+    with pytest.raises(RunFolderError, match=r"spec\.json names no env_id \(the Gymnasium id"):
+        ddpg_her.load(run)
+
+
 def test_a_success_map_refuses_a_negative_seed_before_loading_any_run(capsys, tmp_path):
     """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--seed -1`` reached
     numpy's "expected non-negative int" after the policies were loaded, and was reported as
