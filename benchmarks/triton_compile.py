@@ -47,13 +47,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--dtype", choices=DTYPES, default="float64",
                         help="the kernel's arithmetic (default float64)")
     parser.add_argument("--arch", type=int, default=90,
-                        help="CUDA compute capability as an integer, e.g. 90 for sm_90 "
-                             "(default 90)")
+                        help="CUDA compute capability as an integer 50..120 (major x 10 + "
+                             "minor), e.g. 90 for sm_90 (default 90)")
     parser.add_argument("--block", type=int, default=None,
                         help="copies per program (default envs.physics.stack.BLOCK)")
     parser.add_argument("--stop-after", choices=STAGES, default="cubin",
                         help="the last stage to run (default cubin, what a launch needs)")
     args = parser.parse_args(argv)
+    if not 50 <= args.arch <= 120:
+        parser.error(f"--arch must be a compute capability 50..120 (e.g. 90); got {args.arch}")
     if args.arch < 70:
         parser.error(f"--arch must be a compute capability >= 70 (Triton's CUDA targets); "
                      f"got {args.arch}")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -24,3 +25,17 @@ def one_torch_thread() -> Iterator[None]:
     # torch cannot read it back: turn it off after every test, or a later test in the process
     # computes with subnormals flushed (hypothesis then refuses to draw floats at all).
     torch.set_flush_denormal(False)
+
+
+@pytest.fixture(scope="session")
+def tiny_ur5_run(tmp_path_factory) -> Path:
+    """A UR5 far-box run of 2 episodes with a checkpoint (an untrained policy: it still moves
+    the arm away from its start), trained once per session; tests that change it copy it."""
+    from cli_tools import run_module
+
+    run = tmp_path_factory.mktemp("tiny-ur5") / "run"
+    run_module("ddpg_her.train", "--region", "farbox", "--joints", "3", "--episodes", "2",
+               "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "16", "16",
+               "--warmup-episodes", "1", "--out", str(run), "--no-progress", "--threads", "1",
+               "--no-tensorboard")
+    return run

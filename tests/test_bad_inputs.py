@@ -209,19 +209,6 @@ def test_a_success_map_that_cannot_fit_is_refused_before_any_rollout(args, messa
     assert message in err and "GiB of memory available" in err
 
 
-@pytest.fixture(scope="module")
-def tiny_ur5_run(tmp_path_factory):
-    """A far-box run of 2 episodes with a checkpoint (an untrained policy)."""
-    from cli_tools import run_module
-
-    run = tmp_path_factory.mktemp("unreadable") / "run"
-    run_module("ddpg_her.train", "--region", "farbox", "--joints", "3", "--episodes", "2",
-               "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "8", "8",
-               "--warmup-episodes", "1", "--out", str(run), "--no-progress", "--threads", "1",
-               "--no-tensorboard")
-    return run
-
-
 @pytest.mark.parametrize("section", ["task", "env_kwargs"])
 @pytest.mark.parametrize(("region", "message"), [
     ("nowhere", "cannot read region 'nowhere'"),

@@ -8,7 +8,6 @@ import io
 import json
 import shutil
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,25 +22,13 @@ from analysis import replay, scene  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory) -> Path:
-    """A UR5 far-box run of 2 episodes with a checkpoint (an untrained policy: it still moves
-    the arm away from its start)."""
-    run = tmp_path_factory.mktemp("view3d") / "run"
-    run_module("ddpg_her.train", "--region", "farbox", "--joints", "3", "--episodes", "2",
-               "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "16", "16",
-               "--warmup-episodes", "1", "--out", str(run), "--no-progress", "--threads", "1",
-               "--no-tensorboard")
-    return run
-
-
-@pytest.fixture(scope="module")
-def replayed(tiny_run):
+def replayed(tiny_ur5_run):
     """The tiny run's policy replayed on 2 goals: (task, episodes, page path)."""
     import ddpg_her
 
-    policy = ddpg_her.load(tiny_run)
+    policy = ddpg_her.load(tiny_ur5_run)
     task, episodes = replay.rollout(policy, replay.episode_seeds(0, 2), progress=False)
-    page = tiny_run.parent / "replay.html"
+    page = tiny_ur5_run.parent / "replay.html"
     view = scene.Scene(scene.offline_visualizer(), task.base_height)
     replay.draw(view, task, episodes, "collision")
     view.write_html(page, "test replay", "caption")
@@ -143,7 +130,7 @@ def _commands_of_page(text: str) -> list[dict]:
 
 
 # --- the replay ------------------------------------------------------------------------------
-def test_the_replay_is_the_policys_episodes(replayed, tiny_run):
+def test_the_replay_is_the_policys_episodes(replayed, tiny_ur5_run):
     """The recorded tool positions are ur5kin's FK of the recorded joint angles (env vs
     kinematics), goals lie in the task's region, outcomes follow the success radius, and the
     same seed replays the same episodes."""
@@ -156,7 +143,7 @@ def test_the_replay_is_the_policys_episodes(replayed, tiny_run):
         assert region.contains(ep.goal)
         assert ep.reached == bool(np.linalg.norm(ep.tool[-1] - ep.goal) <= task.success_radius)
         assert 1 <= ep.steps <= task.max_episode_steps
-    again = replay.rollout(ddpg_her.load(tiny_run), replay.episode_seeds(0, 2), False)[1]
+    again = replay.rollout(ddpg_her.load(tiny_ur5_run), replay.episode_seeds(0, 2), False)[1]
     for a, b in zip(episodes, again, strict=True):
         np.testing.assert_array_equal(a.q, b.q)
 
@@ -189,7 +176,7 @@ def _run_replay(*argv: str, capsys) -> tuple[int, str]:
     return exit_info.value.code, capsys.readouterr().err
 
 
-def test_bad_run_folders_get_an_error_naming_the_folder(tmp_path, tiny_run, capsys):
+def test_bad_run_folders_get_an_error_naming_the_folder(tmp_path, tiny_ur5_run, capsys):
     no_weights = tmp_path / "eval_only"
     no_weights.mkdir()
     shutil.copy(ROOT / "results" / "farbox_j3_k5" / "s0" / "spec.json", no_weights)
@@ -197,7 +184,7 @@ def test_bad_run_folders_get_an_error_naming_the_folder(tmp_path, tiny_run, caps
     assert code == 2 and str(no_weights) in err and "no checkpoint" in err
 
     other_env = tmp_path / "toy"
-    shutil.copytree(tiny_run, other_env)
+    shutil.copytree(tiny_ur5_run, other_env)
     spec = json.loads((other_env / "spec.json").read_text())
     (other_env / "spec.json").write_text(json.dumps({**spec, "env_id": "ToyGoal-v0"}))
     code, err = _run_replay(str(other_env), capsys=capsys)
@@ -206,14 +193,14 @@ def test_bad_run_folders_get_an_error_naming_the_folder(tmp_path, tiny_run, caps
     for missing in (tmp_path / "nothing", tmp_path):
         code, err = _run_replay(str(missing), capsys=capsys)
         assert code == 2 and str(missing) in err
-    code, err = _run_replay(str(tiny_run), "--episodes", "0", capsys=capsys)
+    code, err = _run_replay(str(tiny_ur5_run), "--episodes", "0", capsys=capsys)
     assert code == 2 and "--episodes" in err
     assert not (tmp_path / "x.html").exists()
 
 
-def test_the_cli_writes_the_page(tiny_run, tmp_path):
+def test_the_cli_writes_the_page(tiny_ur5_run, tmp_path):
     out = tmp_path / "replay.html"
-    done = run_module("analysis.replay", str(tiny_run), "--episodes", "1", "--out", str(out),
+    done = run_module("analysis.replay", str(tiny_ur5_run), "--episodes", "1", "--out", str(out),
                       "--no-progress")
     assert "0 of 1 goals reached" in done.stdout or "1 of 1 goals reached" in done.stdout
     assert out.stat().st_size > 0.5e6
@@ -301,7 +288,7 @@ def test_a_browser_draws_the_arm_and_plays_the_replay(replayed):
         "the frames differ away from the arm"
 
 
-def test_serve_shows_the_scene_live_and_ends_its_server(tiny_run):
+def test_serve_shows_the_scene_live_and_ends_its_server(tiny_ur5_run):
     """--serve: the printed address serves MeshCat's viewer while the command runs, and a
     SIGTERM ends the command and its server (nothing left listening)."""
     import re
@@ -313,7 +300,7 @@ def test_serve_shows_the_scene_live_and_ends_its_server(tiny_run):
 
     from cli_tools import child_env
 
-    proc = subprocess.Popen([sys.executable, "-m", "analysis.replay", str(tiny_run),
+    proc = subprocess.Popen([sys.executable, "-m", "analysis.replay", str(tiny_ur5_run),
                              "--episodes", "1", "--serve", "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=child_env())
