@@ -147,7 +147,8 @@ grid_command() {
     [[ $part == all ]] || sel=(--part "$part")
     if [[ $DRY == 1 ]]; then
         echo "$PY -m analysis.sweep --grid paper --program ${sel[*]} --episodes 2 --device cpu" \
-             "--out $RUNS"
+             "--seeds 1 --out $RUNS -- --eval-every 1 --eval-episodes 2 --updates-per-episode 2" \
+             "--warmup-episodes 1 --hidden-sizes 8 8 --buffer-size 1000"
     else
         echo "$PY -m analysis.sweep --grid paper --program ${sel[*]} --episodes $EPISODES" \
              "--device $DEVICE --out $RUNS"
