@@ -263,14 +263,14 @@ class PrioritizedBuffer(ReplayBuffer):
         """Minibatches drawn with P(i) = p_i^alpha / sum p^alpha: x, u, r, x2, terminated
         (K, batch, ...) as `ReplayBuffer.sample`, then the row indices (K, batch) and the
         importance weights w_i = (P(i) / min_j P(j))^-beta (K, batch, 1) in (0, 1]."""
-        m = max(self.size(k) for k in range(self.k))
-        cdf = self.priority[:, :m].cumsum(1)
-        last = torch.as_tensor([self.size(k) - 1 for k in range(self.k)], device=cdf.device)
+        sizes = [self.size(k) for k in range(self.k)]
+        cdf = self.priority[:, :max(sizes)].cumsum(1)
+        last = torch.as_tensor(sizes, device=cdf.device) - 1
         u = torch.stack([torch.rand(batch_size, generator=g, dtype=torch.float64,
                                     device=cdf.device) for g in generators])
         u = u * cdf[self._agents[:, 0], last][:, None]
         idx = torch.minimum(torch.searchsorted(cdf, u, right=True), last[:, None])
-        least = torch.where(self.priority[:, :m] > 0, self.priority[:, :m], torch.inf).amin(1)
+        least = torch.stack([self.priority[k, :n].amin() for k, n in enumerate(sizes)])
         w = (self.priority[self._agents, idx] / least[:, None]).pow(-beta)
         return (*self.layout.split(self.rows[self._agents, idx]), idx,
                 w.to(self.rows.dtype)[..., None])
