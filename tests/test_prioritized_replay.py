@@ -103,15 +103,15 @@ def test_the_weighted_critic_step_is_the_step_on_a_minibatch_with_rows_repeated(
     config = AgentConfig(hidden_sizes=(8, 8))
     g = torch.Generator().manual_seed(0)
     x, u, x2 = (torch.rand(1, 4, d, generator=g, dtype=torch.float64) for d in (3, 2, 3))
-    r, term = -torch.rand(1, 4, 1, generator=g, dtype=torch.float64), torch.zeros(1, 4, 1,
-                                                                                 dtype=torch.float64)
+    r = -torch.rand(1, 4, 1, generator=g, dtype=torch.float64)
+    term = torch.zeros(1, 4, 1, dtype=torch.float64)
     weight = torch.tensor([2.0, 0.0, 1.0, 1.0], dtype=torch.float64).view(1, 4, 1)
     rep = torch.tensor([0, 0, 2, 3])
     agents = [DDPG(config, 3, 2, init_generators=[torch.Generator().manual_seed(7)],
                    dtype=torch.float64) for _ in range(2)]
-    q = agents[0].critic(agents[0].normalizer(x), u)
-    y = r + config.gamma * agents[0].critic_target(agents[0].normalizer(x2),
-                                                   agents[0].actor_target(agents[0].normalizer(x2)))
+    norm = agents[0].normalizer
+    q = agents[0].critic(norm(x), u)
+    y = r + config.gamma * agents[0].critic_target(norm(x2), agents[0].actor_target(norm(x2)))
     agents[0].update(x, u, r, x2, term, weight=weight)
     agents[1].update(*(t[:, rep] for t in (x, u, r, x2, term)))
     torch.testing.assert_close(agents[0].td_error, (q - y).detach()[..., 0], rtol=0, atol=1e-12)
