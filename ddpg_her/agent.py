@@ -272,12 +272,15 @@ class DDPG:
 
     @torch.no_grad()
     def update(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor, x2: torch.Tensor,
-               terminated: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+               terminated: torch.Tensor, weight: torch.Tensor | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor]:
         """One DDPG step of every agent on its minibatch (K, N, ...) of transitions.
 
         x, x2 : raw inputs before and after the step, u : action in actor units, r : reward,
         terminated : 1 where the step ended the episode in success. Returns the critic and
-        actor losses, (K,) each, before the step.
+        actor losses, (K,) each, before the step. ``weight`` (K, N, 1), prioritised replay's
+        importance weights: the critic minimises mean w (Q - y)^2 instead, and ``td_error``
+        (K, N) keeps this minibatch's Q(s, a) - y.
 
         Critic first: minimise mean (Q(s, a) - y)^2, y = r + gamma (1 - terminated)
         Q'(s', mu'(s')); then the actor ascends the updated critic's Q(s, mu(s)); then
@@ -309,7 +312,12 @@ class DDPG:
         # critic step
         c1, c1u, c2, q = critic.activations(x, u)
         err = q - y                                                   # (K, N, 1)
-        critic_loss = err.square().mean(dim=(1, 2))
+        if weight is not None:
+            self.td_error = err[..., 0].clone()
+            err_w = err * weight
+            critic_loss, err = (err_w * err).mean(dim=(1, 2)), err_w
+        else:
+            critic_loss = err.square().mean(dim=(1, 2))
         dq = err.mul_(2.0 / n)                                        # d(loss)/dq
         g = self._grads
         torch.bmm(c2.mT, dq, out=g[critic.l3.weight])

@@ -163,6 +163,25 @@ class AgentConfig:
     sac_alpha_lr: float = 3e-4
     """Adam learning rate of SAC's log alpha, > 0 (Haarnoja et al. 2018: 3e-4)."""
 
+    # --- prioritised replay (Schaul et al. 2016; the paper's section III, issue 40) -----------
+    prioritized_replay: bool = False
+    """Proportional prioritised replay instead of uniform sampling: transition i is drawn with
+    P(i) = p_i^alpha / sum_j p_j^alpha (i.i.d. draws over the stored rows, not Schaul's
+    stratified segments), p_i = |TD error of its last update| + per_eps, a new transition at
+    the largest stored p; the critic's squared error is weighted by w_i = (N P(i))^-beta /
+    max_j w_j (the max over the N stored rows). The paper says it tended to destabilise or
+    prevent learning. DDPG alone (no ensemble, no batch norm), on the host trainer."""
+    per_alpha: float = 0.6
+    """Prioritisation exponent alpha, in [0, 1]: 0 is uniform sampling (Schaul et al.: 0.6)."""
+    per_beta: float = 0.4
+    """Importance-sampling exponent beta at the start, in [0, 1], raised linearly to 1 at the
+    last training episode: beta = per_beta + (1 - per_beta) (e + 1) / episodes for the updates
+    after episode e (0-based) (Schaul et al.: 0.4 -> 1). An --episodes raised on --resume
+    stretches the rest of the schedule."""
+    per_eps: float = 1e-6
+    """Added to |TD error| so that no transition's priority is 0, > 0 (Schaul et al. do not
+    give it; 1e-6 as OpenAI baselines)."""
+
     # --- the regional ensemble (issue 25) ------------------------------------------------------
     ensemble: int = 1
     """Members M of the regional ensemble of --algo agents (1: none, a single agent). Each member
@@ -235,11 +254,13 @@ cost) and needs goals in its cell; 64 is far beyond what the task's budget feeds
 
 
 _RANGES: tuple[tuple[str, Callable[[Any], bool], tuple[str, ...]], ...] = (
-    ("a number in [0, 1]", lambda v: _real(v) and 0.0 <= v <= 1.0, ("gamma", "ou_theta")),
+    ("a number in [0, 1]", lambda v: _real(v) and 0.0 <= v <= 1.0,
+     ("gamma", "ou_theta", "per_alpha", "per_beta")),
     ("a number in (0, 1]", lambda v: _real(v) and 0.0 < v <= 1.0,
      ("tau", "batch_norm_momentum")),
     ("a finite number > 0", lambda v: _real(v) and 0.0 < v < math.inf,
-     ("actor_lr", "critic_lr", "final_init", "norm_eps", "sac_init_alpha", "sac_alpha_lr")),
+     ("actor_lr", "critic_lr", "final_init", "norm_eps", "sac_init_alpha", "sac_alpha_lr",
+      "per_eps")),
     ("a finite number >= 0", lambda v: _real(v) and 0.0 <= v < math.inf,
      ("exploration_rate", "critic_l2", "td3_target_noise", "td3_target_noise_clip")),
     ("a number > 0 (inf: no clipping)", lambda v: _real(v) and v > 0.0, ("obs_clip",)),
@@ -265,6 +286,10 @@ _CHECKS: dict[str, tuple[str, Any]] = {
     "hidden_sizes": ("two integers >= 1",
                      lambda c: isinstance(c.hidden_sizes, tuple) and len(c.hidden_sizes) == 2
                      and all(_integer(h) and h >= 1 for h in c.hidden_sizes)),
+    "prioritized_replay": ("true or false; true only with algo ddpg, ensemble 1, no batch_norm",
+                           lambda c: isinstance(c.prioritized_replay, bool) and not (
+                               c.prioritized_replay and (c.algo is not Algo.DDPG
+                                                         or c.ensemble != 1 or c.batch_norm))),
     "ensemble": (f"an integer in 1..{MAX_ENSEMBLE} that divides updates_per_episode",
                  lambda c: _integer(c.ensemble) and 1 <= c.ensemble <= MAX_ENSEMBLE
                  and c.updates_per_episode % c.ensemble == 0),
@@ -279,7 +304,8 @@ The words appear in the error message and in ``--help``."""
 BEFORE: dict[str, Any] = {"batch_norm": False, "batch_norm_momentum": 0.01, "algo": "ddpg",
                           "td3_target_noise": 0.2, "td3_target_noise_clip": 0.5,
                           "td3_policy_delay": 2, "sac_init_alpha": 1.0, "sac_alpha_lr": 3e-4,
-                          "ensemble": 1}
+                          "ensemble": 1, "prioritized_replay": False, "per_alpha": 0.6,
+                          "per_beta": 0.4, "per_eps": 1e-6}
 """Fields added after run folders existed, with the value runs written before them had (for
 fields of another algorithm than ddpg, unused, the default): a ``spec.json`` without the field
 reads as this value (so such runs resume)."""

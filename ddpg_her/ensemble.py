@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ddpg_her.buffer import Layout, ReplayBuffer
+from ddpg_her.buffer import Layout, PrioritizedBuffer, ReplayBuffer
 from ddpg_her.config import AgentConfig
 from regions.partition import KMEANS, KMeansSettings, Partition, fit_partition
 
@@ -292,6 +292,9 @@ def make_buffer(config: AgentConfig, k: int, layout: Layout, agent: Any, *,
     if isinstance(agent, Ensemble):
         return CellBuffer(k, config.buffer_size, layout, agent.centres, dtype=dtype,
                           device=device)
+    if config.prioritized_replay:
+        return PrioritizedBuffer(k, config.buffer_size, layout, alpha=config.per_alpha,
+                                 eps=config.per_eps, dtype=dtype, device=device)
     return ReplayBuffer(k, config.buffer_size, layout, dtype=dtype, device=device)
 
 

@@ -675,6 +675,8 @@ def unsupported(config: AgentConfig) -> str | None:
         return f"--algo {config.algo.value}"
     if config.batch_norm:
         return "--batch-norm"
+    if config.prioritized_replay:
+        return "--prioritized-replay"
     if config.ensemble > 1:
         return f"--ensemble {config.ensemble}"
     if config.her_strategy not in (HERStrategy.FINAL, HERStrategy.NONE):

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from ddpg_her.agents import check_memory, make_agent
-from ddpg_her.buffer import ReplayBuffer
+from ddpg_her.buffer import PrioritizedBuffer, ReplayBuffer, anneal_beta
 from ddpg_her.checkpoints import RunFolders, check_recorded, run_spec
 from ddpg_her.collect import ENV_BACKENDS, Collector, make_envs
 from ddpg_her.config import AgentConfig
@@ -140,7 +140,9 @@ class Trainer:
         return {"env_steps": int(self.env_steps[k]), "wall_s": self.wall_s, "rows": self.rows[k],
                 "agent": self.agent.agent_state(k),
                 "rng": {"explore": self.rngs[k].bit_generator.state,
-                        "sample": self.sample_generators[k].get_state()}}
+                        "sample": self.sample_generators[k].get_state()},
+                **({"priority": self.buffer.state(k)}
+                   if isinstance(self.buffer, PrioritizedBuffer) else {})}
 
     def _restore(self, episode: int, states: list[dict[str, Any]],
                  chunks: list[list[tuple[int, Any]]]) -> None:
@@ -152,6 +154,9 @@ class Trainer:
             self.env_steps[k] = s["env_steps"]
             self.rows[k] = list(s["rows"])
         self.folders.restore_buffer(episode, states, chunks, self.buffer)
+        for k, s in enumerate(states):
+            if isinstance(self.buffer, PrioritizedBuffer):
+                self.buffer.load_state(k, s["priority"])
         self.episode = episode
         self.wall_s = float(states[0]["wall_s"])
 
@@ -189,7 +194,15 @@ class Trainer:
         """``updates`` steps of every agent (its --algo); mean critic and actor losses (K,)."""
         losses = torch.zeros(2, self.k, dtype=torch.float64, device=self.device)
         updates //= self.config.ensemble  # each steps all M members: the M share the budget
+        per = isinstance(self.buffer, PrioritizedBuffer)
         for _ in range(updates):
+            if per:  # the critic's TD errors become the drawn rows' priorities
+                *batch, idx, w = self.buffer.sample_prioritized(
+                    self.config.batch_size, self.sample_generators,
+                    anneal_beta(self.config.per_beta, self.episode, self.config.episodes))
+                critic_loss, actor_loss = self.agent.update(*batch, weight=w)
+                self.buffer.update_priorities(idx, self.agent.td_error)
+                continue
             batch = self.buffer.sample(self.config.batch_size, self.sample_generators)
             critic_loss, actor_loss = self.agent.update(*batch)
             losses[0] += critic_loss

@@ -119,7 +119,10 @@ AGENT_FLAGS = {
     "td3_policy_delay": (["3", "--algo", "td3"], 3),
     "sac_init_alpha": (["0.5", "--algo", "sac"], 0.5),
     "sac_alpha_lr": (["0.001", "--algo", "sac"], 0.001),
-    "ensemble": (["2"], 2),
+    "ensemble": (["2"], 2), "prioritized_replay": ([], True),
+    "per_alpha": (["0.5", "--prioritized-replay"], 0.5),
+    "per_beta": (["0.5", "--prioritized-replay"], 0.5),
+    "per_eps": (["0.001", "--prioritized-replay"], 0.001),
 }
 """For each AgentConfig flag, a value other than the default and what spec.json must record
 ([]: a switch, given as --FLAG where its default is off and as --no-FLAG where it is on)."""
@@ -520,7 +523,8 @@ BAD_AGENT_VALUES = {
     **{name: [float("nan"), True, "0.5"] for name in (
         "gamma", "exploration_rate", "tau", "actor_lr", "critic_lr", "final_init", "ou_theta",
         "obs_clip", "norm_eps", "critic_l2", "batch_norm_momentum", "td3_target_noise",
-        "td3_target_noise_clip", "sac_init_alpha", "sac_alpha_lr")},
+        "td3_target_noise_clip", "sac_init_alpha", "sac_alpha_lr", "per_alpha", "per_beta",
+        "per_eps")},
     **{name: [float("nan"), 10.5, True, "10"] for name in (
         "buffer_size", "batch_size", "episodes", "eval_every", "eval_episodes", "her_k",
         "warmup_episodes", "updates_per_episode", "td3_policy_delay", "ensemble")},
@@ -528,6 +532,7 @@ BAD_AGENT_VALUES = {
     "normalize_obs": ["false", 0, None],
     "flush_denormals": ["true", 1, None],
     "batch_norm": ["true", 1, None],
+    "prioritized_replay": ["true", 1, None],
     "algo": ["ddgp", 1],
     "her_strategy": ["finale", 1],
     "exploration": ["gauss", None],
