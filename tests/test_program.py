@@ -70,10 +70,13 @@ class FirstOrderArm:
 
 def make_program(tmp_path, tasks=TASKS, seeds=(0, 1, 2), name="run", dtype=torch.float64,
                  **config):
+    """The program of ``tasks`` on the stand-in arm; ``config``: AgentConfig fields, and
+    the constructor's ``window``, ``budget`` and ``resume``."""
+    own = {key: config.pop(key) for key in ("window", "budget", "resume") if key in config}
     cfg = AgentConfig(**{**TINY, "episodes": 6, **config})
     return Program("UR5Reach-v0", tasks, cfg, list(seeds),
                    [tmp_path / f"{name}{i}" for i in range(len(seeds))], progress=False,
-                   dtype=dtype, dynamics=FirstOrderArm)
+                   dtype=dtype, dynamics=FirstOrderArm, **own)
 
 
 # ---------------------------------------------------------------------------- the update
@@ -327,6 +330,109 @@ def test_ddpg_her_load_reads_a_program_run(tmp_path):
     x[1, 0] = torch.from_numpy(padded)
     u = prog.agent.act(x)[1, 0, :2]
     np.testing.assert_allclose(policy(obs), (u * math.pi).numpy(), rtol=1e-6, atol=1e-6)
+
+
+def test_a_window_run_saves_eval_rows_and_policies_only_and_refuses_resume(tmp_path):
+    """A window run trains as a normal run does (the same eval.csv: the saves read the device
+    and touch nothing it trains with), writes no buffer chunk and one checkpoint, at its end,
+    whose policy ddpg_her.load reads as the normal run's; --resume of it is refused."""
+    import ddpg_her
+
+    normal = make_program(tmp_path, name="normal")
+    normal.run()
+    normal.close()
+    window = make_program(tmp_path, name="window", window=True)
+    rows_after_first_session = None
+    while not window.done:
+        window.step()
+        if window.episode == 3:
+            rows_after_first_session = _eval_rows(tmp_path / "window0")
+            assert not (tmp_path / "window0" / "checkpoints").exists()
+    window.close()
+    assert len(rows_after_first_session) == 1  # eval.csv at every session
+    for i in range(3):
+        run = tmp_path / f"window{i}"
+        assert _eval_rows(run) == _eval_rows(tmp_path / f"normal{i}")
+        assert not (run / "buffer").exists()
+        assert list(RunFolder(run).checkpoints()) == [6]
+        assert RunFolder(run).read_spec()["program"]["window"] is True
+        obs = {"observation": np.linspace(-1, 1, 3 * [3, 2, 6][i]),
+               "achieved_goal": np.array([0.3, 0.1, 0.5]),
+               "desired_goal": np.array([0.4, -0.2, 0.6])}
+        np.testing.assert_array_equal(ddpg_her.load(run)(obs),
+                                      ddpg_her.load(tmp_path / f"normal{i}")(obs))
+    with pytest.raises(ValueError, match="holds a window run .* cannot be resumed"):
+        make_program(tmp_path, name="window", window=True, resume=True)
+    with pytest.raises(ValueError, match="a window run starts afresh"):
+        make_program(tmp_path, name="normal", window=True, resume=True, episodes=9)
+
+
+def test_choose_episodes_takes_the_largest_budget_projected_to_fit():
+    """The window plan's arithmetic (benchmarks/GPU.md): 720 s of training take 20,000
+    episodes at 36 ms each (after 30 s spent at episode 200: 30 + 19,800 x 0.036 = 742.8 s,
+    over; 34 ms fits: 703.2 s), 10,000 at 70 ms (716 s), 2,500 at 300 ms (720 s), and when
+    nothing fits, the smallest left."""
+    from ddpg_her.program import choose_episodes
+
+    choices = (20000, 10000, 5000, 2500)
+    assert choose_episodes(30.0, 200, 0.036, 720, choices)[0] == 10000
+    chosen, end = choose_episodes(30.0, 200, 0.034, 720, choices)
+    assert chosen == 20000 and end == pytest.approx(703.2)
+    assert choose_episodes(30.0, 200, 0.070, 720, choices)[0] == 10000
+    assert choose_episodes(30.0, 200, 0.300, 720, choices) == (2500, pytest.approx(720.0))
+    assert choose_episodes(30.0, 200, 10.0, 720, choices)[0] == 2500
+    assert choose_episodes(600.0, 6000, 0.5, 720, choices)[0] == 10000  # 5000 is past
+
+
+@pytest.mark.parametrize(("seconds", "chosen"), [(12.0, 6), (14.0, 12)])
+def test_a_window_run_trains_the_budget_its_measured_rate_fits(tmp_path, seconds, chosen):
+    """With a fake clock at 10 s after the start at the first test session and one more
+    second at each further one (1/3 s per episode, eval_every 3): at the second session
+    (episode 6, 11 s) 12 episodes project to 11 + 6/3 = 13 s. A 12 s budget stops at 6, a
+    14 s one trains 12; spec.json records the choice."""
+    from ddpg_her.program import Budget
+
+    ticks = iter(10.0 + np.arange(10))
+    budget = Budget(seconds, (12, 6), start=0.0, clock=lambda: float(next(ticks)))
+    prog = make_program(tmp_path, episodes=12, window=True, budget=budget)
+    prog.run()
+    prog.close()
+    rows = RunFolder(tmp_path / "run0").read_eval()
+    assert [int(r["episode"]) for r in rows] == list(range(3, chosen + 1, 3))
+    spec = RunFolder(tmp_path / "run0").read_spec()
+    assert spec["agent"]["episodes"] == chosen
+    assert spec["program"]["budget"]["ms_per_episode"] == pytest.approx(1e3 / 3, abs=1e-3)
+    assert list(RunFolder(tmp_path / "run0").checkpoints()) == [chosen]
+    with pytest.raises(ValueError, match="a time budget is a window run's"):
+        make_program(tmp_path, name="other", episodes=12, budget=budget)
+
+
+def test_prune_after_a_save_reads_no_chunk(tmp_path, monkeypatch):
+    """Pruning learns each chunk's span from its name: with np.load refused it deletes the
+    chunks wholly before keep_from and keeps the rest; a chunk named as before (no span in
+    its name) is still read to learn it."""
+    folder = RunFolder(tmp_path / "run")
+    for episode, start in ((1, 0), (2, 5), (3, 9)):
+        folder.save_chunk(episode, start, np.zeros((start // 2 + 4, 3)))
+    old = tmp_path / "run" / "buffer" / "episode-000004.npz"
+    np.savez(old, start=np.int64(13), rows=np.zeros((2, 3)))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("np.load called")
+
+    with monkeypatch.context() as m:
+        m.setattr(np, "load", refuse)
+        folder.prune(upto=3, keep_from=9)  # deletes the old-named chunk of episode 4 unread
+        assert sorted(p.name for p in (tmp_path / "run" / "buffer").iterdir()) == [
+            "episode-000002.5-11.npz", "episode-000003.9-17.npz"]
+        folder.prune(upto=3, keep_from=11)
+        assert [p.name for p in (tmp_path / "run" / "buffer").iterdir()] == [
+            "episode-000003.9-17.npz"]
+    np.savez(old, start=np.int64(13), rows=np.zeros((2, 3)))
+    folder.prune(upto=4, keep_from=15)  # the old name: read, ends at 15, deleted
+    assert [p.name for p in (tmp_path / "run" / "buffer").iterdir()] == [
+        "episode-000003.9-17.npz"]
+    assert [(s, len(r)) for s, r in folder.chunks(upto=9)] == [(9, 8)]
 
 
 # ---------------------------------------------------------------------------- on a GPU
