@@ -54,7 +54,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-GRID_SHARE = 0.6
+GRID_SHARE = 0.7
 """The share of ``--budget-s`` the grid episode's process may take before it is killed."""
 
 OBS_PER_JOINT = 3

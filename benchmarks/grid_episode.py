@@ -23,12 +23,9 @@ and checkpoints. Printed with ``--json`` as one object::
 - ``startup_s``: from the start of ``main`` (imports included, the interpreter's own start not)
   to the end of the warm-up episodes: building the stacks, compiling kernels, capturing graphs;
 - ``host_syncs_per_episode``: on CUDA, the synchronising CUDA operations that torch reports
-  under ``torch.cuda.set_sync_debug_mode("warn")`` (torch's own: a numba launch, copy or
-  ``cuda.synchronize`` is not seen by it and is counted apart, ``numba_syncs_per_episode``:
-  calls of ``numba.cuda.synchronize``, ``numba.cuda.to_device`` and ``DeviceNDArray.
-  copy_to_host``); on the CPU, where nothing synchronises, the calls that would read a device
-  value on the host: ``Tensor.item``, ``.cpu``, ``.numpy``, ``.tolist`` and ``.__bool__``,
-  counted by patching them;
+  under ``torch.cuda.set_sync_debug_mode("warn")``; on the CPU, where nothing synchronises,
+  the calls that would read a device value on the host: ``Tensor.item``, ``.cpu``,
+  ``.numpy``, ``.tolist`` and ``.__bool__``, counted by patching them;
 - ``graph_replays_per_episode``: calls of ``torch.cuda.CUDAGraph.replay`` (through which
   ``torch.compile``'s CUDA graphs replay too);
 
@@ -70,10 +67,6 @@ from analysis.paper import PAPER_GRID, PAPER_SEEDS
 CPU_READS = ("item", "cpu", "numpy", "tolist", "__bool__")
 """The ``torch.Tensor`` methods counted as host reads on the CPU (each a synchronisation, or a
 copy to the host, where the tensor lives on a GPU)."""
-
-NUMBA_SYNCS = ("synchronize", "to_device")
-"""The ``numba.cuda`` functions counted as host synchronisations on CUDA (besides
-``DeviceNDArray.copy_to_host``): torch's sync debug mode does not see numba's calls."""
 
 SYNC_WARNING = "synchroniz"
 """A fragment of the warning torch's sync debug mode gives for each synchronising call
@@ -260,11 +253,9 @@ training program)."""
 # ---------------------------------------------------------------------------- counters
 @dataclass
 class Counts:
-    """What the counters saw: host syncs (torch's, or the CPU's reads), numba's syncs, graph
-    replays."""
+    """What the counters saw: host syncs (torch's, or the CPU's reads), graph replays."""
 
     host_syncs: int = 0
-    numba_syncs: int = 0
     replays: int = 0
 
 
@@ -291,15 +282,6 @@ def counters(device: str) -> Iterator[Counts]:
     with ExitStack() as stack:
         _counting(torch.cuda.CUDAGraph, "replay", counts, "replays", stack)
         if device == "cuda":
-            try:
-                from numba import cuda
-                from numba.cuda.cudadrv.devicearray import DeviceNDArray
-            except (ImportError, AttributeError):  # no numba(-cuda) here: nothing to count
-                pass
-            else:
-                for name in NUMBA_SYNCS:
-                    _counting(cuda, name, counts, "numba_syncs", stack)
-                _counting(DeviceNDArray, "copy_to_host", counts, "numba_syncs", stack)
             caught = stack.enter_context(warnings.catch_warnings(record=True))
             warnings.simplefilter("always")
             previous = torch.cuda.get_sync_debug_mode()
@@ -368,7 +350,6 @@ def measure(runner: GridRunner, device: str, episodes: int, warmup: int, count_e
             runner.episode()
             runner.synchronize()
         totals.host_syncs += c.host_syncs
-        totals.numba_syncs += c.numba_syncs
         totals.replays += c.replays
     n = max(count_episodes, 1)
     ms = 1e3 * statistics.median(seconds) if seconds else None
@@ -384,7 +365,6 @@ def measure(runner: GridRunner, device: str, episodes: int, warmup: int, count_e
             "startup_s": startup,
             "host_syncs_per_episode": round(totals.host_syncs / n),
             "graph_replays_per_episode": round(totals.replays / n),
-            "numba_syncs_per_episode": round(totals.numba_syncs / n),
             "episode_ms": [1e3 * s for s in seconds],
             "waited_s": waited}
 

@@ -30,8 +30,7 @@ def test_the_cpu_path_prints_the_figures_as_json():
     assert result["agents"] == 2 and result["path"] == "today"
     assert len(result["episode_ms"]) == 2
     assert result["ms_per_grid_episode"] > 0 and result["startup_s"] > 0
-    for key in ("host_syncs_per_episode", "graph_replays_per_episode",
-                "numba_syncs_per_episode"):
+    for key in ("host_syncs_per_episode", "graph_replays_per_episode"):
         assert isinstance(result[key], int) and result[key] >= 0, key
     # today's loop reads losses and successes on the host every episode, and has no graph
     # on the CPU: the counter is wired to the episode it counts
@@ -79,7 +78,7 @@ def test_the_cpu_counter_counts_each_host_read():
             pass
         x + 1  # no read
     assert counts.host_syncs == 5
-    assert counts.replays == counts.numba_syncs == 0
+    assert counts.replays == 0
     x.sum().item()  # the methods are restored
     assert counts.host_syncs == 5
     assert torch.Tensor.item is torch._C.TensorBase.item
