@@ -526,3 +526,20 @@ def test_a_window_run_from_the_command_line_chooses_its_budget_and_refuses_resum
                            text=True, timeout=600)
     assert again.returncode == 2
     assert "holds a window run" in again.stderr and "cannot be resumed" in again.stderr
+
+
+def test_the_save_prune_benchmark_times_both_namings():
+    """benchmarks.save_prune, tiny: both folders keep every chunk of a full buffer, and a
+    prune that opens the chunks is timed beside one that reads their names."""
+    import json
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "benchmarks.save_prune", "--buffer-size", "40",
+                          "--chunk-rows", "10", "--width", "3", "--rounds", "1"],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    result = json.loads(run.stdout)
+    assert result["chunks_per_agent"] == 4
+    assert result["chunks_kept"] == {"spans_named": 4, "opened": 4}
+    assert all(v > 0 for v in result["ms_per_agent"].values())
