@@ -137,11 +137,12 @@ try:  # the bundle's UR5: example-robot-data's URDF through Pinocchio
 except Exception as err:
     print(f"FAIL UR5 model: {type(err).__name__}: {err}")
 EOF
-        # every test marked gpu (skipped without a GPU), the compiled Triton kernel (not the
-        # interpreter: TRITON_INTERPRET=0) against the numba CPU kernel and the program's
-        # captures (deterministic mode included) first; -v: each test's line as it ends, so
-        # a cut at the budget still says how far it got
-        local first=(tests/test_stack_dynamics.py tests/test_program.py tests/test_grid_episode.py
+        # every test marked gpu (skipped without a GPU); first the program's captures
+        # (deterministic mode included; the Triton kernel the grid compiles meanwhile, then
+        # from Triton's disk cache) and the compiled Triton kernel (not the interpreter:
+        # TRITON_INTERPRET=0) against the numba CPU kernel; -v: each test's line as it ends,
+        # so a cut at the budget still says how far it got
+        local first=(tests/test_program.py tests/test_stack_dynamics.py tests/test_grid_episode.py
                      tests/test_counter_sampler.py)
         local files=() f
         for f in "${first[@]}" $(grep -l "mark.gpu" tests/test_*.py); do
