@@ -392,6 +392,16 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--tf32", action="store_true",
                         help="with the program on cuda: TF32 matrix products "
                              "(ddpg_her.train --tf32; recorded in spec.json)")
+    parser.add_argument("--window", action="store_true",
+                        help="with --program: runs for one GPU window (ddpg_her.train "
+                             "--window): eval.csv every session, actors and normalisers at "
+                             "the end, no replay-buffer chunks or mid-run checkpoints, so they "
+                             "CANNOT BE RESUMED")
+    parser.add_argument("--budget-seconds", type=float, default=None, metavar="S",
+                        help="with --window: the training process's wall seconds (> 0); it "
+                             "trains the largest of --episodes, its half, quarter and eighth "
+                             "that it projects to end within S (ddpg_her.train "
+                             "--budget-seconds)")
     parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=False,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
@@ -450,8 +460,12 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
             parser.error(f"--program trains with --env-backend program; got --env-backend "
                          f"{args.env_backend}")
         args.one_process, args.env_backend = True, "program"
-    if args.tf32 and args.env_backend != "program":
-        parser.error("--tf32 is a setting of the training program (--program)")
+    for flag, given in (("--tf32", args.tf32), ("--window", args.window)):
+        if given and args.env_backend != "program":
+            parser.error(f"{flag} is a setting of the training program (--program)")
+    if args.budget_seconds is not None and not (args.window and args.budget_seconds > 0):
+        parser.error(f"--budget-seconds {args.budget_seconds}: a time budget is a --window "
+                     "run's, in seconds > 0")
     for flag in ("episodes", "seeds", "workers", "threads"):
         value = getattr(args, flag)
         if value is not None and value < 1:
@@ -496,10 +510,13 @@ def one_process_command(plan: Path | str, threads: int, args: argparse.Namespace
 
 
 def backend_args(args: argparse.Namespace) -> list[str]:
-    """The training command's arguments for ``--env-backend`` and ``--tf32`` (none for the
-    defaults)."""
+    """The training command's arguments for ``--env-backend``, ``--tf32``, ``--window`` and
+    ``--budget-seconds`` (none for the defaults)."""
+    budget = getattr(args, "budget_seconds", None)
     return ((["--env-backend", args.env_backend] if args.env_backend != "numpy" else [])
-            + (["--tf32"] if args.tf32 else []))
+            + (["--tf32"] if args.tf32 else [])
+            + (["--window"] if getattr(args, "window", False) else [])
+            + (["--budget-seconds", str(budget)] if budget is not None else []))
 
 
 def run_one_process(units: Sequence[Unit], args: argparse.Namespace, threads: int,

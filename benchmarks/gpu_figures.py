@@ -1,5 +1,6 @@
 """``python -m benchmarks.gpu_figures``: the figures of a GPU window's stage 2, in one JSON file
-(issue 35): what decides the dynamics kernel's route and the stacked update's form.
+(issues 35, 42): the training program's grid episode, and the kernel, update and bandwidth
+figures that explain it.
 
 Figures (each under ``figures`` in the JSON, with its ``seconds`` and its ``window_s``, the
 seconds since the start at which it began and ended; a figure that fails records its
@@ -7,13 +8,6 @@ seconds since the start at which it began and ended; a figure that fails records
 
 - ``bandwidth``: the achieved memory bandwidth of a large device-to-device copy (read and
   write counted, GB/s), the roof of the memory-bound parts of an update;
-- ``numba_kernel``: one control step of the numba-CUDA kernel
-  (:class:`envs.physics.numba_cuda.NumbaCudaDynamics`, float64, the 3-joint task, one thread
-  per copy) at 55 copies (one per agent of the grid) and 5,500 (a test session's, 100 per
-  agent), at 32, 64 and 128 threads per block: microseconds per step (the median of rounds of
-  ``steps`` steps), with ``import_s`` (``import numba.cuda``) and ``compile_s`` (the first
-  step's seconds less a steady step's: compiling the step kernel) apart (the torch kernel's
-  CUDA graph beside it went with ``envs.physics.torch_kernel`` after commit 401ca32);
 - ``kernel_in_graph``: the grid's stack (`envs.physics.stack.StackDynamics`: copies of the
   grid's 11 settings in turn, the Triton kernel on CUDA) stepped ``steps`` control steps
   eagerly and as one replayed CUDA graph: microseconds per step of each, the first call
@@ -27,17 +21,15 @@ seconds since the start at which it began and ended; a figure that fails records
   (``torch.backends.cuda.matmul.allow_tf32``), each eager and captured: milliseconds per
   update of all K and agent-updates/s (buffers of random rows: the cost does not depend on
   their values);
-- ``grid_episode``: ``python -m benchmarks.grid_episode --device cuda --path program --json``
-  (the training program's grid episode; today's path measured 0.55-1.65 s per grid episode on
-  an H200 in 2026-11 after about 2 minutes of start-up, most of it numba-cuda compiling),
-  started first in its own process so that its start-up runs beside the figures above; it times its
-  episodes only once they have finished (``--start-after``), so none is timed beside them, but
-  its warm-up episodes may overlap them (read ``window_s`` and its ``log``). Its
-  ``startup_s`` is the stage's start-up figure. Killed at the budget's end, with its log.
+- ``grid_episode``, first: ``python -m benchmarks.grid_episode --device cuda --path program
+  --window --json`` in its own process, alone (the other figures wait for it), killed at
+  ``GRID_SHARE`` of the budget with its log: the training program's grid episode timed on
+  replays (after its warm-up and capture), its amortised test session and save apart, its
+  start-up (the stage's start-up figure), host syncs and graph replays per episode.
 
-``--dry-run`` runs every figure on the CPU, tiny (numba's CUDA simulator for the kernel,
-``NUMBA_ENABLE_CUDASIM=1``; the CUDA graphs skipped): a check of the script, whose times mean
-nothing.
+``--dry-run`` runs every figure on the CPU, tiny (the CUDA graphs skipped): a check of the
+script, whose times mean nothing. ``--note`` records how they were measured (e.g. beside a
+training on the same GPU, ``benchmarks/gpu_grid.sh``: then every time is an upper bound).
 
     python -m benchmarks.gpu_figures --out figures.json
     python -m benchmarks.gpu_figures --out /tmp/figures.json --dry-run
@@ -62,9 +54,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-SYNC_VARIABLE = "NUMBA_CUDA_ARRAY_INTERFACE_SYNC"
-"""numba's switch of the host wait when it wraps a foreign CUDA array; 0 here (set before numba
-is imported), so no wrapping near a capture synchronises."""
+GRID_SHARE = 0.7
+"""The share of ``--budget-s`` the grid episode's process may take before it is killed."""
 
 OBS_PER_JOINT = 3
 """Observation entries per controlled joint (angle, velocity and one more: 9 for 3 joints, 18
@@ -87,10 +78,8 @@ class Sizes:
     copy_mib: int = 2048
     """Bytes of the bandwidth figure's source tensor, MiB."""
     copies: tuple[int, ...] = (55, 5500)
-    """Arm copies of the kernel figures: one per agent of the grid, and a test session's
+    """Arm copies of the kernel figure: one per agent of the grid, and a test session's
     (100 per agent)."""
-    threads_per_block: tuple[int, ...] = (32, 64, 128)
-    """Copies per block of the numba kernel's launch, a row each."""
     steps: int = 100
     """Control steps per round of the kernel figures (one episode)."""
     rounds: int = 5
@@ -106,24 +95,23 @@ class Sizes:
     agents; a minibatch's gather costs about the same from 1e5)."""
     updates: int = 100
     """Updates per timed round (one training episode's)."""
-    grid_args: tuple[str, ...] = ("--device", "cuda", "--path", "program", "--episodes", "5",
-                                  "--warmup", "3")
+    grid_args: tuple[str, ...] = ("--device", "cuda", "--path", "program", "--window",
+                                  "--episodes", "5")
     """``benchmarks.grid_episode``'s arguments."""
 
 
 FULL = Sizes()
-DRY = Sizes(copy_mib=16, copies=(3,), threads_per_block=(2,), steps=2, rounds=1, agents=3,
+DRY = Sizes(copy_mib=16, copies=(3,), steps=2, rounds=1, agents=3,
             hidden=(16, 16), buffer_rows=256, updates=4,
-            grid_args=("--device", "cpu", "--path", "program", "--part", "2", "--seeds", "1",
-                       "--episodes", "1",
-                       "--warmup", "1", "--unit-args",
+            grid_args=("--device", "cpu", "--path", "program", "--window", "--part", "2",
+                       "--seeds", "1", "--episodes", "1", "--sessions", "1", "--unit-args",
                        "--hidden-sizes 8 8 --buffer-size 1000 --batch-size 8 "
                        "--updates-per-episode 2 --task max_episode_steps=5"))
 """Tiny, on the CPU: a check of the script."""
 
 GOALS = {"ms_per_grid_episode_h200": 30.0, "ms_per_grid_episode_h100": 40.0,
          "startup_s": 60.0, "host_syncs_per_episode": 0}
-"""Issue 35's goals for the training program (today's path is measured against them)."""
+"""Issues 35 and 42's goals for the training program."""
 
 
 @dataclass
@@ -172,74 +160,10 @@ def bandwidth(ctx: Context) -> dict[str, Any]:
             "best_gb_per_s": moved / min(times) / 1e9}
 
 
-def _task() -> Any:
-    from envs.spec import TaskSpec
-
-    return TaskSpec(region="unconstrained", n_joints=TODAY_JOINTS)
-
-
-def _commands(task: Any, n: int, steps: int, seed: int = 0) -> Any:
-    """``(steps, n, joints)`` commands uniform in the task's action box (rad), float64."""
-    import numpy as np
-
-    from envs.task import action_bounds
-
-    low, high = action_bounds(task)
-    return np.random.default_rng(seed).uniform(low, high, (steps, n, len(low)))
-
-
-def numba_kernel(ctx: Context) -> dict[str, Any]:
-    """The numba kernel's control step at each size and block (compilation apart)."""
-    tic = time.perf_counter()
-    from numba import cuda
-
-    import_s = time.perf_counter() - tic
-    from envs.physics.numba_cuda import NumbaCudaDynamics
-
-    task, s = _task(), ctx.sizes
-    rows: list[dict[str, Any]] = []
-    first_row = True
-    for n in s.copies:
-        commands = _commands(task, n, s.steps)
-        on_device = [cuda.to_device(c) for c in commands]
-        for block in s.threads_per_block:
-            tic = time.perf_counter()
-            dyn = NumbaCudaDynamics(task, n, dtype="float64", device="cuda", mirror=False,
-                                    threads_per_block=block)
-            dyn.synchronize()
-            build_s = time.perf_counter() - tic
-            tic = time.perf_counter()
-            dyn.step(on_device[0])
-            dyn.synchronize()
-            first = time.perf_counter() - tic
-
-            def episode(dyn: Any = dyn, on_device: Any = on_device) -> None:
-                for c in on_device:
-                    dyn.step(c)
-
-            def restart(dyn: Any = dyn) -> None:
-                dyn.reset(task.start_q)
-                dyn.synchronize()
-
-            median, _ = ctx.median_seconds(episode, restart)
-            step_s = median / len(on_device)
-            row = {"kernel": "numba-cuda", "copies": n, "threads_per_block": block,
-                   "us_per_step": 1e6 * step_s, "copy_steps_per_s": n / step_s,
-                   "build_s": build_s, "first_step_s": first}
-            if first_row:  # the first launch compiled the step kernel
-                row["compile_s"] = first - step_s
-                first_row = False
-            rows.append(row)
-    return {"task": task.to_dict(), "substeps_per_step": task.substeps, "dtype": "float64",
-            "import_s": import_s, "rows": rows,
-            "simulator": ctx.dry_run}
-
-
 def kernel_in_graph(ctx: Context) -> dict[str, Any]:
     """``steps`` control steps of the grid's stack (`envs.physics.stack.StackDynamics`: the
     Triton kernel on CUDA, numba on the CPU), eager and as one replayed CUDA graph (CUDA only;
-    a dry run times the eager calls). The numba-CUDA kernel's own launches are timed by
-    ``dynamics``; its tensor face (NumbaTorchDynamics) went with the torch env backend."""
+    a dry run times the eager calls)."""
     import torch
 
     from envs.physics.stack import StackDynamics
@@ -384,31 +308,25 @@ def updates(ctx: Context) -> dict[str, Any]:
 
 
 FIGURES: dict[str, Callable[[Context], dict[str, Any]]] = {
-    "bandwidth": bandwidth, "updates": updates, "numba_kernel": numba_kernel,
-    "kernel_in_graph": kernel_in_graph}
+    "bandwidth": bandwidth, "updates": updates, "kernel_in_graph": kernel_in_graph}
 """The figures measured in this process, in their order (the capture last: a capture that
-fails may leave the CUDA context unusable). ``grid_episode`` runs in its own process."""
+fails may leave the CUDA context unusable), after ``grid_episode`` in its own process."""
 
 
 # ---------------------------------------------------------------------------- the grid episode
 class GridEpisode:
-    """``python -m benchmarks.grid_episode`` in its own process, started at once and told to
-    time its episodes (``--start-after``) when :meth:`release` is called."""
+    """``python -m benchmarks.grid_episode`` in its own process (its CUDA context and
+    compiled kernels apart from this one's), started at once; :meth:`result` waits for it."""
 
     def __init__(self, args: Sequence[str], env: dict[str, str]):
         self._folder = tempfile.TemporaryDirectory(prefix="gpu_figures-")
         folder = Path(self._folder.name)  # not beside --out: that folder's files come back
-        self.go = folder / "grid_episode.go"
         self.log_path = folder / "grid_episode.log"
-        self.command = [sys.executable, "-m", "benchmarks.grid_episode", "--json",
-                        "--start-after", str(self.go), *args]
+        self.command = [sys.executable, "-m", "benchmarks.grid_episode", "--json", *args]
         self._log = open(self.log_path, "w")  # noqa: SIM115 - open as long as the process runs
         self.proc = subprocess.Popen(self.command, stdout=subprocess.PIPE, stderr=self._log,
                                      text=True, env=env)
         self.started = time.perf_counter()
-
-    def release(self) -> None:
-        self.go.touch()
 
     def kill(self) -> None:
         """End the process if it still runs (this one failed before asking for its result)."""
@@ -448,7 +366,7 @@ def versions() -> dict[str, Any]:
                              "platform": platform.platform(),
                              "device": torch.cuda.get_device_name()
                              if torch.cuda.is_available() else platform.processor()}
-    for name in ("numba", "numba_cuda", "triton"):
+    for name in ("numba", "triton"):
         try:
             module = __import__(name)
             found[name] = getattr(module, "__version__", "?")
@@ -488,13 +406,10 @@ def summary(figures: dict[str, Any]) -> dict[str, Any]:
         "host_syncs_per_episode": get("grid_episode", "host_syncs_per_episode"),
         "graph_replays_per_episode": get("grid_episode", "graph_replays_per_episode"),
         "copy_gb_per_s": get("bandwidth", "gb_per_s"),
-        "numba_import_s": get("numba_kernel", "import_s")}
-    for row in get("numba_kernel", "rows") or []:
-        if "compile_s" in row:
-            out["numba_compile_s"] = row["compile_s"]
-        block = row.get("threads_per_block")
-        name = row["kernel"].split()[0] + (f"_{block}tpb" if block else "")
-        out[f"{name}_us_per_step_at_{row['copies']}"] = row.get("us_per_step")
+        "test_session_ms": get("grid_episode", "test_session_ms"),
+        "save_ms": get("grid_episode", "save_ms"),
+        "ms_per_grid_episode_with_session_and_save":
+            get("grid_episode", "ms_per_grid_episode_with_session_and_save")}
     for row in get("kernel_in_graph", "rows") or []:
         for key in ("eager_us_per_step", "graph_us_per_step", "replay_equals_eager"):
             if key in row:
@@ -520,8 +435,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--only", nargs="+", choices=[*FIGURES, "grid_episode"], default=None,
                         help="measure only these figures (default: all)")
     parser.add_argument("--dry-run", action="store_true",
-                        help="check the script on the CPU: tiny sizes, numba's CUDA simulator, "
-                        "no CUDA graphs (times mean nothing)")
+                        help="check the script on the CPU: tiny sizes, no CUDA graphs (times "
+                        "mean nothing)")
+    parser.add_argument("--note", default=None,
+                        help="how the figures were measured, recorded in the JSON (e.g. "
+                        "'beside the grid's training on the same GPU')")
     return parser
 
 
@@ -531,16 +449,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.budget_s <= 0:
         parser.error(f"--budget-s must be > 0 seconds; got {args.budget_s}")
-    if "numba" in sys.modules:
-        parser.error(f"{SYNC_VARIABLE} must be set before numba is imported")
-    child_env = dict(os.environ)  # the grid episode runs today's path as the grid would
-    os.environ[SYNC_VARIABLE] = "0"
-    if args.dry_run:
-        os.environ["NUMBA_ENABLE_CUDASIM"] = "1"
     sizes = DRY if args.dry_run else FULL
-    wanted = args.only or [*FIGURES, "grid_episode"]
+    wanted = args.only or ["grid_episode", *FIGURES]
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    grid = GridEpisode(sizes.grid_args, child_env) \
+    grid = GridEpisode(sizes.grid_args, dict(os.environ)) \
         if "grid_episode" in wanted else None
     try:
         return measure_all(args, sizes, wanted, grid, t0, argv, parser)
@@ -552,7 +464,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def measure_all(args: argparse.Namespace, sizes: Sizes, wanted: Sequence[str],
                 grid: GridEpisode | None, t0: float, argv: Sequence[str] | None,
                 parser: argparse.ArgumentParser) -> int:
-    """Every wanted figure into ``args.out``; the grid episode's last."""
+    """Every wanted figure into ``args.out``; the grid episode's first."""
     import torch
 
     device = "cpu" if args.dry_run else "cuda"
@@ -566,24 +478,20 @@ def measure_all(args: argparse.Namespace, sizes: Sizes, wanted: Sequence[str],
                                                      *(argv if argv is not None
                                                        else sys.argv[1:])]),
                               "versions": versions(), "sizes": asdict(sizes),
-                              "goals": GOALS, "figures": {}}
+                              "note": args.note, "goals": GOALS, "figures": {}}
     write(args.out, result)
+    if grid is not None:  # first and alone: the figure the window is for
+        print(f"[{time.perf_counter() - t0:6.1f} s] grid_episode", file=sys.stderr, flush=True)
+        figure = grid.result(t0 + GRID_SHARE * args.budget_s)
+        end = time.perf_counter()
+        result["figures"]["grid_episode"] = {**figure, "seconds": end - grid.started,
+                                             "window_s": [grid.started - t0, end - t0]}
+        write(args.out, result)
     for name in FIGURES:
         if name in wanted:
             print(f"[{time.perf_counter() - t0:6.1f} s] {name}", file=sys.stderr, flush=True)
             result["figures"][name] = run_figure(name, ctx)
             write(args.out, result)
-    if grid is not None:
-        print(f"[{time.perf_counter() - t0:6.1f} s] grid_episode (started at 0 s)",
-              file=sys.stderr, flush=True)
-        grid.release()
-        start = time.perf_counter()
-        figure = grid.result(t0 + args.budget_s)
-        end = time.perf_counter()
-        result["figures"]["grid_episode"] = {**figure, "seconds": end - grid.started,
-                                             "window_s": [grid.started - t0, end - t0],
-                                             "released_at_s": start - t0}
-        write(args.out, result)
     result["summary"] = summary(result["figures"])
     result["seconds"] = time.perf_counter() - t0
     write(args.out, result)

@@ -1,49 +1,51 @@
 #!/usr/bin/env bash
-# A GPU window of 15 minutes in all (issue 35): one command, three stages. Read benchmarks/GPU.md.
+# A GPU window of 15 minutes in all (issues 35, 42): the grid's training first, the rest beside
+# it. Read benchmarks/GPU.md.
 #
-# CARRY: [".devsite.tgz"]   (41 MB: Pinocchio, the UR5 model, gymnasium, trimesh, SB3 and the
-#        numpy-2.5 shim of numba-cuda; built here once by `bash benchmarks/gpu_grid.sh prepare`)
-# THE RUN TOOL'S COMMAND (timeout_s 600, carry as above), first call of a window:
-#        bash benchmarks/gpu_grid.sh window 3
-# and, if the window has device time left after it (status: budget_left_s > 240):
-#        bash benchmarks/gpu_grid.sh finish 180
+# CARRY: [".devsite.tgz"]   (41 MB: Pinocchio, the UR5 model, gymnasium, trimesh, SB3; built
+#        here once by `bash benchmarks/gpu_grid.sh prepare`)
+# THE RUN TOOL'S CALLS (timeout_s 600, carry as above), back to back:
+#        bash benchmarks/gpu_grid.sh window          (first call: <= 570 s)
+#        bash benchmarks/gpu_grid.sh finish 240      (second call: until the grid ends, packed)
 #
-#   stage 1, smoke    <= 3 min: import checks, the device tests (pytest -m gpu)   -> $OUT/smoke.txt
-#   stage 2, figures  <= 3 min: python -m benchmarks.gpu_figures              -> $OUT/figures.json
-#   stage 3, grid     the rest: the training program on part J (joint count; 'all': the whole
-#                     grid), started with setsid nohup, polled until the call's 10 minutes near
-#                     their end, packed (<= 6 files: grid.tar.gz, policies.tar.gz, split at 15 MiB)
-#                     Until `python -m analysis.sweep --help` lists --program it says so and runs
-#                     nothing.
+#   grid     first, detached (setsid nohup): the training program on part J ('all', the whole
+#            grid, by default) in window mode (--window: eval.csv every session, policies at the
+#            end, no buffers or mid-run checkpoints: it cannot be resumed) with --budget-seconds
+#            TRAIN_S: after its second test session it measures its ms per episode and trains
+#            the largest of 20000/10000/5000/2500 episodes projected to end within TRAIN_S of
+#            its start, re-deciding at each session (logs/one-process.log says which)
+#   smoke    beside it, <= 110 s: imports, the device tests (pytest -m gpu)   -> $OUT/smoke.txt
+#   figures  beside it, <= 110 s, at the same time as smoke (both within 2 minutes):
+#            python -m benchmarks.gpu_figures, the program's grid episode first  -> figures.json
+#   poll, collect: until the call's end, then packed (<= 6 files: grid.tar.gz, policies.tar.gz)
 # Every file comes back in $OUT directly, 8 at most. Subcommands:
 #   prepare                 here, once: build .devsite.tgz and check that it travels (<= 64 MiB)
-#   window [J]              there: stages 1, 2, 3 in one call (<= 570 s)
-#   smoke | figures | grid [J] | poll [SECONDS] | collect | finish [SECONDS]   one stage or step
-#   dry                     here: all three stages on the CPU, tiny, in a temporary folder
+#   window [J]              there: grid, smoke and figures beside it, poll, collect (<= 570 s)
+#   grid [J] | smoke | figures | poll [SECONDS] | collect | finish [SECONDS]   one step
+#   dry                     here: the window on the CPU, tiny, in a temporary folder
 # Variables: PY (python3), OUT (the run tool's $OUT; else runs/paper_grid/out), RUNS
-# (runs/paper_grid), EPISODES (20000), DEVICE (cuda).
+# (runs/paper_grid), EPISODES (20000), TRAIN_S (720), DEVICE (cuda).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PY=${PY:-python3}
 DEVICE=${DEVICE:-cuda}
 EPISODES=${EPISODES:-20000}
+TRAIN_S=${TRAIN_S:-720}      # the training process's budget, seconds from its start
 RUNS=${RUNS:-runs/paper_grid}
 OUT=${OUT:-$RUNS/out}
 DRY=${DRY:-0}
-SMOKE_S=${SMOKE_S:-180}      # stage 1's budget, seconds
-FIGURES_S=${FIGURES_S:-180}  # stage 2's budget, seconds
+BESIDE_S=${BESIDE_S:-110}    # smoke and figures, at the same time, beside the grid
 CALL_S=${CALL_S:-570}  # one call of the run tool lasts at most 600 s; this much is used
 COLLECT_S=30     # kept for packing at the call's end
-COLLECT_FILES=6  # what stage 3 may bring back: 8 less smoke.txt and figures.json
+COLLECT_FILES=6  # what the grid may bring back: 8 less smoke.txt and figures.json
 MAX_CARRY_MIB=64
 
-# The Pinocchio bundle of ../shared/tools/device-site.sh, unpacked as its header says; its
-# sitecustomize.py sets np.row_stack (numba-cuda 0.30.4 needs it, numpy 2.5 removed it).
-# Not in the dry run: its wheels are for the GPU image's Python 3.12 and would shadow this one's.
+# The Pinocchio bundle of ../shared/tools/device-site.sh, unpacked as its header says. Not in
+# the dry run: its wheels are for the GPU image's Python 3.12 and would shadow this one's.
 site() {
     if [[ $DRY != 1 && -f .devsite.tgz && ":${PYTHONPATH:-}:" != *":/tmp/devsite:"* ]]; then
-        tar xzf .devsite.tgz -C /tmp
+        [[ -d /tmp/devsite ]] || tar xzf .devsite.tgz -C /tmp
         export PYTHONPATH=/tmp/devsite:/tmp/devsite/cmeel.prefix/lib/python3.12/site-packages:$PWD
     fi
     export PYTHONUNBUFFERED=1
@@ -67,122 +69,34 @@ prepare() {
     if (( (tree + carry) / 1048576 >= MAX_CARRY_MIB )); then
         echo "too large to travel: ignore or move what the device does not need" >&2; exit 1
     fi
-    echo 'run tool: command "bash benchmarks/gpu_grid.sh window 3", carry [".devsite.tgz"], timeout_s 600'
+    echo 'run tool: command "bash benchmarks/gpu_grid.sh window", carry [".devsite.tgz"], timeout_s 600'
 }
 
-# ------------------------------------------------------------------ stage 1: smoke, <= 3 min
-smoke() {
-    site
-    local deadline=$((SECONDS + SMOKE_S))
-    {
-        stamp "stage 1: smoke (budget ${SMOKE_S} s)"
-        $PY - <<'EOF' || true
-import importlib, time
-import numpy as np
-print("numpy", np.__version__, "| np.row_stack present:", hasattr(np, "row_stack"))
-try:
-    import torch
-    print("torch", torch.__version__, "cuda", torch.version.cuda, "|",
-          torch.cuda.get_device_name() if torch.cuda.is_available() else "no CUDA device")
-except Exception as err:
-    print(f"FAIL torch: {type(err).__name__}: {err}")
-for name in ("numba.cuda", "triton", "pinocchio", "gymnasium", "trimesh"):
-    tic = time.perf_counter()
-    try:
-        module = importlib.import_module(name)
-        print(f"ok   {name} {getattr(module, '__version__', '')} "
-              f"({time.perf_counter() - tic:.1f} s)")
-    except Exception as err:
-        print(f"FAIL {name}: {type(err).__name__}: {err}")
-try:
-    from numba import cuda
-    print("numba sees a GPU:", cuda.is_available())
-except Exception:
-    pass
-try:  # the bundle's UR5: example-robot-data's URDF through Pinocchio
-    import pinocchio
-    from ur5kin.model import urdf_path
-    print(f"ok   UR5 model: {pinocchio.buildModelFromUrdf(str(urdf_path())).nq} joints "
-          f"({urdf_path()})")
-except Exception as err:
-    print(f"FAIL UR5 model: {type(err).__name__}: {err}")
-EOF
-        # the device tests: every test marked gpu (skipped without a GPU); first those that
-        # decide the kernel's route and have never run on a GPU (the program's captured bodies
-        # against eager, the Triton stack kernel, the numba kernel, the grid episode's
-        # counters), then the rest; -v: each test's line as it ends, so a cut at the budget
-        # still says how far it got
-        local first=(tests/test_program.py tests/test_stack_dynamics.py tests/test_numba_cuda.py
-                     tests/test_counter_sampler.py tests/test_grid_episode.py)
-        local files=() f
-        for f in "${first[@]}" $(grep -l "mark.gpu" tests/test_*.py); do
-            [[ -f $f && " ${files[*]} " != *" $f "* ]] && files+=("$f")
-        done
-        stamp "device tests: ${files[*]}"
-        local left=$((deadline - SECONDS - 5))
-        (( left > 10 )) || left=10  # timeout 0 would mean none
-        timeout --kill-after=5 "$left" $PY -m pytest -p no:cacheprovider \
-            -v -m gpu --continue-on-collection-errors "${files[@]}" 2>&1 | tail -n 80 \
-            || stamp "device tests FAILED or cut at the budget (exit ${PIPESTATUS[0]})"
-        stamp "stage 1 done"
-    } 2>&1 | tee "$OUT/smoke.txt"
-}
-
-# ------------------------------------------------------------------ stage 2: figures, <= 3 min
-figures() {
-    site
-    stamp "stage 2: figures (budget ${FIGURES_S} s) -> $OUT/figures.json"
-    local dry=()
-    [[ $DRY == 1 ]] && dry=(--dry-run)
-    timeout --kill-after=5 "$FIGURES_S" $PY -m benchmarks.gpu_figures --out "$OUT/figures.json" \
-        --budget-s $((FIGURES_S - 15)) "${dry[@]}" \
-        || stamp "figures cut or failed (exit $?): $OUT/figures.json holds what was done"
-    stamp "stage 2 done"
-}
-
-# ------------------------------------------------------------------ stage 3: the grid
+# ------------------------------------------------------------------ the grid, first
 # grid_command J: the training program's command for part J ('all': the whole grid)
 grid_command() {
-    local part=${1:-3} sel=()
+    local part=${1:-all} sel=()
     [[ $part == all ]] || sel=(--part "$part")
     if [[ $DRY == 1 ]]; then
-        echo "$PY -m analysis.sweep --grid paper --program ${sel[*]} --episodes 2 --device cpu" \
-             "--seeds 1 --out $RUNS -- --eval-every 1 --eval-episodes 2 --updates-per-episode 2" \
-             "--warmup-episodes 1 --hidden-sizes 8 8 --buffer-size 1000"
+        echo "$PY -m analysis.sweep --grid paper --program --window --budget-seconds $TRAIN_S" \
+             "${sel[*]} --episodes 4 --device cpu --seeds 1 --out $RUNS -- --eval-every 1" \
+             "--eval-episodes 2 --updates-per-episode 2 --warmup-episodes 1 --hidden-sizes 8 8" \
+             "--buffer-size 1000 --task max_episode_steps=10"
     else
-        echo "$PY -m analysis.sweep --grid paper --program ${sel[*]} --episodes $EPISODES" \
-             "--device $DEVICE --out $RUNS"
+        echo "$PY -m analysis.sweep --grid paper --program --window --budget-seconds $TRAIN_S" \
+             "${sel[*]} --episodes $EPISODES --device $DEVICE --out $RUNS"
     fi
 }
-
-# the same stages' machinery on today's sweep, tiny, for the dry run before --program exists
-stand_in_command() {
-    echo "$PY -m analysis.sweep --setting unconstrained:3 --one-process --device cpu --seeds 1" \
-         "--episodes 2 --out $RUNS -- --eval-every 1 --eval-episodes 2" \
-         "--updates-per-episode 2 --warmup-episodes 1 --hidden-sizes 8 8 --buffer-size 1000"
-}
-
-has_program() { $PY -m analysis.sweep --help 2>/dev/null | grep -q -- '--program'; }
 
 grid() {
     site
-    local part=${1:-3}
+    local part=${1:-all}
     [[ $part =~ ^([2-6]|all)$ ]] || { echo "grid: part J is a joint count 2-6 or 'all'; got $part" >&2; exit 2; }
     mkdir -p "$RUNS"
     if [[ -f $RUNS/grid.pid ]] && kill -0 "$(cat "$RUNS/grid.pid")" 2>/dev/null; then
-        stamp "stage 3: the grid already runs (pid $(cat "$RUNS/grid.pid"))"; return
+        stamp "grid: already runs (pid $(cat "$RUNS/grid.pid"))"; return
     fi
-    local cmd
-    if has_program; then
-        cmd=$(grid_command "$part")
-    elif [[ $DRY == 1 ]]; then
-        cmd=$(stand_in_command)
-        stamp "stage 3 (dry): analysis.sweep has no --program yet; today's sweep stands in"
-    else
-        stamp "stage 3: 'python -m analysis.sweep --help' lists no --program yet (issue 35's" \
-              "training program): nothing started"
-        return 0
-    fi
+    local cmd; cmd=$(grid_command "$part")
     echo "$cmd" >"$RUNS/grid.cmd"
     echo "$part" >"$RUNS/grid.part"
     date +%s >"$RUNS/grid.start"
@@ -191,16 +105,91 @@ grid() {
     setsid nohup bash -c "$cmd; echo \$? >'$RUNS/grid.rc'; date +%s >'$RUNS/grid.end'" \
         >"$RUNS/grid.log" 2>&1 </dev/null &
     echo $! >"$RUNS/grid.pid"
-    stamp "stage 3: started pid $(cat "$RUNS/grid.pid"): $cmd"
+    stamp "grid: started pid $(cat "$RUNS/grid.pid"): $cmd"
 }
 
+# ------------------------------------------------------------------ smoke, beside the grid
+smoke() {
+    site
+    {
+        stamp "smoke (budget ${BESIDE_S} s, beside the grid)"
+        $PY - <<'EOF' || true
+import importlib, time
+try:
+    import torch
+    print("torch", torch.__version__, "cuda", torch.version.cuda, "|",
+          torch.cuda.get_device_name() if torch.cuda.is_available() else "no CUDA device")
+except Exception as err:
+    print(f"FAIL torch: {type(err).__name__}: {err}")
+for name in ("numba", "triton", "pinocchio", "gymnasium", "trimesh"):
+    tic = time.perf_counter()
+    try:
+        module = importlib.import_module(name)
+        print(f"ok   {name} {getattr(module, '__version__', '')} "
+              f"({time.perf_counter() - tic:.1f} s)")
+    except Exception as err:
+        print(f"FAIL {name}: {type(err).__name__}: {err}")
+try:  # the bundle's UR5: example-robot-data's URDF through Pinocchio
+    import pinocchio
+    from ur5kin.model import urdf_path
+    print(f"ok   UR5 model: {pinocchio.buildModelFromUrdf(str(urdf_path())).nq} joints "
+          f"({urdf_path()})")
+except Exception as err:
+    print(f"FAIL UR5 model: {type(err).__name__}: {err}")
+EOF
+        # every test marked gpu (skipped without a GPU); first the program's captures
+        # (deterministic mode included; the Triton kernel the grid compiles meanwhile, then
+        # from Triton's disk cache) and the compiled Triton kernel (not the interpreter:
+        # TRITON_INTERPRET=0) against the numba CPU kernel; -v: each test's line as it ends,
+        # so a cut at the budget still says how far it got
+        local first=(tests/test_program.py tests/test_stack_dynamics.py tests/test_grid_episode.py
+                     tests/test_counter_sampler.py)
+        local files=() f
+        for f in "${first[@]}" $(grep -l "mark.gpu" tests/test_*.py); do
+            [[ -f $f && " ${files[*]} " != *" $f "* ]] && files+=("$f")
+        done
+        stamp "device tests: ${files[*]}"
+        TRITON_INTERPRET=0 timeout --kill-after=5 "$BESIDE_S" $PY -m pytest -p no:cacheprovider \
+            -v -m gpu --continue-on-collection-errors "${files[@]}" 2>&1 | tail -n 80 \
+            || stamp "device tests FAILED or cut at the budget (exit ${PIPESTATUS[0]})"
+        stamp "smoke done"
+    } >"$OUT/smoke.txt" 2>&1
+}
+
+# ------------------------------------------------------------------ figures, beside the grid
+figures() {
+    site
+    local dry=()
+    [[ $DRY == 1 ]] && dry=(--dry-run)
+    {
+        stamp "figures (budget ${BESIDE_S} s, beside the grid) -> $OUT/figures.json"
+        timeout --kill-after=5 "$BESIDE_S" $PY -m benchmarks.gpu_figures \
+            --out "$OUT/figures.json" --budget-s $((BESIDE_S - 10)) "${dry[@]}" \
+            --note "measured beside the grid's training on the same device (gpu_grid.sh): times are upper bounds" \
+            || stamp "figures cut or failed (exit $?): $OUT/figures.json holds what was done"
+        stamp "figures done"
+    } >"$OUT/figures.log" 2>&1
+}
+
+# smoke and figures at once, beside the grid: both within BESIDE_S
+beside() {
+    smoke & local smoke_pid=$!
+    figures & local figures_pid=$!
+    wait "$smoke_pid" || true
+    wait "$figures_pid" || true
+    cat "$OUT/figures.log" >>"$OUT/smoke.txt"; rm -f "$OUT/figures.log"
+    cat "$OUT/smoke.txt"
+}
+
+# ------------------------------------------------------------------ poll and pack
 progress() {
     local rows=0 runs=0 f
     while IFS= read -r f; do
         runs=$((runs + 1)); rows=$((rows + $(wc -l <"$f") - 1))
     done < <(find "$RUNS" -name eval.csv 2>/dev/null)
     stamp "runs $runs, test sessions $rows, elapsed $(( $(date +%s) - $(cat "$RUNS/grid.start") )) s"
-    tail -n 2 "$RUNS/grid.log" 2>/dev/null || true
+    grep -h "window budget" "$RUNS"/logs/one-process.log 2>/dev/null | tail -n 1 || true
+    tail -n 1 "$RUNS/grid.log" 2>/dev/null || true
 }
 
 poll() {
@@ -224,7 +213,11 @@ import json, os, sys, time
 import torch
 root, part, wall = sys.argv[1], sys.argv[2], int(sys.argv[3])
 rc = open(f"{root}/grid.rc").read().strip() if os.path.exists(f"{root}/grid.rc") else None
+log = f"{root}/logs/one-process.log"
+budget = [line.strip() for line in open(log) if "window budget" in line] \
+    if os.path.exists(log) else []
 json.dump({"part": part, "wall_s": wall, "finished": rc is not None, "exit_status": rc,
+           "budget_decisions": budget,
            "device": torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu",
            "command": open(f"{root}/grid.cmd").read().strip(),
            "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())},
@@ -235,14 +228,13 @@ EOF
         || stamp "collect: nothing packed (no finished test session yet?)"
 }
 
-finish() { poll "${1:-180}"; collect; }
+finish() { poll "${1:-240}"; collect; ls -la "$OUT"; }
 
 window() {
     local start=$SECONDS
-    stamp "window: stages 1-3, part ${1:-3}, OUT=$OUT"
-    smoke
-    figures
-    grid "${1:-3}"
+    stamp "window: the grid (part ${1:-all}) first, smoke and figures beside it, OUT=$OUT"
+    grid "${1:-all}"
+    beside
     local left=$(( CALL_S - (SECONDS - start) - COLLECT_S ))
     (( left > 0 )) && poll "$left"
     collect
@@ -253,11 +245,16 @@ window() {
 dry() {
     DRY_TMP=$(mktemp -d)
     trap 'rm -rf "$DRY_TMP"' EXIT
-    export DRY=1 DEVICE=cpu EPISODES=2 RUNS=$DRY_TMP/runs OUT=$DRY_TMP/out PY
+    # the loaded CPU is slow: the figures' tiny run gets more time than a GPU's (300 s)
+    export DRY=1 DEVICE=cpu RUNS=$DRY_TMP/runs OUT=$DRY_TMP/out PY TRAIN_S=600 \
+        BESIDE_S=${DRY_BESIDE_S:-300}
     bash -n "$0"
-    stamp "dry run: every stage on the CPU, tiny, in $DRY_TMP"
-    echo "the grid's command on a GPU: $(DRY=0 DEVICE=cuda EPISODES=20000 RUNS=runs/paper_grid grid_command 3)"
-    CALL_S=420 window 2
+    stamp "dry run: the window on the CPU, tiny, in $DRY_TMP"
+    echo "the grid's command on a GPU: $(DRY=0 DEVICE=cuda EPISODES=20000 TRAIN_S=720 RUNS=runs/paper_grid grid_command all)"
+    CALL_S=${DRY_CALL_S:-480} window 2
+    [[ -f $RUNS/grid.rc ]] || { echo "dry: the grid did not finish within the call" >&2; exit 1; }
+    grep -h "window budget" "$RUNS/logs/one-process.log" \
+        || { echo "dry: the grid chose no budget" >&2; exit 1; }
     tar tzf "$OUT/grid.tar.gz"
     [[ ! -f $OUT/policies.tar.gz ]] || tar tzf "$OUT/policies.tar.gz"
     local n; n=$(find "$OUT" -maxdepth 1 -type f | wc -l)
@@ -267,5 +264,5 @@ dry() {
 
 case "${1:-}" in
     prepare|window|smoke|figures|grid|poll|collect|finish|dry) cmd=$1; shift; "$cmd" "$@" ;;
-    *) sed -n '2,24p' "$0"; exit 2 ;;
+    *) sed -n '2,27p' "$0"; exit 2 ;;
 esac

@@ -11,16 +11,21 @@ and checkpoints. Printed with ``--json`` as one object::
      "graph_replays_per_episode", ...}
 
 - ``ms_per_grid_episode``: the median over the ``--episodes`` timed episodes (each ends with a
-  device synchronisation), after ``--warmup`` untimed ones;
+  device synchronisation), after ``--warmup`` untimed ones: by default `DEFAULT_WARMUP`, so
+  that on CUDA every timed episode of the program replays its captured bodies (the eager and
+  capturing episodes are the warm-up's), ``replayed_timed_episodes`` counting those that did;
+- ``test_session_ms`` and ``save_ms`` (``--path program``): a test session (the captured
+  body, replayed, after its own warm-up and capture) and what follows it on the host (the
+  one read of the interval, the eval rows and the save: eval.csv with ``--window``, else
+  buffer chunks and checkpoints of buffers holding only the benchmark's few episodes), medians
+  over ``--sessions``; ``ms_per_grid_episode_with_session_and_save`` adds both amortised over
+  the paper's 100 episodes per session (`SESSION_EVERY`);
 - ``startup_s``: from the start of ``main`` (imports included, the interpreter's own start not)
   to the end of the warm-up episodes: building the stacks, compiling kernels, capturing graphs;
 - ``host_syncs_per_episode``: on CUDA, the synchronising CUDA operations that torch reports
-  under ``torch.cuda.set_sync_debug_mode("warn")`` (torch's own: a numba launch, copy or
-  ``cuda.synchronize`` is not seen by it and is counted apart, ``numba_syncs_per_episode``:
-  calls of ``numba.cuda.synchronize``, ``numba.cuda.to_device`` and ``DeviceNDArray.
-  copy_to_host``); on the CPU, where nothing synchronises, the calls that would read a device
-  value on the host: ``Tensor.item``, ``.cpu``, ``.numpy``, ``.tolist`` and ``.__bool__``,
-  counted by patching them;
+  under ``torch.cuda.set_sync_debug_mode("warn")``; on the CPU, where nothing synchronises,
+  the calls that would read a device value on the host: ``Tensor.item``, ``.cpu``,
+  ``.numpy``, ``.tolist`` and ``.__bool__``, counted by patching them;
 - ``graph_replays_per_episode``: calls of ``torch.cuda.CUDAGraph.replay`` (through which
   ``torch.compile``'s CUDA graphs replay too);
 
@@ -30,13 +35,15 @@ place (the timed episodes run without them, so the counting costs them nothing).
 Paths (``--path``, :data:`PATHS`): ``today``, ``ddpg_her.multi.MultiTrainer`` as
 ``ddpg_her.train_many`` builds it for ``analysis.sweep --grid paper --one-process``: one stack
 per joint count, stepped in turn, ``--env-backend batched``, run folders in a temporary folder;
-``program``, the training program (``ddpg_her.program``): the whole grid as one stack. A new
+``program`` (the default), the training program (``ddpg_her.program``): the whole grid as
+one stack, ``--window`` its window mode. A new
 path is one more entry of :data:`PATHS`: a function from a :class:`GridSpec` to a
 :class:`GridRunner`.
 
-    python -m benchmarks.grid_episode --device cuda --json
+    python -m benchmarks.grid_episode --device cuda --window --json
     python -m benchmarks.grid_episode --device cuda --part 3 --episodes 5 --json
-    python -m benchmarks.grid_episode --device cpu --part 2 --unit-args="--hidden-sizes 8 8"
+    python -m benchmarks.grid_episode --device cpu --path today --part 2 \
+        --unit-args="--hidden-sizes 8 8"
 """
 
 from __future__ import annotations
@@ -61,10 +68,6 @@ CPU_READS = ("item", "cpu", "numpy", "tolist", "__bool__")
 """The ``torch.Tensor`` methods counted as host reads on the CPU (each a synchronisation, or a
 copy to the host, where the tensor lives on a GPU)."""
 
-NUMBA_SYNCS = ("synchronize", "to_device")
-"""The ``numba.cuda`` functions counted as host synchronisations on CUDA (besides
-``DeviceNDArray.copy_to_host``): torch's sync debug mode does not see numba's calls."""
-
 SYNC_WARNING = "synchroniz"
 """A fragment of the warning torch's sync debug mode gives for each synchronising call
 ("called a synchronizing CUDA operation")."""
@@ -77,6 +80,16 @@ RL_WARMUP_EPISODES = 1
 """The agents' random-action episodes (``--warmup-episodes`` of every unit) before the actor
 acts and the updates start: one, so the second warm-up episode already captures the update
 graph and every timed episode acts and updates as the paper's episodes 101-20,000 do."""
+
+
+DEFAULT_WARMUP = RL_WARMUP_EPISODES + 2 + 1
+"""Untimed grid episodes by default: the random-action episode(s), then the
+``ddpg_her.program.WARMUP_REPLAYS`` (2) eager runs of the acting and update bodies, then the
+episode that captures them; from the next on, the program's episodes replay."""
+
+SESSION_EVERY = 100
+"""Training episodes per test session in the paper's protocol (``--eval-every``'s default):
+what a test session and its save are amortised over."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +110,8 @@ class GridSpec:
     budget: int = 1
     """Training episodes of each run's budget (``--episodes`` and ``--eval-every``: the timed
     episodes stay below it, so no test session or checkpoint falls among them)."""
+    window: bool = False
+    """The program's window mode (``ddpg_her.train --window``): its saves write eval.csv."""
 
     @property
     def agents(self) -> int:
@@ -186,6 +201,33 @@ class ProgramRunner:
 
             torch.cuda.synchronize()
 
+    def replays(self) -> int:
+        """Graph replays of the acting and update bodies so far."""
+        return sum(self.program._bodies[b].replays for b in ("act", "learn"))
+
+    def session(self, repeats: int) -> dict[str, Any]:
+        """The test session's body, warmed up and captured, then timed ``repeats`` times, and
+        what follows it on the host (`Program._session`: the read, the rows, the save)."""
+        from ddpg_her.program import WARMUP_REPLAYS
+
+        test = self.program._bodies["test"]
+        for _ in range(WARMUP_REPLAYS + 1):
+            test()
+        self.synchronize()
+        body, save = [], []
+        for _ in range(repeats):
+            tic = time.perf_counter()
+            test()
+            self.synchronize()
+            body.append(time.perf_counter() - tic)
+            tic = time.perf_counter()
+            self.program._session()
+            save.append(time.perf_counter() - tic)
+        return {"test_session_ms": 1e3 * statistics.median(body),
+                "save_ms": 1e3 * statistics.median(save),
+                "session_replays": test.replays,
+                "buffer_rows_per_agent_at_save": int(self.program.total.max())}
+
     def close(self) -> None:
         self.program.close()
 
@@ -196,7 +238,8 @@ def program_path(spec: GridSpec) -> ProgramRunner:
     from ddpg_her.program import Program
 
     settings = grid_units(spec)
-    program = Program.of_settings(settings, device=spec.device, progress=False)
+    program = Program.of_settings(settings, device=spec.device, progress=False,
+                                  window=spec.window)
     return ProgramRunner(program, spec.device)
 
 
@@ -210,11 +253,9 @@ training program)."""
 # ---------------------------------------------------------------------------- counters
 @dataclass
 class Counts:
-    """What the counters saw: host syncs (torch's, or the CPU's reads), numba's syncs, graph
-    replays."""
+    """What the counters saw: host syncs (torch's, or the CPU's reads), graph replays."""
 
     host_syncs: int = 0
-    numba_syncs: int = 0
     replays: int = 0
 
 
@@ -241,15 +282,6 @@ def counters(device: str) -> Iterator[Counts]:
     with ExitStack() as stack:
         _counting(torch.cuda.CUDAGraph, "replay", counts, "replays", stack)
         if device == "cuda":
-            try:
-                from numba import cuda
-                from numba.cuda.cudadrv.devicearray import DeviceNDArray
-            except (ImportError, AttributeError):  # no numba(-cuda) here: nothing to count
-                pass
-            else:
-                for name in NUMBA_SYNCS:
-                    _counting(cuda, name, counts, "numba_syncs", stack)
-                _counting(DeviceNDArray, "copy_to_host", counts, "numba_syncs", stack)
             caught = stack.enter_context(warnings.catch_warnings(record=True))
             warnings.simplefilter("always")
             previous = torch.cuda.get_sync_debug_mode()
@@ -283,9 +315,10 @@ def log(t0: float, text: str) -> None:
 
 
 def measure(runner: GridRunner, device: str, episodes: int, warmup: int, count_episodes: int,
-            t0: float, start_after: Path | None = None) -> dict[str, Any]:
-    """Warm up, then time ``episodes`` grid episodes and count over ``count_episodes`` more;
-    the JSON-ready figures (``startup_s`` from ``t0``, a ``time.perf_counter`` reading)."""
+            t0: float, start_after: Path | None = None, sessions: int = 0) -> dict[str, Any]:
+    """Warm up, then time ``episodes`` grid episodes and count over ``count_episodes`` more,
+    then (a runner with ``session``) time ``sessions`` test sessions and saves; the
+    JSON-ready figures (``startup_s`` from ``t0``, a ``time.perf_counter`` reading)."""
     for i in range(warmup):
         runner.episode()
         runner.synchronize()
@@ -301,12 +334,15 @@ def measure(runner: GridRunner, device: str, episodes: int, warmup: int, count_e
             time.sleep(0.2)
         waited = time.perf_counter() - tic
         log(t0, f"{start_after} exists after {waited:.1f} s of waiting: timing")
-    seconds = []
+    seconds, replayed = [], 0
+    replays = getattr(runner, "replays", lambda: 0)
     for i in range(episodes):
+        before = replays()
         tic = time.perf_counter()
         runner.episode()
         runner.synchronize()
         seconds.append(time.perf_counter() - tic)
+        replayed += replays() > before
         log(t0, f"timed episode {i + 1}/{episodes}: {1e3 * seconds[-1]:.1f} ms")
     totals = Counts()
     for _ in range(count_episodes):
@@ -314,14 +350,21 @@ def measure(runner: GridRunner, device: str, episodes: int, warmup: int, count_e
             runner.episode()
             runner.synchronize()
         totals.host_syncs += c.host_syncs
-        totals.numba_syncs += c.numba_syncs
         totals.replays += c.replays
     n = max(count_episodes, 1)
-    return {"ms_per_grid_episode": 1e3 * statistics.median(seconds) if seconds else None,
+    ms = 1e3 * statistics.median(seconds) if seconds else None
+    session: dict[str, Any] = {}
+    if sessions and hasattr(runner, "session"):
+        session = runner.session(sessions)
+        log(t0, f"test session {session['test_session_ms']:.1f} ms, its read and save "
+                f"{session['save_ms']:.1f} ms")
+        if ms is not None:
+            session["ms_per_grid_episode_with_session_and_save"] = ms + (
+                session["test_session_ms"] + session["save_ms"]) / SESSION_EVERY
+    return {"ms_per_grid_episode": ms, **session, "replayed_timed_episodes": replayed,
             "startup_s": startup,
             "host_syncs_per_episode": round(totals.host_syncs / n),
             "graph_replays_per_episode": round(totals.replays / n),
-            "numba_syncs_per_episode": round(totals.numba_syncs / n),
             "episode_ms": [1e3 * s for s in seconds],
             "waited_s": waited}
 
@@ -345,9 +388,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=3,
                         help="timed grid episodes after the warm-up (>= 1); the median is "
                         "reported")
-    parser.add_argument("--warmup", type=int, default=2,
+    parser.add_argument("--warmup", type=int, default=DEFAULT_WARMUP,
                         help="untimed grid episodes first (>= 0): the agents' random-action "
-                        "episode, then the first updates (the graph's capture)")
+                        "episode, the bodies' eager runs and their capture, so that the "
+                        "timed episodes replay")
+    parser.add_argument("--sessions", type=int, default=3,
+                        help="test sessions and saves timed after the episodes (--path "
+                        "program; >= 0, 0: none), after the session's own warm-up and "
+                        "capture; medians reported")
+    parser.add_argument("--window", action="store_true",
+                        help="the program in window mode (ddpg_her.train --window): a save "
+                        "writes eval.csv only")
     parser.add_argument("--count-episodes", type=int, default=1,
                         help="further grid episodes run with the sync and replay counters "
                         "(>= 1); the counts are their means")
@@ -356,7 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "grid, 55 agents)")
     parser.add_argument("--seeds", type=int, default=PAPER_SEEDS,
                         help="seeds per setting (>= 1)")
-    parser.add_argument("--path", choices=sorted(PATHS), default="today",
+    parser.add_argument("--path", choices=sorted(PATHS), default="program",
                         help="which training path builds the grid")
     parser.add_argument("--unit-args", default="",
                         help="extra ddpg_her.train arguments of every unit, one shell-quoted "
@@ -373,10 +424,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.perf_counter()
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.episodes < 1 or args.warmup < 0 or args.count_episodes < 1 or args.seeds < 1:
-        parser.error(f"--episodes, --count-episodes and --seeds must be >= 1 and --warmup "
-                     f">= 0; got {args.episodes}, {args.count_episodes}, {args.seeds}, "
-                     f"{args.warmup}")
+    if args.episodes < 1 or args.warmup < 0 or args.count_episodes < 1 or args.seeds < 1 \
+            or args.sessions < 0:
+        parser.error(f"--episodes, --count-episodes and --seeds must be >= 1, --warmup and "
+                     f"--sessions >= 0; got {args.episodes}, {args.count_episodes}, "
+                     f"{args.seeds}, {args.warmup}, {args.sessions}")
+    if args.window and args.path != "program":
+        parser.error("--window is the program's (--path program)")
     try:
         settings = grid_settings(args.part)
     except ValueError as err:
@@ -390,7 +444,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     budget = args.warmup + args.episodes + args.count_episodes + 1
     with tempfile.TemporaryDirectory(prefix="grid_episode-") as tmp:
         spec = GridSpec(settings, args.seeds, args.device, Path(tmp),
-                        tuple(shlex.split(args.unit_args)), budget)
+                        tuple(shlex.split(args.unit_args)), budget, args.window)
         try:
             runner = PATHS[args.path](spec)
         except ValueError as err:
@@ -398,12 +452,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         log(t0, f"built {spec.agents} agents ({args.path}) on {args.device}")
         try:
             figures = measure(runner, args.device, args.episodes, args.warmup,
-                              args.count_episodes, t0, args.start_after)
+                              args.count_episodes, t0, args.start_after, args.sessions)
         finally:
             runner.close()
     result = {"device": device_name(args.device), **figures, "path": args.path,
               "agents": spec.agents, "part": args.part, "episodes": args.episodes,
               "warmup": args.warmup, "count_episodes": args.count_episodes,
+              "window": args.window, "sessions": args.sessions,
+              "session_every": SESSION_EVERY,
               "unit_args": args.unit_args, "torch": torch.__version__,
               "host_syncs_counted": "torch.cuda.set_sync_debug_mode('warn') warnings"
               if args.device == "cuda" else "calls of Tensor." + "/.".join(CPU_READS)}

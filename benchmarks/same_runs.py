@@ -134,7 +134,8 @@ def compare_run(a: Path, b: Path) -> list[str]:
     states = [torch.load(c[-1], weights_only=False) for c in ckpts]
     diffs += [f"{ckpts[0][-1].name}: {d}" for d in _differences(*states, "checkpoint")]
     chunks = [sorted((x / "buffer").glob("episode-*.npz")) for x in (a, b)]
-    if [p.name for p in chunks[0]] != [p.name for p in chunks[1]]:
+    # by episode: a chunk's name holds its span since issue 42 (episode-NNNNNN.FIRST-END.npz)
+    if [p.name.split(".")[0] for p in chunks[0]] != [p.name.split(".")[0] for p in chunks[1]]:
         diffs.append("buffer chunk names")
     for pa, pb in zip(*chunks, strict=False):
         with np.load(pa) as za, np.load(pb) as zb:

@@ -7,14 +7,12 @@ Rows, for each N of ``--copies``:
 - ``stack-triton``: :class:`envs.physics.stack.StackDynamics` with the Triton kernel, the N
   copies cycling through the grid's tasks (:data:`GRID`: unconstrained with 2..6 joints,
   z-height, close box and far box with 3 and 6: 11 tasks, so N = 55 is the paper's 55 runs);
-- (the numba-CUDA kernel of one task is timed by ``benchmarks.gpu_figures``' ``numba_kernel``
-  figure, at the same sizes; its tensor face here went with the torch env backend, and the
-  single-task torch row, ``envs.physics.torch_kernel.TorchDynamics``, with that module after
-  commit 401ca32)
+- (the single-task numba-CUDA kernel went with ``envs.physics.numba_cuda`` after commit
+  feb31e4, the torch row, ``envs.physics.torch_kernel.TorchDynamics``, after 401ca32)
 
 Each row runs ``eager`` and ``graph`` (its control step captured once in a
 ``torch.cuda.CUDAGraph`` and replayed; the command copied into the graph's input first). The
-first call (Triton's or numba's compilation) is timed apart, and so is
+first call (Triton's compilation) is timed apart, and so is
 the capture. Protocol as :mod:`benchmarks.cuda_dynamics`: rounds of ``--steps`` steps from the
 start pose, the clock read after a device synchronisation, the median over rounds reported.
 A row that fails records its error in the JSON instead of ending the run. The Triton kernel's

@@ -84,6 +84,10 @@ def differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
 
 def check_continues(where: Any, old: dict[str, Any], new: dict[str, Any]) -> None:
     """Raise ValueError if ``new`` may not continue the run ``old`` (a spec or config)."""
+    if lookup(old, "program.window"):
+        raise ValueError(
+            f"{where} holds a window run (--window: no replay buffer or checkpoint was saved "
+            "before its end), which cannot be resumed; train it afresh in another --out")
     for (key, value), path in REMOVED_SETTINGS.items():
         if old.get(key) == value:
             raise ValueError(
@@ -259,6 +263,19 @@ class RunFolders:
             oldest = int(self._kept_totals[0][k]) - self.buffer_size
             f.prune(upto=episode, keep_from=oldest)
         self._saved_total = buffer.total.copy()
+
+    def save_window(self, episode: int, states: list[dict[str, Any]], final: bool) -> None:
+        """A window run's save (`ddpg_her.program.Program`'s ``window``): eval.csv
+        (``states[k]["rows"]``) per folder, at the run's end after a checkpoint of
+        ``states[k]`` (its actor and normaliser: what `ddpg_her.load` reads). No buffer chunk
+        and no checkpoint before the end: such a run does not resume."""
+        for k, (f, state) in enumerate(zip(self.folders, states, strict=True)):
+            if final:
+                f.save_checkpoint(episode, {
+                    "episode": episode, **state,
+                    "config": {key: self.specs[k][key] for key in CONFIG_KEYS
+                               if key in self.specs[k]}})
+            f.write_eval(state["rows"])
 
     def close(self) -> None:
         """Release the folders' locks."""

@@ -20,7 +20,9 @@ its stack.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -303,6 +305,35 @@ class Graphed:
         self.replays += 1
 
 
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """A window run's time budget: train the most of ``choices`` episodes (each a multiple of
+    ``eval_every``, the largest the configuration's ``episodes``) that `choose_episodes`
+    projects to end within ``seconds`` of ``start`` (a ``clock()`` reading, s)."""
+
+    seconds: float
+    choices: tuple[int, ...]
+    start: float
+    clock: Callable[[], float] = time.monotonic
+
+
+def choose_episodes(elapsed_s: float, episode: int, s_per_episode: float, seconds: float,
+                    choices: Sequence[int]) -> tuple[int, float]:
+    """(budget, projected s): the largest of ``choices`` not below ``episode`` whose remaining
+    episodes at ``s_per_episode`` end within ``seconds`` (``elapsed_s`` spent), or, when none
+    does, the smallest of them; its projected end in seconds since the start."""
+    left = [c for c in choices if c >= episode]
+    if not left:
+        raise ValueError(f"episode {episode} is past every budget of {sorted(choices)}")
+
+    def end(c: int) -> float:
+        return elapsed_s + (c - episode) * s_per_episode
+
+    fits = [c for c in left if end(c) <= seconds]
+    chosen = max(fits) if fits else min(left)
+    return chosen, end(chosen)
+
+
 class Program:
     """Trains K DDPG + HER agents, agent k on ``env_kwargs[k]`` with ``seeds[k]`` into
     ``run_dirs[k]``, as one stack on ``device`` (see the module docstring).
@@ -324,16 +355,31 @@ class Program:
         Let CUDA's matrix products round their operands to TF32 (process-wide; recorded).
     dynamics : callable, optional
         The arm of the stack twin (its ``dynamics``; the tests give stand-ins).
+    window : bool
+        A run for one GPU window, whose replay buffers cannot leave the machine: eval.csv at
+        every test session, the actors and normalisers at the end (`ddpg_her.load` reads
+        them), no buffer chunk and no checkpoint before; it cannot be resumed (spec.json's
+        ``program.window``).
+    budget : Budget, optional
+        With ``window``: from the second test session on, each session sets the budget to
+        what `choose_episodes` projects from the last interval's seconds per episode (test
+        session included), rewriting spec.json's ``agent.episodes`` and ``program.budget``.
     """
 
     def __init__(self, env_id: str, env_kwargs: Sequence[dict[str, Any]], config: AgentConfig,
                  seeds: Sequence[int], run_dirs: Sequence[str | Path], *, resume: bool = False,
                  device: str = "cpu", dtype: torch.dtype = torch.float32, progress: bool = True,
                  command: Sequence[str] | None = None, capture: bool | None = None,
-                 tf32: bool = False, dynamics: Callable[..., Any] | None = None):
+                 tf32: bool = False, dynamics: Callable[..., Any] | None = None,
+                 window: bool = False, budget: Budget | None = None):
         why = unsupported(config)
         if why:
             raise ValueError(f"the training program trains DDPG + HER only: not with {why}")
+        if budget is not None and (not window or max(budget.choices) != config.episodes or any(
+                c < 1 or c % config.eval_every for c in budget.choices)):
+            raise ValueError(f"a time budget is a window run's (window=True), its choices "
+                             f"{list(budget.choices)} multiples of --eval-every "
+                             f"{config.eval_every}, the largest --episodes {config.episodes}")
         seeds = [int(s) for s in seeds]
         per_agent = [dict(kw) for kw in env_kwargs]
         if not seeds or len(per_agent) != len(seeds) or len(run_dirs) != len(seeds):
@@ -393,8 +439,10 @@ class Program:
         self._tick = time.perf_counter()
         self._finite = torch.ones((), dtype=torch.bool, device=self.device)
         self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
+        self.window, self.budget, self._interval_start = window, budget, None
         self.specs = [{"program": {"streams": STREAMS,
-                                   "matmul": "tf32" if tf32 else "float32"},
+                                   "matmul": "tf32" if tf32 else "float32",
+                                   **({"window": True} if window else {})},
                        **run_spec(env_backend="program", env_id=env_id,
                                   env_kwargs=per_agent[i], task=env.tasks[i].to_dict(),
                                   seed=seeds[i], config=config, dims=self._dims(i),
@@ -635,9 +683,43 @@ class Program:
                          logged[1], logged[2])
         for mine, row in zip(self.rows, rows, strict=True):
             mine.append({**row, "wall_s": round(self.wall_s, 2)})
+        if self.budget is not None:
+            self._choose_budget()
         self._save()
 
+    def _choose_budget(self) -> None:
+        """`Budget`: from the last interval's seconds per episode, the budget to train to;
+        said on stderr and recorded in every spec.json when it changes."""
+        b, now = self.budget, self.budget.clock()
+        start, self._interval_start = self._interval_start, now
+        if start is None:  # the first session: its interval held the start-up
+            return
+        rate = (now - start) / self.config.eval_every
+        chosen, end = choose_episodes(now - b.start, self.episode, rate, b.seconds, b.choices)
+        if chosen == self.config.episodes and "budget" in self.specs[0]["program"]:
+            return
+        fits = "" if end <= b.seconds else " (none of the choices fits: the smallest left)"
+        print(f"window budget: {1e3 * rate:.1f} ms per episode over episodes "
+              f"{self.episode - self.config.eval_every + 1}-{self.episode} (its test session "
+              f"included) -> {chosen} episodes{fits}, projected to end at {end:.0f} s of the "
+              f"{b.seconds:.0f} s budget (choices {'/'.join(map(str, b.choices))})",
+              file=sys.stderr, flush=True)
+        self.config = dataclasses.replace(self.config, episodes=chosen)
+        record = {"seconds": b.seconds, "choices": list(b.choices), "episode": self.episode,
+                  "ms_per_episode": round(1e3 * rate, 3), "elapsed_s": round(now - b.start, 1),
+                  "projected_s": round(end, 1)}
+        for f, spec in zip(self.folders.folders, self.specs, strict=True):
+            spec["agent"]["episodes"], spec["program"]["budget"] = chosen, record
+            f.write_spec(spec)
+
     def _save(self) -> None:
+        if self.window:
+            final = self.episode >= self.config.episodes
+            states = [self._state(i) if final else {"rows": self.rows[i]} for i in range(self.k)]
+            for state in states if final else ():
+                state["agent"] = {key: state["agent"][key] for key in ("actor", "normalizer")}
+            self.folders.save_window(self.episode, states, final)
+            return
         self.buffer.total[:] = self.total.cpu().numpy()
         self.folders.save(self.episode, [self._state(i) for i in range(self.k)], self.chunks)
 
@@ -648,6 +730,10 @@ class Program:
 
     def _restore(self, episode: int, states: list[dict[str, Any]],
                  chunks: list[list[tuple[int, Any]]]) -> None:
+        if self.window:
+            raise ValueError(f"a window run starts afresh; {self.folders.folders[0].path} holds "
+                             f"the checkpoint of episode {episode} of a run: choose another "
+                             "--out, or drop --window to continue it")
         padded = [self.agent.agent_state(i) for i in range(self.k)]
         self.agent.load_agent_states([pad_state(s["agent"], p, n, self.config.hidden_sizes[0])
                                       for s, p, n in zip(states, padded, self.joints,

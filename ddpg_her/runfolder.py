@@ -7,9 +7,11 @@ A run folder holds
 - ``eval.csv``: one row per test session, columns `EVAL_COLUMNS`;
 - ``checkpoints/episode-NNNNNN.pt``: the last two checkpoints (networks, optimisers, normaliser,
   random generator states, eval rows so far, and the configuration they were trained with);
-- ``buffer/episode-NNNNNN.npz``: the transitions each checkpoint interval added to the replay
-  buffer, so a checkpoint need not rewrite the whole buffer; chunks that the buffer has since
-  overwritten are deleted;
+- ``buffer/episode-NNNNNN.FIRST-END.npz``: the transitions FIRST to END - 1 (numbers since the
+  run's start) that each checkpoint interval added to the replay buffer, so a checkpoint need
+  not rewrite the whole buffer; chunks that the buffer has since overwritten are deleted, told
+  by their names alone (folders written before the span was named, ``episode-NNNNNN.npz``,
+  still read: their chunks are opened to learn it);
 - ``tb/``: TensorBoard logs, when tensorboard is installed;
 - ``lock.json``: while a trainer runs, its pid and host (`RunFolder.lock`): a second trainer on
   the folder is refused, a lock of a process that has ended is taken over with a warning.
@@ -66,7 +68,7 @@ SUBFOLDERS = ("checkpoints", "buffer")
 """Subfolders of a run folder that hold files written by :func:`atomic_write`."""
 
 _CKPT = re.compile(r"episode-(\d{6,})\.pt$")
-_CHUNK = re.compile(r"episode-(\d{6,})\.npz$")
+_CHUNK = re.compile(r"episode-(\d{6,})(?:\.(\d+)-(\d+))?\.npz$")
 
 
 class RunFolderError(ValueError):
@@ -508,11 +510,14 @@ class RunFolder:
         return state
 
     def save_chunk(self, episode: int, start: int, rows: np.ndarray) -> None:
+        """Write the transitions ``start .. start + len(rows) - 1`` of ``episode``'s interval,
+        their span in the file's name (`prune` reads nothing to learn it)."""
         folder = self.path / "buffer"
         make_folder(folder)
         buf = io.BytesIO()
         np.savez(buf, start=np.int64(start), rows=rows)
-        atomic_write(folder / f"episode-{episode:06d}.npz", buf.getvalue())
+        atomic_write(folder / f"episode-{episode:06d}.{start}-{start + len(rows)}.npz",
+                     buf.getvalue())
 
     @staticmethod
     def _read_chunk(path: Path) -> tuple[int, np.ndarray]:
@@ -542,8 +547,13 @@ class RunFolder:
             if episode > upto:
                 p.unlink(missing_ok=True)
                 continue
-            start, rows = self._read_chunk(p)
-            if start + len(rows) <= keep_from:
+            span = _CHUNK.match(p.name)
+            if span.group(3) is not None:
+                end = int(span.group(3))
+            else:  # a chunk named before its span was: read it
+                start, rows = self._read_chunk(p)
+                end = start + len(rows)
+            if end <= keep_from:
                 p.unlink(missing_ok=True)
 
 

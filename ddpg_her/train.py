@@ -15,6 +15,7 @@ import enum
 import json
 import re
 import sys
+import time
 import typing
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -83,6 +84,26 @@ def add_process_flags(group: Any, what: str) -> None:
                             "round their operands to TF32 (10-bit mantissas; faster on "
                             "Ampere and later, recorded in spec.json). Off by default until "
                             "its effect on learning is measured")
+    group.add_argument("--window", action="store_true",
+                       help="with --env-backend program: a run for one GPU window, whose "
+                            "replay buffers cannot leave the machine: eval.csv at every test "
+                            "session and the actors and normalisers at the end (ddpg_her.load "
+                            "reads them), but no replay-buffer chunks and no checkpoints "
+                            "before the end, so the run CANNOT BE RESUMED (spec.json records "
+                            "program.window; --resume of it is refused)")
+    group.add_argument("--budget-seconds", type=float, default=None, metavar="S",
+                       help="with --window: wall seconds (> 0) from this command's start "
+                            "(imports, compiling and warm-up included) that the training may "
+                            "take; from the second test session on, each session measures "
+                            "the last interval's seconds per episode and trains the largest "
+                            "of --episodes-choices projected to end within S (or the smallest "
+                            "left when none is), says so on stderr and records it in "
+                            "spec.json (agent.episodes, program.budget)")
+    group.add_argument("--episodes-choices", type=int, nargs="+", default=None, metavar="N",
+                       help="with --budget-seconds: the budgets (episodes, multiples of "
+                            "--eval-every) to choose among; the largest must be --episodes "
+                            "(default: --episodes and its half, quarter and eighth where they "
+                            "are multiples of --eval-every, e.g. 20000 10000 5000 2500)")
     group.add_argument("--threads", type=int, default=None,
                        help="torch CPU threads (count, >= 1; default: 1, which keeps a fair "
                             "share of the cores when other work runs and is about as fast "
@@ -160,8 +181,8 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
     return dirs
 
 
-PROCESS_FLAGS = ("resume", "device", "env_backend", "tf32", "threads", "no_progress",
-                 "no_tensorboard")
+PROCESS_FLAGS = ("resume", "device", "env_backend", "tf32", "window", "budget_seconds",
+                 "episodes_choices", "threads", "no_progress", "no_tensorboard")
 """Flags of the process rather than of the runs (``ddpg_her.train_many`` takes them once)."""
 
 
@@ -311,11 +332,18 @@ def build_program(parser: argparse.ArgumentParser, args: argparse.Namespace,
     if len(configs) > 1 or len({s.env_id for s in settings}) > 1:
         parser.error("--env-backend program trains one stack: every unit needs the same env "
                      "id and agent configuration (flags and --episodes)")
-    from ddpg_her.program import Program
+    from ddpg_her.program import Budget, Program
 
+    budget = None
+    if args.budget_seconds is not None:
+        config = settings[0].config
+        choices = args.episodes_choices or [config.episodes >> i for i in range(4) if not (
+            config.episodes % (1 << i) or (config.episodes >> i) % config.eval_every)]
+        budget = Budget(args.budget_seconds, tuple(sorted(set(choices), reverse=True)),
+                        args.started)
     return build_trainer(parser, lambda: Program.of_settings(
         settings, resume=args.resume, device=args.device, progress=not args.no_progress,
-        command=command, tf32=args.tf32))
+        command=command, tf32=args.tf32, window=args.window, budget=budget))
 
 
 def run_to_end(trainer: Any) -> Any:
@@ -351,8 +379,14 @@ def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespac
     is parsed)."""
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
-    if args.tf32 and args.env_backend != "program":
-        parser.error("--tf32 is a setting of --env-backend program")
+    for flag, given in (("--tf32", args.tf32), ("--window", args.window)):
+        if given and args.env_backend != "program":
+            parser.error(f"{flag} is a setting of --env-backend program")
+    if args.budget_seconds is not None and not (args.window and args.budget_seconds > 0):
+        parser.error(f"--budget-seconds {args.budget_seconds}: a time budget is a --window "
+                     "run's, in seconds > 0")
+    if args.episodes_choices is not None and args.budget_seconds is None:
+        parser.error("--episodes-choices are the budgets --budget-seconds chooses among")
 
 
 def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -395,8 +429,10 @@ def last_session(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    started = time.monotonic()  # --budget-seconds counts from here
     parser = make_parser()
     args = parse_args(parser, argv)
+    args.started = started
     check_process_flags(parser, args)
     try:
         req = request(args)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -100,10 +101,12 @@ def unit_arguments(text: str) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    started = time.monotonic()  # --budget-seconds counts from here
     own, common = split_passthrough(sys.argv[1:] if argv is None else argv)
     parser = make_parser()
     train.refuse_removed(parser, own)
     args = parser.parse_args(own)
+    args.started = started
     train.check_process_flags(parser, args)
     units = list(args.unit)
     for path in args.plan:

@@ -50,7 +50,8 @@ class BatchedReach(gymnasium.vector.VectorEnv):
         Which backend advances the arms (:data:`envs.physics.BACKENDS`); the same physics to
         floating-point rounding. ``auto`` (default) takes the compiled numba path for N > 1.
     device : str
-        Where the arms are stepped (default ``"cpu"``; ``"cuda"`` runs ``numba``'s CUDA kernel).
+        Where the arms are stepped: ``"cpu"``, the only one (a GPU's arm is the training
+        program's, :class:`envs.stackreach.StackReach`; another device is refused).
     threads : int
         CPU threads of the fast path (default 1: the two-core machines this runs on share
         their cores with the learner; more pay on many-core hosts at large N).

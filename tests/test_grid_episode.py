@@ -21,7 +21,7 @@ TINY = "--hidden-sizes 8 8 --buffer-size 1000 --batch-size 8 --updates-per-episo
 def test_the_cpu_path_prints_the_figures_as_json():
     run = subprocess.run(
         [sys.executable, "-m", "benchmarks.grid_episode", "--device", "cpu", "--json",
-         "--part", "2", "--seeds", "2", "--episodes", "2", "--warmup", "2",
+         "--path", "today", "--part", "2", "--seeds", "2", "--episodes", "2", "--warmup", "2",
          f"--unit-args={TINY}"], capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout)
@@ -30,13 +30,41 @@ def test_the_cpu_path_prints_the_figures_as_json():
     assert result["agents"] == 2 and result["path"] == "today"
     assert len(result["episode_ms"]) == 2
     assert result["ms_per_grid_episode"] > 0 and result["startup_s"] > 0
-    for key in ("host_syncs_per_episode", "graph_replays_per_episode",
-                "numba_syncs_per_episode"):
+    for key in ("host_syncs_per_episode", "graph_replays_per_episode"):
         assert isinstance(result[key], int) and result[key] >= 0, key
     # today's loop reads losses and successes on the host every episode, and has no graph
     # on the CPU: the counter is wired to the episode it counts
     assert result["host_syncs_per_episode"] > 0
     assert result["graph_replays_per_episode"] == 0
+
+
+@pytest.mark.parametrize("window", [True, False])
+def test_the_program_path_times_its_session_and_save_apart(window):
+    """The default path is the program: after the default warm-up, its timed episodes, then
+    test sessions and their saves timed apart and amortised over 100 episodes; a window save
+    writes eval.csv only, so it costs less than one writing chunks and checkpoints."""
+    run = subprocess.run(
+        [sys.executable, "-m", "benchmarks.grid_episode", "--device", "cpu", "--json",
+         "--part", "2", "--seeds", "1", "--episodes", "1", "--sessions", "2",
+         *(["--window"] if window else []), f"--unit-args={TINY}"],
+        capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    result = json.loads(run.stdout)
+    assert result["path"] == "program" and result["window"] is window
+    assert result["warmup"] == grid_episode.DEFAULT_WARMUP
+    assert result["test_session_ms"] > 0 and result["save_ms"] > 0
+    assert result["ms_per_grid_episode_with_session_and_save"] == pytest.approx(
+        result["ms_per_grid_episode"]
+        + (result["test_session_ms"] + result["save_ms"]) / 100)
+    assert result["replayed_timed_episodes"] == 0  # nothing is captured on the CPU
+
+
+def test_the_default_warm_up_ends_with_the_capture():
+    """The program's acting and update bodies run eagerly WARMUP_REPLAYS times after the
+    random-action episodes, then capture: the first timed episode is the one after that."""
+    from ddpg_her.program import WARMUP_REPLAYS
+
+    assert grid_episode.DEFAULT_WARMUP == grid_episode.RL_WARMUP_EPISODES + WARMUP_REPLAYS + 1
 
 
 def test_the_cpu_counter_counts_each_host_read():
@@ -50,7 +78,7 @@ def test_the_cpu_counter_counts_each_host_read():
             pass
         x + 1  # no read
     assert counts.host_syncs == 5
-    assert counts.replays == counts.numba_syncs == 0
+    assert counts.replays == 0
     x.sum().item()  # the methods are restored
     assert counts.host_syncs == 5
     assert torch.Tensor.item is torch._C.TensorBase.item
@@ -94,6 +122,21 @@ def test_the_cuda_counters_see_one_sync_and_one_replay():
         y.add_(1)  # none
     assert counts.replays == 1
     assert counts.host_syncs == 1
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_every_timed_episode_replays_on_cuda():
+    """On CUDA, after the default warm-up, every timed episode of the program replays its
+    captured acting and update bodies (none runs eagerly or captures)."""
+    run = subprocess.run(
+        [sys.executable, "-m", "benchmarks.grid_episode", "--device", "cuda", "--json",
+         "--part", "2", "--seeds", "1", "--episodes", "2", "--sessions", "1", "--window",
+         f"--unit-args={TINY}"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    result = json.loads(run.stdout)
+    assert result["replayed_timed_episodes"] == 2
+    assert result["graph_replays_per_episode"] >= 2
 
 
 class _Stub:

@@ -92,6 +92,9 @@ def test_bad_inputs_are_refused():
             make_dynamics(TaskSpec(), 2, removed)
     with pytest.raises(ValueError, match="runs on the CPU only"):
         make_dynamics(TaskSpec(), 2, "pinocchio", device="cuda")
+    with pytest.raises(ValueError, match=r"numba's CUDA kernel, envs.physics.numba_cuda, was "
+                                         r"removed: the training program"):
+        make_dynamics(TaskSpec(), 2, "numba", device="cuda:0")
     assert isinstance(make_dynamics(TaskSpec(), 2, "numba"), numba_kernel.NumbaDynamics)
     assert isinstance(make_dynamics(TaskSpec(), 2, "pinocchio"), PinocchioDynamics)
 
@@ -196,6 +199,3 @@ def test_threads_do_not_change_the_result():
     with pytest.raises(ValueError, match="threads"):
         numba_kernel.NumbaDynamics(task, 2, threads=0)
 
-
-# The step body as a GPU thread's code (numba's CUDA simulator, and a GPU where there is one),
-# against this kernel after every step: tests/test_numba_cuda.py, through envs.physics.numba_cuda.

@@ -265,32 +265,58 @@ def hard_case(specs: list[TaskSpec], steps: int, rng: np.random.Generator
     raise AssertionError("no draw stops a copy on the plane and one at a limit")
 
 
-@needs_triton
-@pytest.mark.parametrize("dtype", ["float64", "float32"])
-def test_the_triton_kernel_is_the_numba_kernel(dtype):
-    # the interpreter is slow (a numpy call per operation): 8 copies, 3 steps from states at
-    # the plane and the limits, commands past both
+def kernels_agree(dtype: str, steps: int, device: str = "cpu") -> None:
+    """Assert that the Triton stack on ``device`` steps as the numba CPU kernel's stack does:
+    the same stop flags, states within 1e-9 (float64) or `FLOAT32_TOLERANCE`, over ``steps``
+    steps from states at the plane and the limits and commands past both (`hard_case`)."""
     specs = tasks()
-    q, w, heights, targets = hard_case(specs, 3, np.random.default_rng(11))
-    stacks = [StackDynamics(specs, dtype=dtype, kernel=k) for k in ("numba", "triton")]
+    q, w, heights, targets = hard_case(specs, steps, np.random.default_rng(11))
+    stacks = [StackDynamics(specs, dtype=dtype, kernel="numba"),
+              StackDynamics(specs, dtype=dtype, kernel="triton", device=device)]
     for stack in stacks:
-        stack.q[:], stack.w[:], stack.height_bound[:] = (torch.from_numpy(x) for x in
-                                                        (q, w, heights))
+        stack.q[:], stack.w[:], stack.height_bound[:] = (torch.from_numpy(x).to(stack.q.device)
+                                                        for x in (q, w, heights))
     tolerance = 1e-9 if dtype == "float64" else FLOAT32_TOLERANCE
     stops = np.zeros(2, int)
     for step, target in enumerate(targets):
         for stack in stacks:
-            stack.step(torch.from_numpy(target))
-        numba, triton = stacks
+            stack.step(torch.from_numpy(target).to(stack.q.device))
+        numba = stacks[0].__dict__
+        triton = {k: v.cpu() if isinstance(v, torch.Tensor) else v
+                  for k, v in stacks[1].__dict__.items()}
         for key in ("contact", "limit_stop"):
-            assert torch.equal(numba.__dict__[key], triton.__dict__[key]), (step, key)
+            assert torch.equal(numba[key], triton[key]), (step, key)
         for key in ("q", "w", "v", "acceleration", "height_bound", "tool"):
             scale = 1.0 if key in ("q", "height_bound", "tool") else \
-                float(numba.__dict__[key].abs().max()) + 1.0
-            err = float((numba.__dict__[key] - triton.__dict__[key]).abs().max()) / scale
+                float(numba[key].abs().max()) + 1.0
+            err = float((numba[key] - triton[key]).abs().max()) / scale
             assert err <= tolerance, (step, key, err)
-        stops += numba.contact.sum().item(), numba.limit_stop.sum().item()
+        stops += numba["contact"].sum().item(), numba["limit_stop"].sum().item()
     assert stops.min() > 0, f"the steps must hit the plane and the limits; got {stops}"
+
+
+@needs_triton
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_the_triton_kernel_is_the_numba_kernel(dtype):
+    # the interpreter is slow (a numpy call per operation): 8 copies, 3 steps
+    kernels_agree(dtype, 3)
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (the GPU window's "
+                    "stage 1 runs it: benchmarks/gpu_grid.sh)")
+@needs_triton
+@pytest.mark.parametrize(("dtype", "steps"), [("float64", 40), ("float32", 3)])
+def test_the_compiled_triton_kernel_is_the_numba_kernel_on_cuda(dtype, steps):
+    """The kernel compiled for the GPU (not the interpreter: a process without
+    TRITON_INTERPRET) against the numba CPU kernel, as the interpreter is above."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    run = subprocess.run([sys.executable, "-c", "import test_stack_dynamics as t; "
+                          f"t.kernels_agree({dtype!r}, {steps}, device='cuda')"], cwd=here,
+                         env={**os.environ, "TRITON_INTERPRET": "0",
+                              "PYTHONPATH": os.pathsep.join([os.path.dirname(here), here])},
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
 
 
 @needs_triton

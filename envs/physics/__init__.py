@@ -20,9 +20,8 @@ __all__ = ["BACKENDS", "Dynamics", "make_dynamics"]
 
 BACKENDS = ("auto", "pinocchio", "numba")
 """Dynamics backends, named for their tool (BatchedReach's ``dynamics`` option): ``pinocchio``
-the reference, ``numba`` the compiled kernel (on the CPU, or one CUDA kernel launch a step on
-``device="cuda"``), ``auto`` numba for B > 1 where it is installed and implements the task, else
-pinocchio."""
+the reference, ``numba`` the compiled kernel on the CPU, ``auto`` numba for B > 1 where it is
+installed and implements the task, else pinocchio."""
 
 RENAMED_BACKENDS = {"fast": "numba"}
 """Former backend names, for the message that gives the new spelling."""
@@ -47,8 +46,8 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
     backend : one of :data:`BACKENDS`
         The backend, named for its tool.
     device : str
-        ``numba`` runs on ``"cpu"`` or a GPU (``"cuda"``, ``"cuda:N"``, numba's CUDA kernel);
-        the others accept ``"cpu"`` only.
+        ``"cpu"``, the only one: the arm on a GPU is the training program's
+        (:class:`envs.physics.stack.StackDynamics`, a Triton kernel).
     threads : int
         CPU threads of the numba backend on the CPU (the Pinocchio loop uses one).
 
@@ -56,9 +55,8 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
     ------
     ValueError
         When ``backend`` is not one of :data:`BACKENDS` (a former name gets its new one, a
-        removed one what replaced it), a
-        CPU-only backend is given another device, or the backend cannot run the task here
-        (numba missing, a contact model it does not implement, no GPU).
+        removed one what replaced it), another device than the CPU is given, or the backend
+        cannot run the task here (numba missing, a contact model it does not implement).
     """
     if backend in RENAMED_BACKENDS:
         raise ValueError(f"dynamics={backend!r} is now dynamics={RENAMED_BACKENDS[backend]!r}")
@@ -68,14 +66,14 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
                          f"{list(BACKENDS)} steps BatchedReach")
     if backend not in BACKENDS:
         raise ValueError(f"dynamics must be one of {list(BACKENDS)}; got {backend!r}")
+    if str(device) != "cpu":
+        raise ValueError(f"dynamics={backend!r} runs on the CPU only; got device={device!r}"
+                         + (" (numba's CUDA kernel, envs.physics.numba_cuda, was removed: the "
+                            "training program, --env-backend program, steps the arm on the GPU)"
+                            if str(device).startswith("cuda") else ""))
     from envs.physics import numba_kernel
 
     fast_ok = numba_kernel.available() and supports_kernels(task)
-    if backend == "numba" and str(device).startswith("cuda"):
-        return _numba_cuda(task, num_copies, device, fast_ok)
-    if str(device) != "cpu":
-        raise ValueError(f"dynamics={backend!r} runs on the CPU only; got device={device!r} "
-                         "(dynamics='numba' runs on 'cuda' too)")
     if backend == "numba" and not fast_ok:
         raise ValueError("dynamics='numba' needs numba and the stop contact model; use "
                          "'pinocchio' (or 'auto')")
@@ -85,18 +83,3 @@ def make_dynamics(task: TaskSpec, num_copies: int, backend: str = "auto", device
 
     return PinocchioDynamics(task, num_copies)
 
-
-def _numba_cuda(task: TaskSpec, num_copies: int, device: str, fast_ok: bool) -> Dynamics:
-    """:class:`envs.physics.numba_cuda.NumbaCudaDynamics` on ``device``, or the ValueError
-    that says why it cannot run here."""
-    if not fast_ok:
-        raise ValueError("dynamics='numba' needs numba and the stop contact model; use "
-                         "'pinocchio' (or 'auto')")
-    from envs.physics import numba_cuda
-
-    numba_cuda.device_index(device)  # a ValueError for a malformed device
-    if not numba_cuda.available():
-        raise ValueError(f"dynamics='numba', device={device!r}: numba sees no CUDA GPU here "
-                         "(numba.cuda.is_available() is False; NUMBA_ENABLE_CUDASIM=1 runs its "
-                         "simulator); device='cpu' runs the numba kernel on the CPU")
-    return numba_cuda.NumbaCudaDynamics(task, num_copies, device=device)

@@ -2,7 +2,7 @@
 
 One job: turn a :class:`envs.spec.TaskSpec` into the numbers a control step needs, so that the
 Pinocchio loop (:mod:`envs.physics.pinocchio_loop`), the numba kernels
-(:mod:`envs.physics.numba_kernel`, :mod:`envs.physics.numba_cuda`) and the stack's
+(:mod:`envs.physics.numba_kernel`) and the stack's
 (:mod:`envs.physics.stack`) cannot drift apart: the controller in time-scaled units (scaled PD
 gains per control mode, the command's gain, effort and velocity limits, joint-limit box, held
 joints), the serial chain

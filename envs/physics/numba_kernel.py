@@ -4,17 +4,13 @@ The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynami
 written as scalar loops: per copy, every substep (PD + gravity compensation, effort clip,
 Featherstone's articulated-body algorithm, velocity clip, semi-implicit Euler) and the stop
 checks, stopping a copy at its first invalid substep. :func:`step_copy` is one copy's step
-(no allocation, no Python object: the body a GPU thread can run); :func:`control_step` the
-CPU batch loop around it. The chain and plane tables are :mod:`envs.physics.model`'s; the tests
+(no allocation, no Python object); :func:`control_step` the CPU batch loop around it. The chain and plane tables are :mod:`envs.physics.model`'s; the tests
 compare :func:`aba` with ``pin.aba`` and :class:`NumbaDynamics` with the Pinocchio loop. The
 kernels are compiled on first use and cached on disk (``cache=True``).
 """
 
 from __future__ import annotations
 
-import ast
-import inspect
-import textwrap
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -439,9 +435,8 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
                ):  # pragma: no cover - compiled
     """One control step of one copy, in place, in the time-scaled units of
     :mod:`envs.physics.model`: the step body, pure scalar and array arithmetic on the arrays it
-    is given (no allocation, no Python object), so that the same function can be compiled for a
-    GPU thread (``numba.cuda.jit(device=True)``) as well as for the CPU loop
-    :func:`control_step`.
+    is given (no allocation, no Python object), the body of the CPU loop :func:`control_step`
+    (and the reference of the Triton kernel, :mod:`envs.physics.triton_kernel`).
 
     ``substeps`` times ``tau = clip(bias - kp q - kd w + g(q), +-effort)``,
     ``w' = clip(w + aba(q, w, tau), +-w_max)``, ``q' = q + w'`` (joints ``free ..`` locked:
@@ -521,80 +516,6 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
     placements(q, rot0, axis, R)
     tool_position(R, p, tool_pos, base_height, tool)
     return hit_plane, hit_limit
-
-
-STEP_BODY = ("placements", "_motion_inv", "_force_act", "_gravity_torque", "_rotate_blocks",
-             "_shift_into", "_aba", "copy_link_heights", "tool_position", "step_copy")
-"""The functions of one copy's step, callees first: :func:`step_copy` and all it calls."""
-
-
-class _TypedLiterals(ast.NodeTransformer):
-    """Float literals (``0.0``, ``1.0``, ``np.inf``) as names of constants of one dtype.
-
-    numba types a float literal as float64 whatever the arrays around it, so that ``s = 0.0;
-    s += x[i]`` sums float32 arrays in float64 (and a GPU runs float64 instructions); a global
-    ``np.float32`` constant is typed float32. ``constants`` collects name -> value.
-    """
-
-    def __init__(self, cast: Any, constants: dict[str, Any]) -> None:
-        self.cast, self.constants = cast, constants
-
-    def _name(self, value: float, node: ast.AST) -> ast.Name:
-        name = f"_LITERAL_{len(self.constants)}"
-        self.constants[name] = self.cast(value)
-        return ast.copy_location(ast.Name(id=name, ctx=ast.Load()), node)
-
-    def visit_Constant(self, node: ast.Constant) -> ast.AST:
-        if isinstance(node.value, float):
-            return self._name(node.value, node)
-        return node
-
-    def visit_Attribute(self, node: ast.Attribute) -> ast.AST:
-        if isinstance(node.value, ast.Name) and node.value.id == "np" and node.attr == "inf":
-            return self._name(np.inf, node)
-        return self.generic_visit(node)
-
-
-def _min2(a, b):  # pragma: no cover - compiled
-    """``min(a, b)`` of two numbers (Python's: ``a`` on a tie)."""
-    return b if b < a else a
-
-
-def _max2(a, b):  # pragma: no cover - compiled
-    """``max(a, b)`` of two numbers (Python's: ``a`` on a tie)."""
-    return b if b > a else a
-
-
-def compile_step_functions(jit: Any, dtype: Any = np.float64) -> dict[str, Any]:
-    """Each of :data:`STEP_BODY` compiled anew by ``jit`` (such as
-    ``numba.cuda.jit(device=True)``, for the body of a GPU kernel), by name: rebuilt from its
-    Python source with every float literal a constant of ``dtype`` (float64 or float32: a
-    float32 body then computes in float32 alone, where the CPU kernel, compiled once for both
-    types, sums in float64), its calls bound to the others' new versions. ``min`` and
-    ``max`` are bound to :func:`_min2` and :func:`_max2` compiled by ``jit``: numba 0.66 to
-    0.68's CUDA target fails to compile the builtin two-argument ``min`` and ``max``
-    ("Signature mismatch", numba issue 10753); for numbers they give the same values.
-
-    Raises
-    ------
-    ValueError
-        For a ``dtype`` other than float64 and float32.
-    """
-    cast = DTYPES[dtype_name(dtype)]
-    space = dict(globals())
-    space["min"], space["max"] = jit(_min2), jit(_max2)
-    constants: dict[str, Any] = {}
-    for name in STEP_BODY:
-        func = getattr(space[name], "py_func", space[name])
-        lines, first = inspect.getsourcelines(func)
-        tree = ast.parse(textwrap.dedent("".join(lines)))
-        tree.body[0].decorator_list = []  # the CPU's @_njit
-        ast.increment_lineno(tree, first - 1)  # tracebacks point into this file
-        tree = ast.fix_missing_locations(_TypedLiterals(cast, constants).visit(tree))
-        space.update(constants)
-        exec(compile(tree, inspect.getsourcefile(func) or __file__, "exec"), space)
-        space[name] = jit(space[name])
-    return {name: space[name] for name in STEP_BODY}
 
 
 @_njit
