@@ -14,8 +14,6 @@ plateau rule"; why its level and band are what they are: there).
   slope x (budget - end). A setting has **plateaued** when the window holds at least
   `PLATEAU_MIN_SESSIONS` sessions and, under **both** models, the `DECIDING_LEVEL` interval of
   the extrapolated change lies inside +- `PLATEAU_BAND` successes per 100.
-- Beside it, as information: each seed's last-5 level change over the window (mean over seeds,
-  65 % and 95 % Student-t intervals).
 """
 
 from __future__ import annotations
@@ -39,9 +37,6 @@ PLATEAU_BAND = 5.0
 budget must lie within +- this, under both models. Half `analysis.report.ABOUT_TOLERANCE` and
 equal to `analysis.report.CONVERGED_GAP` (docs/design.md says why)."""
 
-PLATEAU_LEVELS = (0.65, 0.95)
-"""Confidence levels printed: the paper's figures' 65 % and the 95 % the rule decides on."""
-
 DECIDING_LEVEL = 0.95
 """The level whose intervals decide the rule: a curve whose true extrapolated change is at the
 band's edge is called plateaued with probability at most (1 - 0.95) / 2 = 2.5 % per model."""
@@ -52,9 +47,6 @@ by simulation)."""
 
 PLATEAU_STAGES = (1_000, 2_000, 4_000, 8_000, 12_000, 16_000, 20_000)
 """Budgets (training episodes) the rule is applied at, as the long study reaches them."""
-
-LEVEL_SESSIONS = 5
-"""A seed's level is its mean over its last 5 test sessions (`analysis.report.LAST_SESSIONS`)."""
 
 MODELS = ("pooled", "seeds")
 """The two variance models, in the order tables print them."""
@@ -166,9 +158,6 @@ class Plateau:
     """The claim's budget (training episodes) the slope is extrapolated to."""
     slopes: dict[str, Slope] | None
     """Per model of `MODELS`, per 1,000 episodes (None: too few sessions or seeds)."""
-    level_change: tuple[float, float, float, float, float] | None
-    """Each seed's last-5 level at ``end`` minus at ``start``: mean over seeds, 65 % low, high,
-    95 % low, high (None: fewer than 5 sessions up to ``start``)."""
 
     @property
     def remaining(self) -> int:
@@ -250,18 +239,7 @@ def plateau(episode: np.ndarray, percent: np.ndarray, upto: int | None = None,
     x, y = episode[in_window], percent[:, in_window]
     slopes = ({"pooled": ols_slope(x, y.mean(axis=0)), "seeds": seed_slope(x, y)}
               if n >= 3 and len(y) >= 2 else None)
-    before = episode <= start
-    change = None
-    if before.sum() >= LEVEL_SESSIONS and len(percent) >= 2:
-        diff = (percent[:, -LEVEL_SESSIONS:].mean(axis=1)
-                - percent[:, before][:, -LEVEL_SESSIONS:].mean(axis=1))
-        se = diff.std(ddof=1) / math.sqrt(len(diff))
-        bounds = []
-        for level in PLATEAU_LEVELS:
-            half = t_quantile(0.5 + level / 2.0, len(diff) - 1) * se
-            bounds += [diff.mean() - half, diff.mean() + half]
-        change = (float(diff.mean()), *(float(b) for b in bounds))
-    return Plateau(end, start, n, budget, slopes, change)
+    return Plateau(end, start, n, budget, slopes)
 
 
 def stages(end: int) -> list[int]:

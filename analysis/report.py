@@ -561,13 +561,11 @@ def plateau_lines(summaries: Mapping[tuple[str, int], SettingSummary], level: fl
             pl = plateau(c.episode, c.percent, stage)
             head = f"| {_name(key)} | {pl.end:,} | {pl.start:,}-{pl.end:,} | {pl.sessions} "
             if pl.slopes is None:
-                rows.append(head + f"| - | - | - | - | - | {pl.verdict()} |")
+                rows.append(head + f"| - | - | - | - | {pl.verdict()} |")
                 continue
-            lc = pl.level_change
             cells = [f"{s.value:+.1f} {_ci(*s.interval(DECIDING_LEVEL))}, p {p_text(s.p_value)}"
                      for s in (pl.slopes[m] for m in MODELS)]
             cells += [_ci(*pl.change(m)[1:]) for m in MODELS]
-            cells.append(f"{lc[0]:+.1f} {_ci(lc[1], lc[2])} {_ci(lc[3], lc[4])}" if lc else "-")
             rows.append(head + "| " + " | ".join(cells) + " | "
                         + ("**" + pl.verdict() + "**" if pl.plateaued else pl.verdict()) + " |")
         last = plateau(c.episode, c.percent)
@@ -587,13 +585,12 @@ def plateau_lines(summaries: Mapping[tuple[str, int], SettingSummary], level: fl
             f"**plateaued** when the window holds at least {PLATEAU_MIN_SESSIONS} sessions and "
             f"under both models the {DECIDING_LEVEL:.0%} interval of that change lies within "
             f"+- {PLATEAU_BAND:g}; then a claim about its asymptote can fail there (on intervals "
-            "widened by that change), never hold. Beside it, as information: the change of each "
-            "seed's last-5 level over the window (mean over seeds, 65 % and 95 % intervals).", "",
+            "widened by that change), never hold.", "",
             f"| setting | stage | window | sessions | pooled slope per 1,000 [{DECIDING_LEVEL:.0%}] "
             f"| seeds' slope per 1,000 [{DECIDING_LEVEL:.0%}] | change to {PAPER_EPISODES:,}, "
             f"pooled [{DECIDING_LEVEL:.0%}] | change to {PAPER_EPISODES:,}, seeds "
-            f"[{DECIDING_LEVEL:.0%}] | last-5 change [65 %] [95 %] | verdict |",
-            "|---|---:|---|---:|---|---|---|---|---|---|", *rows, "", *judged, ""]
+            f"[{DECIDING_LEVEL:.0%}] | verdict |",
+            "|---|---:|---|---:|---|---|---|---|---|", *rows, "", *judged, ""]
 
 
 def p_text(p: float | None) -> str:

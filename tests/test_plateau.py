@@ -82,10 +82,6 @@ def test_the_band_bounds_the_change_extrapolated_to_the_budget() -> None:
         low, high = s.interval(0.95)
         assert low < 10.0 < high
     assert not got.plateaued
-    # the last-5 level change: the line's 2,000 episodes x 10 per 1,000, per seed
-    assert got.level_change[0] == pytest.approx(20.0, abs=2.0)
-    assert got.level_change[3] < got.level_change[1] < got.level_change[0] < \
-        got.level_change[2] < got.level_change[4]
 
 
 def test_the_window_is_the_last_half_at_most_2000_episodes() -> None:
