@@ -10,9 +10,9 @@ For each (region, joints): each seed's mean over its last 5 test sessions and it
 
 The verdict rule is `rule_lines`, printed with every report and stated in docs/design.md ("What
 the paper reports"); `judge_claims` applies it. A claim about where training ends is judged on
-runs shorter than the paper's (it can fail there, never hold) when every setting it compares
-has plateaued by the plateau rule (`analysis.plateau`); the report applies that rule to every setting
-at every stage of `analysis.plateau.PLATEAU_STAGES` its runs reached.
+runs shorter than the paper's (it can fail there, never hold) when every setting it
+compares has plateaued by the plateau rule (`analysis.plateau`); the report applies that rule to
+every setting at every stage of `analysis.plateau.PLATEAU_STAGES` its runs reached.
 """
 
 from __future__ import annotations
@@ -586,10 +586,11 @@ def plateau_lines(summaries: Mapping[tuple[str, int], SettingSummary], level: fl
             f"under both models the {DECIDING_LEVEL:.0%} interval of that change lies within "
             f"+- {PLATEAU_BAND:g}; then a claim about its asymptote can fail there (on intervals "
             "widened by that change), never hold.", "",
-            f"| setting | stage | window | sessions | pooled slope per 1,000 [{DECIDING_LEVEL:.0%}] "
-            f"| seeds' slope per 1,000 [{DECIDING_LEVEL:.0%}] | change to {PAPER_EPISODES:,}, "
-            f"pooled [{DECIDING_LEVEL:.0%}] | change to {PAPER_EPISODES:,}, seeds "
-            f"[{DECIDING_LEVEL:.0%}] | verdict |",
+            "| setting | stage | window | sessions | "
+            + " | ".join(f"{what} [{DECIDING_LEVEL:.0%}]" for what in (
+                "pooled slope per 1,000", "seeds' slope per 1,000",
+                f"change to {PAPER_EPISODES:,}, pooled", f"change to {PAPER_EPISODES:,}, seeds"))
+            + " | verdict |",
             "|---|---:|---|---:|---|---|---|---|---|", *rows, "", *judged, ""]
 
 
