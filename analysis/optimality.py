@@ -81,7 +81,7 @@ CSV_COLUMNS = ("region", "joints", "reading", "goals", "gamma", "share_worth", "
                "mean_best_reach_return", "mean_stay_return", "mean_zero_return",
                "mean_branches", "grid_per_joint", "share_worth_grid", "agreement_grid",
                "seed", "seconds", "action_penalty_unit", "action_weight",
-               "reward_type", "contact_model", "start_q")
+               "reward_type", "contact_model", "held_joints", "start_q")
 """Columns of the CSV: one row per region x joints x reading. Shares in [0, 1] with the
 :data:`CONFIDENCE` Wilson interval on ``share_worth``; returns are discounted returns (reward
 units); ``mean_gap`` is the mean over goals with both of (best reaching return - best
@@ -442,6 +442,7 @@ class OptimalityResult:
             "action_penalty_unit": task.action_penalty_unit,
             "action_weight": task.action_weight, "reward_type": task.reward_type,
             "contact_model": getattr(task, "contact_model", "stop"),
+            "held_joints": task.held_joints,
             "start_q": " ".join(f"{x:.6g}" for x in task.start_q),
         }
 

@@ -1,78 +1,89 @@
-"""The plateau rule: whether a setting's learning curve has stopped moving at the budget its runs
-reached, so that its level may be judged there (labelled with that budget) instead of at the
-paper's 20,000 episodes.
-
-The rule (docs/design.md, "What the paper reports"), written at the long study's 2,000-episode
-stage after a first look at its slopes and fixed from there on:
+"""The plateau rule: whether a setting's learning curve, at the budget its runs reached, has
+stopped moving enough that a claim about where training ends (at the paper's budget) could be
+contradicted there. It never lets such a claim hold before its budget (docs/design.md, "The
+plateau rule"; why its level and band are what they are: there).
 
 - The window is the last half of the run, at most `PLATEAU_WINDOW` training episodes: every
   common test session at or after ``end - min(PLATEAU_WINDOW, end // 2)``.
-- On it, the ordinary least-squares slope of the per-session mean over seeds against the
-  training episode, with its two-sided Student-t intervals (``n - 2`` degrees of freedom) at
-  65 % and 95 %, and its p-value against slope 0.
-- The fitted change over the window is the slope times the window's length (episodes).
-- A setting has **plateaued** when the window holds at least `PLATEAU_MIN_SESSIONS` sessions and
-  the 95 % interval of the fitted change lies inside +- `PLATEAU_BAND` successes per 100: the
-  curve is shown to move by less than the band over the window, not merely not shown to move.
-- Beside it, as information: the change of each seed's last-5 level (its mean over its last 5
-  sessions) from the window's start to its end, with the mean over seeds and its 65 % and 95 %
-  Student-t intervals.
-
-The OLS interval treats the sessions' residuals as independent; a curve's neighbouring sessions
-share a policy's slowly changing weights, so the interval is if anything too narrow, which the
-95 % level and the band's requirement on the whole interval are there to offset.
+- On it, the slope (successes per 100 per 1,000 episodes) under two variance models:
+  *pooled*, the least-squares slope of the per-session mean over seeds with its Student-t
+  interval on ``sessions - 2`` degrees of freedom (the sessions' scatter about one line), and
+  *seeds*, the mean of each seed's own least-squares slope with its Student-t interval on
+  ``seeds - 1`` degrees of freedom (the spread of the slopes between seeds).
+- The extrapolated change is the slope carried from the judged budget to the claim's budget:
+  slope x (budget - end). A setting has **plateaued** when the window holds at least
+  `PLATEAU_MIN_SESSIONS` sessions and, under **both** models, the `DECIDING_LEVEL` interval of
+  the extrapolated change lies inside +- `PLATEAU_BAND` successes per 100.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from analysis.paper import PAPER_EPISODES
+
 PLATEAU_WINDOW = 2_000
-"""Longest window the slope is fitted on (training episodes): the issue's 'last 2,000
-episodes', 10 % of the paper's budget."""
+"""Longest window the slopes are fitted on (training episodes): 10 % of the paper's budget."""
 
 PLATEAU_MIN_SESSIONS = 5
 """Fewest test sessions a window needs to be judged (as many as a level is averaged over)."""
 
 PLATEAU_BAND = 5.0
-"""Successes per 100 test goals: the 95 % interval of the fitted change over the window must lie
-within +- this. The same 5 per 100 as `analysis.report.CONVERGED_GAP`, the project's gap for 'a
-seed has converged'."""
-
-PLATEAU_LEVELS = (0.65, 0.95)
-"""Confidence levels of the slope's intervals: the paper's figures' 65 % and the 95 % the rule
-decides on."""
+"""Successes per 100 test goals: the 95 % interval of the change extrapolated to the claim's
+budget must lie within +- this, under both models. Half `analysis.report.ABOUT_TOLERANCE` and
+equal to `analysis.report.CONVERGED_GAP` (docs/design.md says why)."""
 
 DECIDING_LEVEL = 0.95
-"""The level whose interval of the fitted change decides the rule."""
+"""The level whose intervals decide the rule: a curve whose true extrapolated change is at the
+band's edge is called plateaued with probability at most (1 - 0.95) / 2 = 2.5 % per model."""
+
+FALSE_PLATEAU_RATE = (1.0 - DECIDING_LEVEL) / 2.0
+"""The rule's stated false-plateau rate at the band's edge (tests/test_plateau.py checks it
+by simulation)."""
 
 PLATEAU_STAGES = (1_000, 2_000, 4_000, 8_000, 12_000, 16_000, 20_000)
 """Budgets (training episodes) the rule is applied at, as the long study reaches them."""
 
-LEVEL_SESSIONS = 5
-"""A seed's level is its mean over its last 5 test sessions (`analysis.report.LAST_SESSIONS`)."""
+MODELS = ("pooled", "seeds")
+"""The two variance models, in the order tables print them."""
+
+
+@functools.lru_cache(maxsize=256)
+def t_quantile(q: float, dof: int) -> float:
+    """Student-t quantile ``q`` with ``dof`` degrees of freedom (cached: the rule's simulation
+    in tests/test_plateau.py asks for the same few thousands of times)."""
+    from scipy import stats
+
+    return float(stats.t.ppf(q, dof))
 
 
 @dataclass(frozen=True)
 class Slope:
-    """An OLS slope with its standard error, intervals and p-value (successes per 100 per
-    1,000 training episodes)."""
+    """A slope with its standard error and degrees of freedom (successes per 100 per 1,000
+    training episodes)."""
 
     value: float
     stderr: float
     dof: int
-    p_value: float
+
+    @property
+    def p_value(self) -> float:
+        """Two-sided Student-t p-value against slope 0."""
+        from scipy import stats
+
+        if self.stderr > 0:
+            return float(2.0 * stats.t.sf(abs(self.value) / self.stderr, self.dof))
+        return 0.0 if self.value != 0 else 1.0
 
     def interval(self, level: float) -> tuple[float, float]:
         """The two-sided Student-t interval of the slope at ``level`` (per 1,000 episodes)."""
-        from scipy import stats
-
         if not 0.0 < level < 1.0:
             raise ValueError(f"confidence level must be in (0, 1); got {level}")
-        half = float(stats.t.ppf(0.5 + level / 2.0, self.dof)) * self.stderr
+        half = t_quantile(0.5 + level / 2.0, self.dof) * self.stderr
         return self.value - half, self.value + half
 
 
@@ -89,11 +100,8 @@ def ols_slope(x: np.ndarray, y: np.ndarray) -> Slope:
     Returns
     -------
     Slope
-        Per 1,000 episodes; its p-value two-sided against slope 0, with ``n - 2`` degrees of
-        freedom.
+        Per 1,000 episodes; its p-value two-sided against 0, with ``n - 2`` degrees of freedom.
     """
-    from scipy import stats
-
     x, y = np.asarray(x, float), np.asarray(y, float)
     if x.ndim != 1 or x.shape != y.shape:
         raise ValueError(f"x and y must be (n,) arrays of one length; got shapes {x.shape} "
@@ -105,10 +113,35 @@ def ols_slope(x: np.ndarray, y: np.ndarray) -> Slope:
     slope = float(dx @ (y - y.mean())) / sxx
     resid = y - y.mean() - slope * dx
     dof = len(x) - 2
-    stderr = math.sqrt(float(resid @ resid) / dof / sxx)
-    p = (float(2.0 * stats.t.sf(abs(slope) / stderr, dof)) if stderr > 0
-         else 0.0 if slope != 0 else 1.0)
-    return Slope(slope * 1000.0, stderr * 1000.0, dof, p)
+    return Slope(slope * 1000.0, math.sqrt(float(resid @ resid) / dof / sxx) * 1000.0, dof)
+
+
+def seed_slope(x: np.ndarray, y: np.ndarray) -> Slope:
+    """The mean of each seed's own least-squares slope, its interval from their spread.
+
+    Parameters
+    ----------
+    x : (n,) float
+        Training episodes of the sessions (at least 3 distinct values).
+    y : (n_seeds, n) float
+        Successes per 100 test goals per seed (at least 2 seeds).
+
+    Returns
+    -------
+    Slope
+        Per 1,000 episodes; standard error sd(slopes) / sqrt(n_seeds), ``n_seeds - 1`` degrees
+        of freedom, p-value two-sided against 0 (a one-sample t-test of the seeds' slopes).
+    """
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if y.ndim != 2 or y.shape[1] != len(x) or len(y) < 2:
+        raise ValueError(f"y must be (n_seeds >= 2, n) with n = len(x) = {len(x)}; got shape "
+                         f"{y.shape}")
+    if len(np.unique(x)) < 3:
+        raise ValueError(f"a slope with an interval needs at least 3 distinct x; got {x.tolist()}")
+    dx = x - x.mean()
+    each = (y - y.mean(axis=1, keepdims=True)) @ dx / float(dx @ dx)
+    return Slope(float(each.mean()) * 1000.0,
+                 float(each.std(ddof=1)) / math.sqrt(len(each)) * 1000.0, len(each) - 1)
 
 
 @dataclass(frozen=True)
@@ -116,46 +149,60 @@ class Plateau:
     """The plateau rule applied to one setting at one budget (see the module docstring)."""
 
     end: int
-    """The last session judged (training episodes): the budget."""
+    """The last session judged (training episodes)."""
     start: int
     """The window's first session (training episodes)."""
     sessions: int
     """Test sessions in the window."""
-    slope: Slope | None
-    """Of the per-session mean over seeds, per 1,000 episodes (None: too few sessions)."""
-    level_change: tuple[float, float, float, float, float] | None
-    """Each seed's last-5 level at ``end`` minus at ``start``: mean over seeds, 65 % low, high,
-    95 % low, high (None: fewer than 5 sessions up to ``start``)."""
+    budget: int
+    """The claim's budget (training episodes) the slope is extrapolated to."""
+    slopes: dict[str, Slope] | None
+    """Per model of `MODELS`, per 1,000 episodes (None: too few sessions or seeds)."""
 
     @property
-    def span(self) -> int:
-        """The window's length (training episodes)."""
-        return self.end - self.start
+    def remaining(self) -> int:
+        """Training episodes from ``end`` to the claim's budget (0 at or past it)."""
+        return max(self.budget - self.end, 0)
 
-    def change(self, level: float = DECIDING_LEVEL) -> tuple[float, float, float]:
-        """The fitted change over the window (slope x span): estimate, low, high at ``level``."""
-        if self.slope is None:
+    def change(self, model: str, level: float = DECIDING_LEVEL) -> tuple[float, float, float]:
+        """The change extrapolated to the budget (slope x remaining): estimate, low, high."""
+        if model not in MODELS:
+            raise ValueError(f"model must be one of {MODELS}; got {model!r}")
+        if self.slopes is None:
             return (math.nan,) * 3
-        k = self.span / 1000.0
-        low, high = self.slope.interval(level)
-        return self.slope.value * k, low * k, high * k
+        k = self.remaining / 1000.0
+        s = self.slopes[model]
+        low, high = s.interval(level)
+        return s.value * k, low * k, high * k
+
+    def plateaued_under(self, model: str) -> bool:
+        """Enough sessions, and ``model``'s 95 % interval of the extrapolated change inside
+        +- `PLATEAU_BAND`."""
+        if self.slopes is None or self.sessions < PLATEAU_MIN_SESSIONS:
+            return False
+        _, low, high = self.change(model)
+        return low >= -PLATEAU_BAND and high <= PLATEAU_BAND
 
     @property
     def plateaued(self) -> bool:
-        """The rule's verdict: enough sessions, and the 95 % interval of the fitted change
-        inside +- `PLATEAU_BAND`."""
-        if self.slope is None or self.sessions < PLATEAU_MIN_SESSIONS:
-            return False
-        _, low, high = self.change(DECIDING_LEVEL)
-        return low >= -PLATEAU_BAND and high <= PLATEAU_BAND
+        """The rule's verdict: plateaued under both variance models."""
+        return all(self.plateaued_under(m) for m in MODELS)
+
+    def reach(self) -> tuple[float, float]:
+        """The widest 95 % extrapolated change over both models: (low, high)."""
+        got = [self.change(m)[1:] for m in MODELS]
+        return min(g[0] for g in got), max(g[1] for g in got)
 
     def verdict(self) -> str:
-        """'plateaued at N episodes' or 'not judgeable at N episodes'."""
+        """'plateaued at N episodes', 'not plateaued at N episodes' or 'at the budget'."""
+        if self.remaining == 0:
+            return f"at the claim's budget ({self.budget:,} episodes)"
         return (f"plateaued at {self.end:,} episodes" if self.plateaued
-                else f"not judgeable at {self.end:,} episodes")
+                else f"not plateaued at {self.end:,} episodes")
 
 
-def plateau(episode: np.ndarray, percent: np.ndarray, upto: int | None = None) -> Plateau:
+def plateau(episode: np.ndarray, percent: np.ndarray, upto: int | None = None,
+            budget: int = PAPER_EPISODES) -> Plateau:
     """The plateau rule on one setting's seeds.
 
     Parameters
@@ -166,9 +213,10 @@ def plateau(episode: np.ndarray, percent: np.ndarray, upto: int | None = None) -
         Successes per 100 test goals per seed and session.
     upto : int, optional
         Apply the rule at this budget (training episodes): sessions after it are dropped.
+    budget : int
+        The claim's budget (training episodes) the slopes are extrapolated to (default: the
+        paper's 20,000).
     """
-    from scipy import stats
-
     episode = np.asarray(episode)
     percent = np.asarray(percent, float)
     if episode.ndim != 1 or percent.ndim != 2 or percent.shape[1] != len(episode):
@@ -176,6 +224,8 @@ def plateau(episode: np.ndarray, percent: np.ndarray, upto: int | None = None) -
                          f"{episode.shape} and {percent.shape}")
     if len(episode) == 0 or np.any(np.diff(episode) <= 0):
         raise ValueError(f"episode must be non-empty and increasing; got {episode.tolist()}")
+    if budget <= 0:
+        raise ValueError(f"budget must be a positive number of training episodes; got {budget}")
     if upto is not None:
         keep = episode <= upto
         if not keep.any():
@@ -186,20 +236,10 @@ def plateau(episode: np.ndarray, percent: np.ndarray, upto: int | None = None) -
     in_window = episode >= end - min(PLATEAU_WINDOW, end // 2)
     start = int(episode[in_window][0])
     n = int(in_window.sum())
-    slope = (ols_slope(episode[in_window], percent[:, in_window].mean(axis=0)) if n >= 3
-             else None)
-    before = episode <= start
-    change = None
-    if before.sum() >= LEVEL_SESSIONS and len(percent) >= 2:
-        diff = (percent[:, -LEVEL_SESSIONS:].mean(axis=1)
-                - percent[:, before][:, -LEVEL_SESSIONS:].mean(axis=1))
-        se = diff.std(ddof=1) / math.sqrt(len(diff))
-        bounds = []
-        for level in PLATEAU_LEVELS:
-            half = float(stats.t.ppf(0.5 + level / 2.0, len(diff) - 1)) * se
-            bounds += [diff.mean() - half, diff.mean() + half]
-        change = (float(diff.mean()), *(float(b) for b in bounds))
-    return Plateau(end, start, n, slope, change)
+    x, y = episode[in_window], percent[:, in_window]
+    slopes = ({"pooled": ols_slope(x, y.mean(axis=0)), "seeds": seed_slope(x, y)}
+              if n >= 3 and len(y) >= 2 else None)
+    return Plateau(end, start, n, budget, slopes)
 
 
 def stages(end: int) -> list[int]:

@@ -1,0 +1,215 @@
+"""Every claim of the paper in one table, judged on the committed results by the project's rule.
+
+    python -m analysis.claims [--results results] [--out results/claims] [--readme README.md]
+
+Sixteen claims: the thirteen of section IV (`analysis.paper.CLAIMS`, judged by
+`analysis.report.judge_claims` with the plateau rule) and three of sections III-IV that the
+paper states without a figure (`EXTRA`). Each row: the claim and its section, our figure, the
+rule, the budget run (training episodes), the verdict (*holds*, *contradicted*, *within noise*,
+*not judgeable*, *not run*) and the budget it needs. Interval rule: the paper's 65 % Student-t
+over seeds of each seed's last-5 level, intervals apart (docs/design.md, "The verdict rule").
+
+Where it reads (below ``--results``), the longest run of a setting winning:
+``sensitivity/runs/ours`` (the default reading, 1,000 episodes), ``paper_long/runs`` (2,000),
+and ``claims/{farbox_tall,velocity,torque,sparse,per}/runs`` (far box 3 variants; the baseline is
+the ``ours`` far box 3). A claim whose runs are absent is *not run*.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from analysis.paper import CLAIMS, PAPER_EPISODES
+from analysis.plateau import plateau
+from analysis.report import (
+    Check,
+    Curves,
+    Verdict,
+    _apart,
+    _fmt,
+    claim_settings,
+    judge_claims,
+    student_t,
+    welch_p,
+)
+from analysis.runs import PERCENT, find_runs, group_by_setting
+
+SOURCES = ("sensitivity/runs/ours", "paper_long/runs", "claims/farbox_tall/runs")
+"""Run roots of the paper's settings under the default reading (below ``--results``)."""
+
+VARIANTS = {"velocity": "velocity control", "torque": "torque control",
+            "sparse": "the sparse reward", "per": "prioritised replay"}
+"""Far box 3 variants: folder below ``claims/`` -> what it changes."""
+
+NEGLIGIBLE = 10.0
+"""Successes per 100 below which a success rate is "negligible" (our reading; the paper gives
+no number: as far from 0 as "nearly 100 %" (90) is from 100)."""
+
+EXTRA = (
+    ("only position control non-negligible", "in our experiments only joint position control "
+     "resulted in a non-negligible success rate", "IV (opening)", ("velocity", "torque")),
+    ("dense reward above sparse", "sparse rewards give rise to better learning than dense "
+     "rewards, but we found the opposite to be true", "III-A", ("sparse",)),
+    ("prioritised replay destabilised learning", "Prioritized Experience Replay ... tended to "
+     "destabilize or prevent learning", "III-A", ("per",)),
+)
+"""The three claims outside section IV: name, the paper's words, section, variants compared
+against far box 3 (each at the far box's own budget, 1,000 episodes: IV-C)."""
+
+RULES = ["seeds hitting 90 by 1,000 vs the paper's misses"] * 2 + [
+    "weakest A above strongest B (65 % t, apart)", "at least 90 (65 % t)",
+    "under 50 (65 % t)", "within 40 +- 10 (65 % t)", "within a band 10 wide (65 % t)",
+    "within 20 +- 10 (65 % t)", "within a band 10 wide (65 % t)",
+    "weakest A above strongest B (65 % t, apart)",
+    "episode converged, 6 above 3 joints (65 % t)", "within a band 10 wide (65 % t)",
+    "success maps of converged policies",
+    f"velocity, torque under {NEGLIGIBLE:g} (65 % t)", "dense above sparse (65 % t, apart)",
+    "uniform above prioritised (65 % t, apart)"]
+"""The rule of each claim, in table order (`analysis.report.rule_lines` states them in full)."""
+
+WORDS = {Verdict.YES: "holds", Verdict.NO: "contradicted", Verdict.NOISE: "within noise",
+         Verdict.NOT_JUDGEABLE: "not judgeable", Verdict.NOT_RUN: "not run"}
+COLUMNS = ("claim", "section", "our figure", "rule", "budget run", "verdict", "budget needed")
+
+
+def load(results: Path) -> tuple[dict[tuple[str, int], Curves], dict[str, Curves]]:
+    """The settings' curves (longest run of each) and the variants' curves found below
+    ``results`` (absent roots are skipped: their claims are *not run*)."""
+    curves: dict[tuple[str, int], Curves] = {}
+    for source in SOURCES:
+        if (results / source).is_dir():
+            for key, runs in group_by_setting(find_runs([results / source])).items():
+                c = Curves.of(runs)
+                if key not in curves or c.end > curves[key].end:
+                    curves[key] = c
+    variants = {}
+    for name in VARIANTS:
+        root = results / "claims" / name / "runs"
+        runs = find_runs([root]) if root.is_dir() else []
+        if runs:
+            if {r.setting for r in runs} != {("farbox", 3)}:
+                raise ValueError(f"{root}: expected far box 3 runs only; found settings "
+                                 f"{sorted({r.setting for r in runs})}")
+            variants[name] = Curves.of(runs)
+    return curves, variants
+
+
+def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curves]
+                ) -> list[Check]:
+    """The three claims of `EXTRA`, each comparing variants with the default far box 3."""
+    interval, out = student_t(), []
+    base = curves.get(("farbox", 3))
+    for name, _, _, names in EXTRA:
+        have = [n for n in names if n in variants]
+        if base is None or len(have) < len(names):
+            lack = [n for n in names if n not in variants] + (["farbox 3"] if base is None else [])
+            out.append(Check(name, Verdict.NOT_RUN, "runs missing: " + ", ".join(lack)))
+            continue
+        b = interval(base.level(), PERCENT)
+        each, parts, ps = [], [f"far box 3 (position, dense, uniform) {_fmt(b)}"], []
+        for n in have:
+            v = interval(variants[n].level(), PERCENT)
+            parts.append(f"{VARIANTS[n]} {_fmt(v)} ({len(variants[n].percent)} seeds, "
+                         f"{variants[n].end:,} episodes)")
+            ps.append(welch_p(base.level(), variants[n].level()))
+            each.append(_apart(b, v) if name != EXTRA[0][0] else
+                        Verdict.YES if v[2] < NEGLIGIBLE else Verdict.NO if v[1] >= NEGLIGIBLE
+                        else Verdict.NOISE)
+        verdict = (Verdict.NO if Verdict.NO in each else Verdict.YES
+                   if all(v is Verdict.YES for v in each) else Verdict.NOISE)
+        out.append(Check(name, verdict, "; ".join(parts), min(ps)))
+    return out
+
+
+def table(results: Path) -> list[dict[str, str]]:
+    """The sixteen claims' rows (keys: `COLUMNS`) from the results below ``results``."""
+    curves, variants = load(results)
+    plateaus = {k: plateau(c.episode, c.percent) for k, c in curves.items()}
+    checks = [*judge_claims(curves, plateaus=plateaus), *judge_extra(curves, variants)]
+    needs = claim_settings()
+    where = {c.name: (c.where, c.at_end) for c in CLAIMS} | {e[0]: (e[2], False) for e in EXTRA}
+    rows = []
+    for check, rule in zip(checks, RULES, strict=True):
+        section, at_end = where[check.claim]
+        if check.claim in needs:
+            ends = sorted({curves[k].end for k in needs[check.claim] if k in curves})
+        else:
+            ends = sorted({variants[n].end for e in EXTRA if e[0] == check.claim
+                           for n in e[3] if n in variants})
+        need = (f"{PAPER_EPISODES:,}" if at_end else "the run's" if check.claim == CLAIMS[2].name
+                else "1,000") + (" and success maps" if check.claim == CLAIMS[-1].name else "")
+        if check.verdict is Verdict.NOT_RUN:
+            ends = []
+        figure = check.detail + (f" (Welch p {check.p_value:.2g})"
+                                 if check.p_value is not None and check.p_value == check.p_value
+                                 else "")
+        at = f" at {check.plateau_at:,}" if check.plateau_at else ""
+        rows.append({"claim": check.claim, "section": section, "our figure": figure,
+                     "rule": rule, "budget run": "-" if not ends else
+                     f"{ends[0]:,}" + (f"-{ends[-1]:,}" if len(ends) > 1 else ""),
+                     "verdict": WORDS[check.verdict] + at, "budget needed": need})
+    return rows
+
+
+def markdown(rows: Sequence[dict[str, str]]) -> str:
+    """The rows as a Markdown table."""
+    cell = lambda s: s.replace("|", "/")  # noqa: E731
+    return "\n".join(["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS),
+                      *("| " + " | ".join(cell(r[c]) for c in COLUMNS) + " |" for r in rows)])
+
+
+BEGIN, END = "<!-- claims:begin -->", "<!-- claims:end -->"
+
+
+def readme_block(text: str) -> str:
+    """What a README holds between `BEGIN` and `END` (ValueError naming them when absent)."""
+    if BEGIN not in text or END not in text.split(BEGIN, 1)[1]:
+        raise ValueError(f"the README has no {BEGIN} ... {END} markers")
+    return text.split(BEGIN, 1)[1].split(END, 1)[0]
+
+
+def block(rows: Sequence[dict[str, str]]) -> str:
+    """The README's block: the command, then the table."""
+    return (f"\n*Written by `python -m analysis.claims --readme README.md`; rules: docs/design.md, "
+            f"\"The verdict rule\" and \"The plateau rule\".*\n\n{markdown(rows)}\n")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m analysis.claims",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--results", type=Path, default=Path("results"),
+                        help="the committed results folder to read (default: results)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="write claims.md and claims.csv into this folder")
+    parser.add_argument("--readme", type=Path, default=None,
+                        help=f"replace what this file holds between {BEGIN} and {END}")
+    args = parser.parse_args(argv)
+    if not args.results.is_dir():
+        parser.error(f"--results {args.results}: not a folder")
+    try:
+        rows = table(args.results)
+        if args.readme is not None:
+            text = args.readme.read_text()
+            old = readme_block(text)
+            args.readme.write_text(text.replace(BEGIN + old + END, BEGIN + block(rows) + END))
+    except (OSError, ValueError) as err:
+        parser.exit(1, f"error: {err}\n")
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "claims.md").write_text(markdown(rows) + "\n")
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        (args.out / "claims.csv").write_text(buf.getvalue())
+    print(markdown(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
