@@ -59,7 +59,11 @@ EXTRA = (
      "destabilize or prevent learning", "III-A", ("per",)),
 )
 """The three claims outside section IV: name, the paper's words, section, variants compared
-against far box 3 (each at the far box's own budget, 1,000 episodes: IV-C)."""
+against far box 3."""
+
+EXTRA_EPISODES = 1000
+"""The budget of the three claims outside section IV (the far box's own, IV-C: where the
+paper's far box has converged); both sides are compared at the same number of episodes."""
 
 RULES = ["seeds hitting 90 by 1,000 vs the paper's misses"] * 2 + [
     "weakest A above strongest B (65 % t, apart)", "at least 90 (65 % t)",
@@ -99,9 +103,17 @@ def load(results: Path) -> tuple[dict[tuple[str, int], Curves], dict[str, Curves
     return curves, variants
 
 
+def _cut(c: Curves, end: int) -> Curves:
+    """``c`` up to its session at ``end`` episodes: settings compared at one budget."""
+    keep = c.episode <= end
+    return Curves(c.episode[keep], c.percent[:, keep])
+
+
 def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curves]
                 ) -> list[Check]:
-    """The three claims of `EXTRA`, each comparing variants with the default far box 3."""
+    """The three claims of `EXTRA`, each comparing variants with the default far box 3 cut to
+    the variant's budget; a variant short of `EXTRA_EPISODES` gives *not judgeable* (what it
+    shows so far is said, not judged)."""
     interval, out = student_t(), []
     base = curves.get(("farbox", 3))
     for name, _, _, names in EXTRA:
@@ -110,37 +122,51 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
             lack = [n for n in names if n not in variants] + (["farbox 3"] if base is None else [])
             out.append(Check(name, Verdict.NOT_RUN, "runs missing: " + ", ".join(lack)))
             continue
-        b = interval(base.level(), PERCENT)
-        each, parts, ps = [], [f"far box 3 (position, dense, uniform) {_fmt(b)}"], []
+        each, parts, ps = [], [], []
         for n in have:
-            v = interval(variants[n].level(), PERCENT)
-            parts.append(f"{VARIANTS[n]} {_fmt(v)} ({len(variants[n].percent)} seeds, "
-                         f"{variants[n].end:,} episodes)")
-            ps.append(welch_p(base.level(), variants[n].level()))
+            end = min(base.end, variants[n].end)
+            b_level, v_level = _cut(base, end).level(), _cut(variants[n], end).level()
+            b, v = interval(b_level, PERCENT), interval(v_level, PERCENT)
+            parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) {_fmt(b)}, "
+                         f"{VARIANTS[n]} {_fmt(v)} ({len(v_level)} seeds)")
+            ps.append(welch_p(b_level, v_level))
             each.append(_apart(b, v) if name != EXTRA[0][0] else
                         Verdict.YES if v[2] < NEGLIGIBLE else Verdict.NO if v[1] >= NEGLIGIBLE
                         else Verdict.NOISE)
         verdict = (Verdict.NO if Verdict.NO in each else Verdict.YES
                    if all(v is Verdict.YES for v in each) else Verdict.NOISE)
-        out.append(Check(name, verdict, "; ".join(parts), min(ps)))
+        short = min(variants[n].end for n in have) < EXTRA_EPISODES
+        if short:
+            parts.insert(0, f"runs short of {EXTRA_EPISODES:,} episodes; so far "
+                         f"({WORDS[verdict]} so far, not a verdict)")
+        out.append(Check(name, Verdict.NOT_JUDGEABLE if short else verdict, "; ".join(parts),
+                         min(ps)))
     return out
 
 
 def table(results: Path) -> list[dict[str, str]]:
     """The sixteen claims' rows (keys: `COLUMNS`) from the results below ``results``."""
     curves, variants = load(results)
-    plateaus = {k: plateau(c.episode, c.percent) for k, c in curves.items()}
-    checks = [*judge_claims(curves, plateaus=plateaus), *judge_extra(curves, variants)]
     needs = claim_settings()
+    checks, cut = [], {}
+    for i, claim in enumerate(CLAIMS):
+        # every setting a claim compares cut to the shortest one's budget: one budget per claim
+        keys = [k for k in needs[claim.name] if k in curves]
+        end = min((curves[k].end for k in keys), default=0)
+        cut[claim.name] = {k: _cut(curves[k], end) for k in keys}
+        plateaus = {k: plateau(c.episode, c.percent) for k, c in cut[claim.name].items()}
+        checks.append(judge_claims(cut[claim.name], plateaus=plateaus)[i])
+    checks += judge_extra(curves, variants)
     where = {c.name: (c.where, c.at_end) for c in CLAIMS} | {e[0]: (e[2], False) for e in EXTRA}
     rows = []
     for check, rule in zip(checks, RULES, strict=True):
         section, at_end = where[check.claim]
         if check.claim in needs:
-            ends = sorted({curves[k].end for k in needs[check.claim] if k in curves})
+            ends = sorted({c.end for c in cut[check.claim].values()})
         else:
-            ends = sorted({variants[n].end for e in EXTRA if e[0] == check.claim
-                           for n in e[3] if n in variants})
+            base_end = curves[("farbox", 3)].end if ("farbox", 3) in curves else 10**9
+            ends = sorted({min(variants[n].end, base_end) for e in EXTRA
+                           if e[0] == check.claim for n in e[3] if n in variants})
         need = (f"{PAPER_EPISODES:,}" if at_end else "the run's" if check.claim == CLAIMS[2].name
                 else "1,000") + (" and success maps" if check.claim == CLAIMS[-1].name else "")
         if check.verdict is Verdict.NOT_RUN:

@@ -80,6 +80,26 @@ def test_the_unrun_claims_are_judged_when_their_runs_land(tmp_path: Path) -> Non
     assert tall["verdict"] == "not judgeable" and tall["budget needed"] == "20,000"
 
 
+def test_a_shorter_variant_is_compared_at_its_own_budget_and_not_judged(tmp_path: Path
+                                                                        ) -> None:
+    """A variant run to 400 episodes is set beside far box 3's first 400 episodes, not its
+    1,000 (a learning curve rises: unequal budgets would favour the longer run), and the
+    claim is not judgeable until the variant reaches the claims' 1,000."""
+    base = tmp_path / "sensitivity/runs/ours/farbox-j3"
+    _runs(base, "farbox", 3, [100, 95, 98, 99, 97])
+    for seed in range(5):  # the first four sessions low: 20 successes
+        path = base / f"s{seed}" / "eval.csv"
+        lines = path.read_text().splitlines()
+        lines[1:5] = [",".join([line.split(",")[0], "20", *line.split(",")[2:]])
+                      for line in lines[1:5]]
+        path.write_text("\n".join(lines) + "\n")
+    _runs(tmp_path / "claims/per/runs", "farbox", 3, [22, 18, 21, 19, 20], sessions=4)
+    row = _rows(tmp_path)["prioritised replay destabilised learning"]
+    assert row["verdict"] == "not judgeable" and row["budget run"] == "400"
+    assert "far box 3 (position, dense, uniform) 20.0" in row["our figure"]
+    assert "within noise so far" in row["our figure"]
+
+
 def test_a_variant_of_another_setting_is_refused(tmp_path: Path) -> None:
     _runs(tmp_path / "claims/sparse/runs", "farbox", 6, [1, 2, 3, 4, 5])
     with pytest.raises(ValueError, match=r"claims/sparse/runs: expected far box 3 runs only"):
