@@ -159,7 +159,7 @@ def sass_figures(cubin: bytes, rows: list[int]) -> dict[str, Any]:
                            "opcodes": dict(ops.most_common(12))}
     if skips:
         s_lo, s_hi = skips[0]
-        inner = sorted((a, b) for a, b in loops[1:] if s_lo <= a and b <= s_hi)
+        inner = sorted((a, b) for a, b in loops[1:] if s_lo <= a and b <= s_hi and b - a > 50)
         # keep the outermost inner loops only
         outer_inner = [r for r in inner if not any(o != r and o[0] <= r[0] and r[1] <= o[1]
                                                      for o in inner)]
@@ -168,15 +168,21 @@ def sass_figures(cubin: bytes, rows: list[int]) -> dict[str, Any]:
         looped = [n for n in rows if n > 1]
         if outer_inner and len(outer_inner) != len(looped):
             dynamic = dynamic_fp64 = None
-        for (a, b), n in zip(outer_inner, looped if outer_inner else []):
+        for (a, b), n in zip(outer_inner, looped if dynamic is not None else []):
             # a loop over n rows, unrolled by ptxas: one minimum (a DSETP) per row
             extra, extra_fp64 = count(a, b)
             per_row = max(1, sum(op.startswith("DSETP") for _, op, _ in code[a:b]))
             dynamic += round((n / per_row - 1) * extra)
             dynamic_fp64 += round((n / per_row - 1) * extra_fp64)
+        # the branches inside it (one per link when the links are taken apart): the maximal
+        # regions a forward branch skips, in order
+        inside = [(i, j) for i, j in branches if s_lo < i < j <= s_hi and j - i > 50]
+        parts = sorted(r for r in inside if not any(o != r and o[0] <= r[0] and r[1] <= o[1]
+                                                     for o in inside))
         ops = collections.Counter(op.split(".")[0] for _, op, _ in code[s_lo:s_hi])
         out["exact_pass"] = {"static": static, "static_fp64": static_fp64,
                              "opcodes": dict(ops.most_common(8)),
+                             "branches": [count(a, b)[0] for a, b in parts],
                              "inner_loops": [count(a, b)[0] for a, b in outer_inner],
                              "dynamic": dynamic, "dynamic_fp64": dynamic_fp64}
         out["per_substep"] = {

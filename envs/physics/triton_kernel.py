@@ -1,34 +1,21 @@
 """The Triton backend: a whole control step of B arm copies, each with its own locked joints,
 as one Triton kernel launch on torch's current stream (so a CUDA graph can capture it).
 
-The same control step as the numba kernel's :func:`envs.physics.numba_kernel.step_copy`
-(``substeps`` times PD + gravity compensation, effort clip, the articulated-body algorithm
-with joints ``free[b] ..`` locked, velocity clip, semi-implicit Euler; the joint-limit and
-plane stops with the Lipschitz skip of the exact heights; tool0's position), as lane-parallel
-Triton: a program steps ``BLOCK`` copies, one lane each, the whole state of a copy in
-registers. A copy's early stop (``break`` in ``step_copy``) becomes a lane mask: a stopped
-lane keeps computing and discards it. The exact link heights are computed for a block only
-when one of its active lanes needs them (the skip is per copy, as in ``step_copy``).
-
-The arithmetic is generated (:class:`Source`): the step's algebra (:func:`_accel`,
-:func:`_link_heights`, :func:`_lower_bounds`, :func:`_tool`) is traced once per model and
-dtype over :class:`Value` objects with the model's tables as constants, and written out as
-straight-line ``@triton.jit`` functions that the kernel takes as ``tl.constexpr`` arguments.
-The trace drops what the tables make exactly zero (most of the rotations, axes, offsets and
-inertias are zeros and ones, and so are 54% of the vertex table) and keeps the numba kernel's
-operations in its order otherwise, so the interpreter (``TRITON_INTERPRET=1``, numpy) agrees
-with the numba kernel bit for bit over the tested steps in float64 (the test's bound is 1e-9;
-a dropped ``0 x`` differs only for x infinite or NaN, and in a zero's sign), within 1e-5 in
-float32. The vertex table is part of the code: the exact heights load nothing. Each (B, 6)
-state array is read and written as one (BLOCK, 8) tile (Triton's ``TritonGPUCoalesce`` pass
-walks the whole kernel once per lane-tensor memory access). Compiled for sm_90 on the
-development machine (``python -m benchmarks.triton_compile --dtype float64``, which prints the
-registers, spills and SASS instructions; ``results/grid_program/arm_kernel.md`` keeps the
-figures of every variant tried). The first launch on a machine pays the compile (then
-Triton's disk cache).
-
-This module imports Triton (``@triton.jit`` reads ``TRITON_INTERPRET`` when it is imported);
-:mod:`envs.physics.stack` imports it only for ``kernel="triton"``.
+The numba kernel's :func:`envs.physics.numba_kernel.step_copy` as lane-parallel Triton: a
+program steps ``BLOCK`` copies, one lane each, a copy's state in registers, its early stop a
+lane mask; link k's exact height is computed for a block only when one of its active lanes
+needs it. The arithmetic is generated (:func:`generate`): the step's algebra traced once per
+model and dtype over :class:`Value` objects, the tables as constants, and written out as
+straight-line ``@triton.jit`` functions the kernel takes as ``tl.constexpr`` arguments. The
+trace drops what the tables make exactly zero (most rotation, axis, offset and inertia entries,
+54% of the vertex table, which is in the code: no loads) and keeps numba's order otherwise, so
+the interpreter (``TRITON_INTERPRET=1``) agrees with the numba kernel bit for bit over the
+tested steps in float64 (a dropped ``0 x`` differs only for x infinite or NaN, and in a zero's
+sign), within 1e-5 in float32. Each (B, 6) array is read and written as one (BLOCK, 8) tile
+(``TritonGPUCoalesce`` walks the kernel once per lane-tensor access). The sm_90 compile's
+registers, spills and instructions: ``python -m benchmarks.triton_compile``, and
+``results/grid_program/arm_kernel.md``. :mod:`envs.physics.stack` imports this module only
+for ``kernel="triton"`` (``@triton.jit`` reads ``TRITON_INTERPRET`` at import).
 """
 
 # ruff: noqa: RUF005 - tuples grow by concatenation, the form Triton 3.6's front end compiles here
@@ -37,6 +24,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import linecache
+import operator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -71,32 +59,24 @@ class Value:
     def _v(self, x: Any) -> Value:
         return x if isinstance(x, Value) else self.src.constant(x)
 
-    def __add__(self, other: Any) -> Value:
-        return self.src.add(self, self._v(other))
-
-    def __radd__(self, other: Any) -> Value:
-        return self.src.add(self._v(other), self)
-
-    def __sub__(self, other: Any) -> Value:
-        return self.src.sub(self, self._v(other))
-
-    def __rsub__(self, other: Any) -> Value:
-        return self.src.sub(self._v(other), self)
-
-    def __mul__(self, other: Any) -> Value:
-        return self.src.mul(self, self._v(other))
-
-    def __rmul__(self, other: Any) -> Value:
-        return self.src.mul(self._v(other), self)
-
-    def __truediv__(self, other: Any) -> Value:
-        return self.src.div(self, self._v(other))
-
-    def __rtruediv__(self, other: Any) -> Value:
-        return self.src.div(self._v(other), self)
-
     def __neg__(self) -> Value:
         return self.src.neg(self)
+
+
+def _binary(name: str, reflected: bool = False) -> Any:
+    """``Value``'s operator ``__name__`` (:class:`Source`'s method of that name, constants
+    folded here), its operands swapped when ``reflected`` (``2.0 * x``)."""
+    def method(self: Value, other: Any) -> Value:
+        a, b = (self._v(other), self) if reflected else (self, self._v(other))
+        if a.name is None and b.name is None:
+            return self.src.constant(getattr(operator, name)(a.const, b.const))
+        return getattr(self.src, name)(a, b)
+    return method
+
+
+for _name in ("add", "sub", "mul", "truediv"):
+    setattr(Value, f"__{_name}__", _binary(_name))
+    setattr(Value, f"__r{_name}__", _binary(_name, reflected=True))
 
 
 class Source:
@@ -130,8 +110,6 @@ class Source:
         return Value(self, name=name)
 
     def add(self, a: Value, b: Value) -> Value:
-        if a.name is None and b.name is None:
-            return self.constant(a.const + b.const)
         if a.equals(0):
             return b
         if b.equals(0):
@@ -139,8 +117,6 @@ class Source:
         return self.emit(f"{self.ref(a)} + {self.ref(b)}")
 
     def sub(self, a: Value, b: Value) -> Value:
-        if a.name is None and b.name is None:
-            return self.constant(a.const - b.const)
         if b.equals(0):
             return a
         if a.equals(0):
@@ -148,8 +124,6 @@ class Source:
         return self.emit(f"{self.ref(a)} - {self.ref(b)}")
 
     def mul(self, a: Value, b: Value) -> Value:
-        if a.name is None and b.name is None:
-            return self.constant(a.const * b.const)
         if a.equals(0) or b.equals(0):
             return self.constant(0)
         for x, y in ((a, b), (b, a)):
@@ -159,9 +133,7 @@ class Source:
                 return self.neg(y)
         return self.emit(f"{self.ref(a)} * {self.ref(b)}")
 
-    def div(self, a: Value, b: Value) -> Value:
-        if a.name is None and b.name is None:
-            return self.constant(a.const / b.const)
+    def truediv(self, a: Value, b: Value) -> Value:
         if b.equals(1):
             return a
         return self.emit(f"{self.ref(a)} / {self.ref(b)}")
@@ -290,10 +262,10 @@ def launch_arguments(model: TritonModel, q: torch.Tensor, w: torch.Tensor,
     copy count B) and the compile-time constants by name (``benchmarks.triton_compile``
     compiles the kernel from them without a GPU)."""
     m = model
-    accel, heights, lower_bounds, tool_fn = m.functions
+    accel, features, height, lower_bounds, tool_fn = m.functions
     args = (q, w, height_bound, bias, free, dw, contact, limit_stop, tool, q.shape[0])
     constexprs = dict(W_MAX=m.w_max, Q_MID=m.q_mid, Q_HALF=m.q_half, MARGIN=m.margin,
-                      SUBSTEPS=m.substeps, BLOCK=block, ACCEL=accel, HEIGHTS=heights,
+                      SUBSTEPS=m.substeps, BLOCK=block, ACCEL=accel, FEATURES=features, HEIGHT=height,
                       LOWER_BOUNDS=lower_bounds, TOOL=tool_fn)
     return args, constexprs
 
@@ -343,16 +315,17 @@ def join_columns(x, W: tl.constexpr):
 
 
 @triton.jit
-def load_lanes(ptr, offs, valid, N: tl.constexpr):
+def load_lanes(ptr, offs, valid, N: tl.constexpr, VOLATILE: tl.constexpr = False):
     """Columns ``0..N-1`` of the rows ``offs`` of an (B, N) tensor, N <= 8: N lane vectors,
     read by one load of a (BLOCK, W) tile (W = 4 or 8, the columns past N masked).
 
     One memory access per array, not one per column: Triton's ``TritonGPUCoalesce`` pass
-    walks the whole kernel once per access, so their number multiplies the compile time."""
+    walks the whole kernel once per access, so their number multiplies the compile time.
+    ``VOLATILE``: read where the code says (not hoisted out of a loop nor merged)."""
     W: tl.constexpr = 4 if N <= 4 else 8
     cols = tl.arange(0, W)
     tile = tl.load(ptr + offs[:, None] * N + cols[None, :],
-                   mask=valid[:, None] & (cols < N)[None, :], other=0)
+                   mask=valid[:, None] & (cols < N)[None, :], other=0, volatile=VOLATILE)
     columns = split_columns(tile, W)
     out = ()
     for k in tl.static_range(N):
@@ -503,24 +476,35 @@ def _aba(R: list[list[Value]], t: dict[str, Any], qd: list[Value], tau: list[Val
     zero = src.constant(0)
     p, axis, inertia = t["p"], t["axis"], t["inertia"]
     moving = [None] + [src.emit(f"free > {i}").name for i in range(1, 6)]  # joint 0 moves
-    # pass 1: velocities, bias accelerations c, bias forces p = v x* (I v)
+    # pass 1: velocities; the bias accelerations c and forces p = v x* (I v) that follow from
+    # them are written where pass 2 first reads them (the same operations, fewer values live)
     vel = [zero] * 6
-    cb, pA = [], []
+    vs, ss = [], []
     for i in range(6):
         vi = _motion_inv(R[i], p[i], vel)
         sx, sy, sz = (axis[i][k] * qd[i] for k in range(3))
         vi = vi[:3] + [vi[3] + sx, vi[4] + sy, vi[5] + sz]
-        cb.append([vi[1] * sz - vi[2] * sy, vi[2] * sx - vi[0] * sz, vi[0] * sy - vi[1] * sx,
-                   vi[4] * sz - vi[5] * sy, vi[5] * sx - vi[3] * sz, vi[3] * sy - vi[4] * sx])
+        vs.append(vi)
+        ss.append((sx, sy, sz))
+        vel = vi
+
+    @functools.cache
+    def bias_acceleration(i: int) -> list[Value]:
+        vi, (sx, sy, sz) = vs[i], ss[i]
+        return [vi[1] * sz - vi[2] * sy, vi[2] * sx - vi[0] * sz, vi[0] * sy - vi[1] * sx,
+                vi[4] * sz - vi[5] * sy, vi[5] * sx - vi[3] * sz, vi[3] * sy - vi[4] * sx]
+
+    def bias_force(i: int) -> list[Value]:
+        vi = vs[i]
         h = _mat_vec(inertia[i], vi)
         w0, w1, w2 = vi[3], vi[4], vi[5]
-        pA.append([w1 * h[2] - w2 * h[1], w2 * h[0] - w0 * h[2], w0 * h[1] - w1 * h[0],
-                   w1 * h[5] - w2 * h[4] + vi[1] * h[2] - vi[2] * h[1],
-                   w2 * h[3] - w0 * h[5] + vi[2] * h[0] - vi[0] * h[2],
-                   w0 * h[4] - w1 * h[3] + vi[0] * h[1] - vi[1] * h[0]])
-        vel = vi
+        return [w1 * h[2] - w2 * h[1], w2 * h[0] - w0 * h[2], w0 * h[1] - w1 * h[0],
+                w1 * h[5] - w2 * h[4] + vi[1] * h[2] - vi[2] * h[1],
+                w2 * h[3] - w0 * h[5] + vi[2] * h[0] - vi[0] * h[2],
+                w0 * h[4] - w1 * h[3] + vi[0] * h[1] - vi[1] * h[0]]
+
     # pass 2: articulated inertias and bias forces, tip to base
-    IA, pa = inertia[5], pA[5]
+    IA, pa = inertia[5], bias_force(5)
     Us, Ds, us = [None] * 6, [None] * 6, [None] * 6
     for i in range(5, -1, -1):
         ax, ay, az = axis[i]
@@ -537,16 +521,16 @@ def _aba(R: list[list[Value]], t: dict[str, Any], qd: list[Value], tau: list[Val
         for r in range(6):
             s = src.where(moving[i], pa[r] + U[r] * us[i] * inv_d, pa[r])
             for k in range(6):
-                s = s + Ia[6 * r + k] * cb[i][k]
+                s = s + Ia[6 * r + k] * bias_acceleration(i)[k]
             Yp.append(s)
-        pa = _force_act(R[i], p[i], Yp, pA[i - 1])
+        pa = _force_act(R[i], p[i], Yp, bias_force(i - 1))
         IA = _shift_into(p[i], _rotate_blocks(R[i], Ia), inertia[i - 1])
     # pass 3: accelerations, base to tip (the base accelerates up: gravity)
     acc = [-t["grav"][0], -t["grav"][1], -t["grav"][2], zero, zero, zero]
     qdd = []
     for i in range(6):
         ai = _motion_inv(R[i], p[i], acc)
-        ai = [ai[k] + cb[i][k] for k in range(6)]
+        ai = [ai[k] + bias_acceleration(i)[k] for k in range(6)]
         s = us[i]
         for k in range(6):
             s = s - Us[i][k] * ai[k]
@@ -573,9 +557,9 @@ def _accel(src: Source, t: dict[str, Any]) -> str:
     return src.function("accel", "q, w, bias, free, zero", _aba(R, t, w, clipped))
 
 
-def _link_heights(src: Source, t: dict[str, Any]) -> str:
-    """``heights(q, zero)``: exact lowest point (m, world z) of moving links 1..6: numba's
-    ``copy_link_heights``, the vertex table's zeros dropped."""
+def _features(src: Source, t: dict[str, Any]) -> str:
+    """``features(q, zero)``: the 13 features of numba's ``copy_link_heights`` (the first,
+    1, is a constant of :func:`_link_height`'s and returned only as a placeholder)."""
     q = [src.input(f"q[{k}]") for k in range(6)]
     a = q[1] + t["lift"]
     b = a + q[2]
@@ -587,17 +571,29 @@ def _link_heights(src: Source, t: dict[str, Any]) -> str:
     feat = [src.constant(1.0), src.call("tl.sin", a), src.call("tl.cos", a),
             src.call("tl.sin", b), src.call("tl.cos", b), sc, cc, f7, sc * s5, f7 * c6,
             cc * s6, cc * c6, f7 * s6]
+    return src.function("features", "q, zero", feat)
+
+
+def _link_height(src: Source, t: dict[str, Any], k: int) -> str:
+    """``height_k(feat, zero)``: the exact lowest point (m, world z) of moving link k (1..6)
+    from the features: numba's ``copy_link_heights``' rows of link k, the vertex table's zeros
+    dropped."""
+    feat = [src.constant(1.0)] + [src.input(f"feat[{f}]") for f in range(1, 13)]
     vh, bounds = t["vertex_heights"], t["bounds"]
-    out = []
-    for k in range(1, 7):
-        low = src.constant(np.inf)
-        for row in range(bounds[k], bounds[k + 1]):
-            s = src.constant(0)
-            for f in range(13):
-                s = s + vh[row][f] * feat[f]
-            low = src.minimum(low, s)
-        out.append(low + t["base_height"])
-    return src.function("heights", "q, zero", out)
+    low = src.constant(np.inf)
+    for row in range(bounds[k], bounds[k + 1]):
+        s = src.constant(0)
+        for f in range(13):
+            s = s + vh[row][f] * feat[f]
+        low = src.minimum(low, s)
+    return src.function(f"height_{k}", "feat, zero", [low + t["base_height"]])
+
+
+HEIGHT = ("@triton.jit\ndef height(feat, zero, K: tl.constexpr):\n"
+          + "".join(f"    {'if' if k == 1 else 'elif'} K == {k - 1}:\n"
+                    f"        out = height_{k}(feat, zero)\n" for k in range(1, 7))
+          + "    return out[0]\n")
+"""``height(feat, zero, K)``: moving link K + 1's exact height, K a compile-time index."""
 
 
 def _lower_bounds(src: Source, t: dict[str, Any]) -> str:
@@ -641,7 +637,7 @@ def _tool(src: Source, t: dict[str, Any]) -> str:
     return src.function("tool", "q, zero", out)
 
 
-GENERATED = ("accel", "heights", "lower_bounds", "tool")
+GENERATED = ("accel", "features", "height", "lower_bounds", "tool")
 """The generated functions, in :attr:`TritonModel.functions`' order."""
 
 
@@ -657,15 +653,17 @@ def generate(tables: tuple[tuple[str, Any], ...], cast_name: str) -> tuple[str, 
             return [values(src, v) for v in x]
         return src.constant(x)
 
-    parts = []
-    for fn in (_accel, _link_heights, _lower_bounds, _tool):
+    def part(fn: Any, *args: Any) -> str:
         src = Source(cast)
         t = {k: v if k in ("bounds", "gravity_comp") else values(src, v) for k, v in tables}
-        parts.append(fn(src, t))
+        return fn(src, t, *args)
+
+    parts = [part(_accel), part(_features), *(part(_link_height, k) for k in range(1, 7)),
+             HEIGHT, part(_lower_bounds), part(_tool)]
     text = "import triton\nimport triton.language as tl\n\n\n" + "\n\n".join(parts)
     filename = f"<envs.physics.triton_kernel {hashlib.sha1(text.encode()).hexdigest()[:16]}>"
     linecache.cache[filename] = (len(text), None, text.splitlines(True), filename)
-    namespace: dict[str, Any] = {}
+    namespace: dict[str, Any] = {"__name__": f"{__name__}.generated"}
     exec(compile(text, filename, "exec"), namespace)  # noqa: S102 - our own generated code
     return text, tuple(namespace[name] for name in GENERATED)
 
@@ -684,8 +682,8 @@ def constants(values, dtype: tl.constexpr, N: tl.constexpr):
 def step_kernel(q_ptr, w_ptr, hb_ptr, bias_ptr, free_ptr, dw_ptr, contact_ptr, limit_ptr,
                 tool_ptr, B, W_MAX: tl.constexpr, Q_MID: tl.constexpr, Q_HALF: tl.constexpr,
                 MARGIN: tl.constexpr, SUBSTEPS: tl.constexpr, BLOCK: tl.constexpr,
-                ACCEL: tl.constexpr, HEIGHTS: tl.constexpr, LOWER_BOUNDS: tl.constexpr,
-                TOOL: tl.constexpr):
+                ACCEL: tl.constexpr, FEATURES: tl.constexpr, HEIGHT: tl.constexpr,
+                LOWER_BOUNDS: tl.constexpr, TOOL: tl.constexpr):
     """One control step of copies ``pid BLOCK ..``: :func:`launch`'s (the upper-case
     arguments are :class:`TritonModel`'s constants and generated functions)."""
     offs = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
@@ -697,17 +695,17 @@ def step_kernel(q_ptr, w_ptr, hb_ptr, bias_ptr, free_ptr, dw_ptr, contact_ptr, l
     margin = tl.full([], MARGIN, dt)
 
     q = load_lanes(q_ptr, offs, valid, 6)
-    w0 = load_lanes(w_ptr, offs, valid, 6)
+    w = load_lanes(w_ptr, offs, valid, 6)
     known = load_lanes(hb_ptr, offs, valid, 6)
-    bias = load_lanes(bias_ptr, offs, valid, 6)
     free = tl.load(free_ptr + offs, mask=valid, other=6)
     zero = tl.zeros_like(q[0])  # a lane vector of the kernel's type
-    w = w0
     q_ref = q
     active = valid
     hit_plane = offs < 0
     hit_limit = offs < 0
     for _ in range(SUBSTEPS):
+        # read each substep (volatile: not hoisted), not held in registers through the loop
+        bias = load_lanes(bias_ptr, offs, valid, 6, True)
         a = ACCEL(q, w, bias, free, zero)
         w1 = ()
         q1 = ()
@@ -718,21 +716,29 @@ def step_kernel(q_ptr, w_ptr, hb_ptr, bias_ptr, free_ptr, dw_ptr, contact_ptr, l
             limit = limit | (tl.abs(qk - q_mid[k]) > q_half[k])
             w1 = w1 + (wk,)
             q1 = q1 + (qk,)
-        # the plane: exact heights only where the bound from the last exact ones fails
+        # the plane: link k's exact height only where its bound from the last exact ones
+        # fails, computed for a block when one of its active lanes needs it
         bound = LOWER_BOUNDS(known, q1, q_ref, zero)
+        fails = ()
         unsure = offs < 0
         for k in tl.static_range(6):
-            unsure = unsure | (bound[k] < margin)
-        need = unsure & active
+            fails = fails + ((bound[k] < margin) & active,)
+            unsure = unsure | fails[k]
         plane = offs < 0
-        if tl.max(need.to(tl.int32), 0) > 0:
-            heights = HEIGHTS(q1, zero)
+        if tl.max(unsure.to(tl.int32), 0) > 0:
+            feat = FEATURES(q1, zero)
             known2 = ()
+            for k in tl.static_range(6):
+                # an unsure lane's bounds restart at q1: exact where they failed
+                kk = tl.where(unsure, bound[k], known[k])
+                if tl.max(fails[k].to(tl.int32), 0) > 0:
+                    h = HEIGHT(feat, zero, k)
+                    kk = tl.where(fails[k], h, kk)
+                    plane = plane | (fails[k] & (h < margin))
+                known2 = known2 + (kk,)
             ref2 = ()
             for k in tl.static_range(6):
-                known2 = known2 + (tl.where(need, heights[k], known[k]),)
-                ref2 = ref2 + (tl.where(need, q1[k], q_ref[k]),)
-                plane = plane | (need & (heights[k] < margin))
+                ref2 = ref2 + (tl.where(unsure, q1[k], q_ref[k]),)
             known = known2
             q_ref = ref2
         stop = plane | limit
@@ -750,13 +756,16 @@ def step_kernel(q_ptr, w_ptr, hb_ptr, bias_ptr, free_ptr, dw_ptr, contact_ptr, l
         active = moves
     known = LOWER_BOUNDS(known, q, q_ref, zero)
     tool = TOOL(q, zero)
+    store_lanes(q_ptr, offs, valid, q, 6)
+    store_lanes(hb_ptr, offs, valid, known, 6)
+    store_lanes(tool_ptr, offs, valid, tool, 3)
+    # the old w read again after those stores (so that it is not merged with the first read
+    # and held in registers through the loop)
+    w0 = load_lanes(w_ptr, offs, valid, 6)
     dw = ()
     for k in tl.static_range(6):
         dw = dw + (w[k] - w0[k],)
-    store_lanes(q_ptr, offs, valid, q, 6)
     store_lanes(w_ptr, offs, valid, w, 6)
-    store_lanes(hb_ptr, offs, valid, known, 6)
     store_lanes(dw_ptr, offs, valid, dw, 6)
-    store_lanes(tool_ptr, offs, valid, tool, 3)
     tl.store(contact_ptr + offs, hit_plane, mask=valid)
     tl.store(limit_ptr + offs, hit_limit, mask=valid)
