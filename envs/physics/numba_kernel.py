@@ -450,9 +450,10 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
     q, w : (6,) float
         The copy's state (rad, rad per substep), advanced in place.
     known : (6,) float, m
-        A lower bound of each moving link's height at ``q``, kept valid in place; the exact
-        heights are computed only when the Lipschitz bound of a substep cannot prove the link
-        clear.
+        A lower bound of each moving link's height at ``q``, kept valid in place: link k's
+        exact height is taken only when the Lipschitz bound of a substep cannot prove link k
+        clear (then the other links' bounds restart from the same substep), so a check that
+        skips never changes whether the step stops.
     bias : (6,) float
         The constant part of the scaled PD torque (command and held joints).
     tool : (3,) float
@@ -494,13 +495,20 @@ def step_copy(q, w, known, bias, kp, kd, effort, w_max, gravity_comp, substeps, 
                 bound -= lipschitz[i, k] * abs(q1[i] - q_ref[i])
             if bound < margin:
                 unsure = True
-        if unsure:
+        if unsure:  # the bounds restart at q1: link k's exact height where its bound failed
             copy_link_heights(q1, vh, bounds, lift, wrist, base_height, feat, heights)
             for k in range(6):
-                known[k] = heights[k]
+                bound = known[k]
+                for i in range(6):
+                    bound -= lipschitz[i, k] * abs(q1[i] - q_ref[i])
+                if bound < margin:
+                    known[k] = heights[k]
+                    if heights[k] < margin:
+                        hit_plane = True
+                else:
+                    known[k] = bound
+            for k in range(6):
                 q_ref[k] = q1[k]
-                if heights[k] < margin:
-                    hit_plane = True
         if hit_plane or hit_limit:
             for k in range(6):
                 w[k] = 0.0  # stopped dead at the last valid substep

@@ -227,7 +227,7 @@ class StackDynamics:
 
             self._model = triton_kernel.TritonModel.build(
                 controller, chain, plane, tool_pos, first.base_height, first.plane_margin,
-                first.substeps, first.gravity_compensation, self.device, self.dtype)
+                first.substeps, first.gravity_compensation, self.dtype)
 
     def _tensor(self, array: np.ndarray) -> torch.Tensor:
         """``array`` as a tensor on the device: on the CPU a view of it (zero copy; the numba
