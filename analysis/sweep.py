@@ -282,8 +282,8 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
                 log.close()
                 if proc.returncode != 0:
                     failed += 1
-                    bar.write(f"{unit.name} failed (exit {proc.returncode}); see "
-                              f"{unit.log_path}")
+                    bar.write(f"{unit.name} failed (exit {proc.returncode}): "
+                              f"{failure(unit.log_path)}")
                 bar.end(unit, failed=proc.returncode != 0)
             bar.refresh()
             time.sleep(0.2)
@@ -334,7 +334,7 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
                 code = ray.get(done[0])
                 if code != 0:
                     failed += 1
-                    bar.write(f"{unit.name} failed (exit {code}); see {unit.log_path}")
+                    bar.write(f"{unit.name} failed (exit {code}): {failure(unit.log_path)}")
                 bar.end(unit, failed=code != 0)
         finally:
             bar.close()
@@ -488,6 +488,16 @@ ONE_PROCESS_LOG = "logs/one-process.log"
 """Below the root: the output of the one-process trainings, appended run after run."""
 
 
+def failure(log: Path) -> str:
+    """What a failed training process said last (the last line of its ``log``: its error, or
+    a traceback's last line), and where the whole log is."""
+    try:
+        lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        lines = []
+    return f"{lines[-1].strip() if lines else 'it wrote nothing'} (whole log: {log})"
+
+
 def one_process_command(plan: Path | str, threads: int, args: argparse.Namespace) -> list[str]:
     """The ``ddpg_her.train_many`` command line that trains a plan's units in one process."""
     return [sys.executable, "-m", "ddpg_her.train_many", "--plan", str(plan), "--resume",
@@ -531,8 +541,8 @@ def run_one_process(units: Sequence[Unit], args: argparse.Namespace, threads: in
                 bar.end(unit, failed=proc.returncode != 0)
         bar.close()
     if proc.returncode != 0:
-        print(f"the training process failed (exit {proc.returncode}); see "
-              f"{root / ONE_PROCESS_LOG}", file=sys.stderr)
+        print(f"the training process failed (exit {proc.returncode}): "
+              f"{failure(root / ONE_PROCESS_LOG)}", file=sys.stderr)
         return 1
     return 0
 
@@ -606,7 +616,8 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
 
 
 def unit_problems(units: Sequence[Unit], extra: Sequence[str],
-                  process: Sequence[str] = (), one_process: bool = False) -> list[str]:
+                  process: Sequence[str] = (), one_process: bool = False,
+                  device: str = "cpu") -> list[str]:
     """Why units could not start, one line each: an option the study sets itself given again
     after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
     refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
@@ -614,14 +625,23 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
     what needs neither the robot nor torch. ``process``: the study's own process arguments
     (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through.
     With ``one_process``, a flag of the training process (`ddpg_her.train.PROCESS_FLAGS`) after
-    ``--`` is refused too: ``ddpg_her.train_many`` takes those once, and the study sets them."""
+    ``--`` is refused too: ``ddpg_her.train_many`` takes those once, and the study sets them.
+    ``device``: the study's --device, which must exist; with ``--env-backend program`` in
+    ``process``, what the program refuses (`ddpg_her.train.check_stack`), unit by unit, then
+    the stack of them all (its memory), so a dry run refuses what the real run would."""
     import io
 
     from ddpg_her import train
     from envs import ENV_IDS
     from regions import parse as parse_region
 
-    problems = []
+    try:
+        train.check_device(device)
+    except ValueError as error:
+        return [str(error)]
+    problems: list[str] = []
+    reqs = []
+    program = "program" in process
     parser = train.make_parser()
     if one_process:
         problems += [f"{flag} after --: a flag of the training process, which the study's one "
@@ -648,6 +668,13 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
         except ValueError as error:
             problems.append(f"{unit.name}: {error}")
             continue
+        reqs.append(req)
+        if program:
+            try:
+                train.check_stack([req], device, "--tf32" in process)
+            except ValueError as error:
+                problems.append(f"{unit.name}: {error}")
+                continue
         if req.env_id.rpartition(":")[2] not in ENV_IDS:
             continue  # another env's regions are its own
         try:
@@ -660,13 +687,19 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
             owners.setdefault(unit.run_dir(seed).resolve(), []).append(f"{unit.name} s{seed}")
     problems += [f"{', '.join(names)} would all train in {folder}"
                  for folder, names in owners.items() if len(names) > 1]
+    if program and one_process and reqs and not problems:
+        try:
+            train.check_stack(reqs, device, "--tf32" in process)
+        except ValueError as error:
+            problems.append(f"the units as one program stack: {error}")
     return problems
 
 
-def refuse_problems(units: Sequence[Unit], extra: Sequence[str],
-                    process: Sequence[str] = (), one_process: bool = False) -> None:
-    """Exit with status 2 and every line of `unit_problems` when a unit could not start."""
-    problems = unit_problems(units, extra, process, one_process)
+def refuse_problems(units: Sequence[Unit], extra: Sequence[str], args: argparse.Namespace
+                    ) -> None:
+    """Exit with status 2 and every line of `unit_problems` when a unit could not start (the
+    study's --env-backend, --tf32, --one-process and --device from ``args``)."""
+    problems = unit_problems(units, extra, backend_args(args), args.one_process, args.device)
     if problems:
         for line in problems:
             print(f"error: {line}", file=sys.stderr)
@@ -681,11 +714,11 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     ``--one-process``: its arguments in the one ``ddpg_her.train_many`` process); then, with
     ``--project``, `print_projection`. Units that could not start are refused first
     (`refuse_problems`), as a real run would."""
-    process = backend_args(args)
-    refuse_problems(units, extra, process, args.one_process)
+    refuse_problems(units, extra, args)
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
-            "python " + " ".join(unit.command(threads, [*extra, *process], args.device)[1:])
+            "python " + " ".join(unit.command(threads, [*extra, *backend_args(args)],
+                                              args.device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
             status = "busy" if busy(unit) and unit.status(seed) != "done" \
@@ -804,7 +837,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
     process = backend_args(args)
-    refuse_problems(units, extra, process, args.one_process)
+    refuse_problems(units, extra, args)
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)

@@ -307,15 +307,38 @@ def build_program(parser: argparse.ArgumentParser, args: argparse.Namespace,
     """The training program (`ddpg_her.program.Program`) of every run of ``settings`` as one
     stack; a usage error when the settings' agent configurations or env ids differ, or the
     program refuses them."""
-    configs = {json.dumps(s.config.to_dict(), sort_keys=True) for s in settings}
-    if len(configs) > 1 or len({s.env_id for s in settings}) > 1:
-        parser.error("--env-backend program trains one stack: every unit needs the same env "
-                     "id and agent configuration (flags and --episodes)")
+    try:
+        check_stack(settings, args.device, args.tf32)
+    except ValueError as err:
+        parser.error(str(err))
     from ddpg_her.program import Program
 
     return build_trainer(parser, lambda: Program.of_settings(
         settings, resume=args.resume, device=args.device, progress=not args.no_progress,
         command=command, tf32=args.tf32))
+
+
+def check_stack(settings: Sequence[Setting], device: str, tf32: bool) -> None:
+    """Raise ValueError when the training program would refuse the runs of ``settings`` as one
+    stack on ``device``: settings of different env ids or agent configurations, or whatever
+    `ddpg_her.program.check` refuses (its message). What ``ddpg_her.train``, ``train_many``
+    (its dry run too) and ``analysis.sweep --program`` (its dry run too) check alike."""
+    configs = {json.dumps(s.config.to_dict(), sort_keys=True) for s in settings}
+    if len(configs) > 1 or len({s.env_id for s in settings}) > 1:
+        raise ValueError("--env-backend program trains one stack: every unit needs the same "
+                         "env id and agent configuration (flags and --episodes)")
+    from ddpg_her.program import check
+
+    check(settings[0].env_id, [s.env_kwargs for s in settings for _ in s.seeds],
+          settings[0].config, device, tf32)
+
+
+def check_device(device: str) -> None:
+    """Raise ValueError for ``--device cuda`` where torch sees no CUDA device."""
+    import torch
+
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("--device cuda: no CUDA device is available to torch")
 
 
 def run_to_end(trainer: Any) -> Any:
@@ -360,8 +383,10 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     deterministic algorithms (runs bitwise repeatable on the CPU)."""
     import torch
 
-    if args.device == "cuda" and not torch.cuda.is_available():
-        parser.error("--device cuda: no CUDA device is available to torch")
+    try:
+        check_device(args.device)
+    except ValueError as err:
+        parser.error(str(err))
     from ddpg_her.units import DEFAULT_THREADS
 
     torch.set_num_threads(args.threads or DEFAULT_THREADS)

@@ -135,6 +135,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     status = [[run_status(d, s.config.episodes) for d in s.run_dirs] for s in settings]
     pending = [not args.resume or any(st != "done" for st in sts) for sts in status]
     todo = [s for s, p in zip(settings, pending, strict=True) if p]
+    try:  # the dry run refuses what the real run refuses, with its message (issue 41)
+        train.check_device(args.device)
+        if args.env_backend == "program" and todo:
+            train.check_stack(todo, args.device, args.tf32)
+    except ValueError as err:
+        parser.error(str(err))
     if args.dry_run:
         try:
             groups = group_settings(todo, args.resume)
