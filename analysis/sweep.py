@@ -38,7 +38,7 @@ from typing import IO
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.runfolder import RunFolder, run_status
-from ddpg_her.units import DEFAULT_THREADS, split_passthrough
+from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": PAPER_GRID,
@@ -563,25 +563,6 @@ train something else than the study counts (issue 37: ``-- --region zheight`` tr
 into ``farbox-j3``, ``-- --out X`` trained into X while the study counted the unit done)."""
 
 
-def option_dests(parser: argparse.ArgumentParser, args: Sequence[str]) -> list[tuple[str, str]]:
-    """(option as typed, its dest) for each option of ``args`` that ``parser`` knows, with
-    argparse's unique-prefix abbreviations (``--reg``) resolved as argparse resolves them."""
-    strings = parser._option_string_actions
-    out = []
-    for arg in args:
-        if not arg.startswith("-") or arg == "--" or len(arg) < 2:
-            continue
-        name = arg.partition("=")[0] if arg.startswith("--") else arg
-        if name in strings:
-            out.append((name, strings[name].dest))
-            continue
-        if name.startswith("--"):
-            dests = {strings[s].dest for s in strings if s.startswith(name)}
-            if len(dests) == 1:
-                out.append((name, dests.pop()))
-    return out
-
-
 def task_keys(args: Sequence[str]) -> list[str]:
     """The TaskSpec fields that the ``--task KEY=VALUE`` options of ``args`` set (a malformed
     one is left to ``ddpg_her.train`` to name)."""
@@ -605,10 +586,9 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
         problems += [f"{unit.name}: --task {key}=... in {where}: the study sets it for every "
                      "unit (its setting)" for key in task_keys(args)
                      if key in ("region", "n_joints")]
-    own = {dest for _, dest in option_dests(parser, unit.train_args)} - {"task"}
     problems += [f"{unit.name}: {flag} after --: the unit's reading sets it "
                  f"({' '.join(unit.train_args)})"
-                 for flag, dest in option_dests(parser, extra) if dest in own]
+                 for flag in overrides(parser, unit.train_args, extra)]
     own_task = task_keys(unit.train_args)
     problems += [f"{unit.name}: --task {key}=... after --: the unit's reading sets it "
                  f"({' '.join(unit.train_args)})" for key in task_keys(extra) if key in own_task]

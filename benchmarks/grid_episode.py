@@ -56,6 +56,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from analysis.paper import PAPER_GRID, PAPER_SEEDS
+from ddpg_her.train_many import unit_arguments
 
 CPU_READS = ("item", "cpu", "numpy", "tolist", "__bool__")
 """The ``torch.Tensor`` methods counted as host reads on the CPU (each a synchronisation, or a
@@ -150,9 +151,9 @@ def grid_units(spec: GridSpec) -> list[Any]:
     return settings_of([
         ["--region", region, "--joints", str(joints), "--seeds", *map(str, range(spec.seeds)),
          "--episodes", str(spec.budget), "--eval-every", str(spec.budget),
-         "--warmup-episodes", str(RL_WARMUP_EPISODES), *spec.unit_args,
+         "--warmup-episodes", str(RL_WARMUP_EPISODES),
          "--out", str(spec.folder / f"{region}-j{joints}" / "s{seed}")]
-        for region, joints in spec.settings])
+        for region, joints in spec.settings], common=spec.unit_args)
 
 
 def today_path(spec: GridSpec) -> TodayRunner:
@@ -358,9 +359,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="seeds per setting (>= 1)")
     parser.add_argument("--path", choices=sorted(PATHS), default="today",
                         help="which training path builds the grid")
-    parser.add_argument("--unit-args", default="",
+    parser.add_argument("--unit-args", type=unit_arguments, default=[],
                         help="extra ddpg_her.train arguments of every unit, one shell-quoted "
-                        "string (e.g. \"--hidden-sizes 8 8 --buffer-size 1000\")")
+                        "string (e.g. \"--hidden-sizes 8 8 --buffer-size 1000\"); not the "
+                        "grid's own --region, --joints, --seeds, --episodes, --eval-every, "
+                        "--warmup-episodes or --out (refused: the figures measure the grid)")
     parser.add_argument("--start-after", type=Path, default=None, metavar="FILE",
                         help="after the warm-up, wait until FILE exists before timing (so a "
                         "caller can run the start-up beside other work and time alone); "
@@ -390,7 +393,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     budget = args.warmup + args.episodes + args.count_episodes + 1
     with tempfile.TemporaryDirectory(prefix="grid_episode-") as tmp:
         spec = GridSpec(settings, args.seeds, args.device, Path(tmp),
-                        tuple(shlex.split(args.unit_args)), budget)
+                        tuple(args.unit_args), budget)
         try:
             runner = PATHS[args.path](spec)
         except ValueError as err:
@@ -404,7 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = {"device": device_name(args.device), **figures, "path": args.path,
               "agents": spec.agents, "part": args.part, "episodes": args.episodes,
               "warmup": args.warmup, "count_episodes": args.count_episodes,
-              "unit_args": args.unit_args, "torch": torch.__version__,
+              "unit_args": shlex.join(args.unit_args), "torch": torch.__version__,
               "host_syncs_counted": "torch.cuda.set_sync_debug_mode('warn') warnings"
               if args.device == "cuda" else "calls of Tensor." + "/.".join(CPU_READS)}
     if args.json:

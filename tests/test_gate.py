@@ -196,3 +196,53 @@ def test_resume_compares_the_program_section(tmp_path, edit):
         make(4, resume=True)
     # the checkpoint records the section too: a spec.json put back by hand is checked by it
     assert folder.load_checkpoint(2)["config"]["program"]["matmul"] == "float32"
+
+
+# ---------------------------------------------------------------------------- kind 2
+@pytest.mark.parametrize(("unit", "after"), [
+    ("--region farbox", ["--region", "zheight"]),
+    ("--region farbox --out OUT", ["--out", "elsewhere"]),
+    ("--region farbox --seeds 0 1", ["--seeds", "3", "4"]),
+    ("--region farbox --seed 0", ["--seeds", "3", "4"]),
+    ("--region farbox --joints 3", ["--joints", "6"]),
+    ("--region farbox --episodes 4", ["--episodes", "8"]),
+    ("--region farbox --episodes 4", ["--epi", "8"]),  # an abbreviation argparse resolves
+])
+def test_arguments_after_dashes_never_replace_a_units_own(tmp_path, unit, after):
+    """Appended, the last flag won (argparse's rule, the reference): the unit trained what the
+    -- arguments said. Refused, naming the flag; a flag the unit lacks is still appended."""
+    unit = unit.replace("OUT", str(tmp_path / "mine"))
+    code, err = run_main(train_many.main, ["--unit", unit, "--dry-run", "--", *after])
+    assert code == 2 and after[0] in error_line(err) and "never overridden" in error_line(err)
+    parsed = train.parse_args(train.make_parser(), [*unit.split(), *after])
+    dest = {"--epi": "episodes", "--seeds": "seeds"}.get(after[0], after[0][2:])
+    assert str(getattr(parsed, dest)).strip("[]'").replace("'", "").replace(",", "") == \
+        " ".join(after[1:])  # what the old appending trained
+    code, err = run_main(train_many.main, ["--unit", f"--region farbox --out {tmp_path / 'x'}",
+                                           "--dry-run", "--", "--episodes", "200"])
+    assert code == 0, err
+
+
+@pytest.mark.parametrize("flag", [["--env-backend", "numpy"], ["--device", "cpu"],
+                                  ["--threads", "1"], ["--no-progress"]])
+def test_a_units_process_flag_is_refused_even_at_the_default(tmp_path, flag):
+    """A unit's own --env-backend numpy was ignored under --env-backend program (its value
+    equals the default, so the old check compared values and saw nothing)."""
+    unit = f"--region farbox --out {tmp_path / 'u'} " + " ".join(flag)
+    code, err = run_main(train_many.main, ["--unit", unit, "--env-backend", "program",
+                                           "--dry-run"])
+    assert code == 2 and flag[0] in error_line(err) and "process flag" in error_line(err)
+
+
+@pytest.mark.parametrize("unit_args", ["--region zheight", "--seeds 3 4", "--out x",
+                                       "--episodes 5", "--hidden-sizes 8 8 'unbalanced"])
+def test_grid_episode_refuses_unit_args_that_change_the_grid(unit_args):
+    from benchmarks import grid_episode
+
+    code, err = run_main(grid_episode.main, ["--device", "cpu", "--part", "2", "--unit-args",
+                                             unit_args])
+    assert code == 2, err
+    line = error_line(err)
+    assert (unit_args.split()[0] in line and "never overridden" in line) or \
+        "cannot be split" in line, line
+    assert "Traceback" not in err
