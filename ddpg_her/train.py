@@ -130,8 +130,9 @@ def make_parser() -> argparse.ArgumentParser:
                        help="train one independent agent per seed in this process, batched")
     run.add_argument("--out", default=None,
                      help="run folder; may use {region}, {joints}, {seed}. Default "
-                          f"{DEFAULT_OUT}. With several seeds and no {{seed}} in it, each "
-                          "seed's folder is OUT/s{seed}")
+                          f"{DEFAULT_OUT}, with -algo=A and -KEY=VALUE of each --task before "
+                          "-s{seed} when given (runs/farbox-j3-algo=td3-s0). With several "
+                          "seeds and no {seed} in it, each seed's folder is OUT/s{seed}")
     run.add_argument("--resume", action="store_true",
                      help="continue the run(s) in the run folder(s) from the last checkpoint "
                           "(a folder that does not exist yet starts afresh); the task and agent "
@@ -143,10 +144,18 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) -> list[str]:
-    """The run folder of each seed (see --out)."""
-    safe_region = re.sub(r"[^A-Za-z0-9_.-]+", "_", region).strip("_") or "region"
-    template = out or DEFAULT_OUT
+def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int],
+             differs: Sequence[str] = ()) -> list[str]:
+    """The run folder of each seed (see --out). The default folder's name carries ``differs``
+    too (e.g. ``algo=td3``, ``contact_model=compliant``: what else makes these runs differ
+    from the plain ones), so that they do not land in a plain run's folder."""
+    safe = lambda text: re.sub(r"[^A-Za-z0-9_.=-]+", "_", text).strip("_")  # noqa: E731
+    safe_region = safe(region) or "region"
+    if out is not None and not out.strip():
+        raise ValueError("--out '': give a folder (or leave --out out for the default)")
+    tag = "".join(f"-{safe(d)}" for d in differs)
+    template = out or DEFAULT_OUT.replace("-s{seed}", tag.replace("{", "{{").replace(
+        "}", "}}") + "-s{seed}")
     if len(seeds) > 1 and "{seed}" not in template:
         template = template.rstrip("/") + "/s{seed}"
     try:
@@ -157,7 +166,15 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
                          f"{type(err).__name__}: {err}") from None
     if len(set(dirs)) != len(dirs):
         raise ValueError(f"--out {template!r} gives several seeds the same folder")
+    long = [part for d in dirs for part in d.split("/") if len(part.encode()) > NAME_MAX]
+    if long:
+        raise ValueError(f"--out: the folder name {long[0][:40]}... is {len(long[0].encode())} "
+                         f"bytes long; file systems allow at most {NAME_MAX}")
     return dirs
+
+
+NAME_MAX = 255
+"""The longest file or folder name (bytes) of Linux's file systems."""
 
 
 PROCESS_FLAGS = ("resume", "device", "env_backend", "tf32", "threads", "no_progress",
@@ -280,7 +297,19 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
     config = AgentConfig(**{f.name: getattr(args, f.name)
                             for f in dataclasses.fields(AgentConfig)})
     contradictions(config)
-    dirs = run_dirs(args.out, args.region, joints, seeds)
+    differs = [f"{key}={value}" for key, value in args.task if key not in ("region", "n_joints")]
+    if config.algo.value != AgentConfig.algo.value:
+        differs.insert(0, f"algo={config.algo.value}")
+    dirs = run_dirs(args.out, args.region, joints, seeds, differs)
+    if len(seeds) > 1 and args.out and "{seed}" not in args.out:
+        from ddpg_her.runfolder import RunFolder
+
+        if RunFolder(args.out.format(region=args.region, joints=joints, seed=seeds[0])
+                     ).spec_path.exists():
+            raise ValueError(f"--out {args.out} holds a run of one seed; --seeds "
+                             f"{' '.join(map(str, seeds))} would train each seed in "
+                             f"{args.out}/s{{seed}} beside it (its seed counted twice); give "
+                             "another --out")
     note = None
     if (args.resume if resume is None else resume) and not getattr(args, "episodes_given", True):
         budget = recorded_budget(dirs)

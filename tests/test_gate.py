@@ -246,3 +246,73 @@ def test_grid_episode_refuses_unit_args_that_change_the_grid(unit_args):
     assert (unit_args.split()[0] in line and "never overridden" in line) or \
         "cannot be split" in line, line
     assert "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------- kinds 3 and 4
+def test_the_default_folder_names_the_algorithm_and_task_overrides():
+    """The README's TD3 and compliant lines landed in the plain lines' folders."""
+    parser = train.make_parser()
+    dirs = [train.request(train.parse_args(parser, a)).run_dirs[0] for a in (
+        ["--region", "farbox"], ["--region", "farbox", "--algo", "td3"],
+        ["--region", "zheight"], ["--region", "zheight", "--task", "contact_model=compliant"])]
+    assert dirs == ["runs/farbox-j3-s0", "runs/farbox-j3-algo=td3-s0", "runs/zheight-j3-s0",
+                    "runs/zheight-j3-contact_model=compliant-s0"]
+
+
+def test_seeds_over_a_single_seed_folder_refused(tmp_path):
+    """--seeds 0 1 --resume over OUT holding seed 0's run trained seed 0 again in OUT/s0."""
+    out = tmp_path / "one"
+    RunFolder(out).write_spec({"format": "x", "seed": 0})
+    code, err = run_main(train.main, ["--region", "farbox", "--out", str(out), "--seeds", "0",
+                                      "1", "--resume", *TINY])
+    assert code == 2 and "holds a run of one seed" in error_line(err)
+    assert sorted(p.name for p in out.iterdir()) == ["spec.json"]
+
+
+@pytest.mark.parametrize("out", ["", " ", "x" * 300])
+def test_an_empty_or_overlong_out_refused_in_one_line(tmp_path, out):
+    code, err = run_main(train.main, ["--region", "farbox", "--out", out, *TINY])
+    assert code == 2 and "--out" in error_line(err) and "Traceback" not in err
+
+
+def test_collect_does_not_replace_other_runs_without_force(tmp_path):
+    """The README's --collect results/sensitivity replaced committed 1,000-episode runs with
+    100-episode ones. Now refused naming them, nothing written; --force replaces; collecting
+    the same runs again is fine."""
+    from analysis import sensitivity as sens
+    from tests.test_sensitivity import _write_run
+
+    root, dest = tmp_path / "runs", tmp_path / "dest"
+    argv = ["--collect", str(dest), "--out", str(root), "--seeds", "1", "--readings", "ours",
+            "--setting", "zheight:3"]
+    _write_run(root / "ours" / "zheight-j3" / "s0", "zheight", 3, 0, 40.0)
+    assert run_main(sens.main, argv)[0] == 0
+    first = (dest / "runs/ours/zheight-j3/s0/eval.csv").read_bytes()
+    assert run_main(sens.main, argv)[0] == 0  # the same runs: nothing to replace
+    shutil.rmtree(root)
+    _write_run(root / "ours" / "zheight-j3" / "s0", "zheight", 3, 0, 90.0)
+    code, err = run_main(sens.main, argv)
+    assert code == 2 and "would replace 1 file(s)" in err and "eval.csv" in err
+    assert (dest / "runs/ours/zheight-j3/s0/eval.csv").read_bytes() == first
+    assert run_main(sens.main, [*argv, "--force"])[0] == 0
+    assert (dest / "runs/ours/zheight-j3/s0/eval.csv").read_bytes() == \
+        (root / "ours/zheight-j3/s0/eval.csv").read_bytes() != first
+
+
+def test_a_report_does_not_replace_another_without_force(tmp_path):
+    from analysis import sensitivity as sens
+    from tests.test_sensitivity import _write_run
+
+    root, out = tmp_path / "runs", tmp_path / "report"
+    for seed in range(2):
+        _write_run(root / "ours" / "zheight-j3" / f"s{seed}", "zheight", 3, seed, 40.0 + seed)
+    argv = ["report", str(root), "--out", str(out), "--worth-goals", "0", "--reps", "50",
+            "--seeds", "2"]
+    assert run_main(sens.main, argv)[0] == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert run_main(sens.main, argv)[0] == 0  # the same report again
+    code, err = run_main(sens.main, [*argv, "--episodes", "500"])
+    assert code == 2 and "would replace" in err and "--force" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert run_main(sens.main, [*argv, "--episodes", "500", "--force"])[0] == 0
+    assert (out / "report.md").read_bytes() != before["report.md"]
