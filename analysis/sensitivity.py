@@ -73,6 +73,7 @@ from analysis.sweep import (
     execute,
     parse_setting,
     positive_count,
+    refuse_problems,
 )
 from ddpg_her.units import split_passthrough
 
@@ -944,6 +945,8 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
         parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
     except ValueError as err:
         parser.error(str(err))
+    if args.collect is None:  # a run it would refuse leaves no reading.json behind
+        refuse_problems(units, extra, args)
     try:
         for reading in readings if args.collect is None else ():
             write_reading(root, reading)

@@ -827,13 +827,16 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
         todo.remove(unit)
     if not todo:
         return 0
-    if args.one_process:
-        return run_one_process(todo, args, threads, extra)
-    extra = [*extra, *process]
-    if args.ray_address:
-        failed = run_ray(todo, args.ray_address, threads, extra, args.device)
-    else:
-        failed = run_local(todo, args.workers, threads, extra, args.device)
+    try:  # Ctrl-C: the runners said so in one line and stopped their processes
+        if args.one_process:
+            return run_one_process(todo, args, threads, extra)
+        extra = [*extra, *process]
+        if args.ray_address:
+            failed = run_ray(todo, args.ray_address, threads, extra, args.device)
+        else:
+            failed = run_local(todo, args.workers, threads, extra, args.device)
+    except KeyboardInterrupt:
+        return 130
     return 1 if failed else 0
 
 

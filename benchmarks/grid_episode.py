@@ -380,6 +380,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--episodes, --count-episodes and --seeds must be >= 1 and --warmup "
                      f">= 0; got {args.episodes}, {args.count_episodes}, {args.seeds}, "
                      f"{args.warmup}")
+    if args.start_after is not None and not args.start_after.parent.is_dir():
+        parser.error(f"--start-after {args.start_after}: its folder does not exist (the file "
+                     "could never appear there)")
     try:
         settings = grid_settings(args.part)
     except ValueError as err:

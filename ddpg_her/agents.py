@@ -50,11 +50,13 @@ two moments, and one for the update's scratch (an upper estimate)."""
 
 
 def check_memory(config: AgentConfig, layout: Layout, k: int, dtype: torch.dtype,
-                 device: torch.device, test_copy_bytes: int = 0) -> None:
+                 device: torch.device, test_copy_bytes: int = 0,
+                 copies: int = BYTES_PER_PARAMETER) -> None:
     """Refuse, before allocating, replay buffers, networks and test episodes larger than the
     memory of ``device`` (the host's available memory for the CPU, the GPU's free memory): the
     one estimate of every training path (`ddpg_her.trainer.Trainer`, `ddpg_her.program.check`).
-    ``test_copy_bytes``: bytes per test episode copy (k x eval_episodes of them).
+    ``test_copy_bytes``: bytes per test episode copy (k x eval_episodes of them); ``copies``:
+    of each network parameter.
 
     Raises
     ------
@@ -66,7 +68,7 @@ def check_memory(config: AgentConfig, layout: Layout, k: int, dtype: torch.dtype
     h1, h2 = config.hidden_sizes
     params = (layout.in_dim * h1 + h1 + h1 * h2 + h2 + h2 * layout.act_dim + layout.act_dim
               + layout.in_dim * h1 + h1 + (h1 + layout.act_dim) * h2 + h2 + h2 + 1)
-    networks = k * params * size * BYTES_PER_PARAMETER
+    networks = k * params * size * copies
     tests = k * config.eval_episodes * test_copy_bytes
     available = available_memory(device)
     if available is None:

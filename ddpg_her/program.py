@@ -673,6 +673,13 @@ ddpg_her.train --region farbox --env-backend program --episodes 1 --eval-every 1
 --eval-episodes M ...``)."""
 
 
+PARAMETER_COPIES = 12
+"""Copies of each network parameter the program holds at its peak (`ddpg_her.agents.
+check_memory`'s ``copies``; the other paths hold 6): --hidden-sizes 100000 30 peaked 466 MiB
+above --hidden-sizes 8 8 on the CPU (1.1e7 parameters, 11 float32 copies; the command of
+`TEST_COPY_BYTES` with --eval-episodes 1)."""
+
+
 def check(env_id: str, tasks: Sequence[dict[str, Any]], config: AgentConfig,
           device: str | torch.device = "cpu", tf32: bool = False,
           dtype: torch.dtype = torch.float32) -> None:
@@ -706,7 +713,8 @@ def check(env_id: str, tasks: Sequence[dict[str, Any]], config: AgentConfig,
     if tf32 and dev.type != "cuda":
         raise ValueError("--tf32 is a CUDA setting; the CPU multiplies in float32 (drop "
                          "--tf32 or give --device cuda)")
-    check_memory(config, PADDED, len(tasks), dtype, dev, test_copy_bytes=TEST_COPY_BYTES)
+    check_memory(config, PADDED, len(tasks), dtype, dev, test_copy_bytes=TEST_COPY_BYTES,
+                 copies=PARAMETER_COPIES)
 
 
 def stack_twin(env_id: str) -> str:

@@ -13,6 +13,7 @@ import argparse
 import dataclasses
 import enum
 import json
+import os
 import re
 import sys
 import typing
@@ -84,8 +85,8 @@ def add_process_flags(group: Any, what: str) -> None:
                             "Ampere and later, recorded in spec.json). Off by default until "
                             "its effect on learning is measured")
     group.add_argument("--threads", type=int, default=None,
-                       help="torch CPU threads (count, >= 1; default: 1, which keeps a fair "
-                            "share of the cores when other work runs and is about as fast "
+                       help="torch CPU threads (count, 1..the cores; default: 1, which keeps a "
+                            "fair share of the cores when other work runs and is about as fast "
                             "alone: ddpg_her.units.DEFAULT_THREADS)")
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
     group.add_argument("--no-tensorboard", action="store_true",
@@ -399,10 +400,12 @@ def run_to_end(trainer: Any) -> Any:
 
 
 def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Refuse a --threads below 1, and --tf32 without --env-backend program (before any unit
-    is parsed)."""
-    if args.threads is not None and args.threads < 1:
-        parser.error(f"--threads must be >= 1, got {args.threads}")
+    """Refuse a --threads outside 1..cores (10,000 made 19,999 threads), and --tf32 without
+    --env-backend program (before any unit is parsed)."""
+    cores = os.cpu_count() or 1
+    if args.threads is not None and not 1 <= args.threads <= cores:
+        parser.error(f"--threads must be in 1..{cores} (this machine's cores), got "
+                     f"{args.threads}")
     if args.tf32 and args.env_backend != "program":
         parser.error("--tf32 is a setting of --env-backend program")
 

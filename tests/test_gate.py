@@ -316,3 +316,66 @@ def test_a_report_does_not_replace_another_without_force(tmp_path):
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert run_main(sens.main, [*argv, "--episodes", "500", "--force"])[0] == 0
     assert (out / "report.md").read_bytes() != before["report.md"]
+
+
+# ---------------------------------------------------------------------------- kinds 5, 6 and 7
+def test_an_epsilon_rate_is_a_probability():
+    """With --exploration epsilon, nu is the probability of a random action (config's own
+    docstring): 1.5 was accepted. As Gaussian noise's std it may exceed 1."""
+    with pytest.raises(ValueError, match="exploration_rate=1.5 .*probability"):
+        AgentConfig(exploration="epsilon", exploration_rate=1.5)
+    AgentConfig(exploration="epsilon", exploration_rate=1.0)
+    AgentConfig(exploration="gaussian", exploration_rate=1.5)
+
+
+def test_threads_beyond_the_cores_refused(tmp_path):
+    import os
+
+    code, err = run_main(train.main, ["--region", "farbox", "--out", str(tmp_path / "r"),
+                                      "--threads", "10000", *TINY])
+    assert code == 2 and f"1..{os.cpu_count()}" in error_line(err)
+    assert not (tmp_path / "r").exists()
+
+
+def test_load_names_a_non_integer_episode(tiny_ur5_run):
+    import ddpg_her
+
+    with pytest.raises(ValueError, match=r"episode must be an integer .* got '2'"):
+        ddpg_her.load(tiny_ur5_run, episode="2")
+
+
+def test_start_after_in_a_missing_folder_refused_at_once(tmp_path):
+    from benchmarks import grid_episode
+
+    code, err = run_main(grid_episode.main, ["--device", "cpu", "--part", "2", "--start-after",
+                                             str(tmp_path / "no" / "such" / "file")])
+    assert code == 2 and "does not exist" in error_line(err)
+
+
+def test_ur5kin_refuses_what_is_not_a_position_or_angle():
+    import numpy as np
+
+    import ur5kin
+
+    with pytest.raises(ValueError, match="could not convert"):
+        ur5kin.wrap("x")
+    assert ur5kin.wrap(3 * np.pi) == pytest.approx(np.pi)
+    with pytest.raises(ValueError, match="NaN"):
+        ur5kin.to_base([np.nan, 0.0, 0.0], 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        ur5kin.to_base([0.0, 0.0], 0.0)
+    assert ur5kin.to_base([0.1, 0.2, 0.5], 0.3).tolist() == pytest.approx([0.1, 0.2, 0.2])
+
+
+def test_ctrl_c_of_a_sweep_ends_with_its_line_not_a_traceback(tmp_path, monkeypatch):
+    from analysis import sweep
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "run_one_process", interrupted)
+    monkeypatch.setattr(sweep, "run_local", interrupted)
+    for flags in (["--program"], []):
+        code, err = run_main(sweep.main, ["--setting", "farbox:3", "--seeds", "1", "--out",
+                                          str(tmp_path / "sw"), *flags])
+        assert code == 130 and "Traceback" not in err
