@@ -597,7 +597,7 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
 
 def unit_problems(units: Sequence[Unit], extra: Sequence[str],
                   process: Sequence[str] = (), one_process: bool = False,
-                  device: str = "cpu") -> list[str]:
+                  device: str = "cpu", dry: bool = False) -> list[str]:
     """Why units could not start, one line each: an option the study sets itself given again
     after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
     refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
@@ -606,7 +606,8 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
     (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through.
     With ``one_process``, a flag of the training process (`ddpg_her.train.PROCESS_FLAGS`) after
     ``--`` is refused too: ``ddpg_her.train_many`` takes those once, and the study sets them.
-    ``device``: the study's --device, which must exist; with ``--env-backend program`` in
+    ``device``: the study's --device, which must exist (a ``dry`` run notes its absence, to
+    plan a GPU run on another machine); with ``--env-backend program`` in
     ``process``, what the program refuses (`ddpg_her.train.check_stack`), unit by unit, then
     the stack of them all (its memory), so a dry run refuses what the real run would."""
     import io
@@ -615,10 +616,15 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
     from envs import ENV_IDS
     from regions import parse as parse_region
 
+    tf32 = "--tf32" in process
     try:
         train.check_device(device)
     except ValueError as error:
-        return [str(error)]
+        if not dry:
+            return [str(error)]
+        print(f"note: {error}: the real run here would refuse; listed as a machine with one "
+              "would run it", file=sys.stderr)
+        device, tf32 = "cpu", False
     problems: list[str] = []
     reqs = []
     program = "program" in process
@@ -651,7 +657,7 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
         reqs.append(req)
         if program:
             try:
-                train.check_stack([req], device, "--tf32" in process)
+                train.check_stack([req], device, tf32)
             except ValueError as error:
                 problems.append(f"{unit.name}: {error}")
                 continue
@@ -669,7 +675,7 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
                  for folder, names in owners.items() if len(names) > 1]
     if program and one_process and reqs and not problems:
         try:
-            train.check_stack(reqs, device, "--tf32" in process)
+            train.check_stack(reqs, device, tf32)
         except ValueError as error:
             problems.append(f"the units as one program stack: {error}")
     return problems
@@ -679,7 +685,8 @@ def refuse_problems(units: Sequence[Unit], extra: Sequence[str], args: argparse.
                     ) -> None:
     """Exit with status 2 and every line of `unit_problems` when a unit could not start (the
     study's --env-backend, --tf32, --one-process and --device from ``args``)."""
-    problems = unit_problems(units, extra, backend_args(args), args.one_process, args.device)
+    problems = unit_problems(units, extra, backend_args(args), args.one_process, args.device,
+                             args.dry_run)
     if problems:
         for line in problems:
             print(f"error: {line}", file=sys.stderr)

@@ -937,8 +937,9 @@ def gate_cases(fix: Path) -> list[Case]:
                 argv = [*argv[:cut], *flags, *argv[cut:]]
             else:
                 argv = [*argv, *flags]
+            flagged = "dry-run" in where and flags[0] == "--device"  # noted, listed
             out.append(cli(f"gate: program {where} {' '.join(flags)} on this machine", module, 1,
-                           argv, "usage", words))
+                           argv, "ok" if flagged else "usage", words))
     # kind 1, the other way: what the program trains, the dry runs accept
     for region in ("farbox", "zheight", "closebox", "unconstrained", "farbox_tall",
                    "box:0.3,0.6,-0.2,0.2,0.1,0.4", "zmax:0.4"):

@@ -143,10 +143,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     status = [[run_status(d, s.config.episodes) for d in s.run_dirs] for s in settings]
     pending = [not args.resume or any(st != "done" for st in sts) for sts in status]
     todo = [s for s, p in zip(settings, pending, strict=True) if p]
+    device, tf32 = args.device, args.tf32
     try:  # the dry run refuses what the real run refuses, with its message (issue 41)
         train.check_device(args.device)
+    except ValueError as err:
+        if not args.dry_run:
+            parser.error(str(err))
+        print(f"note: {err}: the real run here would refuse; listed as a machine with one "
+              "would run it", file=sys.stderr)
+        device, tf32 = "cpu", False
+    try:
         if args.env_backend == "program" and todo:
-            train.check_stack(todo, args.device, args.tf32)
+            train.check_stack(todo, device, tf32)
     except ValueError as err:
         parser.error(str(err))
     if args.dry_run:

@@ -146,11 +146,14 @@ def test_tf32_on_the_cpu_and_cuda_without_a_device_refused_by_dry_runs(tmp_path,
                                       "--program", "--tf32", "--dry-run"])
     assert code == 2 and "--tf32 is a CUDA setting" in err
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    for main, argv in ((train_many.main, ["--unit", unit, "--device", "cuda", "--dry-run"]),
+    for main, argv in ((train_many.main, ["--unit", unit, "--device", "cuda"]),
                        (sweep.main, ["--setting", "farbox:3", "--out", str(tmp_path / "s"),
-                                     "--device", "cuda", "--dry-run"])):
-        code, err = run_main(main, argv)
+                                     "--device", "cuda", "--program"])):
+        code, err = run_main(main, argv)  # the real run refuses
         assert code == 2 and "no CUDA device" in err, err
+        # the dry run flags it (a GPU run is planned on another machine) and lists the units
+        code, err = run_main(main, [*argv, "--dry-run"])
+        assert code == 0 and "note: --device cuda: no CUDA device" in err, err
 
 
 def test_a_failed_sweep_process_prints_its_cause(tmp_path):
