@@ -9,10 +9,11 @@ the work starts, and each file is written to a temporary name and moved into pla
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -99,10 +100,41 @@ def _read_only(path: Path) -> bool:
         return False
 
 
+class WouldReplace(OutputError):
+    """`unless_replacing` refused: a usage error (exit 2), not a failed write."""
+
+
+_STAGED: list[dict[Path, bytes]] = []
+"""The writes held back by `unless_replacing` (innermost last)."""
+
+
+@contextlib.contextmanager
+def unless_replacing(force: bool, what: str) -> Iterator[None]:
+    """Hold back every `write_bytes` of the block, then write them all, unless one would
+    replace a file that holds other bytes and ``force`` is false: then write nothing and raise
+    OutputError naming the files (issue 41: ``sensitivity --collect`` replaced committed
+    1,000-episode runs with 100-episode ones, ``report --out`` rewrote a committed report).
+    ``what`` names the command's outputs and its override flag for the message."""
+    _STAGED.append({})
+    try:
+        yield
+        staged = _STAGED[-1]
+    finally:
+        _STAGED.pop()
+    changed = [p for p, data in staged.items() if p.is_file() and p.read_bytes() != data]
+    if changed and not force:
+        raise WouldReplace(
+            f"{what} would replace {len(changed)} file(s) that hold something else, e.g. "
+            + ", ".join(map(str, changed[:3])) + ("" if len(changed) <= 3 else ", ...")
+            + "; nothing was written: give --force to replace them, or another destination")
+    for p, data in staged.items():
+        write_bytes(p, data)
+
+
 def write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` whole or not at all, by the one atomic writer
     (`ddpg_her.runfolder.atomic_write`: a temporary name, then a move); a file there before
-    stays as it was when the write fails.
+    stays as it was when the write fails. Inside `unless_replacing`, held back until its end.
 
     Raises
     ------
@@ -112,6 +144,9 @@ def write_bytes(path: Path, data: bytes) -> None:
     from ddpg_her.runfolder import RunFolderWriteError, atomic_write
 
     path = Path(path)
+    if _STAGED:
+        _STAGED[-1][path] = bytes(data)
+        return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:

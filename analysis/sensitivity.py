@@ -40,10 +40,12 @@ import numpy as np
 from analysis.curves import curve_rows as setting_curve_rows
 from analysis.outputs import (
     OutputError,
+    WouldReplace,
     check_folder,
     check_writable,
     pyplot,
     save_figure,
+    unless_replacing,
     write_csv,
     write_text,
 )
@@ -71,6 +73,7 @@ from analysis.sweep import (
     execute,
     parse_setting,
     positive_count,
+    refuse_problems,
 )
 from ddpg_her.units import split_passthrough
 
@@ -864,6 +867,9 @@ def report_main(argv: Sequence[str]) -> int:
                         help="readings shown, in this order (default: the built-in ones, then "
                              "any other folder with runs)")
     _add_reading_arguments(parser)
+    parser.add_argument("--force", action="store_true",
+                        help="replace report files in --out that hold another report "
+                             "(refused by default, naming them)")
     args = parser.parse_args(argv)
     if not 0.0 < args.confidence < 1.0:
         parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
@@ -878,11 +884,12 @@ def report_main(argv: Sequence[str]) -> int:
     except OutputError as err:
         parser.error(str(err))
     try:
-        result = report(args.root, args.out or args.root, args.episodes, args.seeds,
-                        args.confidence, args.reps, args.bootstrap_seed, args.worth_goals,
-                        args.readings, _user_readings(parser, args))
+        with unless_replacing(args.force, f"report {args.root} --out {out}"):
+            result = report(args.root, args.out or args.root, args.episodes, args.seeds,
+                            args.confidence, args.reps, args.bootstrap_seed, args.worth_goals,
+                            args.readings, _user_readings(parser, args))
     except OutputError as err:
-        parser.exit(1, f"error: {err}\n")
+        parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
     except (FileNotFoundError, ValueError) as err:
         parser.error(str(err))
     print(result.text, end="")
@@ -902,7 +909,11 @@ def add_study_arguments(parser: argparse.ArgumentParser, settings: Sequence[tupl
     parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
     parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
                         help="train nothing: copy each finished unit's spec.json and eval.csv to "
-                             f"DEST/runs/<{what}>/<region>-j<joints>/s<seed> (no checkpoints)")
+                             f"DEST/runs/<{what}>/<region>-j<joints>/s<seed> (no checkpoints); "
+                             "files there that hold other runs are not replaced without --force")
+    parser.add_argument("--force", action="store_true",
+                        help="with --collect: replace runs in DEST that differ (refused by "
+                             "default, naming them)")
 
 
 def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
@@ -923,13 +934,22 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
         return 0
     root = args.out if args.collect is None else args.collect / "runs"
     try:
-        copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
-    except OutputError as err:  # a full disk; every file written is whole
-        parser.exit(1, f"error: {err}\n")
+        with unless_replacing(args.force, f"--collect {args.collect}"):
+            copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
+            done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
+            for reading in readings:  # units started by hand have no reading.json of their own
+                if args.collect is not None and (reading.name in done
+                                                 or (root / reading.name).is_dir()):
+                    write_reading(root, reading)
+    except OutputError as err:  # a full disk, or runs it would replace; nothing half-written
+        parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
+    except ValueError as err:
+        parser.error(str(err))
+    if args.collect is None:  # a run it would refuse leaves no reading.json behind
+        refuse_problems(units, extra, args)
     try:
-        for reading in readings:  # units started by hand have no reading.json of their own
-            if args.collect is None or (root / reading.name).is_dir():
-                write_reading(root, reading)
+        for reading in readings if args.collect is None else ():
+            write_reading(root, reading)
     except ValueError as err:
         parser.error(str(err))
     if args.collect is None:

@@ -38,7 +38,7 @@ from typing import IO
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.runfolder import RunFolder, run_status
-from ddpg_her.units import DEFAULT_THREADS, split_passthrough
+from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passthrough
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": PAPER_GRID,
@@ -282,8 +282,8 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
                 log.close()
                 if proc.returncode != 0:
                     failed += 1
-                    bar.write(f"{unit.name} failed (exit {proc.returncode}); see "
-                              f"{unit.log_path}")
+                    bar.write(f"{unit.name} failed (exit {proc.returncode}): "
+                              f"{failure(unit.log_path)}")
                 bar.end(unit, failed=proc.returncode != 0)
             bar.refresh()
             time.sleep(0.2)
@@ -334,7 +334,7 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
                 code = ray.get(done[0])
                 if code != 0:
                     failed += 1
-                    bar.write(f"{unit.name} failed (exit {code}); see {unit.log_path}")
+                    bar.write(f"{unit.name} failed (exit {code}): {failure(unit.log_path)}")
                 bar.end(unit, failed=code != 0)
         finally:
             bar.close()
@@ -502,6 +502,16 @@ ONE_PROCESS_LOG = "logs/one-process.log"
 """Below the root: the output of the one-process trainings, appended run after run."""
 
 
+def failure(log: Path) -> str:
+    """What a failed training process said last (the last line of its ``log``: its error, or
+    a traceback's last line), and where the whole log is."""
+    try:
+        lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        lines = []
+    return f"{lines[-1].strip() if lines else 'it wrote nothing'} (whole log: {log})"
+
+
 def one_process_command(plan: Path | str, threads: int, args: argparse.Namespace) -> list[str]:
     """The ``ddpg_her.train_many`` command line that trains a plan's units in one process."""
     return [sys.executable, "-m", "ddpg_her.train_many", "--plan", str(plan), "--resume",
@@ -548,8 +558,8 @@ def run_one_process(units: Sequence[Unit], args: argparse.Namespace, threads: in
                 bar.end(unit, failed=proc.returncode != 0)
         bar.close()
     if proc.returncode != 0:
-        print(f"the training process failed (exit {proc.returncode}); see "
-              f"{root / ONE_PROCESS_LOG}", file=sys.stderr)
+        print(f"the training process failed (exit {proc.returncode}): "
+              f"{failure(root / ONE_PROCESS_LOG)}", file=sys.stderr)
         return 1
     return 0
 
@@ -568,25 +578,6 @@ seeds, budget and folder, and the process flags it has options of its own for. A
 ``--`` and a reading's arguments may not set them: the last flag would win, and a unit would
 train something else than the study counts (issue 37: ``-- --region zheight`` trained z-height
 into ``farbox-j3``, ``-- --out X`` trained into X while the study counted the unit done)."""
-
-
-def option_dests(parser: argparse.ArgumentParser, args: Sequence[str]) -> list[tuple[str, str]]:
-    """(option as typed, its dest) for each option of ``args`` that ``parser`` knows, with
-    argparse's unique-prefix abbreviations (``--reg``) resolved as argparse resolves them."""
-    strings = parser._option_string_actions
-    out = []
-    for arg in args:
-        if not arg.startswith("-") or arg == "--" or len(arg) < 2:
-            continue
-        name = arg.partition("=")[0] if arg.startswith("--") else arg
-        if name in strings:
-            out.append((name, strings[name].dest))
-            continue
-        if name.startswith("--"):
-            dests = {strings[s].dest for s in strings if s.startswith(name)}
-            if len(dests) == 1:
-                out.append((name, dests.pop()))
-    return out
 
 
 def task_keys(args: Sequence[str]) -> list[str]:
@@ -612,10 +603,9 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
         problems += [f"{unit.name}: --task {key}=... in {where}: the study sets it for every "
                      "unit (its setting)" for key in task_keys(args)
                      if key in ("region", "n_joints")]
-    own = {dest for _, dest in option_dests(parser, unit.train_args)} - {"task"}
     problems += [f"{unit.name}: {flag} after --: the unit's reading sets it "
                  f"({' '.join(unit.train_args)})"
-                 for flag, dest in option_dests(parser, extra) if dest in own]
+                 for flag in overrides(parser, unit.train_args, extra)]
     own_task = task_keys(unit.train_args)
     problems += [f"{unit.name}: --task {key}=... after --: the unit's reading sets it "
                  f"({' '.join(unit.train_args)})" for key in task_keys(extra) if key in own_task]
@@ -623,7 +613,8 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
 
 
 def unit_problems(units: Sequence[Unit], extra: Sequence[str],
-                  process: Sequence[str] = (), one_process: bool = False) -> list[str]:
+                  process: Sequence[str] = (), one_process: bool = False,
+                  device: str = "cpu", dry: bool = False) -> list[str]:
     """Why units could not start, one line each: an option the study sets itself given again
     after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
     refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
@@ -631,14 +622,29 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
     what needs neither the robot nor torch. ``process``: the study's own process arguments
     (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through.
     With ``one_process``, a flag of the training process (`ddpg_her.train.PROCESS_FLAGS`) after
-    ``--`` is refused too: ``ddpg_her.train_many`` takes those once, and the study sets them."""
+    ``--`` is refused too: ``ddpg_her.train_many`` takes those once, and the study sets them.
+    ``device``: the study's --device, which must exist (a ``dry`` run notes its absence, to
+    plan a GPU run on another machine); with ``--env-backend program`` in
+    ``process``, what the program refuses (`ddpg_her.train.check_stack`), unit by unit, then
+    the stack of them all (its memory), so a dry run refuses what the real run would."""
     import io
 
     from ddpg_her import train
     from envs import ENV_IDS
     from regions import parse as parse_region
 
-    problems = []
+    tf32 = "--tf32" in process
+    try:
+        train.check_device(device)
+    except ValueError as error:
+        if not dry:
+            return [str(error)]
+        print(f"note: {error}: the real run here would refuse; listed as a machine with one "
+              "would run it", file=sys.stderr)
+        device, tf32 = "cpu", False
+    problems: list[str] = []
+    reqs = []
+    program = "program" in process
     parser = train.make_parser()
     if one_process:
         problems += [f"{flag} after --: a flag of the training process, which the study's one "
@@ -665,6 +671,13 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
         except ValueError as error:
             problems.append(f"{unit.name}: {error}")
             continue
+        reqs.append(req)
+        if program:
+            try:
+                train.check_stack([req], device, tf32)
+            except ValueError as error:
+                problems.append(f"{unit.name}: {error}")
+                continue
         if req.env_id.rpartition(":")[2] not in ENV_IDS:
             continue  # another env's regions are its own
         try:
@@ -677,13 +690,20 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
             owners.setdefault(unit.run_dir(seed).resolve(), []).append(f"{unit.name} s{seed}")
     problems += [f"{', '.join(names)} would all train in {folder}"
                  for folder, names in owners.items() if len(names) > 1]
+    if program and one_process and reqs and not problems:
+        try:
+            train.check_stack(reqs, device, tf32)
+        except ValueError as error:
+            problems.append(f"the units as one program stack: {error}")
     return problems
 
 
-def refuse_problems(units: Sequence[Unit], extra: Sequence[str],
-                    process: Sequence[str] = (), one_process: bool = False) -> None:
-    """Exit with status 2 and every line of `unit_problems` when a unit could not start."""
-    problems = unit_problems(units, extra, process, one_process)
+def refuse_problems(units: Sequence[Unit], extra: Sequence[str], args: argparse.Namespace
+                    ) -> None:
+    """Exit with status 2 and every line of `unit_problems` when a unit could not start (the
+    study's --env-backend, --tf32, --one-process and --device from ``args``)."""
+    problems = unit_problems(units, extra, backend_args(args), args.one_process, args.device,
+                             args.dry_run)
     if problems:
         for line in problems:
             print(f"error: {line}", file=sys.stderr)
@@ -698,11 +718,11 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     ``--one-process``: its arguments in the one ``ddpg_her.train_many`` process); then, with
     ``--project``, `print_projection`. Units that could not start are refused first
     (`refuse_problems`), as a real run would."""
-    process = backend_args(args)
-    refuse_problems(units, extra, process, args.one_process)
+    refuse_problems(units, extra, args)
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
-            "python " + " ".join(unit.command(threads, [*extra, *process], args.device)[1:])
+            "python " + " ".join(unit.command(threads, [*extra, *backend_args(args)],
+                                              args.device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
             status = "busy" if busy(unit) and unit.status(seed) != "done" \
@@ -821,7 +841,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
     process = backend_args(args)
-    refuse_problems(units, extra, process, args.one_process)
+    refuse_problems(units, extra, args)
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
           f"{len(todo)} to run", file=sys.stderr)
@@ -831,13 +851,16 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
         todo.remove(unit)
     if not todo:
         return 0
-    if args.one_process:
-        return run_one_process(todo, args, threads, extra)
-    extra = [*extra, *process]
-    if args.ray_address:
-        failed = run_ray(todo, args.ray_address, threads, extra, args.device)
-    else:
-        failed = run_local(todo, args.workers, threads, extra, args.device)
+    try:  # Ctrl-C: the runners said so in one line and stopped their processes
+        if args.one_process:
+            return run_one_process(todo, args, threads, extra)
+        extra = [*extra, *process]
+        if args.ray_address:
+            failed = run_ray(todo, args.ray_address, threads, extra, args.device)
+        else:
+            failed = run_local(todo, args.workers, threads, extra, args.device)
+    except KeyboardInterrupt:
+        return 130
     return 1 if failed else 0
 
 

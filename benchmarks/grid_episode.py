@@ -63,6 +63,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from analysis.paper import PAPER_GRID, PAPER_SEEDS
+from ddpg_her.train_many import unit_arguments
 
 CPU_READS = ("item", "cpu", "numpy", "tolist", "__bool__")
 """The ``torch.Tensor`` methods counted as host reads on the CPU (each a synchronisation, or a
@@ -165,9 +166,9 @@ def grid_units(spec: GridSpec) -> list[Any]:
     return settings_of([
         ["--region", region, "--joints", str(joints), "--seeds", *map(str, range(spec.seeds)),
          "--episodes", str(spec.budget), "--eval-every", str(spec.budget),
-         "--warmup-episodes", str(RL_WARMUP_EPISODES), *spec.unit_args,
+         "--warmup-episodes", str(RL_WARMUP_EPISODES),
          "--out", str(spec.folder / f"{region}-j{joints}" / "s{seed}")]
-        for region, joints in spec.settings])
+        for region, joints in spec.settings], common=spec.unit_args)
 
 
 def today_path(spec: GridSpec) -> TodayRunner:
@@ -409,9 +410,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="seeds per setting (>= 1)")
     parser.add_argument("--path", choices=sorted(PATHS), default="program",
                         help="which training path builds the grid")
-    parser.add_argument("--unit-args", default="",
+    parser.add_argument("--unit-args", type=unit_arguments, default=[],
                         help="extra ddpg_her.train arguments of every unit, one shell-quoted "
-                        "string (e.g. \"--hidden-sizes 8 8 --buffer-size 1000\")")
+                        "string (e.g. \"--hidden-sizes 8 8 --buffer-size 1000\"); not the "
+                        "grid's own --region, --joints, --seeds, --episodes, --eval-every, "
+                        "--warmup-episodes or --out (refused: the figures measure the grid)")
     parser.add_argument("--start-after", type=Path, default=None, metavar="FILE",
                         help="after the warm-up, wait until FILE exists before timing (so a "
                         "caller can run the start-up beside other work and time alone); "
@@ -431,6 +434,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"{args.seeds}, {args.warmup}, {args.sessions}")
     if args.window and args.path != "program":
         parser.error("--window is the program's (--path program)")
+    if args.start_after is not None and not args.start_after.parent.is_dir():
+        parser.error(f"--start-after {args.start_after}: its folder does not exist (the file "
+                     "could never appear there)")
     try:
         settings = grid_settings(args.part)
     except ValueError as err:
@@ -444,7 +450,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     budget = args.warmup + args.episodes + args.count_episodes + 1
     with tempfile.TemporaryDirectory(prefix="grid_episode-") as tmp:
         spec = GridSpec(settings, args.seeds, args.device, Path(tmp),
-                        tuple(shlex.split(args.unit_args)), budget, args.window)
+                        tuple(args.unit_args), budget, args.window)
         try:
             runner = PATHS[args.path](spec)
         except ValueError as err:
@@ -460,7 +466,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               "warmup": args.warmup, "count_episodes": args.count_episodes,
               "window": args.window, "sessions": args.sessions,
               "session_every": SESSION_EVERY,
-              "unit_args": args.unit_args, "torch": torch.__version__,
+              "unit_args": shlex.join(args.unit_args), "torch": torch.__version__,
               "host_syncs_counted": "torch.cuda.set_sync_debug_mode('warn') warnings"
               if args.device == "cuda" else "calls of Tensor." + "/.".join(CPU_READS)}
     if args.json:

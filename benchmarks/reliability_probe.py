@@ -33,6 +33,7 @@ import json
 import math
 import multiprocessing
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -857,6 +858,181 @@ def study_cases(fix: Path) -> list[Case]:
 
 
 # ---------------------------------------------------------------------------- library API
+TINY_UNIT = [a for a in TINY_TRAIN if a not in ("--no-progress", "--no-tensorboard")][:-2]
+"""`TINY_TRAIN` without the process flags (a ``train_many`` unit's arguments)."""
+
+
+def _mesh(case_dir: Path) -> None:
+    """A closed box mesh, ``goal.stl``, in the case's folder (a region the device cannot test)."""
+    import trimesh
+
+    trimesh.creation.box(bounds=[[0.4, -0.1, 0.1], [0.6, 0.1, 0.3]]).export(case_dir / "goal.stl")
+
+
+def gate_cases(fix: Path) -> list[Case]:
+    """Issue 41: the training program and the dry runs checked as the real run checks them
+    (kind 1), a unit's own arguments never replaced (kind 2), folders and reports not replaced
+    or confused (kinds 3 and 4), and the one-line refusals of kinds 6 and 7. Names start with
+    ``gate:`` (``--only gate:`` runs them alone)."""
+    import torch
+
+    out: list[Case] = []
+    refusals: list[tuple[list[str], str]] = [
+        (["--algo", "td3"], "--algo td3"), (["--algo", "sac"], "--algo sac"),
+        (["--batch-norm"], "--batch-norm"), (["--her-strategy", "future"], "--her-strategy"),
+        (["--ensemble", "2"], "--ensemble 2"),
+        (["--algo", "td3", "--batch-norm"], "--algo td3"),
+        (["--task", "contact_model=compliant"], "contact_model"),
+        (["--task", "held_joints=pd"], "held_joints"),
+        (["--task", "goal_sampler=cartesian"], "goal_sampler"),
+        (["--task", "control_mode=velocity"], "control_mode"),
+        (["--eval-episodes", "100000"], "--eval-episodes"),
+        (["--buffer-size", "1000000000"], "--buffer-size"),
+        (["--buffer-size", "100000000000"], "--buffer-size"),
+        (["--hidden-sizes", "100000", "100000"], "--hidden-sizes"),
+        (["--hidden-sizes", "10000000", "30"], "--hidden-sizes"),
+    ]
+    sweep_args = ["--setting", "farbox:3", "--seeds", "1", "--episodes", "200", "--out", "sw",
+                  "--program"]
+    sens_args = ["--setting", "farbox:3", "--readings", "ours", "--seeds", "1", "--episodes",
+                 "200", "--out", "se", "--program"]
+
+    def modes(flags: list[str], region: str = "farbox") -> list[tuple[str, str, list[str]]]:
+        unit = shlex.join(["--region", region, *TINY_UNIT, "--out", "r", *flags])
+        both = [("train", "ddpg_her.train", ["--region", region, *TINY_TRAIN, "--out", "r",
+                                             "--env-backend", "program", *flags]),
+                ("train_many", "ddpg_her.train_many",
+                 ["--unit", unit, "--env-backend", "program", "--no-progress"]),
+                ("train_many --dry-run", "ddpg_her.train_many",
+                 ["--unit", unit, "--env-backend", "program", "--dry-run"])]
+        if region != "farbox":
+            return both
+        return [*both,
+                ("sweep --program", "analysis.sweep", [*sweep_args, "--", *flags]),
+                ("sweep --program --dry-run", "analysis.sweep",
+                 [*sweep_args, "--dry-run", "--", *flags]),
+                ("sensitivity --program --dry-run", "analysis.sensitivity",
+                 [*sens_args, "--dry-run", "--", *flags]),
+                ("sensitivity --program", "analysis.sensitivity", [*sens_args, "--", *flags]),
+                ("sweep --program --dry-run zheight:6", "analysis.sweep",
+                 [*sweep_args[:1], "zheight:6", *sweep_args[2:], "--dry-run", "--", *flags])]
+
+    # kind 1: what the program refuses, refused alike by every path and dry run, its cause named
+    for flags, words in refusals:
+        for where, module, argv in modes(flags):
+            out.append(cli(f"gate: program {where} {' '.join(flags)}", module, 1, argv,
+                           "usage", words))
+    for where, module, argv in modes([], "mesh:goal.stl"):
+        out.append(Case(f"gate: program {where} a mesh region", module, 1, "usage",
+                        ("mesh",), argv=argv, setup=_mesh))
+    process = [(["--tf32"], "--tf32")]
+    if not torch.cuda.is_available():
+        process.append((["--device", "cuda"], "no CUDA device"))
+    for flags, words in process:
+        for where, module, argv in modes([]):
+            if where.startswith("train_many"):
+                argv = [*argv, *flags]
+            elif where.startswith(("sweep", "sensitivity")):
+                cut = argv.index("--")
+                argv = [*argv[:cut], *flags, *argv[cut:]]
+            else:
+                argv = [*argv, *flags]
+            flagged = "dry-run" in where and flags[0] == "--device"  # noted, listed
+            out.append(cli(f"gate: program {where} {' '.join(flags)} on this machine", module, 1,
+                           argv, "ok" if flagged else "usage", words))
+    # kind 1, the other way: what the program trains, the dry runs accept
+    for region in ("farbox", "zheight", "closebox", "unconstrained", "farbox_tall",
+                   "box:0.3,0.6,-0.2,0.2,0.1,0.4", "zmax:0.4"):
+        for joints in range(2, 7):
+            unit = shlex.join(["--region", region, "--joints", str(joints), *TINY_UNIT,
+                               "--out", "r"])
+            out.append(cli(f"gate: train_many --dry-run program accepts {region}:{joints}",
+                           "ddpg_her.train_many", 1,
+                           ["--unit", unit, "--env-backend", "program", "--dry-run"], "ok"))
+            if ":" not in region:
+                out.append(cli(f"gate: sweep --program --dry-run accepts {region}:{joints}",
+                               "analysis.sweep", 1,
+                               ["--setting", f"{region}:{joints}", "--seeds", "2", "--episodes",
+                                "200", "--out", "sw", "--program", "--dry-run"], "ok"))
+    # kind 2: arguments after -- never replace a unit's own
+    for own, after in ((["--region", "farbox"], ["--region", "zheight"]),
+                       (["--region", "farbox"], ["--reg", "zheight"]),
+                       (["--out", "mine"], ["--out", "x"]), (["--out", "mine"], ["--out=x"]),
+                       (["--seeds", "0", "1"], ["--seeds", "3", "4"]),
+                       (["--seed", "0"], ["--seeds", "3", "4"]),
+                       (["--seeds", "0", "1"], ["--seed", "3"]),
+                       (["--joints", "3"], ["--joints", "6"]),
+                       (["--episodes", "4"], ["--episodes", "8"]),
+                       (["--episodes", "4"], ["--episodes=8"]),
+                       (["--eval-every", "2"], ["--eval-every", "4"]),
+                       (["--hidden-sizes", "8", "8"], ["--hidden-sizes", "16", "16"])):
+        unit = ["--region", "farbox", *TINY_UNIT, "--out", "r"]
+        unit = [a for a in unit if a not in own[:1]] if own[0] != "--region" else unit
+        for i, flag in enumerate(unit):  # the unit's own value, replacing TINY_UNIT's
+            if flag == own[0]:
+                width = 3 if flag == "--hidden-sizes" else 2
+                unit = [*unit[:i], *unit[i + width:]]
+                break
+        unit = [*unit, *own]
+        for backend in ("numpy", "program"):
+            for dry in ([], ["--dry-run"]):
+                out.append(cli(f"gate: train_many {backend}{' --dry-run' if dry else ''} unit "
+                               f"{' '.join(own)} -- {' '.join(after)}", "ddpg_her.train_many",
+                               2, ["--unit", shlex.join(unit), "--env-backend", backend,
+                                   "--no-progress", *dry, "--", *after],
+                               "usage", after[0].partition("=")[0]))
+    for flag in (["--env-backend", "numpy"], ["--env-backend", "program"], ["--env-back", "numpy"],
+                 ["--device", "cpu"], ["--threads", "1"], ["--tf32"], ["--resume"],
+                 ["--no-progress"], ["--no-tensorboard"]):
+        unit = shlex.join(["--region", "farbox", *TINY_UNIT, "--out", "r", *flag])
+        for dry in ([], ["--dry-run"]):
+            out.append(cli(f"gate: train_many{' --dry-run' if dry else ''} a unit's own "
+                           f"{' '.join(flag)}", "ddpg_her.train_many", 2,
+                           ["--unit", unit, "--env-backend", "program", *dry], "usage",
+                           flag[0]))
+    for unit_args, words in (("--region zheight", "--region"), ("--seeds 3 4", "--seeds"),
+                             ("--reg zheight", "--reg"), ("--seeds=3", "--seeds"),
+                             ("--out=x", "--out"), ("--episodes=5", "--episodes"),
+                             ("--joi 4", "--joi"), ("--warmup-episodes=2", "--warmup-episodes"),
+                             ("--eval-every=7", "--eval-every"), ("--threads 2", "--threads"),
+                             ("--resume", "--resume"), ("--tf32", "--tf32"),
+                             ("--no-progress", "--no-progress"),
+                             ("--env-backend=program", "--env-backend"),
+                             ("--seed 3", "--seed"), ("--out x", "--out"),
+                             ("--joints 4", "--joints"), ("--episodes 5", "--episodes"),
+                             ("--eval-every 7", "--eval-every"),
+                             ("--warmup-episodes 2", "--warmup-episodes"),
+                             ("--hidden-sizes 8 8 '", "cannot be split"),
+                             ("--hidden-sizes 8 8 \\", "cannot be split"),
+                             ("--env-backend numpy", "--env-backend"),
+                             ("--device cpu", "--device")):
+        out.append(cli(f"gate: grid_episode --unit-args {unit_args!r}", "benchmarks.grid_episode",
+                       2, ["--device", "cpu", "--part", "2", f"--unit-args={unit_args}"],
+                       "usage", words))
+    # kinds 3 and 4: folders
+    for where, module, argv in (
+            ("train", "ddpg_her.train", ["--region", "farbox", *TINY_TRAIN]),
+            ("train program", "ddpg_her.train", ["--region", "farbox", *TINY_TRAIN,
+                                                 "--env-backend", "program"])):
+        for value, words in (("", "--out"), (" ", "--out"), ("x" * 256, "255"),
+                             ("a/" + "y" * 300 + "/b", "255")):
+            out.append(cli(f"gate: {where} --out {value[:12]!r}... ({len(value)} chars)",
+                           module, 3, [*argv, "--out", value], "usage", words))
+        if where == "train":
+            for value, words in (("", "--out"), (" ", "--out"), ("x" * 256, "255"),
+                                 ("a/" + "y" * 300 + "/b", "255")):
+                out.append(cli(f"gate: train_many unit --out {value[:12]!r}... ({len(value)} "
+                               "chars)", "ddpg_her.train_many", 3,
+                               ["--unit", shlex.join(["--region", "farbox", *TINY_UNIT,
+                                                      "--out", value]), "--dry-run"],
+                               "usage", words))
+        one_seed = write("one/spec.json", json.dumps({"format": "ddpg_her-run-1", "seed": 0}))
+        out.append(cli(f"gate: {where} --seeds 0 1 --resume over a one-seed folder", module, 3,
+                       [*argv, "--out", "one", "--seeds", "0", "1", "--resume"], "usage",
+                       "one seed", setup=one_seed))
+    return out
+
+
 def _check(ok: bool, what: str) -> None:
     if not ok:
         raise WrongAnswer(what)
@@ -1403,7 +1579,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             d.mkdir()
         make_fixtures(fix)
         all_cases = [*old_cases(fix), *reader_cases(fix), *train_cases(fix),
-                     *study_cases(fix), *api_cases(fix), *kill_cases(fix)]
+                     *study_cases(fix), *api_cases(fix), *kill_cases(fix),
+                     *gate_cases(fix)]
         names = [c.name for c in all_cases]
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:

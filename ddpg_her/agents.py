@@ -50,34 +50,41 @@ two moments, and one for the update's scratch (an upper estimate)."""
 
 
 def check_memory(config: AgentConfig, layout: Layout, k: int, dtype: torch.dtype,
-                 device: torch.device) -> None:
-    """Refuse, before allocating, replay buffers and networks larger than the memory of
-    ``device`` (the host's available memory for the CPU, the GPU's free memory).
+                 device: torch.device, test_copy_bytes: int = 0,
+                 copies: int = BYTES_PER_PARAMETER) -> None:
+    """Refuse, before allocating, replay buffers, networks and test episodes larger than the
+    memory of ``device`` (the host's available memory for the CPU, the GPU's free memory): the
+    one estimate of every training path (`ddpg_her.trainer.Trainer`, `ddpg_her.program.check`).
+    ``test_copy_bytes``: bytes per test episode copy (k x eval_episodes of them); ``copies``:
+    of each network parameter.
 
     Raises
     ------
     ValueError
-        Naming --buffer-size or --hidden-sizes and the memory they would need.
+        Naming --buffer-size, --hidden-sizes or --eval-episodes and the memory they would need.
     """
     size = torch.empty((), dtype=dtype).element_size()
     buffer = k * config.buffer_size * layout.width * size
     h1, h2 = config.hidden_sizes
     params = (layout.in_dim * h1 + h1 + h1 * h2 + h2 + h2 * layout.act_dim + layout.act_dim
               + layout.in_dim * h1 + h1 + (h1 + layout.act_dim) * h2 + h2 + h2 + 1)
-    networks = k * params * size * BYTES_PER_PARAMETER
+    networks = k * params * size * copies
+    tests = k * config.eval_episodes * test_copy_bytes
     available = available_memory(device)
     if available is None:
         return
     gib = 2.0 ** 30
     for flag, need in (("--buffer-size", buffer), ("--hidden-sizes", networks),
-                       ("--buffer-size and --hidden-sizes", buffer + networks)):
+                       ("--eval-episodes", tests),
+                       ("--buffer-size, --hidden-sizes and --eval-episodes",
+                        buffer + networks + tests)):
         if need > available:
             raise ValueError(
                 f"{flag}: {k} agent(s) would need {need / gib:.3g} GiB ({buffer / gib:.3g} GiB "
                 f"of replay buffers: {config.buffer_size} transitions x {layout.width} "
                 f"values x {size} bytes each; {networks / gib:.3g} GiB of networks "
-                f"{config.hidden_sizes}), more than the {available / gib:.3g} GiB available "
-                f"on {device}")
+                f"{config.hidden_sizes}; {tests / gib:.3g} GiB of {config.eval_episodes} test "
+                f"episodes each), more than the {available / gib:.3g} GiB available on {device}")
 
 
 def available_memory(device: torch.device) -> int | None:

@@ -44,9 +44,10 @@ RESUMABLE_CHANGES = ("episodes", "flush_denormals")
 (an execution setting like the thread count; runs from before the field existed resume)."""
 
 CONFIG_KEYS = ("format", "env_id", "env_kwargs", "task", "seed", "agent", "dims",
-               "env_backend")
+               "env_backend", "program")
 """Keys of the spec that each checkpoint carries as its ``config``: what it was trained
-with, compared with the command's on resume."""
+with, compared with the command's on resume (``program``: the training program's streams and
+matmul precision, so a TF32 run does not resume in float32, issue 41)."""
 
 
 def run_spec(*, env_backend: str, env_id: str, env_kwargs: dict[str, Any],
@@ -212,7 +213,9 @@ class RunFolders:
                 states = [f.load_checkpoint(episode) for f in self.folders]
                 for f, spec, state in zip(self.folders, self.specs, states, strict=True):
                     if "config" in state:  # checkpoints from before the field have none
-                        check_continues(f.checkpoints()[episode], state["config"], spec)
+                        # nor, before issue 41, the program section, which spec.json compares
+                        check_continues(f.checkpoints()[episode],
+                                        {"program": spec.get("program"), **state["config"]}, spec)
                 chunks = [f.chunks(upto=episode) for f in self.folders]
                 for f, state, rows in zip(self.folders, states, chunks, strict=True):
                     _check_coverage(f.path / "buffer", episode, rows, int(state["buffer_total"]),

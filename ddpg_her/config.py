@@ -262,7 +262,7 @@ _RANGES: tuple[tuple[str, Callable[[Any], bool], tuple[str, ...]], ...] = (
      ("actor_lr", "critic_lr", "final_init", "norm_eps", "sac_init_alpha", "sac_alpha_lr",
       "per_eps")),
     ("a finite number >= 0", lambda v: _real(v) and 0.0 <= v < math.inf,
-     ("exploration_rate", "critic_l2", "td3_target_noise", "td3_target_noise_clip")),
+     ("critic_l2", "td3_target_noise", "td3_target_noise_clip")),
     ("a number > 0 (inf: no clipping)", lambda v: _real(v) and v > 0.0, ("obs_clip",)),
     ("an integer >= 0", lambda v: _integer(v) and v >= 0,
      ("episodes", "warmup_episodes", "updates_per_episode")),
@@ -281,6 +281,10 @@ def _field_check(name: str, test: Callable[[Any], bool]) -> Callable[[AgentConfi
 _CHECKS: dict[str, tuple[str, Any]] = {
     **{name: (words, _field_check(name, test)) for words, test, names in _RANGES
        for name in names},
+    "exploration_rate": ("a finite number >= 0, and a probability (<= 1) with --exploration "
+                         "epsilon", lambda c: _real(c.exploration_rate)
+                         and 0.0 <= c.exploration_rate < math.inf
+                         and (c.exploration != "epsilon" or c.exploration_rate <= 1.0)),
     "buffer_size": ("an integer >= batch_size",
                     lambda c: _integer(c.buffer_size) and c.buffer_size >= c.batch_size),
     "hidden_sizes": ("two integers >= 1",

@@ -372,9 +372,6 @@ class Program:
                  command: Sequence[str] | None = None, capture: bool | None = None,
                  tf32: bool = False, dynamics: Callable[..., Any] | None = None,
                  window: bool = False, budget: Budget | None = None):
-        why = unsupported(config)
-        if why:
-            raise ValueError(f"the training program trains DDPG + HER only: not with {why}")
         if budget is not None and (not window or max(budget.choices) != config.episodes or any(
                 c < 1 or c % config.eval_every for c in budget.choices)):
             raise ValueError(f"a time budget is a window run's (window=True), its choices "
@@ -386,14 +383,13 @@ class Program:
             raise ValueError(f"need one env_kwargs dict and one run folder per seed: "
                              f"{len(seeds)} seeds, {len(per_agent)} dicts, "
                              f"{len(run_dirs)} folders")
+        check(env_id, per_agent, config, device, tf32, dtype)
         self.device = torch.device(device)
         self.capture = self.device.type == "cuda" if capture is None else bool(capture)
         if self.capture and self.device.type != "cuda":
             raise ValueError(f"capture needs a CUDA device; got {self.device}")
         if self.device.type == "cuda":
             torch.backends.cuda.matmul.allow_tf32 = bool(tf32)
-        elif tf32:
-            raise ValueError("tf32 is a CUDA setting; the CPU multiplies in float32")
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.dtype, self.progress = dtype, progress
         if self.device.type == "cpu":
@@ -755,19 +751,57 @@ class Program:
         self.folders.close()
 
 
-def unsupported(config: AgentConfig) -> str | None:
-    """Why the program cannot train ``config``, or None."""
-    if config.algo is not Algo.DDPG:
-        return f"--algo {config.algo.value}"
-    if config.batch_norm:
-        return "--batch-norm"
-    if config.prioritized_replay:
-        return "--prioritized-replay"
-    if config.ensemble > 1:
-        return f"--ensemble {config.ensemble}"
+TEST_COPY_BYTES = 250_000
+"""Host or device bytes per test episode copy at its peak (its env copy, the rollout's history
+and the dynamics' scratch), an upper estimate (`check`; issue 41): a CPU test session of 2,000
+farbox copies peaked 336 MiB above one of 200, 196 kB a copy (``/usr/bin/time -f %M python -m
+ddpg_her.train --region farbox --env-backend program --episodes 1 --eval-every 1
+--eval-episodes M ...``)."""
+
+
+PARAMETER_COPIES = 12
+"""Copies of each network parameter the program holds at its peak (`ddpg_her.agents.
+check_memory`'s ``copies``; the other paths hold 6): --hidden-sizes 100000 30 peaked 466 MiB
+above --hidden-sizes 8 8 on the CPU (1.1e7 parameters, 11 float32 copies; the command of
+`TEST_COPY_BYTES` with --eval-episodes 1)."""
+
+
+def check(env_id: str, tasks: Sequence[dict[str, Any]], config: AgentConfig,
+          device: str | torch.device = "cpu", tf32: bool = False,
+          dtype: torch.dtype = torch.float32) -> None:
+    """Raise ValueError, before anything is allocated, when the program cannot train
+    ``config`` on ``tasks`` (one env-keyword dict per agent) on ``device``: another algorithm
+    than DDPG + HER final/none, an env without a stack twin, tasks that do not form one stack
+    (`envs.stackreach.stack_tasks`: the stop contact, ...), a region the device cannot test (a
+    mesh), ``cuda`` without a device, TF32 on the CPU, or a stack larger than the device's
+    memory (`ddpg_her.agents.check_memory`, the test copies included). The one check of the
+    program's inputs: `Program` calls it, and so do the dry runs (``ddpg_her.train_many``,
+    ``analysis.sweep``), so they refuse what the real run refuses, with its message."""
+    from ddpg_her.agents import check_memory
+    from envs.stackreach import RegionBounds, stack_tasks
+    from envs.task import task_sampler
+
+    why = [f"--algo {config.algo.value}"] if config.algo is not Algo.DDPG else []
+    why += ["--batch-norm"] if config.batch_norm else []
+    why += ["--prioritized-replay"] if config.prioritized_replay else []
+    why += [f"--ensemble {config.ensemble}"] if config.ensemble > 1 else []
     if config.her_strategy not in (HERStrategy.FINAL, HERStrategy.NONE):
-        return f"--her-strategy {config.her_strategy.value}"
-    return None
+        why.append(f"--her-strategy {config.her_strategy.value}")
+    if why:
+        raise ValueError(f"the training program trains DDPG + HER only: not with "
+                         f"{', '.join(why)}")
+    stack_twin(env_id)
+    for task in {repr(t.to_dict()): t for t in stack_tasks(tasks)}.values():
+        RegionBounds.of(task_sampler(task).region)
+    from ddpg_her.train import check_device
+
+    dev = torch.device(device)
+    check_device(dev.type)
+    if tf32 and dev.type != "cuda":
+        raise ValueError("--tf32 is a CUDA setting; the CPU multiplies in float32 (drop "
+                         "--tf32 or give --device cuda)")
+    check_memory(config, PADDED, len(tasks), dtype, dev, test_copy_bytes=TEST_COPY_BYTES,
+                 copies=PARAMETER_COPIES)
 
 
 def stack_twin(env_id: str) -> str:

@@ -199,6 +199,9 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
     ckpts = folder.checkpoints()
     if not ckpts:
         raise FileNotFoundError(f"{run_dir} has no checkpoint yet")
+    if episode is not None and (not isinstance(episode, int) or isinstance(episode, bool)):
+        raise ValueError(f"episode must be an integer (a checkpoint's episode, one of "
+                         f"{sorted(ckpts)}) or None; got {episode!r}")
     episode = max(ckpts) if episode is None else episode
     state = folder.load_checkpoint(episode)["agent"]
     try:  # spec.json's values are checked as strictly as the command line's

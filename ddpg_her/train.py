@@ -13,6 +13,7 @@ import argparse
 import dataclasses
 import enum
 import json
+import os
 import re
 import sys
 import time
@@ -105,8 +106,8 @@ def add_process_flags(group: Any, what: str) -> None:
                             "(default: --episodes and its half, quarter and eighth where they "
                             "are multiples of --eval-every, e.g. 20000 10000 5000 2500)")
     group.add_argument("--threads", type=int, default=None,
-                       help="torch CPU threads (count, >= 1; default: 1, which keeps a fair "
-                            "share of the cores when other work runs and is about as fast "
+                       help="torch CPU threads (count, 1..the cores; default: 1, which keeps a "
+                            "fair share of the cores when other work runs and is about as fast "
                             "alone: ddpg_her.units.DEFAULT_THREADS)")
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
     group.add_argument("--no-tensorboard", action="store_true",
@@ -151,8 +152,9 @@ def make_parser() -> argparse.ArgumentParser:
                        help="train one independent agent per seed in this process, batched")
     run.add_argument("--out", default=None,
                      help="run folder; may use {region}, {joints}, {seed}. Default "
-                          f"{DEFAULT_OUT}. With several seeds and no {{seed}} in it, each "
-                          "seed's folder is OUT/s{seed}")
+                          f"{DEFAULT_OUT}, with -algo=A and -KEY=VALUE of each --task before "
+                          "-s{seed} when given (runs/farbox-j3-algo=td3-s0). With several "
+                          "seeds and no {seed} in it, each seed's folder is OUT/s{seed}")
     run.add_argument("--resume", action="store_true",
                      help="continue the run(s) in the run folder(s) from the last checkpoint "
                           "(a folder that does not exist yet starts afresh); the task and agent "
@@ -164,10 +166,18 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) -> list[str]:
-    """The run folder of each seed (see --out)."""
-    safe_region = re.sub(r"[^A-Za-z0-9_.-]+", "_", region).strip("_") or "region"
-    template = out or DEFAULT_OUT
+def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int],
+             differs: Sequence[str] = ()) -> list[str]:
+    """The run folder of each seed (see --out). The default folder's name carries ``differs``
+    too (e.g. ``algo=td3``, ``contact_model=compliant``: what else makes these runs differ
+    from the plain ones), so that they do not land in a plain run's folder."""
+    safe = lambda text: re.sub(r"[^A-Za-z0-9_.=-]+", "_", text).strip("_")  # noqa: E731
+    safe_region = safe(region) or "region"
+    if out is not None and not out.strip():
+        raise ValueError("--out '': give a folder (or leave --out out for the default)")
+    tag = "".join(f"-{safe(d)}" for d in differs)
+    template = out or DEFAULT_OUT.replace("-s{seed}", tag.replace("{", "{{").replace(
+        "}", "}}") + "-s{seed}")
     if len(seeds) > 1 and "{seed}" not in template:
         template = template.rstrip("/") + "/s{seed}"
     try:
@@ -178,7 +188,15 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int]) ->
                          f"{type(err).__name__}: {err}") from None
     if len(set(dirs)) != len(dirs):
         raise ValueError(f"--out {template!r} gives several seeds the same folder")
+    long = [part for d in dirs for part in d.split("/") if len(part.encode()) > NAME_MAX]
+    if long:
+        raise ValueError(f"--out: the folder name {long[0][:40]}... is {len(long[0].encode())} "
+                         f"bytes long; file systems allow at most {NAME_MAX}")
     return dirs
+
+
+NAME_MAX = 255
+"""The longest file or folder name (bytes) of Linux's file systems."""
 
 
 PROCESS_FLAGS = ("resume", "device", "env_backend", "tf32", "window", "budget_seconds",
@@ -301,7 +319,19 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
     config = AgentConfig(**{f.name: getattr(args, f.name)
                             for f in dataclasses.fields(AgentConfig)})
     contradictions(config)
-    dirs = run_dirs(args.out, args.region, joints, seeds)
+    differs = [f"{key}={value}" for key, value in args.task if key not in ("region", "n_joints")]
+    if config.algo.value != AgentConfig.algo.value:
+        differs.insert(0, f"algo={config.algo.value}")
+    dirs = run_dirs(args.out, args.region, joints, seeds, differs)
+    if len(seeds) > 1 and args.out and "{seed}" not in args.out:
+        from ddpg_her.runfolder import RunFolder
+
+        if RunFolder(args.out.format(region=args.region, joints=joints, seed=seeds[0])
+                     ).spec_path.exists():
+            raise ValueError(f"--out {args.out} holds a run of one seed; --seeds "
+                             f"{' '.join(map(str, seeds))} would train each seed in "
+                             f"{args.out}/s{{seed}} beside it (its seed counted twice); give "
+                             "another --out")
     note = None
     if (args.resume if resume is None else resume) and not getattr(args, "episodes_given", True):
         budget = recorded_budget(dirs)
@@ -328,10 +358,10 @@ def build_program(parser: argparse.ArgumentParser, args: argparse.Namespace,
     """The training program (`ddpg_her.program.Program`) of every run of ``settings`` as one
     stack; a usage error when the settings' agent configurations or env ids differ, or the
     program refuses them."""
-    configs = {json.dumps(s.config.to_dict(), sort_keys=True) for s in settings}
-    if len(configs) > 1 or len({s.env_id for s in settings}) > 1:
-        parser.error("--env-backend program trains one stack: every unit needs the same env "
-                     "id and agent configuration (flags and --episodes)")
+    try:
+        check_stack(settings, args.device, args.tf32)
+    except ValueError as err:
+        parser.error(str(err))
     from ddpg_her.program import Budget, Program
 
     budget = None
@@ -344,6 +374,29 @@ def build_program(parser: argparse.ArgumentParser, args: argparse.Namespace,
     return build_trainer(parser, lambda: Program.of_settings(
         settings, resume=args.resume, device=args.device, progress=not args.no_progress,
         command=command, tf32=args.tf32, window=args.window, budget=budget))
+
+
+def check_stack(settings: Sequence[Setting], device: str, tf32: bool) -> None:
+    """Raise ValueError when the training program would refuse the runs of ``settings`` as one
+    stack on ``device``: settings of different env ids or agent configurations, or whatever
+    `ddpg_her.program.check` refuses (its message). What ``ddpg_her.train``, ``train_many``
+    (its dry run too) and ``analysis.sweep --program`` (its dry run too) check alike."""
+    configs = {json.dumps(s.config.to_dict(), sort_keys=True) for s in settings}
+    if len(configs) > 1 or len({s.env_id for s in settings}) > 1:
+        raise ValueError("--env-backend program trains one stack: every unit needs the same "
+                         "env id and agent configuration (flags and --episodes)")
+    from ddpg_her.program import check
+
+    check(settings[0].env_id, [s.env_kwargs for s in settings for _ in s.seeds],
+          settings[0].config, device, tf32)
+
+
+def check_device(device: str) -> None:
+    """Raise ValueError for ``--device cuda`` where torch sees no CUDA device."""
+    import torch
+
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("--device cuda: no CUDA device is available to torch")
 
 
 def run_to_end(trainer: Any) -> Any:
@@ -375,10 +428,12 @@ def run_to_end(trainer: Any) -> Any:
 
 
 def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Refuse a --threads below 1, and --tf32 without --env-backend program (before any unit
-    is parsed)."""
-    if args.threads is not None and args.threads < 1:
-        parser.error(f"--threads must be >= 1, got {args.threads}")
+    """Refuse a --threads outside 1..cores (10,000 made 19,999 threads), and --tf32 without
+    --env-backend program (before any unit is parsed)."""
+    cores = os.cpu_count() or 1
+    if args.threads is not None and not 1 <= args.threads <= cores:
+        parser.error(f"--threads must be in 1..{cores} (this machine's cores), got "
+                     f"{args.threads}")
     for flag, given in (("--tf32", args.tf32), ("--window", args.window)):
         if given and args.env_backend != "program":
             parser.error(f"{flag} is a setting of --env-backend program")
@@ -394,8 +449,10 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     deterministic algorithms (runs bitwise repeatable on the CPU)."""
     import torch
 
-    if args.device == "cuda" and not torch.cuda.is_available():
-        parser.error("--device cuda: no CUDA device is available to torch")
+    try:
+        check_device(args.device)
+    except ValueError as err:
+        parser.error(str(err))
     from ddpg_her.units import DEFAULT_THREADS
 
     torch.set_num_threads(args.threads or DEFAULT_THREADS)

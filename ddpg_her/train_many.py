@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ddpg_her import train
-from ddpg_her.units import read_plan, split_passthrough
+from ddpg_her.units import option_dests, overrides, read_plan, split_passthrough
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -57,31 +57,39 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def settings_of(units: Sequence[Sequence[str]], resume: bool = False):
-    """The `ddpg_her.units.Setting` of each unit, parsed by ddpg_her.train's parser (with
-    ``resume``, a unit without --episodes keeps the budget its run folders record).
+def settings_of(units: Sequence[Sequence[str]], resume: bool = False,
+                common: Sequence[str] = ()):
+    """The `ddpg_her.units.Setting` of each unit, parsed by ddpg_her.train's parser with
+    ``common`` appended (the arguments after ``--``; with ``resume``, a unit without
+    --episodes keeps the budget its run folders record).
 
     Raises
     ------
     ValueError
-        When a unit does not parse, sets a process flag, or asks for an invalid run; the
-        message names the unit.
+        When a unit does not parse, gives a process flag (any value, the default too: the
+        process's own would silently replace it), has an option of ``common`` of its own (a
+        unit's own arguments are never overridden, `ddpg_her.units.overrides`), or asks for an
+        invalid run; the message names the unit and the flag.
     """
     unit_parser = train.make_parser()
-    defaults = {dest: unit_parser.get_default(dest) for dest in train.PROCESS_FLAGS}
     out = []
     for i, unit in enumerate(units, start=1):
         where = f"unit {i} ({shlex.join(unit)})"
+        process = [flag for flag, dest in option_dests(unit_parser, [*unit, *common])
+                   if dest in train.PROCESS_FLAGS]
+        if process:
+            raise ValueError(f"{where} sets the process flag(s) {', '.join(process)}; give "
+                             "them once, to ddpg_her.train_many")
+        over = overrides(unit_parser, unit, common)
+        if over:
+            raise ValueError(f"{where}: {', '.join(over)} after -- would replace the unit's "
+                             "own value; a unit's own arguments are never overridden (give "
+                             "it in the units that lack it)")
         try:
-            args = train.parse_args(unit_parser, list(unit))
+            args = train.parse_args(unit_parser, [*unit, *common])
         except SystemExit:
             raise ValueError(f"{where} is not a ddpg_her.train command line (see above)"
                              ) from None
-        process = [d for d, v in defaults.items() if getattr(args, d) != v]
-        if process:
-            raise ValueError(f"{where} sets the process flag(s) "
-                             f"{', '.join('--' + d.replace('_', '-') for d in process)}; give "
-                             "them once, to ddpg_her.train_many")
         try:
             req = train.request(args, resume=resume)
         except ValueError as err:
@@ -117,7 +125,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not units:
         parser.error("give one or more --unit or --plan")
     try:
-        settings = settings_of([[*u, *common] for u in units], resume=args.resume)
+        settings = settings_of(units, resume=args.resume, common=common)
     except ValueError as err:
         parser.error(str(err))
     writers: dict[Path, str] = {}  # a dry run refuses what the real one could not start
@@ -138,6 +146,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     status = [[run_status(d, s.config.episodes) for d in s.run_dirs] for s in settings]
     pending = [not args.resume or any(st != "done" for st in sts) for sts in status]
     todo = [s for s, p in zip(settings, pending, strict=True) if p]
+    device, tf32 = args.device, args.tf32
+    try:  # the dry run refuses what the real run refuses, with its message (issue 41)
+        train.check_device(args.device)
+    except ValueError as err:
+        if not args.dry_run:
+            parser.error(str(err))
+        print(f"note: {err}: the real run here would refuse; listed as a machine with one "
+              "would run it", file=sys.stderr)
+        device, tf32 = "cpu", False
+    try:
+        if args.env_backend == "program" and todo:
+            train.check_stack(todo, device, tf32)
+    except ValueError as err:
+        parser.error(str(err))
     if args.dry_run:
         try:
             groups = group_settings(todo, args.resume)

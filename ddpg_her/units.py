@@ -125,6 +125,38 @@ def split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
     return argv, []
 
 
+def option_dests(parser: argparse.ArgumentParser, args: Sequence[str]) -> list[tuple[str, str]]:
+    """(option as typed, its dest) for each option of ``args`` that ``parser`` knows, with
+    argparse's unique-prefix abbreviations (``--reg``) resolved as argparse resolves them."""
+    strings = parser._option_string_actions
+    out = []
+    for arg in args:
+        if not arg.startswith("-") or arg == "--" or len(arg) < 2:
+            continue
+        name = arg.partition("=")[0] if arg.startswith("--") else arg
+        if name in strings:
+            out.append((name, strings[name].dest))
+            continue
+        if name.startswith("--"):
+            dests = {strings[s].dest for s in strings if s.startswith(name)}
+            if len(dests) == 1:
+                out.append((name, dests.pop()))
+    return out
+
+
+def overrides(parser: argparse.ArgumentParser, own: Sequence[str], added: Sequence[str]
+              ) -> list[str]:
+    """The options of ``added`` (arguments appended to a unit's command line from outside it)
+    that set what the unit's ``own`` arguments set, as typed: appended, they would silently win
+    (argparse keeps the last), so every caller refuses them (issue 41: ``train_many -- --region
+    zheight`` trained every unit in z-height). ``--seed`` and ``--seeds`` count as one;
+    ``--task`` is left to `task_fields`, which refuses a field given two values."""
+    alias = {"seed": "seeds"}
+    own_dests = {alias.get(d, d) for _, d in option_dests(parser, own)} - {"task"}
+    return [flag for flag, dest in option_dests(parser, added)
+            if alias.get(dest, dest) in own_dests]
+
+
 def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
     """Write a plan file that `read_plan` reads back as ``units``."""
     from ddpg_her.runfolder import atomic_write, make_folder

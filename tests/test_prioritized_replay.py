@@ -12,7 +12,7 @@ from test_ddpg_train import TINY, Crash, eval_table, train
 from ddpg_her.agent import DDPG
 from ddpg_her.buffer import Layout, PrioritizedBuffer, anneal_beta
 from ddpg_her.config import AgentConfig
-from ddpg_her.program import unsupported
+from ddpg_her.program import check
 from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
 
@@ -146,7 +146,8 @@ def test_a_prioritized_run_resumes_to_the_uninterrupted_one(tmp_path, monkeypatc
 
 
 def test_refused_where_it_is_not_implemented():
-    assert unsupported(AgentConfig(prioritized_replay=True)) == "--prioritized-replay"
+    with pytest.raises(ValueError, match="DDPG \\+ HER only: not with --prioritized-replay$"):
+        check("UR5Reach-v0", [{"region": "farbox"}], AgentConfig(prioritized_replay=True))
     for other in ({"algo": "td3"}, {"ensemble": 4}, {"batch_norm": True}):
         with pytest.raises(ValueError, match="prioritized_replay=True"):
             AgentConfig(prioritized_replay=True, **other)

@@ -31,7 +31,8 @@ branches meet, and their angles are only determined to about sqrt(machine eps)."
 
 
 def wrap(angle: Any) -> Any:
-    """Wrap angles (rad) into [-pi, pi]."""
+    """Wrap angles (rad) into [-pi, pi]; ValueError for what is not a number."""
+    angle = np.asarray(angle, dtype=float)
     return np.arctan2(np.sin(angle), np.cos(angle))
 
 

@@ -60,7 +60,10 @@ def to_world(points: Any, base_height: float, out: np.ndarray | None = None) -> 
 
 def to_base(points: Any, base_height: float) -> np.ndarray:
     """``base_link`` positions ``(..., 3)`` (m) of world ``points (..., 3)`` (m); inverts
-    :func:`to_world`."""
+    :func:`to_world`. ValueError for points that are not ``(..., 3)`` finite numbers."""
     p = np.array(points, dtype=float)
+    if p.shape[-1:] != (3,) or not np.isfinite(p).all():
+        raise ValueError(f"points must be (..., 3) finite positions (m); got shape {p.shape}"
+                         + ("" if p.shape[-1:] != (3,) else " with NaN or infinity"))
     p[..., 2] -= check_base_height(base_height)
     return p

@@ -1,0 +1,384 @@
+"""Issue 41: one gate for every input. The training program checked like the other paths (memory
+before allocating, resume comparing every recorded field, dry runs refusing what the real run
+refuses), a unit's own arguments never overridden, writers that do not replace finished work,
+values outside their range refused, and one-line errors.
+
+Each test runs the entry point a person types (its ``main``) or the library call, and compares
+with an independent reference: what the other path says, what the real run does, the measured
+bytes of a test copy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+import trimesh
+
+from ddpg_her import agents, train, train_many
+from ddpg_her.config import AgentConfig
+from ddpg_her.runfolder import RunFolder
+
+TINY = ["--episodes", "2", "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "8",
+        "8", "--updates-per-episode", "2", "--warmup-episodes", "1", "--batch-size", "8",
+        "--buffer-size", "400"]
+
+
+def run_main(main, argv):
+    """(exit status, stderr) of ``main(argv)``; SystemExit's code, 0 for a return of 0."""
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            code = main(argv)
+        except SystemExit as exit_:
+            code = exit_.code
+    return code, err.getvalue()
+
+
+def error_line(text):
+    """The refusal: the last line of a usage error's output."""
+    return text.strip().splitlines()[-1]
+
+
+@pytest.fixture
+def eight_gib(monkeypatch):
+    """A device of 8 GiB available memory, whatever this machine has free."""
+    monkeypatch.setattr(agents, "available_memory", lambda device: 8 * 2 ** 30)
+
+
+# ---------------------------------------------------------------------------- kind 1
+@pytest.mark.parametrize(("flags", "named"), [
+    (["--eval-episodes", "100000"], "--eval-episodes"),
+    (["--buffer-size", str(10 ** 9)], "--buffer-size"),
+    (["--hidden-sizes", "100000", "100000"], "--hidden-sizes"),
+])
+def test_the_program_estimates_memory_before_allocating(tmp_path, eight_gib, flags, named):
+    """The issue's three: 100,000 test copies at the measured ~196 kB each are ~19.6 GB (the
+    issue saw 19.5 GB before the kernel killed the run); 1e9 transitions x 50 float32 = 200 GB;
+    two 1e5 layers = 1e10 weights. All refused in one line naming the flag, nothing written;
+    the numpy backend's refusal of the same flag names the same flag."""
+    out = tmp_path / "run"
+    argv = ["--region", "farbox", "--out", str(out), "--no-progress", "--no-tensorboard",
+            *flags]
+    code, err = run_main(train.main, [*argv, "--env-backend", "program"])
+    assert code == 2, err
+    assert named in error_line(err) and "GiB" in error_line(err)
+    assert not out.exists()
+    if named != "--eval-episodes":  # the host envs are made before the numpy path checks
+        code_numpy, err_numpy = run_main(train.main, argv)
+        assert code_numpy == 2 and named in error_line(err_numpy)
+
+
+def test_the_test_copies_estimate_is_the_measured_one(eight_gib):
+    """100 test episodes (the paper's) pass, 100,000 do not: the estimate is 250 kB a copy, an
+    upper bound of the 196 kB measured (program.TEST_COPY_BYTES's command)."""
+    from ddpg_her.program import check
+
+    task = [dict(region="farbox", n_joints=3)]
+    check("UR5Reach-v0", task, AgentConfig(eval_episodes=100))
+    with pytest.raises(ValueError, match="--eval-episodes: 1 agent"):
+        check("UR5Reach-v0", task, AgentConfig(eval_episodes=100_000))
+    # 30,000 copies: 7.5 GB estimated, under 8 GiB; with 2 agents, over
+    check("UR5Reach-v0", task, AgentConfig(eval_episodes=30_000))
+    with pytest.raises(ValueError, match="--eval-episodes: 2 agent"):
+        check("UR5Reach-v0", task * 2, AgentConfig(eval_episodes=30_000))
+
+
+def mesh_region(tmp_path):
+    stl = tmp_path / "goal.stl"
+    trimesh.creation.box(bounds=[[0.4, -0.1, 0.1], [0.6, 0.1, 0.3]]).export(stl)
+    return f"mesh:{stl}"
+
+
+PROGRAM_REFUSALS = [
+    (["--algo", "td3"], "--algo td3"),
+    (["--algo", "sac"], "--algo sac"),
+    (["--batch-norm"], "--batch-norm"),
+    (["--her-strategy", "future"], "--her-strategy future"),
+    (["--task", "contact_model=compliant"], "contact_model='compliant'"),
+    (["--task", "held_joints=dynamic"], "held_joints"),
+]
+
+
+def program_refusals(tmp_path):
+    return [*PROGRAM_REFUSALS, (["--region", mesh_region(tmp_path)], "mesh")]
+
+
+@pytest.mark.parametrize("case", range(len(PROGRAM_REFUSALS) + 1))
+def test_dry_runs_refuse_what_the_program_refuses_with_its_cause(tmp_path, case):
+    """train_many --dry-run and sweep --program --dry-run refuse each unit the real program
+    run refuses, with the same cause (the reference: the real train_many run's refusal)."""
+    from analysis import sweep
+
+    flags, cause = program_refusals(tmp_path)[case]
+    region = flags[1] if flags[0] == "--region" else "farbox"
+    unit_flags = [] if flags[0] == "--region" else flags
+    unit = f"--region {region} --out {tmp_path / 'u'} " + " ".join(
+        f"'{f}'" for f in [*unit_flags, *TINY])
+    real_code, real_err = run_main(train_many.main, ["--unit", unit, "--env-backend", "program",
+                                                     "--no-progress"])
+    assert real_code == 2 and cause in error_line(real_err), real_err
+    code, err = run_main(train_many.main, ["--unit", unit, "--env-backend", "program",
+                                           "--dry-run"])
+    assert code == 2 and cause in error_line(err), err
+    assert error_line(err) == error_line(real_err)
+    if flags[0] != "--region":
+        code, err = run_main(sweep.main, ["--setting", "farbox:3", "--seeds", "1", "--out",
+                                          str(tmp_path / "sweep"), "--program", "--dry-run",
+                                          "--", *unit_flags])
+        assert code == 2 and cause in err, err
+    assert not (tmp_path / "u").exists() and not (tmp_path / "sweep").exists()
+
+
+def test_tf32_on_the_cpu_and_cuda_without_a_device_refused_by_dry_runs(tmp_path, monkeypatch):
+    from analysis import sweep
+
+    unit = f"--region farbox --out {tmp_path / 'u'}"
+    code, err = run_main(train_many.main, ["--unit", unit, "--env-backend", "program",
+                                           "--tf32", "--dry-run"])
+    assert code == 2 and "--tf32 is a CUDA setting" in error_line(err)
+    code, err = run_main(sweep.main, ["--setting", "farbox:3", "--out", str(tmp_path / "s"),
+                                      "--program", "--tf32", "--dry-run"])
+    assert code == 2 and "--tf32 is a CUDA setting" in err
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    for main, argv in ((train_many.main, ["--unit", unit, "--device", "cuda"]),
+                       (sweep.main, ["--setting", "farbox:3", "--out", str(tmp_path / "s"),
+                                     "--device", "cuda", "--program"])):
+        code, err = run_main(main, argv)  # the real run refuses
+        assert code == 2 and "no CUDA device" in err, err
+        # the dry run flags it (a GPU run is planned on another machine) and lists the units
+        code, err = run_main(main, [*argv, "--dry-run"])
+        assert code == 0 and "note: --device cuda: no CUDA device" in err, err
+
+
+def test_a_failed_sweep_process_prints_its_cause(tmp_path):
+    from analysis import sweep
+
+    log = tmp_path / "x.log"
+    log.write_text("starting\nerror: --tf32 is a CUDA setting\n\n")
+    assert sweep.failure(log).startswith("error: --tf32 is a CUDA setting (whole log: ")
+    assert sweep.failure(tmp_path / "none.log").startswith("it wrote nothing")
+
+
+def tiny_program_run(tmp_path, name="run"):
+    from ddpg_her.program import Program
+    from tests.test_program import FirstOrderArm
+
+    config = AgentConfig(hidden_sizes=(8, 8), warmup_episodes=1, eval_every=2, eval_episodes=2,
+                         updates_per_episode=2, batch_size=8, buffer_size=400, episodes=2)
+    return lambda episodes=2, resume=False: Program(
+        "UR5Reach-v0", [dict(region="farbox", n_joints=3)],
+        AgentConfig(**{**config.to_dict(), "episodes": episodes}), [0], [tmp_path / name],
+        resume=resume, progress=False, dynamics=FirstOrderArm)
+
+
+@pytest.mark.parametrize("edit", ["tf32", "removed", "streams"])
+def test_resume_compares_the_program_section(tmp_path, edit):
+    """A run recorded as TF32 does not resume in float32; an edited or removed section is
+    refused naming it. The unedited run resumes (the reference)."""
+    make = tiny_program_run(tmp_path)
+    program = make()
+    program.run()
+    program.close()
+    make(4, resume=True).close()  # unedited: resumes
+    folder = RunFolder(tmp_path / "run")
+    spec = folder.read_spec()
+    if edit == "tf32":
+        spec["program"]["matmul"] = "tf32"
+    elif edit == "removed":
+        del spec["program"]
+    else:
+        spec["program"]["streams"] = "mix32-counter-0"
+    folder.spec_path.write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=r"differing: program \(was"):
+        make(4, resume=True)
+    # the checkpoint records the section too: a spec.json put back by hand is checked by it
+    assert folder.load_checkpoint(2)["config"]["program"]["matmul"] == "float32"
+
+
+# ---------------------------------------------------------------------------- kind 2
+@pytest.mark.parametrize(("unit", "after"), [
+    ("--region farbox", ["--region", "zheight"]),
+    ("--region farbox --out OUT", ["--out", "elsewhere"]),
+    ("--region farbox --seeds 0 1", ["--seeds", "3", "4"]),
+    ("--region farbox --seed 0", ["--seeds", "3", "4"]),
+    ("--region farbox --joints 3", ["--joints", "6"]),
+    ("--region farbox --episodes 4", ["--episodes", "8"]),
+    ("--region farbox --episodes 4", ["--epi", "8"]),  # an abbreviation argparse resolves
+])
+def test_arguments_after_dashes_never_replace_a_units_own(tmp_path, unit, after):
+    """Appended, the last flag won (argparse's rule, the reference): the unit trained what the
+    -- arguments said. Refused, naming the flag; a flag the unit lacks is still appended."""
+    unit = unit.replace("OUT", str(tmp_path / "mine"))
+    code, err = run_main(train_many.main, ["--unit", unit, "--dry-run", "--", *after])
+    assert code == 2 and after[0] in error_line(err) and "never overridden" in error_line(err)
+    parsed = train.parse_args(train.make_parser(), [*unit.split(), *after])
+    dest = {"--epi": "episodes", "--seeds": "seeds"}.get(after[0], after[0][2:])
+    assert str(getattr(parsed, dest)).strip("[]'").replace("'", "").replace(",", "") == \
+        " ".join(after[1:])  # what the old appending trained
+    code, err = run_main(train_many.main, ["--unit", f"--region farbox --out {tmp_path / 'x'}",
+                                           "--dry-run", "--", "--episodes", "200"])
+    assert code == 0, err
+
+
+@pytest.mark.parametrize("flag", [["--env-backend", "numpy"], ["--device", "cpu"],
+                                  ["--threads", "1"], ["--no-progress"]])
+def test_a_units_process_flag_is_refused_even_at_the_default(tmp_path, flag):
+    """A unit's own --env-backend numpy was ignored under --env-backend program (its value
+    equals the default, so the old check compared values and saw nothing)."""
+    unit = f"--region farbox --out {tmp_path / 'u'} " + " ".join(flag)
+    code, err = run_main(train_many.main, ["--unit", unit, "--env-backend", "program",
+                                           "--dry-run"])
+    assert code == 2 and flag[0] in error_line(err) and "process flag" in error_line(err)
+
+
+@pytest.mark.parametrize("unit_args", ["--region zheight", "--seeds 3 4", "--out x",
+                                       "--episodes 5", "--hidden-sizes 8 8 'unbalanced"])
+def test_grid_episode_refuses_unit_args_that_change_the_grid(unit_args):
+    from benchmarks import grid_episode
+
+    code, err = run_main(grid_episode.main, ["--device", "cpu", "--part", "2", "--unit-args",
+                                             unit_args])
+    assert code == 2, err
+    line = error_line(err)
+    assert (unit_args.split()[0] in line and "never overridden" in line) or \
+        "cannot be split" in line, line
+    assert "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------- kinds 3 and 4
+def test_the_default_folder_names_the_algorithm_and_task_overrides():
+    """The README's TD3 and compliant lines landed in the plain lines' folders."""
+    parser = train.make_parser()
+    dirs = [train.request(train.parse_args(parser, a)).run_dirs[0] for a in (
+        ["--region", "farbox"], ["--region", "farbox", "--algo", "td3"],
+        ["--region", "zheight"], ["--region", "zheight", "--task", "contact_model=compliant"])]
+    assert dirs == ["runs/farbox-j3-s0", "runs/farbox-j3-algo=td3-s0", "runs/zheight-j3-s0",
+                    "runs/zheight-j3-contact_model=compliant-s0"]
+
+
+def test_seeds_over_a_single_seed_folder_refused(tmp_path):
+    """--seeds 0 1 --resume over OUT holding seed 0's run trained seed 0 again in OUT/s0."""
+    out = tmp_path / "one"
+    RunFolder(out).write_spec({"format": "x", "seed": 0})
+    code, err = run_main(train.main, ["--region", "farbox", "--out", str(out), "--seeds", "0",
+                                      "1", "--resume", *TINY])
+    assert code == 2 and "holds a run of one seed" in error_line(err)
+    assert sorted(p.name for p in out.iterdir()) == ["spec.json"]
+
+
+@pytest.mark.parametrize("out", ["", " ", "x" * 300])
+def test_an_empty_or_overlong_out_refused_in_one_line(tmp_path, out):
+    code, err = run_main(train.main, ["--region", "farbox", "--out", out, *TINY])
+    assert code == 2 and "--out" in error_line(err) and "Traceback" not in err
+
+
+def test_collect_does_not_replace_other_runs_without_force(tmp_path):
+    """The README's --collect results/sensitivity replaced committed 1,000-episode runs with
+    100-episode ones. Now refused naming them, nothing written; --force replaces; collecting
+    the same runs again is fine."""
+    from analysis import sensitivity as sens
+    from tests.test_sensitivity import _write_run
+
+    root, dest = tmp_path / "runs", tmp_path / "dest"
+    argv = ["--collect", str(dest), "--out", str(root), "--seeds", "1", "--readings", "ours",
+            "--setting", "zheight:3"]
+    _write_run(root / "ours" / "zheight-j3" / "s0", "zheight", 3, 0, 40.0)
+    assert run_main(sens.main, argv)[0] == 0
+    first = (dest / "runs/ours/zheight-j3/s0/eval.csv").read_bytes()
+    assert run_main(sens.main, argv)[0] == 0  # the same runs: nothing to replace
+    shutil.rmtree(root)
+    _write_run(root / "ours" / "zheight-j3" / "s0", "zheight", 3, 0, 90.0)
+    code, err = run_main(sens.main, argv)
+    assert code == 2 and "would replace 1 file(s)" in err and "eval.csv" in err
+    assert (dest / "runs/ours/zheight-j3/s0/eval.csv").read_bytes() == first
+    assert run_main(sens.main, [*argv, "--force"])[0] == 0
+    assert (dest / "runs/ours/zheight-j3/s0/eval.csv").read_bytes() == \
+        (root / "ours/zheight-j3/s0/eval.csv").read_bytes() != first
+
+
+def test_a_report_does_not_replace_another_without_force(tmp_path):
+    from analysis import sensitivity as sens
+    from tests.test_sensitivity import _write_run
+
+    root, out = tmp_path / "runs", tmp_path / "report"
+    for seed in range(2):
+        _write_run(root / "ours" / "zheight-j3" / f"s{seed}", "zheight", 3, seed, 40.0 + seed)
+    argv = ["report", str(root), "--out", str(out), "--worth-goals", "0", "--reps", "50",
+            "--seeds", "2"]
+    assert run_main(sens.main, argv)[0] == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert run_main(sens.main, argv)[0] == 0  # the same report again
+    code, err = run_main(sens.main, [*argv, "--episodes", "500"])
+    assert code == 2 and "would replace" in err and "--force" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert run_main(sens.main, [*argv, "--episodes", "500", "--force"])[0] == 0
+    assert (out / "report.md").read_bytes() != before["report.md"]
+
+
+# ---------------------------------------------------------------------------- kinds 5, 6 and 7
+def test_an_epsilon_rate_is_a_probability():
+    """With --exploration epsilon, nu is the probability of a random action (config's own
+    docstring): 1.5 was accepted. As Gaussian noise's std it may exceed 1."""
+    with pytest.raises(ValueError, match="exploration_rate=1.5 .*probability"):
+        AgentConfig(exploration="epsilon", exploration_rate=1.5)
+    AgentConfig(exploration="epsilon", exploration_rate=1.0)
+    AgentConfig(exploration="gaussian", exploration_rate=1.5)
+
+
+def test_threads_beyond_the_cores_refused(tmp_path):
+    import os
+
+    code, err = run_main(train.main, ["--region", "farbox", "--out", str(tmp_path / "r"),
+                                      "--threads", "10000", *TINY])
+    assert code == 2 and f"1..{os.cpu_count()}" in error_line(err)
+    assert not (tmp_path / "r").exists()
+
+
+def test_load_names_a_non_integer_episode(tiny_ur5_run):
+    import ddpg_her
+
+    with pytest.raises(ValueError, match=r"episode must be an integer .* got '2'"):
+        ddpg_her.load(tiny_ur5_run, episode="2")
+
+
+def test_start_after_in_a_missing_folder_refused_at_once(tmp_path):
+    from benchmarks import grid_episode
+
+    code, err = run_main(grid_episode.main, ["--device", "cpu", "--part", "2", "--start-after",
+                                             str(tmp_path / "no" / "such" / "file")])
+    assert code == 2 and "does not exist" in error_line(err)
+
+
+def test_ur5kin_refuses_what_is_not_a_position_or_angle():
+    import numpy as np
+
+    import ur5kin
+
+    with pytest.raises(ValueError, match="could not convert"):
+        ur5kin.wrap("x")
+    assert ur5kin.wrap(3 * np.pi) == pytest.approx(np.pi)
+    with pytest.raises(ValueError, match="NaN"):
+        ur5kin.to_base([np.nan, 0.0, 0.0], 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        ur5kin.to_base([0.0, 0.0], 0.0)
+    assert ur5kin.to_base([0.1, 0.2, 0.5], 0.3).tolist() == pytest.approx([0.1, 0.2, 0.2])
+
+
+def test_ctrl_c_of_a_sweep_ends_with_its_line_not_a_traceback(tmp_path, monkeypatch):
+    from analysis import sweep
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "run_one_process", interrupted)
+    monkeypatch.setattr(sweep, "run_local", interrupted)
+    for flags in (["--program"], []):
+        code, err = run_main(sweep.main, ["--setting", "farbox:3", "--seeds", "1", "--out",
+                                          str(tmp_path / "sw"), *flags])
+        assert code == 130 and "Traceback" not in err
