@@ -136,6 +136,13 @@ def _tanh_backward_plain(grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
     return grad * (1.0 - out * out)
 
 
+def _bmm(a: torch.Tensor, b: torch.Tensor, alpha: float) -> torch.Tensor:
+    """alpha (a @ b) for (K, M, L) a and (K, L, P) b in one batched product (baddbmm ignores
+    its input at beta = 0). A power of two alpha scales exactly, so the result is the bits of
+    a @ b scaled after, or of a or b scaled before (but for subnormals)."""
+    return torch.baddbmm(a[:, :1, :1], a, b, beta=0.0, alpha=alpha)
+
+
 FAST = probe_fast_paths()
 """The private functions this torch offers and that pass their check; `DDPG` reads it when
 built (a test sets it to `PLAIN` to exercise the fallback)."""
@@ -194,6 +201,7 @@ class DDPG:
         self.params = torch.zeros(2, 2, k, q, **net)
         self.grads, self.exp_avg, self.exp_avg_sq = (torch.zeros(2, k, q, **net) for _ in "gmv")
         self.steps = torch.zeros(2, dtype=torch.float32, device=self.device)
+        self._one = torch.ones((), **net)
         self.lr: list[float | torch.Tensor] = [config.actor_lr, config.critic_lr]
         self.weight_decay = (0.0, config.critic_l2)
         pairs = {}
@@ -244,17 +252,22 @@ class DDPG:
 
     def _adam(self, j: int) -> None:
         """One Adam step of network j (`NETWORKS`) over its flat online parameters: one fused
-        kernel, the step count advanced first (else torch.optim.adam.adam's public loop)."""
+        kernel (`_count_steps` advanced its step count), else torch.optim.adam.adam's public
+        loop, which advances it itself."""
         tensors = ([self.params[j, 0]], [self.grads[j]], [self.exp_avg[j]],
                    [self.exp_avg_sq[j]], [], [self.steps[j]])
         hyper = {"amsgrad": False, "beta1": ADAM_BETAS[0], "beta2": ADAM_BETAS[1],
                  "lr": self.lr[j], "weight_decay": self.weight_decay[j], "eps": ADAM_EPS,
                  "maximize": False}
         if self.fast.fused_adam:
-            self.steps[j].add_(1)
             torch._fused_adam_(*tensors, **hyper, grad_scale=None, found_inf=None)
         else:
             adam_loop(*tensors, foreach=False, **hyper)
+
+    def _count_steps(self) -> None:
+        """Both Adam step counts + 1 in one pass, before the update's two fused Adam steps."""
+        if self.fast.fused_adam:
+            self.steps.add_(1)
 
     def _soft_update(self) -> None:
         """Targets: theta' <- (1 - tau) theta' + tau theta, one pass over the flat layout (and
@@ -288,6 +301,7 @@ class DDPG:
         DDPG to 1e-10 in float64. With ``config.batch_norm`` the two steps go through autograd
         instead (`_update_autograd`).
         """
+        self._count_steps()
         if self.config.batch_norm:
             critic_loss, actor_loss = self._update_autograd(x, u, r, x2, terminated)
             self._soft_update()
@@ -306,7 +320,7 @@ class DDPG:
 
         # critic step
         err = q - y                                                   # (K, N, 1)
-        critic_loss = err.square().mean(dim=(1, 2))
+        critic_loss = _bmm(err.mT, err, 1.0 / n).view(k)
         dq = err.mul_(2.0 / n)                                        # d(loss)/dq
         torch.bmm(c2.mT, dq, out=critic.l3.weight.grad)
         torch.sum(dq, dim=1, keepdim=True, out=critic.l3.bias.grad)
@@ -320,9 +334,9 @@ class DDPG:
 
         # actor step: ascend Q(s, mu(s)) of the updated critic; only the actor moves
         _, _, c2, q = critic.activations(x, mu)
-        actor_loss = -q.mean(dim=(1, 2))
-        dc2 = relu_backward((critic.l3.weight.mT * (-1.0 / n)).expand_as(c2), c2)
-        dmu = torch.bmm(dc2, critic.l2.weight[:, h1:].mT)            # (K, N, act_dim)
+        actor_loss = _bmm(self._one.expand(k, 1, n), q, -1.0 / n).view(k)
+        dc2 = relu_backward(critic.l3.weight.mT.expand_as(c2), c2)   # -n d(loss)/dc2
+        dmu = _bmm(dc2, critic.l2.weight[:, h1:].mT, -1.0 / n)       # (K, N, act_dim)
         da3 = self._tanh_backward(dmu, mu)
         torch.bmm(a2.mT, da3, out=actor.l3.weight.grad)
         torch.sum(da3, dim=1, keepdim=True, out=actor.l3.bias.grad)

@@ -174,11 +174,12 @@ def test_update_does_only_the_matrix_products_ddpg_needs():
     batch = [torch.randn(k, n, d) for d in (i, a, 1, i)]
     with FlopCounterMode(display=False) as counter:
         agent.update(*batch, torch.zeros(k, n, 1))
-    actor = i * h1 + h1 * h2 + h2 * a                   # multiply-adds per row
+    actor = i * h1 + h1 * h2 + h2 * a  # multiply-adds per row (+ 1: a loss, a (1, n) product)
     critic = i * h1 + (h1 + a) * h2 + h2
     target = actor + critic
-    critic_step = critic + h2 + (h1 + a) * h2 + h2 * h1 + i * h1
-    actor_step = actor + critic + h2 * a + h2 * a + a * h2 + h1 * h2 + h2 * h1 + i * h1
+    critic_step = critic + 1 + h2 + (h1 + a) * h2 + h2 * h1 + i * h1  # 1: the loss
+    actor_step = (actor + critic + 1 + h2 * a + h2 * a + a * h2 + h1 * h2 + h2 * h1
+                  + i * h1)
     assert counter.get_total_flops() == 2 * n * k * (target + critic_step + actor_step)
 
 
