@@ -5,15 +5,15 @@ the K agents are summed, so each agent's gradient is that of its own loss alone,
 elementwise, steps every slice as K separate optimisers would.
 
 All parameters of a stack (actor, critic and their targets) are views into one flat buffer,
-Adam's moments and the gradients likewise, so an Adam step is one fused pass over one tensor
-and the soft target update one ``lerp_``; an online network and its target, stored side by
-side, run as one stack of 2K agents where both take the same input.
+Adam's moments and the gradients likewise: an Adam step is one fused pass over a network's
+parameters, the soft target update one pass over all, and an online network and its target,
+each parameter's two stacks side by side, run as one stack of 2K agents.
 
 The update is fast through three private torch functions (``torch._fused_adam_``,
-``torch.ops.aten.threshold_backward``, ``torch.ops.aten.tanh_backward``). Each is checked once
-at import against the public computation it replaces (:func:`probe_fast_paths`); one that is
-missing or answers differently is replaced by that public computation, with a warning naming
-it: a torch upgrade costs speed, never correctness.
+``torch.ops.aten.threshold_backward``, ``torch._foreach_lerp_``). Each is checked once at import against the public computation it
+replaces (:func:`probe_fast_paths`); one that is missing or answers differently is replaced
+by that public computation, with a warning naming it: a torch upgrade costs speed, never
+correctness.
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ from ddpg_her.networks import (
     bind_parameters,
     load_agent_slices,
     parameter_views,
-    row_size,
 )
 from ddpg_her.normalizer import RunningNormalizer
 
@@ -48,11 +47,11 @@ class FastPaths:
     """``torch._fused_adam_`` called directly; else ``torch.optim.adam.adam``'s own loop."""
     threshold_backward: bool = True
     """``torch.ops.aten.threshold_backward`` for a ReLU's backward; else ``torch.where``."""
-    tanh_backward: bool = True
-    """``torch.ops.aten.tanh_backward`` for tanh's backward; else ``grad * (1 - y * y)``."""
+    foreach_lerp: bool = True
+    """``torch._foreach_lerp_`` for the soft target update; else ``Tensor.lerp_`` per tensor."""
 
 
-PLAIN = FastPaths(fused_adam=False, threshold_backward=False, tanh_backward=False)
+PLAIN = FastPaths(fused_adam=False, threshold_backward=False, foreach_lerp=False)
 """Public torch only: the path a torch without the private functions takes."""
 
 PROBE_TOL = 1e-12
@@ -82,18 +81,21 @@ def _probe_threshold_backward() -> None:
         raise ValueError(f"gave {got.tolist()} for the ReLU backward [1, 0, 0, 4]")
 
 
-def _probe_tanh_backward() -> None:
-    grad = torch.tensor([1.0, -2.0, 3.0], dtype=torch.float64)
-    out = torch.tensor([0.5, -0.25, 0.0], dtype=torch.float64)
-    got = torch.ops.aten.tanh_backward(grad, out)
-    if not torch.equal(got, _tanh_backward_plain(grad, out)):
-        raise ValueError(f"gave {got.tolist()} for the tanh backward [0.75, -1.875, 3]")
+def _probe_foreach_lerp() -> None:
+    a, b = torch.tensor([1.0, 2.0], dtype=torch.float64), torch.tensor([3.0, -2.0],
+                                                                        dtype=torch.float64)
+    expected = a.lerp(b, 0.25)
+    torch._foreach_lerp_([a], [b], 0.25)
+    if not torch.allclose(a, expected, rtol=0.0, atol=PROBE_TOL):
+        raise ValueError(f"gave {a.tolist()}, expected {expected.tolist()}")
+
+
 
 
 _PROBES: dict[str, tuple[str, Callable[[], None]]] = {
     "fused_adam": ("torch._fused_adam_", _probe_fused_adam),
     "threshold_backward": ("torch.ops.aten.threshold_backward", _probe_threshold_backward),
-    "tanh_backward": ("torch.ops.aten.tanh_backward", _probe_tanh_backward),
+    "foreach_lerp": ("torch._foreach_lerp_", _probe_foreach_lerp),
 }
 """Field of `FastPaths` -> (the private functions it calls, a check against the public twin)."""
 
@@ -131,11 +133,6 @@ def _relu_backward(grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
     return torch.ops.aten.threshold_backward(grad, out, 0.0)
 
 
-def _tanh_backward_plain(grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """grad (1 - out^2), the gradient through out = tanh(z) (public ops)."""
-    return grad * (1.0 - out * out)
-
-
 def _bmm(a: torch.Tensor, b: torch.Tensor, alpha: float) -> torch.Tensor:
     """alpha (a @ b) for (K, M, L) a and (K, L, P) b in one batched product (baddbmm ignores
     its input at beta = 0). A power of two alpha scales exactly, so the result is the bits of
@@ -171,12 +168,12 @@ class DDPG:
     act_dim : action dimension; init_generators : K CPU generators, agent k's initial weights are
     drawn from generator k alone.
 
-    The flat layout: ``params (2, 2, K, Q)`` holds [actor, critic] x [online, target] x agents,
-    each agent's parameters one row of Q numbers (`ddpg_her.networks.parameter_views`; the
-    network with fewer than Q leaves the rest of its rows at 0, which Adam keeps at 0);
-    ``grads``, ``exp_avg`` and ``exp_avg_sq (2, K, Q)`` those of the online networks; ``steps
-    (2,)`` the Adam step counts. ``actor.l1.weight`` and every other parameter is a view into
-    it, so checkpoints (`agent_state`) keep their per-parameter format.
+    The flat layout: ``params`` (1-D) holds the actor's parameters, then the critic's, each
+    parameter ``(K, ...)`` of the online network followed by the target's, one ``(2K, ...)``
+    block (`ddpg_her.networks.parameter_views`); ``grads``, ``exp_avg`` and ``exp_avg_sq``
+    (1-D) those of the online networks in the same order; ``steps (2,)`` the two Adam step
+    counts. ``actor.l1.weight`` and every other parameter is a view into it, so checkpoints
+    (`agent_state`) keep their per-parameter format.
     """
 
     def __init__(self, config: AgentConfig, in_dim: int, act_dim: int, *,
@@ -197,30 +194,44 @@ class DDPG:
         self.normalizer = RunningNormalizer(
             k, in_dim, eps=config.norm_eps, clip=config.obs_clip, enabled=config.normalize_obs,
             **net)
-        q = max(row_size(self.actor), row_size(self.critic))
-        self.params = torch.zeros(2, 2, k, q, **net)
-        self.grads, self.exp_avg, self.exp_avg_sq = (torch.zeros(2, k, q, **net) for _ in "gmv")
+        sizes = [sum(p.numel() for p in m.parameters()) for m in (self.actor, self.critic)]
+        self.params = torch.zeros(2 * sum(sizes), **net)
+        self.grads, self.exp_avg, self.exp_avg_sq = (torch.zeros(sum(sizes), **net)
+                                                     for _ in "gmv")
         self.steps = torch.zeros(2, dtype=torch.float32, device=self.device)
         self._one = torch.ones((), **net)
         self.lr: list[float | torch.Tensor] = [config.actor_lr, config.critic_lr]
         self.weight_decay = (0.0, config.critic_l2)
-        pairs = {}
+        self._adam_tensors: list[tuple[list[torch.Tensor], ...]] = []
+        self._grads: dict[torch.Tensor, torch.Tensor] = {}
+        """Parameter -> its gradient in the flat layout, which `update` writes (not ``.grad``:
+        torch.compile cannot trace a parameter whose ``.grad`` aliases another input)."""
+        pairs, start = {}, 0
         for j, name in enumerate(NETWORKS):
             online, target = getattr(self, name), getattr(self, f"{name}_target")
-            bind_parameters(online, self.params[j, 0])
-            bind_parameters(target, self.params[j, 1])
-            for p, g in zip(online.parameters(), parameter_views(online, self.grads[j]),
-                            strict=True):
-                p.grad = g  # `update` writes every gradient here, in the flat layout
+            flat = slice(start, start + sizes[j])
+            views = parameter_views(online, self.params[2 * flat.start:2 * flat.stop], copies=2)
+            bind_parameters(online, [v[:k] for v in views])
+            bind_parameters(target, [v[k:] for v in views])
+            grads = parameter_views(online, self.grads[flat])
+            self._grads.update(zip(online.parameters(), grads, strict=True))
+            self._adam_tensors.append((  # detached: the kernel is not autograd's business
+                [p.detach() for p in online.parameters()], grads,
+                parameter_views(online, self.exp_avg[flat]),
+                parameter_views(online, self.exp_avg_sq[flat])))
             if not config.batch_norm:  # online beside target: one stack of 2K agents
                 pairs[name] = copy.deepcopy(target)
-                bind_parameters(pairs[name], self.params[j], copy=False)
+                bind_parameters(pairs[name], views, copy=False)
+            start = flat.stop
         self._actor_pair, self._critic_pair = pairs.get("actor"), pairs.get("critic")
+        # the soft update moves batch normalisation's running statistics too
+        nets = (self.actor, self.critic, self.actor_target, self.critic_target)
+        self._lerp_online, self._lerp_target = (
+            [t for m in modules for t in [*m.parameters(), *m.buffers()]]
+            for modules in (nets[:2], nets[2:]))
         self.fast = FAST
         self._relu_backward = (_relu_backward if self.fast.threshold_backward
                                else _relu_backward_plain)
-        self._tanh_backward = (torch.ops.aten.tanh_backward if self.fast.tanh_backward
-                               else _tanh_backward_plain)
 
     @torch.no_grad()
     def act(self, x: torch.Tensor, explore: bool = False) -> torch.Tensor:
@@ -254,30 +265,32 @@ class DDPG:
         """One Adam step of network j (`NETWORKS`) over its flat online parameters: one fused
         kernel (`_count_steps` advanced its step count), else torch.optim.adam.adam's public
         loop, which advances it itself."""
-        tensors = ([self.params[j, 0]], [self.grads[j]], [self.exp_avg[j]],
-                   [self.exp_avg_sq[j]], [], [self.steps[j]])
+        params, grads, exp_avg, exp_avg_sq = self._adam_tensors[j]
         hyper = {"amsgrad": False, "beta1": ADAM_BETAS[0], "beta2": ADAM_BETAS[1],
                  "lr": self.lr[j], "weight_decay": self.weight_decay[j], "eps": ADAM_EPS,
                  "maximize": False}
-        if self.fast.fused_adam:
-            torch._fused_adam_(*tensors, **hyper, grad_scale=None, found_inf=None)
-        else:
-            adam_loop(*tensors, foreach=False, **hyper)
+        if self.fast.fused_adam:  # the kernel reads the count, one 0-dim view per parameter
+            torch._fused_adam_(params, grads, exp_avg, exp_avg_sq, [], [self.steps[j]] * len(
+                params), **hyper, grad_scale=None, found_inf=None)
+        else:  # the loop advances a count per parameter: give it copies, the shared one after
+            adam_loop(params, grads, exp_avg, exp_avg_sq, [],
+                      [self.steps[j].clone() for _ in params], foreach=False, **hyper)
+            self.steps[j] += 1
 
     def _count_steps(self) -> None:
-        """Both Adam step counts + 1 in one pass, before the update's two fused Adam steps."""
+        """Both Adam step counts + 1 in one pass, before the update's two fused Adam steps
+        (the plain path counts in `_adam`)."""
         if self.fast.fused_adam:
             self.steps.add_(1)
 
     def _soft_update(self) -> None:
-        """Targets: theta' <- (1 - tau) theta' + tau theta, one pass over the flat layout (and
-        batch normalisation's running statistics alike)."""
+        """Targets: theta' <- (1 - tau) theta' + tau theta (and running statistics alike)."""
         tau = self.config.tau
-        self.params[:, 1].lerp_(self.params[:, 0], tau)
-        for target, online in ((self.actor_target, self.actor),
-                               (self.critic_target, self.critic)):
-            for b_target, b_online in zip(target.buffers(), online.buffers(), strict=True):
-                b_target.lerp_(b_online, tau)
+        if self.fast.foreach_lerp:
+            torch._foreach_lerp_(self._lerp_target, self._lerp_online, tau)
+        else:
+            for target, online in zip(self._lerp_target, self._lerp_online, strict=True):
+                target.lerp_(online, tau)
 
     @torch.no_grad()
     def update(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor, x2: torch.Tensor,
@@ -292,14 +305,14 @@ class DDPG:
         Q'(s', mu'(s')); then the actor ascends the updated critic's Q(s, mu(s)); then
         theta' <- (1 - tau) theta' + tau theta. Before the critic step, mu(s) beside mu'(s')
         and Q(s, a) beside Q'(s', mu'(s')) run as one stack of 2K agents each (an online
-        network and its target share the flat layout's rows). The gradients are written out
-        by hand (each layer a batched matrix product): that skips what autograd would compute
-        and throw away (the critic's weight gradients in the actor step, the gradient of the
-        state half of the critic's second-layer input), fuses each ReLU's and tanh's backward
-        into one pass and writes into the flat gradient buffer. `tests/test_ddpg_agent.py`
-        checks it, on the fast and on the plain path (`FastPaths`), against a plain autograd
-        DDPG to 1e-10 in float64. With ``config.batch_norm`` the two steps go through autograd
-        instead (`_update_autograd`).
+        network and its target lie side by side in the flat layout). The gradients are
+        written out by hand (each layer a batched matrix product): that skips what autograd
+        would compute and throw away (the critic's weight gradients in the actor step, the
+        gradient of the state half of the critic's second-layer input), fuses each ReLU's
+        backward into one pass and writes into the flat gradient buffer.
+        `tests/test_ddpg_agent.py` checks it, on the fast and on the plain path
+        (`FastPaths`), against a plain autograd DDPG to 1e-10 in float64. With
+        ``config.batch_norm`` the two steps go through autograd instead (`_update_autograd`).
         """
         self._count_steps()
         if self.config.batch_norm:
@@ -309,7 +322,7 @@ class DDPG:
         k, n, h1 = self.k, x.shape[1], self.config.hidden_sizes[0]
         gamma = self.config.gamma
         actor, critic = self.actor, self.critic
-        relu_backward = self._relu_backward
+        relu_backward, g = self._relu_backward, self._grads
 
         # [online; target] as 2K agents: mu(s) beside mu'(s'), Q(s, a) beside Q'(s', mu'(s'))
         xs = self.normalizer(torch.stack([x, x2])).view(2 * k, n, -1)
@@ -322,14 +335,14 @@ class DDPG:
         err = q - y                                                   # (K, N, 1)
         critic_loss = _bmm(err.mT, err, 1.0 / n).view(k)
         dq = err.mul_(2.0 / n)                                        # d(loss)/dq
-        torch.bmm(c2.mT, dq, out=critic.l3.weight.grad)
-        torch.sum(dq, dim=1, keepdim=True, out=critic.l3.bias.grad)
+        torch.bmm(c2.mT, dq, out=g[critic.l3.weight])
+        torch.sum(dq, dim=1, keepdim=True, out=g[critic.l3.bias])
         dc2 = relu_backward(dq * critic.l3.weight.mT, c2)          # (K, N, h2)
-        torch.bmm(c1u.mT, dc2, out=critic.l2.weight.grad)
-        torch.sum(dc2, dim=1, keepdim=True, out=critic.l2.bias.grad)
+        torch.bmm(c1u.mT, dc2, out=g[critic.l2.weight])
+        torch.sum(dc2, dim=1, keepdim=True, out=g[critic.l2.bias])
         dc1 = relu_backward(torch.bmm(dc2, critic.l2.weight[:, :h1].mT), c1)
-        torch.bmm(x.mT, dc1, out=critic.l1.weight.grad)
-        torch.sum(dc1, dim=1, keepdim=True, out=critic.l1.bias.grad)
+        torch.bmm(x.mT, dc1, out=g[critic.l1.weight])
+        torch.sum(dc1, dim=1, keepdim=True, out=g[critic.l1.bias])
         self._adam(1)
 
         # actor step: ascend Q(s, mu(s)) of the updated critic; only the actor moves
@@ -337,15 +350,15 @@ class DDPG:
         actor_loss = _bmm(self._one.expand(k, 1, n), q, -1.0 / n).view(k)
         dc2 = relu_backward(critic.l3.weight.mT.expand_as(c2), c2)   # -n d(loss)/dc2
         dmu = _bmm(dc2, critic.l2.weight[:, h1:].mT, -1.0 / n)       # (K, N, act_dim)
-        da3 = self._tanh_backward(dmu, mu)
-        torch.bmm(a2.mT, da3, out=actor.l3.weight.grad)
-        torch.sum(da3, dim=1, keepdim=True, out=actor.l3.bias.grad)
+        da3 = dmu.mul_(1.0 - mu * mu)
+        torch.bmm(a2.mT, da3, out=g[actor.l3.weight])
+        torch.sum(da3, dim=1, keepdim=True, out=g[actor.l3.bias])
         da2 = relu_backward(torch.bmm(da3, actor.l3.weight.mT), a2)
-        torch.bmm(a1.mT, da2, out=actor.l2.weight.grad)
-        torch.sum(da2, dim=1, keepdim=True, out=actor.l2.bias.grad)
+        torch.bmm(a1.mT, da2, out=g[actor.l2.weight])
+        torch.sum(da2, dim=1, keepdim=True, out=g[actor.l2.bias])
         da1 = relu_backward(torch.bmm(da2, actor.l2.weight.mT), a1)
-        torch.bmm(x.mT, da1, out=actor.l1.weight.grad)
-        torch.sum(da1, dim=1, keepdim=True, out=actor.l1.bias.grad)
+        torch.bmm(x.mT, da1, out=g[actor.l1.weight])
+        torch.sum(da1, dim=1, keepdim=True, out=g[actor.l1.bias])
         self._adam(0)
         self._soft_update()
         return critic_loss, actor_loss
@@ -383,7 +396,7 @@ class DDPG:
         flat gradient buffer that the Adam steps read."""
         params = list(net.parameters())
         for p, g in zip(params, torch.autograd.grad(loss.sum(), params), strict=True):
-            p.grad.copy_(g)
+            self._grads[p].copy_(g)
 
 
     # --- per-agent state, for one checkpoint per agent ----------------------------------------
@@ -393,9 +406,7 @@ class DDPG:
 
     def _moments(self, j: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Adam's two moments of each parameter of network j, views shaped as the parameter."""
-        net = getattr(self, NETWORKS[j])
-        return list(zip(parameter_views(net, self.exp_avg[j]),
-                        parameter_views(net, self.exp_avg_sq[j]), strict=True))
+        return list(zip(*self._adam_tensors[j][2:], strict=True))
 
     def agent_state(self, k: int) -> dict[str, Any]:
         """Everything that defines agent k, without the agent axis, on the CPU. The optimisers
@@ -420,7 +431,8 @@ class DDPG:
         for j, name in enumerate(NETWORKS):
             opts = [s[f"{name}_opt"] for s in states]
             self.steps[j] = float(opts[0][0]["step"]) if opts[0] else 0.0
-            self.exp_avg[j], self.exp_avg_sq[j] = 0.0, 0.0
+            for moment in (m for pair in self._moments(j) for m in pair):
+                moment.zero_()
             for i, moments in enumerate(self._moments(j) if opts[0] else []):
                 for moment, key in zip(moments, ("exp_avg", "exp_avg_sq"), strict=True):
                     moment.copy_(torch.stack([o[i][key] for o in opts]))

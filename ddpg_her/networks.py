@@ -209,29 +209,25 @@ class Critic(ThreeLayers):
         return self.l3(c2)
 
 
-def row_size(module: nn.Module) -> int:
-    """Numbers per agent in ``module``'s parameters (each ``(K, ...)``): a row of its flat layout."""
-    return sum(p[0].numel() for p in module.parameters())
-
-
-def parameter_views(module: nn.Module, rows: torch.Tensor) -> list[torch.Tensor]:
-    """Views into ``rows (..., K, Q)`` (Q >= `row_size`) shaped as ``module``'s parameters,
-    in order: parameter i takes columns s_0 + ... + s_(i-1) onwards of every agent's row (s_i
-    its numbers per agent), and the leading axes of ``rows`` merge into its agent axis, so
-    ``rows (2, K, Q)`` gives ``(2K, ...)`` views: two stacks of K as one of 2K."""
+def parameter_views(module: nn.Module, flat: torch.Tensor, copies: int = 1
+                    ) -> list[torch.Tensor]:
+    """Views into the 1-D ``flat`` shaped as ``module``'s parameters ``(K, ...)``, each as
+    ``copies`` stacks of K in one ``(copies K, ...)`` view; parameter i's block follows i-1's
+    (``copies`` times the parameters' numbers in all). ``copies=2`` lays an online network
+    beside its target: ``view[:K]`` and ``view[K:]``, two stacks of K as one of 2K."""
     views, start = [], 0
     for p in module.parameters():
-        size = p[0].numel()
-        views.append(rows[..., start:start + size].view(-1, *p.shape[1:]))
+        size = copies * p.numel()
+        views.append(flat[start:start + size].view(copies * p.shape[0], *p.shape[1:]))
         start += size
     return views
 
 
 @torch.no_grad()
-def bind_parameters(module: nn.Module, rows: torch.Tensor, copy: bool = True) -> None:
-    """Make ``module``'s parameters the `parameter_views` of ``rows``, their values copied in
-    first (``copy``) or taken from ``rows`` as they are."""
-    for p, view in zip(list(module.parameters()), parameter_views(module, rows), strict=True):
+def bind_parameters(module: nn.Module, views: Sequence[torch.Tensor], copy: bool = True) -> None:
+    """Make ``module``'s parameters ``views`` (one per parameter, in order), their values
+    copied in first (``copy``) or taken from the views as they are."""
+    for p, view in zip(list(module.parameters()), views, strict=True):
         if copy:
             view.copy_(p)
         p.data = view

@@ -263,7 +263,7 @@ def test_fallback_equals_fast_path_to_1e_10(monkeypatch):
 
 
 @pytest.mark.parametrize(("missing", "field"), [
-    ("_fused_adam_", "fused_adam")])
+    ("_fused_adam_", "fused_adam"), ("_foreach_lerp_", "foreach_lerp")])
 def test_a_missing_private_function_warns_and_turns_its_fast_path_off(monkeypatch, missing,
                                                                       field):
     monkeypatch.delattr(torch, missing)
@@ -278,8 +278,6 @@ def test_a_private_function_that_changed_meaning_is_not_used(monkeypatch):
             @staticmethod
             def threshold_backward(grad, out, threshold):
                 return grad.clone()
-
-            tanh_backward = staticmethod(agent_module._tanh_backward_plain)
 
     monkeypatch.setattr(torch, "ops", Ops)
     with pytest.warns(RuntimeWarning, match="threshold_backward"):
