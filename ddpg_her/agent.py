@@ -203,9 +203,7 @@ class DDPG:
         self.lr: list[float | torch.Tensor] = [config.actor_lr, config.critic_lr]
         self.weight_decay = (0.0, config.critic_l2)
         self._adam_tensors: list[tuple[list[torch.Tensor], ...]] = []
-        self._grads: dict[torch.Tensor, torch.Tensor] = {}
-        """Parameter -> its gradient in the flat layout, which `update` writes (not ``.grad``:
-        torch.compile cannot trace a parameter whose ``.grad`` aliases another input)."""
+        self._grads: dict[torch.Tensor, torch.Tensor] = {}  # not .grad: compile cannot trace it
         pairs, start = {}, 0
         for j, name in enumerate(NETWORKS):
             online, target = getattr(self, name), getattr(self, f"{name}_target")
@@ -241,19 +239,12 @@ class DDPG:
         return self.actor(self.normalizer(x))
 
     def capturable(self) -> None:
-        """Make `update` safe to capture as a CUDA graph: the Adam steps take their learning
-        rates as device tensors, which a captured graph reads at each replay rather than
-        baking a Python float in (the step counts already are device tensors). float64 on the
-        CPU, where the kernel reads it as the double it gets today (the same bits); float32
-        on CUDA, the only dtype of the CUDA kernel's tensor learning rate (Table I's 1e-4 and
-        1e-3 move by 2.5e-8 and 4.7e-8 relative, below float32 parameters' own rounding of
-        6e-8). The rest of the hand-written update already reads only device tensors and
-        Python constants of the config; ``tests/test_counter_sampler.py`` proves it by
-        compiling the update with ``torch.compile(fullgraph=True)``.
-
-        Raises ValueError with ``batch_norm`` (its update goes through autograd) or without
-        torch's fused Adam kernel.
-        """
+        """Make `update` safe to capture as a CUDA graph: the learning rates become device
+        tensors, read at each replay (float64 on the CPU: the same bits; float32 on CUDA, its
+        kernel's only dtype: Table I's rates move by <= 4.7e-8 relative). The rest reads only
+        device tensors and config constants (``tests/test_counter_sampler.py`` compiles it
+        with ``torch.compile(fullgraph=True)``). ValueError with ``batch_norm`` (autograd) or
+        without torch's fused Adam kernel."""
         if self.config.batch_norm or not self.fast.fused_adam:
             raise ValueError("a capturable update needs the hand-written DDPG update (no "
                              "batch_norm, which trains through autograd) and torch's fused "
@@ -262,9 +253,8 @@ class DDPG:
         self.lr = [torch.tensor(float(lr), dtype=dtype, device=self.device) for lr in self.lr]
 
     def _adam(self, j: int) -> None:
-        """One Adam step of network j (`NETWORKS`) over its flat online parameters: one fused
-        kernel (`_count_steps` advanced its step count), else torch.optim.adam.adam's public
-        loop, which advances it itself."""
+        """One Adam step of network j (`NETWORKS`): one fused kernel over its flat online
+        parameters, else torch.optim.adam.adam's public loop."""
         params, grads, exp_avg, exp_avg_sq = self._adam_tensors[j]
         hyper = {"amsgrad": False, "beta1": ADAM_BETAS[0], "beta2": ADAM_BETAS[1],
                  "lr": self.lr[j], "weight_decay": self.weight_decay[j], "eps": ADAM_EPS,
@@ -278,8 +268,7 @@ class DDPG:
             self.steps[j] += 1
 
     def _count_steps(self) -> None:
-        """Both Adam step counts + 1 in one pass, before the update's two fused Adam steps
-        (the plain path counts in `_adam`)."""
+        """Both Adam step counts + 1 in one pass (the plain path counts in `_adam`)."""
         if self.fast.fused_adam:
             self.steps.add_(1)
 

@@ -225,8 +225,7 @@ def parameter_views(module: nn.Module, flat: torch.Tensor, copies: int = 1
 
 @torch.no_grad()
 def bind_parameters(module: nn.Module, views: Sequence[torch.Tensor], copy: bool = True) -> None:
-    """Make ``module``'s parameters ``views`` (one per parameter, in order), their values
-    copied in first (``copy``) or taken from the views as they are."""
+    """Make ``module``'s parameters ``views`` (in order), their values copied in (``copy``)."""
     for p, view in zip(list(module.parameters()), views, strict=True):
         if copy:
             view.copy_(p)
