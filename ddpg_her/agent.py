@@ -4,11 +4,16 @@ Agent k owns slice k of every parameter, optimiser moment and normaliser statist
 the K agents are summed, so each agent's gradient is that of its own loss alone, and Adam, being
 elementwise, steps every slice as K separate optimisers would.
 
-The update is fast through three private torch functions (``torch._fused_adam_`` with
-``torch._foreach_add_``, ``torch.ops.aten.threshold_backward``, ``torch._foreach_lerp_``). Each
-is checked once at import against the public computation it replaces (:func:`probe_fast_paths`);
-one that is missing or answers differently is replaced by that public computation, with a
-warning naming it: a torch upgrade costs speed, never correctness.
+All parameters of a stack (actor, critic and their targets) are views into one flat buffer,
+Adam's moments and the gradients likewise: an Adam step is one fused pass over a network's
+parameters, the soft target update one pass over all, and an online network and its target,
+each parameter's two stacks side by side, run as one stack of 2K agents.
+
+The update is fast through three private torch functions (``torch._fused_adam_``,
+``torch.ops.aten.threshold_backward``, ``torch._foreach_lerp_``). Each is checked once at import against the public computation it
+replaces (:func:`probe_fast_paths`); one that is missing or answers differently is replaced
+by that public computation, with a warning naming it: a torch upgrade costs speed, never
+correctness.
 """
 
 from __future__ import annotations
@@ -20,15 +25,16 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
+from torch.optim.adam import adam as adam_loop
 
 from ddpg_her.config import AgentConfig
 from ddpg_her.networks import (
     Actor,
     Critic,
     agent_slice,
+    bind_parameters,
     load_agent_slices,
-    load_optimizer_slices,
-    optimizer_slice,
+    parameter_views,
 )
 from ddpg_her.normalizer import RunningNormalizer
 
@@ -38,7 +44,7 @@ class FastPaths:
     """Which private torch functions `DDPG.update` may call; each False takes the plain path."""
 
     fused_adam: bool = True
-    """``torch._fused_adam_`` and ``torch._foreach_add_`` called directly; else ``opt.step()``."""
+    """``torch._fused_adam_`` called directly; else ``torch.optim.adam.adam``'s own loop."""
     threshold_backward: bool = True
     """``torch.ops.aten.threshold_backward`` for a ReLU's backward; else ``torch.where``."""
     foreach_lerp: bool = True
@@ -59,7 +65,7 @@ def _probe_fused_adam() -> None:
     m, v, step = torch.zeros_like(p), torch.zeros_like(p), torch.zeros((), dtype=torch.float64)
     lr, beta1, beta2, eps = 0.1, 0.9, 0.999, 1e-8
     expected = p - lr * g / (g.abs() + eps)  # Adam's first step: m_hat = g, v_hat = g^2
-    torch._foreach_add_([step], 1)
+    step.add_(1)
     torch._fused_adam_([p], [g], [m], [v], [], [step], amsgrad=False, lr=lr, beta1=beta1,
                        beta2=beta2, weight_decay=0.0, eps=eps, maximize=False, grad_scale=None,
                        found_inf=None)
@@ -84,8 +90,10 @@ def _probe_foreach_lerp() -> None:
         raise ValueError(f"gave {a.tolist()}, expected {expected.tolist()}")
 
 
+
+
 _PROBES: dict[str, tuple[str, Callable[[], None]]] = {
-    "fused_adam": ("torch._fused_adam_ / torch._foreach_add_", _probe_fused_adam),
+    "fused_adam": ("torch._fused_adam_", _probe_fused_adam),
     "threshold_backward": ("torch.ops.aten.threshold_backward", _probe_threshold_backward),
     "foreach_lerp": ("torch._foreach_lerp_", _probe_foreach_lerp),
 }
@@ -125,6 +133,13 @@ def _relu_backward(grad: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
     return torch.ops.aten.threshold_backward(grad, out, 0.0)
 
 
+def _bmm(a: torch.Tensor, b: torch.Tensor, alpha: float) -> torch.Tensor:
+    """alpha (a @ b) for (K, M, L) a and (K, L, P) b in one batched product (baddbmm ignores
+    its input at beta = 0). A power of two alpha scales exactly, so the result is the bits of
+    a @ b scaled after, or of a or b scaled before (but for subnormals)."""
+    return torch.baddbmm(a[:, :1, :1], a, b, beta=0.0, alpha=alpha)
+
+
 FAST = probe_fast_paths()
 """The private functions this torch offers and that pass their check; `DDPG` reads it when
 built (a test sets it to `PLAIN` to exercise the fallback)."""
@@ -139,64 +154,11 @@ def make_adam(params, lr: float, weight_decay: float) -> torch.optim.Adam:
         return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, foreach=True)
 
 
-class _AdamStep:
-    """``opt.step()`` of a fused torch Adam, without its per-call Python bookkeeping.
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
+"""torch.optim.Adam's defaults, which Lillicrap et al.'s Adam (Kingma and Ba 2015) uses."""
 
-    The optimiser keeps its state (so ``state_dict`` and checkpoints are torch's own); this calls
-    the kernel ``opt.step()`` would, ``torch._fused_adam_``, on the tensors gathered once
-    (results/throughput/README.md has the saving). Any optimiser that is not a single-group
-    fused Adam, and the first step (which creates the state), go through ``opt.step()``. Call
-    `reset` after ``opt.load_state_dict``.
-    """
-
-    def __init__(self, opt: torch.optim.Adam, allowed: bool = True):
-        self.opt = opt
-        group = opt.param_groups[0]
-        self.direct = (allowed and len(opt.param_groups) == 1 and bool(group.get("fused"))
-                       and not group["amsgrad"] and not group["maximize"]
-                       and not group.get("decoupled_weight_decay", False)
-                       and not torch.is_tensor(group["lr"]) and hasattr(torch, "_fused_adam_"))
-        self._state: tuple[list[torch.Tensor], ...] | None = None
-        self.lr: float | torch.Tensor = group["lr"]
-        """The learning rate the kernel gets: the group's float, or after `capturable` a
-        0-dim tensor on the parameters' device that a captured graph reads at each replay."""
-
-    def capturable(self) -> None:
-        """Pass the learning rate as a device tensor from now on, so that a CUDA graph of the
-        step reads it rather than baking a Python float in (Adam's step counts already are
-        device tensors of the fused kernel). float64 on the CPU, where the kernel reads it
-        as the double it gets today (the same bits); float32 on CUDA, the only dtype of the
-        CUDA kernel's tensor learning rate (Table I's 1e-4 and 1e-3 move by 2.5e-8 and 4.7e-8
-        relative, below float32 parameters' own rounding of 6e-8)."""
-        if not self.direct:
-            raise ValueError(
-                "a capturable Adam step needs torch's fused Adam kernel (torch._fused_adam_, "
-                "one parameter group); this torch or optimiser takes opt.step() instead")
-        device = self.opt.param_groups[0]["params"][0].device
-        dtype = torch.float64 if device.type == "cpu" else torch.float32
-        self.lr = torch.tensor(float(self.opt.param_groups[0]["lr"]), dtype=dtype,
-                               device=device)
-
-    def reset(self) -> None:
-        self._state = None
-
-    def __call__(self) -> None:
-        if not self.direct or self._state is None:
-            self.opt.step()
-            if self.direct:
-                params = self.opt.param_groups[0]["params"]
-                st = [self.opt.state[p] for p in params]
-                self._state = ([p.detach() for p in params], [p.grad for p in params],
-                               [s["exp_avg"] for s in st], [s["exp_avg_sq"] for s in st],
-                               [s["step"] for s in st])
-            return
-        params, grads, exp_avg, exp_avg_sq, steps = self._state
-        g = self.opt.param_groups[0]
-        beta1, beta2 = g["betas"]
-        torch._foreach_add_(steps, 1)
-        torch._fused_adam_(params, grads, exp_avg, exp_avg_sq, [], steps, amsgrad=False,
-                           lr=self.lr, beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"],
-                           eps=g["eps"], maximize=False, grad_scale=None, found_inf=None)
+NETWORKS = ("actor", "critic")
+"""The networks in the order of the flat layout's first axis (their optimisers alike)."""
 
 
 class DDPG:
@@ -205,6 +167,13 @@ class DDPG:
     in_dim : length of the network input x (see `ddpg_her.spaces.goal_input`);
     act_dim : action dimension; init_generators : K CPU generators, agent k's initial weights are
     drawn from generator k alone.
+
+    The flat layout: ``params`` (1-D) holds the actor's parameters, then the critic's, each
+    parameter ``(K, ...)`` of the online network followed by the target's, one ``(2K, ...)``
+    block (`ddpg_her.networks.parameter_views`); ``grads``, ``exp_avg`` and ``exp_avg_sq``
+    (1-D) those of the online networks in the same order; ``steps (2,)`` the two Adam step
+    counts. ``actor.l1.weight`` and every other parameter is a view into it, so checkpoints
+    (`agent_state`) keep their per-parameter format.
     """
 
     def __init__(self, config: AgentConfig, in_dim: int, act_dim: int, *,
@@ -225,26 +194,42 @@ class DDPG:
         self.normalizer = RunningNormalizer(
             k, in_dim, eps=config.norm_eps, clip=config.obs_clip, enabled=config.normalize_obs,
             **net)
-        self.actor_opt = make_adam(self.actor.parameters(), config.actor_lr, 0.0)
-        self.critic_opt = make_adam(self.critic.parameters(), config.critic_lr, config.critic_l2)
+        sizes = [sum(p.numel() for p in m.parameters()) for m in (self.actor, self.critic)]
+        self.params = torch.zeros(2 * sum(sizes), **net)
+        self.grads, self.exp_avg, self.exp_avg_sq = (torch.zeros(sum(sizes), **net)
+                                                     for _ in "gmv")
+        self.steps = torch.zeros(2, dtype=torch.float32, device=self.device)
+        self._one = torch.ones((), **net)
+        self.lr: list[float | torch.Tensor] = [config.actor_lr, config.critic_lr]
+        self.weight_decay = (0.0, config.critic_l2)
+        self._adam_tensors: list[tuple[list[torch.Tensor], ...]] = []
+        self._grads: dict[torch.Tensor, torch.Tensor] = {}  # not .grad: compile cannot trace it
+        pairs, start = {}, 0
+        for j, name in enumerate(NETWORKS):
+            online, target = getattr(self, name), getattr(self, f"{name}_target")
+            flat = slice(start, start + sizes[j])
+            views = parameter_views(online, self.params[2 * flat.start:2 * flat.stop], copies=2)
+            bind_parameters(online, [v[:k] for v in views])
+            bind_parameters(target, [v[k:] for v in views])
+            grads = parameter_views(online, self.grads[flat])
+            self._grads.update(zip(online.parameters(), grads, strict=True))
+            self._adam_tensors.append((  # detached: the kernel is not autograd's business
+                [p.detach() for p in online.parameters()], grads,
+                parameter_views(online, self.exp_avg[flat]),
+                parameter_views(online, self.exp_avg_sq[flat])))
+            if not config.batch_norm:  # online beside target: one stack of 2K agents
+                pairs[name] = copy.deepcopy(target)
+                bind_parameters(pairs[name], views, copy=False)
+            start = flat.stop
+        self._actor_pair, self._critic_pair = pairs.get("actor"), pairs.get("critic")
+        # the soft update moves batch normalisation's running statistics too
+        nets = (self.actor, self.critic, self.actor_target, self.critic_target)
+        self._lerp_online, self._lerp_target = (
+            [t for m in modules for t in [*m.parameters(), *m.buffers()]]
+            for modules in (nets[:2], nets[2:]))
         self.fast = FAST
-        self._actor_step = _AdamStep(self.actor_opt, self.fast.fused_adam)
-        self._critic_step = _AdamStep(self.critic_opt, self.fast.fused_adam)
         self._relu_backward = (_relu_backward if self.fast.threshold_backward
                                else _relu_backward_plain)
-        self._online = list(self.actor.parameters()) + list(self.critic.parameters())
-        self._target = list(self.actor_target.parameters()) + list(
-            self.critic_target.parameters())
-        # the soft target update moves batch normalisation's running statistics too (none
-        # without it, so these are the parameter lists)
-        self._lerp_online = self._online + [
-            b for m in (self.actor, self.critic) for b in m.buffers()]
-        self._lerp_target = self._target + [
-            b for m in (self.actor_target, self.critic_target) for b in m.buffers()]
-        # `update` writes every gradient into these buffers, which the optimisers read
-        for p in self._online:
-            p.grad = torch.zeros_like(p)
-        self._grads = {p: p.grad for p in self._online}
 
     @torch.no_grad()
     def act(self, x: torch.Tensor, explore: bool = False) -> torch.Tensor:
@@ -254,21 +239,47 @@ class DDPG:
         return self.actor(self.normalizer(x))
 
     def capturable(self) -> None:
-        """Make `update` safe to capture as a CUDA graph: the Adam steps take their learning
-        rates as device tensors (`_AdamStep.capturable`). The rest of the hand-written update
-        already reads only device tensors (parameters, gradients, Adam's moments and step
-        counts, the normaliser's mean and std, all updated in place) and Python constants of
-        the config; ``tests/test_counter_sampler.py`` proves it by compiling the update with
-        ``torch.compile(fullgraph=True)``. On the CPU the update stays bit for bit the same.
+        """Make `update` safe to capture as a CUDA graph: the learning rates become device
+        tensors, read at each replay (float64 on the CPU: the same bits; float32 on CUDA, its
+        kernel's only dtype: Table I's rates move by <= 4.7e-8 relative). The rest reads only
+        device tensors and config constants (``tests/test_counter_sampler.py`` compiles it
+        with ``torch.compile(fullgraph=True)``). ValueError with ``batch_norm`` (autograd) or
+        without torch's fused Adam kernel."""
+        if self.config.batch_norm or not self.fast.fused_adam:
+            raise ValueError("a capturable update needs the hand-written DDPG update (no "
+                             "batch_norm, which trains through autograd) and torch's fused "
+                             "Adam kernel (torch._fused_adam_)")
+        dtype = torch.float64 if self.device.type == "cpu" else torch.float32
+        self.lr = [torch.tensor(float(lr), dtype=dtype, device=self.device) for lr in self.lr]
 
-        Raises ValueError with ``batch_norm`` (its update goes through autograd) or without
-        torch's fused Adam kernel.
-        """
-        if self.config.batch_norm:
-            raise ValueError("a capturable update needs the hand-written DDPG update; "
-                             "batch_norm trains through autograd")
-        self._actor_step.capturable()
-        self._critic_step.capturable()
+    def _adam(self, j: int) -> None:
+        """One Adam step of network j (`NETWORKS`): one fused kernel over its flat online
+        parameters, else torch.optim.adam.adam's public loop."""
+        params, grads, exp_avg, exp_avg_sq = self._adam_tensors[j]
+        hyper = {"amsgrad": False, "beta1": ADAM_BETAS[0], "beta2": ADAM_BETAS[1],
+                 "lr": self.lr[j], "weight_decay": self.weight_decay[j], "eps": ADAM_EPS,
+                 "maximize": False}
+        if self.fast.fused_adam:  # the kernel reads the count, one 0-dim view per parameter
+            torch._fused_adam_(params, grads, exp_avg, exp_avg_sq, [], [self.steps[j]] * len(
+                params), **hyper, grad_scale=None, found_inf=None)
+        else:  # the loop advances a count per parameter: give it copies, the shared one after
+            adam_loop(params, grads, exp_avg, exp_avg_sq, [],
+                      [self.steps[j].clone() for _ in params], foreach=False, **hyper)
+            self.steps[j] += 1
+
+    def _count_steps(self) -> None:
+        """Both Adam step counts + 1 in one pass (the plain path counts in `_adam`)."""
+        if self.fast.fused_adam:
+            self.steps.add_(1)
+
+    def _soft_update(self) -> None:
+        """Targets: theta' <- (1 - tau) theta' + tau theta (and running statistics alike)."""
+        tau = self.config.tau
+        if self.fast.foreach_lerp:
+            torch._foreach_lerp_(self._lerp_target, self._lerp_online, tau)
+        else:
+            for target, online in zip(self._lerp_target, self._lerp_online, strict=True):
+                target.lerp_(online, tau)
 
     @torch.no_grad()
     def update(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor, x2: torch.Tensor,
@@ -284,42 +295,43 @@ class DDPG:
 
         Critic first: minimise mean (Q(s, a) - y)^2, y = r + gamma (1 - terminated)
         Q'(s', mu'(s')); then the actor ascends the updated critic's Q(s, mu(s)); then
-        theta' <- (1 - tau) theta' + tau theta. The gradients are written out by hand (each
-        layer a batched matrix product): that skips what autograd would compute and throw
-        away (the critic's weight gradients in the actor step, the gradient of the state half
-        of the critic's second-layer input), fuses each ReLU's backward into one pass and
-        reuses preallocated gradient buffers. `tests/test_ddpg_agent.py` checks it, on the
-        fast and on the plain path (`FastPaths`), against a plain autograd DDPG to 1e-10 in
-        float64. With ``config.batch_norm`` the two steps go through autograd instead
-        (`_update_autograd`).
+        theta' <- (1 - tau) theta' + tau theta. Before the critic step, mu(s) beside mu'(s')
+        and Q(s, a) beside Q'(s', mu'(s')) run as one stack of 2K agents each (an online
+        network and its target lie side by side in the flat layout). The gradients are
+        written out by hand (each layer a batched matrix product): that skips what autograd
+        would compute and throw away (the critic's weight gradients in the actor step, the
+        gradient of the state half of the critic's second-layer input), fuses each ReLU's
+        backward into one pass and writes into the flat gradient buffer.
+        `tests/test_ddpg_agent.py` checks it, on the fast and on the plain path
+        (`FastPaths`), against a plain autograd DDPG to 1e-10 in float64. With
+        ``config.batch_norm`` the two steps go through autograd instead (`_update_autograd`).
         """
+        self._count_steps()
         if self.config.batch_norm:
             critic_loss, actor_loss = self._update_autograd(x, u, r, x2, terminated)
             self._soft_update()
             return critic_loss, actor_loss
+        k, n, h1 = self.k, x.shape[1], self.config.hidden_sizes[0]
         gamma = self.config.gamma
-        n = x.shape[1]
-        h1 = self.config.hidden_sizes[0]
-        x, x2 = self.normalizer(x), self.normalizer(x2)
         actor, critic = self.actor, self.critic
-        at, ct = self.actor_target, self.critic_target
-        relu_backward = self._relu_backward
+        relu_backward, g = self._relu_backward, self._grads
 
-        # target y = r + gamma (1 - terminated) Q'(s', mu'(s'))
-        q2 = ct(x2, at(x2))
-        y = torch.addcmul(r, (1.0 - terminated) * gamma, q2)
+        # [online; target] as 2K agents: mu(s) beside mu'(s'), Q(s, a) beside Q'(s', mu'(s'))
+        xs = self.normalizer(torch.stack([x, x2])).view(2 * k, n, -1)
+        a1s, a2s, mus = self._actor_pair.activations(xs)
+        c1s, c1us, c2s, qs = self._critic_pair.activations(xs, torch.cat([u, mus[k:]]))
+        x, a1, a2, mu, c1, c1u, c2, q = (t[:k] for t in (xs, a1s, a2s, mus, c1s, c1us, c2s, qs))
+        y = torch.addcmul(r, 1.0 - terminated, qs[k:], value=gamma)
 
         # critic step
-        c1, c1u, c2, q = critic.activations(x, u)
         err = q - y                                                   # (K, N, 1)
         if weight is not None:
             self.td_error = err[..., 0].clone()
             err_w = err * weight
-            critic_loss, err = (err_w * err).mean(dim=(1, 2)), err_w
+            critic_loss, err = _bmm(err_w.mT, err, 1.0 / n).view(k), err_w
         else:
-            critic_loss = err.square().mean(dim=(1, 2))
+            critic_loss = _bmm(err.mT, err, 1.0 / n).view(k)
         dq = err.mul_(2.0 / n)                                        # d(loss)/dq
-        g = self._grads
         torch.bmm(c2.mT, dq, out=g[critic.l3.weight])
         torch.sum(dq, dim=1, keepdim=True, out=g[critic.l3.bias])
         dc2 = relu_backward(dq * critic.l3.weight.mT, c2)          # (K, N, h2)
@@ -328,14 +340,13 @@ class DDPG:
         dc1 = relu_backward(torch.bmm(dc2, critic.l2.weight[:, :h1].mT), c1)
         torch.bmm(x.mT, dc1, out=g[critic.l1.weight])
         torch.sum(dc1, dim=1, keepdim=True, out=g[critic.l1.bias])
-        self._critic_step()
+        self._adam(1)
 
         # actor step: ascend Q(s, mu(s)) of the updated critic; only the actor moves
-        a1, a2, mu = actor.activations(x)
         _, _, c2, q = critic.activations(x, mu)
-        actor_loss = -q.mean(dim=(1, 2))
-        dc2 = relu_backward((critic.l3.weight.mT * (-1.0 / n)).expand_as(c2), c2)
-        dmu = torch.bmm(dc2, critic.l2.weight[:, h1:].mT)            # (K, N, act_dim)
+        actor_loss = _bmm(self._one.expand(k, 1, n), q, -1.0 / n).view(k)
+        dc2 = relu_backward(critic.l3.weight.mT.expand_as(c2), c2)   # -n d(loss)/dc2
+        dmu = _bmm(dc2, critic.l2.weight[:, h1:].mT, -1.0 / n)       # (K, N, act_dim)
         da3 = dmu.mul_(1.0 - mu * mu)
         torch.bmm(a2.mT, da3, out=g[actor.l3.weight])
         torch.sum(da3, dim=1, keepdim=True, out=g[actor.l3.bias])
@@ -345,18 +356,9 @@ class DDPG:
         da1 = relu_backward(torch.bmm(da2, actor.l2.weight.mT), a1)
         torch.bmm(x.mT, da1, out=g[actor.l1.weight])
         torch.sum(da1, dim=1, keepdim=True, out=g[actor.l1.bias])
-        self._actor_step()
+        self._adam(0)
         self._soft_update()
         return critic_loss, actor_loss
-
-    def _soft_update(self) -> None:
-        """Targets: theta' <- (1 - tau) theta' + tau theta (and running statistics alike)."""
-        tau = self.config.tau
-        if self.fast.foreach_lerp:
-            torch._foreach_lerp_(self._lerp_target, self._lerp_online, tau)
-        else:
-            for target, online in zip(self._lerp_target, self._lerp_online, strict=True):
-                target.lerp_(online, tau)
 
     def _update_autograd(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor,
                          x2: torch.Tensor, terminated: torch.Tensor
@@ -379,42 +381,57 @@ class DDPG:
             q = critic(x, u, batch_stats=True, update_stats=True)
             critic_loss = (q - y).square().mean(dim=(1, 2))
             self._set_grads(critic, critic_loss)
-            self._critic_step()
+            self._adam(1)
             mu = actor(x, batch_stats=True, update_stats=True)
             actor_loss = -critic(x, mu, batch_stats=True).mean(dim=(1, 2))
             self._set_grads(actor, actor_loss)
-            self._actor_step()
+            self._adam(0)
         return critic_loss.detach(), actor_loss.detach()
 
     def _set_grads(self, net: torch.nn.Module, loss: torch.Tensor) -> None:
-        """Write d(sum of the K losses)/d(parameter) into the preallocated gradient buffers
-        of ``net``'s parameters (which the optimiser steps read)."""
+        """Write d(sum of the K losses)/d(parameter) into ``net``'s gradients, views into the
+        flat gradient buffer that the Adam steps read."""
         params = list(net.parameters())
         for p, g in zip(params, torch.autograd.grad(loss.sum(), params), strict=True):
             self._grads[p].copy_(g)
+
 
     # --- per-agent state, for one checkpoint per agent ----------------------------------------
     def _modules(self) -> dict[str, torch.nn.Module]:
         return {"actor": self.actor, "critic": self.critic, "actor_target": self.actor_target,
                 "critic_target": self.critic_target}
 
+    def _moments(self, j: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Adam's two moments of each parameter of network j, views shaped as the parameter."""
+        return list(zip(*self._adam_tensors[j][2:], strict=True))
+
     def agent_state(self, k: int) -> dict[str, Any]:
-        """Everything that defines agent k, without the agent axis, on the CPU."""
+        """Everything that defines agent k, without the agent axis, on the CPU. The optimisers
+        in torch.optim.Adam's ``state_dict()["state"]`` format (``{i: {"step", "exp_avg",
+        "exp_avg_sq"}}`` by parameter; empty before the first step)."""
         state: dict[str, Any] = {n: agent_slice(m, k) for n, m in self._modules().items()}
-        for name, opt in (("actor_opt", self.actor_opt), ("critic_opt", self.critic_opt)):
-            state[name] = optimizer_slice(opt, k)
+        for j, name in enumerate(NETWORKS):
+            step = self.steps[j].cpu()
+            state[f"{name}_opt"] = {} if step == 0 else {
+                i: {"step": step.clone(), "exp_avg": m[k].cpu().clone(),
+                    "exp_avg_sq": v[k].cpu().clone()} for i, (m, v) in enumerate(self._moments(j))}
         state["normalizer"] = self.normalizer.state(k)
         return state
 
+    @torch.no_grad()
     def load_agent_states(self, states: Sequence[dict[str, Any]]) -> None:
-        """Inverse of `agent_state` for all K agents at once."""
+        """Inverse of `agent_state` for all K agents at once (the step count from the first)."""
         if len(states) != self.k:
             raise ValueError(f"need {self.k} agent states, got {len(states)}")
         for name, module in self._modules().items():
             load_agent_slices(module, [s[name] for s in states])
-        for name, opt in (("actor_opt", self.actor_opt), ("critic_opt", self.critic_opt)):
-            load_optimizer_slices(opt, [s[name] for s in states])
-        self._actor_step.reset()
-        self._critic_step.reset()
+        for j, name in enumerate(NETWORKS):
+            opts = [s[f"{name}_opt"] for s in states]
+            self.steps[j] = float(opts[0][0]["step"]) if opts[0] else 0.0
+            for moment in (m for pair in self._moments(j) for m in pair):
+                moment.zero_()
+            for i, moments in enumerate(self._moments(j) if opts[0] else []):
+                for moment, key in zip(moments, ("exp_avg", "exp_avg_sq"), strict=True):
+                    moment.copy_(torch.stack([o[i][key] for o in opts]))
         for k, s in enumerate(states):
             self.normalizer.load_state(k, s["normalizer"])

@@ -209,6 +209,29 @@ class Critic(ThreeLayers):
         return self.l3(c2)
 
 
+def parameter_views(module: nn.Module, flat: torch.Tensor, copies: int = 1
+                    ) -> list[torch.Tensor]:
+    """Views into the 1-D ``flat`` shaped as ``module``'s parameters ``(K, ...)``, each as
+    ``copies`` stacks of K in one ``(copies K, ...)`` view; parameter i's block follows i-1's
+    (``copies`` times the parameters' numbers in all). ``copies=2`` lays an online network
+    beside its target: ``view[:K]`` and ``view[K:]``, two stacks of K as one of 2K."""
+    views, start = [], 0
+    for p in module.parameters():
+        size = copies * p.numel()
+        views.append(flat[start:start + size].view(copies * p.shape[0], *p.shape[1:]))
+        start += size
+    return views
+
+
+@torch.no_grad()
+def bind_parameters(module: nn.Module, views: Sequence[torch.Tensor], copy: bool = True) -> None:
+    """Make ``module``'s parameters ``views`` (in order), their values copied in (``copy``)."""
+    for p, view in zip(list(module.parameters()), views, strict=True):
+        if copy:
+            view.copy_(p)
+        p.data = view
+
+
 def agent_slice(module: nn.Module, k: int) -> dict[str, torch.Tensor]:
     """The parameters of agent k alone, as a CPU state dict without the agent axis."""
     return {name: p[k].detach().cpu().clone() for name, p in module.state_dict().items()}

@@ -66,6 +66,14 @@ def reference_agent(config: AgentConfig, stacked: DDPG, k: int, data: np.ndarray
     return ref
 
 
+def onlines(agent: DDPG) -> list[torch.Tensor]:
+    return list(agent.actor.parameters()) + list(agent.critic.parameters())
+
+
+def targets(agent: DDPG) -> list[torch.Tensor]:
+    return list(agent.actor_target.parameters()) + list(agent.critic_target.parameters())
+
+
 def make_agent(k: int, config: AgentConfig, seed0: int = 0) -> DDPG:
     gens = [torch.Generator().manual_seed(seed0 + i) for i in range(k)]
     return DDPG(config, IN, ACT, init_generators=gens, dtype=torch.float64)
@@ -166,11 +174,12 @@ def test_update_does_only_the_matrix_products_ddpg_needs():
     batch = [torch.randn(k, n, d) for d in (i, a, 1, i)]
     with FlopCounterMode(display=False) as counter:
         agent.update(*batch, torch.zeros(k, n, 1))
-    actor = i * h1 + h1 * h2 + h2 * a                   # multiply-adds per row
+    actor = i * h1 + h1 * h2 + h2 * a  # multiply-adds per row (+ 1: a loss, a (1, n) product)
     critic = i * h1 + (h1 + a) * h2 + h2
     target = actor + critic
-    critic_step = critic + h2 + (h1 + a) * h2 + h2 * h1 + i * h1
-    actor_step = actor + critic + h2 * a + h2 * a + a * h2 + h1 * h2 + h2 * h1 + i * h1
+    critic_step = critic + 1 + h2 + (h1 + a) * h2 + h2 * h1 + i * h1  # 1: the loss
+    actor_step = (actor + critic + 1 + h2 * a + h2 * a + a * h2 + h1 * h2 + h2 * h1
+                  + i * h1)
     assert counter.get_total_flops() == 2 * n * k * (target + critic_step + actor_step)
 
 
@@ -180,10 +189,10 @@ def test_soft_target_update_is_the_formula():
     with torch.no_grad():  # targets apart from the online nets, so the lerp shows
         for p in list(agent.actor_target.parameters()) + list(agent.critic_target.parameters()):
             p.add_(1.0)
-    before = [p.clone() for p in agent._target]
+    before = [p.clone() for p in targets(agent)]
     batch = [torch.randn(2, 8, d, dtype=torch.float64) for d in (IN, ACT, 1, IN)]
     agent.update(*batch, torch.zeros(2, 8, 1, dtype=torch.float64))
-    for old, online, new in zip(before, agent._online, agent._target, strict=True):
+    for old, online, new in zip(before, onlines(agent), targets(agent), strict=True):
         torch.testing.assert_close(new, 0.75 * old + 0.25 * online, atol=1e-12, rtol=0)
 
 
@@ -198,7 +207,7 @@ def test_lillicrap_initialisation():
         assert net.l3.weight.abs().max() <= 3e-3 and net.l3.bias.abs().max() <= 3e-3
     assert agent.critic.l2.weight.shape[1] == 400 + 3  # the action enters at layer 2
     # targets start equal to the online networks
-    for p, pt in zip(agent._online, agent._target, strict=True):
+    for p, pt in zip(onlines(agent), targets(agent), strict=True):
         assert torch.equal(p, pt)
 
 
@@ -206,7 +215,7 @@ def test_an_agents_initial_weights_depend_on_its_generator_alone():
     config = AgentConfig(hidden_sizes=HIDDEN)
     alone = make_agent(1, config, seed0=5)
     batch = make_agent(3, config, seed0=3)  # generators seeded 3, 4, 5
-    for p_alone, p_batch in zip(alone._online, batch._online, strict=True):
+    for p_alone, p_batch in zip(onlines(alone), onlines(batch), strict=True):
         assert torch.equal(p_alone[0], p_batch[2])
 
 
@@ -224,7 +233,7 @@ def test_agent_state_round_trip_continues_identically(batch_norm):
     for batch in batches[3:]:
         a.update(*batch, term)
         b.update(*batch, term)
-    for p, q in zip(a._online + a._target, b._online + b._target, strict=True):
+    for p, q in zip(onlines(a) + targets(a), onlines(b) + targets(b), strict=True):
         assert torch.equal(p, q)
 
 
@@ -239,7 +248,7 @@ def test_fallback_equals_fast_path_to_1e_10(monkeypatch):
     fast = make_agent(2, config)
     monkeypatch.setattr(agent_module, "FAST", PLAIN)
     plain = make_agent(2, config)
-    assert not (plain._actor_step.direct or plain._critic_step.direct)
+    assert plain.fast == PLAIN
     gen = torch.Generator().manual_seed(3)
     for _ in range(50):
         batch = [torch.randn(2, 16, d, generator=gen, dtype=torch.float64) * 2
