@@ -11,7 +11,7 @@ machine's load cancel):
 - ``sb3_updates_per_s``: Stable-Baselines3's DDPG + HerReplayBuffer ("final", the dense reward
   recomputed through ``copy_info_dict``) on the same env, networks 400-300, batch 64: its
   ``train()`` step, HER sampling included;
-- ``plain_updates_per_s``: one agent written the usual way (`ddpg_her.reference`: ``nn.Linear``,
+- ``plain_updates_per_s``: one agent written the usual way (`benchmarks.reference`: ``nn.Linear``,
   autograd, torch's fused Adam), same networks and batch, on minibatches drawn from our buffers:
   what a plain PyTorch DDPG update costs here, without SB3's own overhead;
 - ``update_gflops``: floating-point operations of our update (counted by
@@ -167,7 +167,7 @@ class _Plain:
     def __init__(self, ours: _Ours, config: AgentConfig):
         import torch
 
-        from ddpg_her.reference import ReferenceDDPG
+        from benchmarks.reference import ReferenceDDPG
 
         trainer = ours.trainer
         self.buffer, self.batch_size = trainer.buffer, config.batch_size

@@ -370,7 +370,7 @@ class DDPG:
         and the target value use running statistics; the online networks the minibatch's. The
         critic's running statistics move in the critic step, the actor's in the actor step;
         the critic in the actor step normalises by the minibatch and leaves its statistics.
-        `tests/test_ddpg_agent.py` checks it against `ddpg_her.reference` with nn.BatchNorm1d.
+        `tests/test_ddpg_agent.py` checks it against `benchmarks.reference` with nn.BatchNorm1d.
         """
         gamma = self.config.gamma
         x, x2 = self.normalizer(x), self.normalizer(x2)

@@ -6,7 +6,7 @@ temperature alpha per agent tuned towards the target entropy -dim(A) (Haarnoja e
 (400-300 ReLU, the action at the critics' second layer, final layers in +-final_init; the
 policy's last layer gives the mean and log std), and Table I's gamma, tau, rates, batch and
 buffer apply. The update goes through autograd; ``tests/test_algos.py`` checks it against
-`ddpg_her.reference.ReferenceSAC` (torch.distributions' tanh-transformed Normal) to 1e-10.
+`benchmarks.reference.ReferenceSAC` (torch.distributions' tanh-transformed Normal) to 1e-10.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ forms the target, target policy smoothing (clipped Gaussian noise on the target 
 delayed actor (and target) update. The networks are Lillicrap's, as DDPG's here (the action enters
 the critics at their second layer; Fujimoto's enter at the first), and Table I's gamma, tau, rates,
 batch and buffer apply. The update goes through autograd; ``tests/test_algos.py`` checks it
-against `ddpg_her.reference.ReferenceTD3` to 1e-10 in float64.
+against `benchmarks.reference.ReferenceTD3` to 1e-10 in float64.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """TD3 and SAC, stacked for K agents, against K plainly written agents of their own
-(`ddpg_her.reference`), and learning the toy goal env."""
+(`benchmarks.reference`), and learning the toy goal env."""
 
 import gymnasium
 import numpy as np
@@ -11,7 +11,7 @@ from test_ddpg_train import train
 
 from ddpg_her.agents import make_agent
 from ddpg_her.config import AgentConfig
-from ddpg_her.reference import ReferenceSAC, ReferenceTD3
+from benchmarks.reference import ReferenceSAC, ReferenceTD3
 from ddpg_her.sac import SAC
 from ddpg_her.spaces import goal_input
 from ddpg_her.td3 import TD3

@@ -10,7 +10,7 @@ from torch import nn
 from ddpg_her import agent as agent_module
 from ddpg_her.agent import DDPG, PLAIN, FastPaths, probe_fast_paths
 from ddpg_her.config import AgentConfig
-from ddpg_her.reference import ReferenceDDPG
+from benchmarks.reference import ReferenceDDPG
 
 IN, ACT, HIDDEN = 7, 2, (32, 24)
 

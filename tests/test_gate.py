@@ -209,7 +209,7 @@ def test_resume_compares_the_program_section(tmp_path, edit):
     ("--region farbox --seed 0", ["--seeds", "3", "4"]),
     ("--region farbox --joints 3", ["--joints", "6"]),
     ("--region farbox --episodes 4", ["--episodes", "8"]),
-    ("--region farbox --episodes 4", ["--epi", "8"]),  # an abbreviation argparse resolves
+    ("--region farbox --joints 3", ["--joi", "6"]),  # an abbreviation argparse resolves
 ])
 def test_arguments_after_dashes_never_replace_a_units_own(tmp_path, unit, after):
     """Appended, the last flag won (argparse's rule, the reference): the unit trained what the
@@ -218,7 +218,7 @@ def test_arguments_after_dashes_never_replace_a_units_own(tmp_path, unit, after)
     code, err = run_main(train_many.main, ["--unit", unit, "--dry-run", "--", *after])
     assert code == 2 and after[0] in error_line(err) and "never overridden" in error_line(err)
     parsed = train.parse_args(train.make_parser(), [*unit.split(), *after])
-    dest = {"--epi": "episodes", "--seeds": "seeds"}.get(after[0], after[0][2:])
+    dest = {"--joi": "joints", "--seeds": "seeds"}.get(after[0], after[0][2:])
     assert str(getattr(parsed, dest)).strip("[]'").replace("'", "").replace(",", "") == \
         " ".join(after[1:])  # what the old appending trained
     code, err = run_main(train_many.main, ["--unit", f"--region farbox --out {tmp_path / 'x'}",

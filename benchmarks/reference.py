@@ -1,5 +1,6 @@
 """One DDPG agent written the way most code bases write it: ``nn.Linear`` layers, autograd, Adam.
 
+Not installed with the packages (a test oracle and a benchmark's peer, not a user's agent).
 It is the second code path for the stacked agent of `ddpg_her.agent`, which writes its gradients
 by hand: ``tests/test_ddpg_agent.py`` checks K stacked agents against K of these to 1e-10 in
 float64, and ``python -m benchmarks.agent_updates`` times it as the plain-PyTorch peer of our
