@@ -42,9 +42,11 @@ def test_a_tiny_run_writes_the_eval_csv_every_analysis_reads(tmp_path: Path, alg
     params = tmp_path / "h.json"
     params.write_text(json.dumps(tiny))
     out = tmp_path / algo
-    run_module("analysis.sb3", "--algo", algo, "--env-id", "toy_goal_env:ToyReach-v0",
-               "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every", "3",
-               "--eval-episodes", "4", "--hyperparams", str(params), "--out", str(out))
+    first = run_module("analysis.sb3", "--algo", algo, "--env-id", "toy_goal_env:ToyReach-v0",
+                       "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every",
+                       "3", "--eval-episodes", "4", "--hyperparams", str(params), "--out",
+                       str(out))
+    assert "episode 3/6: " in first.stderr and "episode 6/6: " in first.stderr  # progress
     run = read_run(out)
     assert list(run.episode) == [3, 6] and list(run.tests) == [4, 4]
     assert run.setting == ("box", 2) and run.spec["agent"]["algo"] == f"sb3-{algo}"
