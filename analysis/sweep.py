@@ -854,7 +854,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.dry_run:
         dry_run(units, args, threads, extra)
         return 0
-    return execute(units, args, threads, extra)
+    status = execute(units, args, threads, extra)
+    runs = [unit.run_dir(seed) for unit in units for seed in unit.seeds]
+    done = sum(unit.status(seed) == "done" for unit in units for seed in unit.seeds)
+    print(f"sweep: {done} of {len(runs)} runs finished in {args.out}"
+          + (f", {len(runs) - done} not (their logs: {args.out / 'logs'}; the same command "
+             "resumes)" if done < len(runs) else "")
+          + f"; look at them: python -m analysis.curves {args.out} --out "
+          f"{args.out / 'curves.png'} && python -m analysis.report {args.out}", file=sys.stderr)
+    return status
 
 
 if __name__ == "__main__":

@@ -332,9 +332,12 @@ def test_sweep_runs_skips_finished_and_resumes(tmp_path: Path) -> None:
         return ["analysis.sweep", "--setting", "box:2", "--seeds", "2", "--episodes",
                 str(episodes), "--out", str(tmp_path), "--workers", "1", "--", *TOY]
 
-    run_module(*args(4))
+    first = run_module(*args(4)).stderr.strip().splitlines()[-1]
     for seed in (0, 1):
         assert runs.read_run(tmp_path / "box-j2" / f"s{seed}").finished
+    assert first == f"sweep: 2 of 2 runs finished in {tmp_path}; look at them: python -m " \
+        f"analysis.curves {tmp_path} --out {tmp_path / 'curves.png'} && python -m " \
+        f"analysis.report {tmp_path}"  # the summary, and the commands to look
     log = (tmp_path / "logs" / "box-j2.log").read_text()
     again = run_module(*args(4)).stderr
     assert "1 of 1 settings already finished" in again
