@@ -17,7 +17,7 @@ import pytest
 from cli_tools import run_module
 from scipy import stats
 
-from analysis import report, runs, sweep
+from analysis import curves, report, runs, sweep
 from analysis.paper import CLAIMS, PAPER_GRID
 
 TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--eval-every", "2", "--eval-episodes", "4",
@@ -543,3 +543,51 @@ def test_readers_name_a_run_of_another_format_and_an_empty_eval_csv(tmp_path, ca
             err = capsys.readouterr().err
             assert code not in (0, None) and ("ddpg_her-run-2" in err or "is empty" in err), \
                 (folder, main, err)
+
+
+def test_runs_that_differ_beyond_their_seed_are_compared_not_pooled(tmp_path: Path, capsys
+                                                                     ) -> None:
+    """Issue 41/43: two user regions (a box and a mesh) are two groups compared by the rule;
+    runs of one setting that differ in their algorithm are refused unless pooled, and pooling
+    says what differs. The verdict and p-value are checked against scipy's Welch test and
+    the Student-t intervals computed here (the reference)."""
+    box, mesh = [[10, 60, 90, 95, 96, 97, 98, 99], [20, 70, 92, 94, 95, 95, 96, 97],
+                 [15, 65, 88, 93, 97, 96, 95, 98]], [[5, 10, 20, 25, 30, 30, 31, 32],
+                                                     [3, 12, 18, 22, 28, 29, 33, 30],
+                                                     [4, 9, 15, 26, 27, 31, 30, 29]]
+    for seed, s in enumerate(box):
+        _fake_run(tmp_path / "mine" / f"s{seed}", "box:0.3,0.7,-0.2,0.2,0,0.5", 3, seed, s)
+    for seed, s in enumerate(mesh):
+        _fake_run(tmp_path / "theirs" / f"s{seed}", "mesh:shelf.stl", 3, seed, s)
+    out = tmp_path / "cmp.md"
+    assert report.main(["--groups", f"box={tmp_path / 'mine'}", f"mesh={tmp_path / 'theirs'}",
+                        "--out", str(out)]) == 0
+    text = out.read_text()
+    level = [np.mean(x[-5:]) for x in box], [np.mean(x[-5:]) for x in mesh]
+    p = stats.ttest_ind(*level, equal_var=False).pvalue
+    assert f"| {report.p_text(p)} |" in text
+    (m_a, lo_a, hi_a), (m_b, lo_b, hi_b) = (runs.mean_ci(np.array(v), 0.65, runs.PERCENT)
+                                            for v in level)
+    assert lo_a > hi_b  # the reference: the intervals are apart, box above
+    assert f"| box {m_a:.1f} [{lo_a:.1f}, {hi_a:.1f}] | mesh {m_b:.1f} [{lo_b:.1f}, " \
+           f"{hi_b:.1f}] | holds |" in text
+    assert str(tmp_path / "mine" / "s0") in text  # every row names its runs
+    # one setting, two algorithms: refused, then compared by algorithm, then pooled with a note
+    for seed, s in enumerate(box):
+        _fake_run(tmp_path / "algos" / "td3" / f"s{seed}", "farbox", 3, seed, s,
+                  agent={"algo": "td3"})
+        _fake_run(tmp_path / "algos" / "ddpg" / f"s{seed}", "farbox", 3, seed, mesh[seed],
+                  agent={"algo": "ddpg"})
+    capsys.readouterr()
+    for module in (report, curves):
+        with pytest.raises(SystemExit) if module is report else contextlib.nullcontext():
+            module.main([str(tmp_path / "algos"), "--out", str(tmp_path / "x.png")])
+    err = capsys.readouterr().err
+    assert "not pooled: farbox 3: agent.algo (\"ddpg\" / \"td3\")" in err
+    with open(tmp_path / "x.csv") as f:  # curves drew them apart, each labelled
+        labels = {r["group"] for r in csv.DictReader(f)}
+    assert labels == {'farbox 3 (agent.algo="ddpg")', 'farbox 3 (agent.algo="td3")'}
+    assert report.main([str(tmp_path / "algos"), "--group-by", "algorithm"]) == 0
+    assert "| algorithm td3 | farbox 3 | 3 | 96.1 [95.5, 96.6] |" in capsys.readouterr().out
+    assert report.main([str(tmp_path / "algos"), "--pool"]) == 0
+    assert "note: farbox 3: pools 6 runs that differ in agent.algo" in capsys.readouterr().err
