@@ -591,3 +591,20 @@ def test_runs_that_differ_beyond_their_seed_are_compared_not_pooled(tmp_path: Pa
     assert "| algorithm td3 | farbox 3 | 3 | 96.1 [95.5, 96.6] |" in capsys.readouterr().out
     assert report.main([str(tmp_path / "algos"), "--pool"]) == 0
     assert "note: farbox 3: pools 6 runs that differ in agent.algo" in capsys.readouterr().err
+
+
+def test_summary_names_runs_by_folder_and_projects_a_short_multi_seed_run(tmp_path: Path
+                                                                          ) -> None:
+    """Issue 43: two runs of seed 0 were both "seed 0", and a run of two sessions projected
+    nan. Its wall clock here is i - 1 s at session i (episode 100 i): 1 s per 100 episodes,
+    so 20,000 episodes take 1 + 198 s, 0.055 h."""
+    from ddpg_her.summary import summarize
+
+    for name in ("a", "b"):
+        for seed in (0, 1):
+            _fake_run(tmp_path / name / f"s{seed}", "farbox", 3, seed, [3, 40])
+    table = summarize([str(tmp_path / "a"), str(tmp_path / "b" / "s0")], 20_000)
+    assert f"| {tmp_path / 'a' / 's0'} (seed 0) | {tmp_path / 'a' / 's1'} (seed 1) | " \
+           f"{tmp_path / 'b' / 's0'} (seed 0) |" in table
+    rows = [line for line in table.splitlines() if line.startswith(f"| {tmp_path}")]
+    assert len(rows) == 3 and all(line.endswith("| 0.1 |") for line in rows), rows
