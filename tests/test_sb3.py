@@ -243,3 +243,34 @@ def test_a_bad_hyperparameter_file_ends_the_command_in_one_line_before_any_folde
     last = proc.stderr.strip().splitlines()[-1]
     assert "gamma" in last and '"high"' in last and str(params) in last
     assert not out.exists()
+
+
+def test_the_sb3_example_trains_on_the_env_as_given(tmp_path: Path):
+    """examples/sb3_her.py, as the README gives it, on a tiny budget: SB3 + HER on UR5Reach-v0
+    with the dense reward (HER relabels through copy_info_dict); it trains and tests."""
+    import subprocess
+    import sys
+
+    from cli_tools import ROOT, child_env
+
+    out = subprocess.run([sys.executable, str(ROOT / "examples" / "sb3_her.py"), "--timesteps",
+                          "300", "--test-episodes", "2"], capture_output=True, text=True,
+                         env=child_env(), timeout=600, check=False, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith("of 2 test goals reached after 300 steps"), out.stdout
+
+
+def test_sb3_her_without_the_infos_stops_on_the_dense_reward_saying_why():
+    """What the README says SB3 needs: without copy_info_dict, HER's relabelled rewards lack
+    the action of eq. 2's penalty, and the env's compute_reward stops it naming the fix."""
+    import gymnasium
+    from stable_baselines3 import DDPG, HerReplayBuffer
+
+    import envs  # noqa: F401
+
+    env = gymnasium.make("UR5Reach-v0", region="farbox", n_joints=3, max_episode_steps=20)
+    model = DDPG("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+                 learning_starts=40, batch_size=16, seed=0, device="cpu",
+                 policy_kwargs={"net_arch": [16, 16]})
+    with pytest.raises(ValueError, match="copy_info_dict=True"):
+        model.learn(total_timesteps=80)
