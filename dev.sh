@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The one set-up entry point: builds .venv from this project's own files, then runs a job.
-#   bash dev.sh demo    the main job: a short training run and its learning curve (see README)
+#   bash dev.sh demo    the main job: a short training run, its learning curve and 3D replay
 #   bash dev.sh test    the test suite (what .ci/run calls)
 #   bash dev.sh shell   prints the activate line of the environment
 # Environment: PYTHON (interpreter for the venv, default python3), VENV (default .venv),
@@ -46,10 +46,13 @@ job=${1:-}
 shift || true
 case "$job" in
   demo)
-    # The main job: a short far-box training run (resumable), then its learning curve.
+    # The main job: a short far-box training run (resumable), its learning curve and its
+    # policy replayed in 3D (an offline HTML page).
     "$venv/bin/python" -m ddpg_her.train --region farbox --joints 3 --seed 0 --episodes 300 \
       --out runs/demo --resume "$@"
-    exec "$venv/bin/python" -m analysis.curves runs/demo --out runs/demo/curves.png ;;
+    "$venv/bin/python" -m analysis.curves runs/demo --out runs/demo/curves.png
+    exec "$venv/bin/python" -m analysis.replay runs/demo --episodes 5 --no-progress \
+      --out runs/demo/replay.html ;;
   test)
     browser_for_tests
     exec "$venv/bin/python" -m pytest "$@" ;;

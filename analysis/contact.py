@@ -154,12 +154,12 @@ def _parser() -> argparse.ArgumentParser:
             "seed": "seed of the goals and the actions",
             "json": "print JSON instead of text"}
     for f in fields(ContactConfig):
-        flag = "--" + f.name.replace("_", "-")
+        flag = "--joints" if f.name == "n_joints" else "--" + f.name.replace("_", "-")
         if f.type == "bool":
             parser.add_argument(flag, action="store_true", help=docs[f.name])
         else:
             kind = {"int": int, "float": float, "str": str}[f.type]
-            parser.add_argument(flag, type=kind, default=f.default,
+            parser.add_argument(flag, dest=f.name, type=kind, default=f.default,
                                 help=f"{docs[f.name]} (default: {f.default})")
     return parser
 

@@ -1,11 +1,14 @@
 """Learning curves: successes over seeds against training episodes, one panel per setting.
 
     python -m analysis.curves RUNS_ROOT... --out fig.png
+    python -m analysis.curves RUNS_ROOT... --group-by region --out fig.png   # groups, one axis
 
-Each panel is a (region, joints) setting, laid out like the paper's figures (a row per region, a
+Each panel is a (region, joints) setting (runs of one setting that differ in another recorded
+field are drawn apart in it, each labelled with what differs), laid out like the paper's figures (a row per region, a
 column per joint count): the mean over seeds with a 65 % Student-t confidence interval, each seed
 faintly, and the paper's stated asymptote dashed where it gives one. The plotted numbers go to a
-CSV beside the figure (``fig.csv``).
+CSV beside the figure (``fig.csv``). With ``--group-by FIELD`` or ``--groups NAME=DIR ...``
+every group is drawn on one axis, each in its colour.
 """
 
 from __future__ import annotations
@@ -26,60 +29,74 @@ from analysis.outputs import (
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
     PERCENT,
-    Run,
+    Group,
     add_runs_arguments,
     aligned_successes,
+    groups_from_args,
     mean_ci,
-    settings_from_args,
+    pooled_lines,
 )
 from regions.registry import paper_order
 
-CSV_COLUMNS = ("region", "joints", "episode", "seeds", "mean_successes", "ci_low", "ci_high")
+CSV_COLUMNS = ("group", "region", "joints", "episode", "seeds", "mean_successes", "ci_low", "ci_high")
 """Columns of the CSV beside the figure; successes are per 100 test goals, the interval is clipped
 to 0-100."""
 
 
-def curve_rows(groups: dict[tuple[str, int], list[Run]], level: float) -> list[dict]:
-    """The plotted numbers: one row per setting and evaluation episode."""
+def curve_rows(groups: list[Group], level: float) -> list[dict]:
+    """The plotted numbers: one row per group and evaluation episode (a group's region and
+    joints: those of its first run)."""
     rows = []
-    for (region, joints), runs in groups.items():
+    for group in groups:
+        runs, (region, joints) = group.runs, group.setting
         episode, successes = aligned_successes(runs)
         if len(episode) == 0:
             continue
         mean, low, high = mean_ci(successes, level, PERCENT)
         for i, e in enumerate(episode):
-            rows.append({"region": region, "joints": joints, "episode": int(e),
+            rows.append({"group": group.label, "region": region, "joints": joints,
+                         "episode": int(e),
                          "seeds": len(runs), "mean_successes": round(float(mean[i]), 4),
                          "ci_low": round(float(low[i]), 4), "ci_high": round(float(high[i]), 4)})
     return rows
 
 
-def plot(groups: dict[tuple[str, int], list[Run]], out: Path, level: float) -> None:
-    """Draw the panels to ``out`` (any matplotlib format)."""
-    regions = sorted({r for r, _ in groups}, key=paper_order)  # figure rows
-    joints = sorted({j for _, j in groups})
+def plot(groups: list[Group], out: Path, level: float, overlay: bool = False) -> None:
+    """Draw the groups to ``out`` (any matplotlib format): a panel per setting, or with
+    ``overlay`` every group on one axis."""
+    panels: dict[tuple[str, int], list[Group]] = {}
+    for g in groups:
+        panels.setdefault(("", 0) if overlay else g.setting, []).append(g)
+    regions = sorted({r for r, _ in panels}, key=paper_order)  # figure rows
+    joints = sorted({j for _, j in panels})
     fig, axes = pyplot().subplots(
         len(regions), len(joints), squeeze=False, sharex=True, sharey=True,
         figsize=(max(3.2 * len(joints) + 0.6, 6.5), 2.6 * len(regions) + 0.8))
     for i, region in enumerate(regions):
         for j, n in enumerate(joints):
             ax = axes[i][j]
-            runs = groups.get((region, n))
-            if not runs:
+            inside = panels.get((region, n))
+            if not inside:
                 ax.set_visible(False)
                 continue
-            episode, successes = aligned_successes(runs)
-            for seed_curve in successes:
-                ax.plot(episode, seed_curve, color="0.6", lw=0.6, alpha=0.5, label="each seed")
-            mean, low, high = mean_ci(successes, level, PERCENT)
-            ax.fill_between(episode, low, high, color="C0", alpha=0.3, lw=0,
-                            label=f"{level:.0%} CI")
-            ax.plot(episode, mean, color="C0", lw=1.6, label=f"mean of {len(runs)} seeds")
+            for c, group in enumerate(inside):
+                runs, color = group.runs, f"C{c}"
+                episode, successes = aligned_successes(runs)
+                for seed_curve in successes:
+                    ax.plot(episode, seed_curve, color=color if len(inside) > 1 else "0.6",
+                            lw=0.6, alpha=0.35, label="each seed" if len(inside) == 1 else None)
+                mean, low, high = mean_ci(successes, level, PERCENT)
+                ax.fill_between(episode, low, high, color=color, alpha=0.25, lw=0,
+                                label=f"{level:.0%} CI" if c == 0 else None)
+                ax.plot(episode, mean, color=color, lw=1.6, label=(
+                    f"{group.label}: mean of {len(runs)} seeds" if overlay or len(inside) > 1
+                    else f"mean of {len(runs)} seeds"))
             paper = PAPER_RESULTS.get((region, n))
             if paper is not None and paper.approx_success is not None:
                 ax.axhline(paper.approx_success, color="C3", ls="--", lw=1,
                            label="the paper's asymptote")
-            ax.set_title(f"{region}, joints 1-{n}", fontsize=9)
+            ax.set_title("one axis, each group its colour" if overlay else
+                         f"{region}, joints 1-{n}", fontsize=9)
             ax.set_ylim(-2, 102)
             ax.grid(alpha=0.3)
     # shared axes label only the outer panels; with panels missing from the grid, label each
@@ -121,15 +138,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         csv_path = check_writable(out.with_suffix(".csv"), "--out")
     except OutputError as err:
         parser.error(str(err))
-    groups = settings_from_args(parser, args)
+    groups = groups_from_args(parser, args)
+    for line in pooled_lines(groups):
+        print(f"note: {line}", file=sys.stderr)
     rows = curve_rows(groups, args.confidence)
     try:
-        plot(groups, out, args.confidence)
+        plot(groups, out, args.confidence, overlay=bool(args.group_by or args.groups))
         write_csv(csv_path, CSV_COLUMNS, rows)
     except OutputError as err:
         parser.exit(1, f"error: {err}\n")
-    runs = sum(len(v) for v in groups.values())
-    print(f"{runs} runs in {len(groups)} settings -> {out} and {csv_path}",
+    runs = sum(len(g.runs) for g in groups)
+    print(f"{runs} runs in {len(groups)} groups -> {out} and {csv_path}",
           file=sys.stderr)
     return 0
 

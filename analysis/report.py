@@ -2,11 +2,15 @@
 paper judged by one stated rule.
 
     python -m analysis.report RUNS_ROOT [--out report.md]
+    python -m analysis.report --groups box=runs/box mesh=runs/mesh   # compare any two groups
 
 For each (region, joints): each seed's mean over its last 5 test sessions and its best session
 (mean and confidence interval over seeds), the training episode where each seed first hits 90 of
 100 goals, and the paper's statement; then every claim of the paper's section IV
 (`analysis.paper.CLAIMS`), each *holds*, *fails*, *within noise*, *not judgeable* or *not run*.
+
+With ``--group-by FIELD`` or ``--groups NAME=DIR ...`` it compares groups instead
+(`comparison`): each group's statistics, and every pair judged by the same rule.
 
 The verdict rule is `rule_lines`, printed with every report and stated in docs/design.md ("What
 the paper reports"); `judge_claims` applies it. A claim about where training ends is judged on
@@ -53,10 +57,13 @@ from analysis.readings import run_choices
 from analysis.runs import (
     CONFIDENCE,
     PERCENT,
+    Group,
     Run,
     add_runs_arguments,
     aligned_successes,
+    groups_from_args,
     mean_ci,
+    pooled_lines,
     settings_from_args,
 )
 from regions.registry import default_start, paper_order
@@ -702,6 +709,46 @@ def claim_table(checks: Sequence[Check]) -> list[str]:
     return lines
 
 
+def comparison(groups: Sequence[Group], level: float) -> str:
+    """report.md of groups: each group's statistics up to the last test session every group
+    has, then every pair judged by the rule (`rule_lines`: A above B holds when their
+    intervals of each seed's last-5 level are apart in that order), with its Welch p-value."""
+    end = min(int(aligned_successes(g.runs)[0][-1]) for g in groups)
+    interval = student_t(level)
+    curves = {g.label: Curves.of(g.runs, end) for g in groups}
+    stat = {k: interval(c.level(), PERCENT) for k, c in curves.items()}
+    lines = ["# Comparison of groups of runs", "",
+             f"Successes per 100 test goals up to episode {end:,}, the last test session every "
+             f"group has; *last {LAST_SESSIONS}*: each seed's mean over its last "
+             f"{LAST_SESSIONS} sessions, the mean over seeds with its {level:.0%} Student-t "
+             "interval.", "", f"| group | setting | seeds | last {LAST_SESSIONS} | best | "
+             f"first >= {HIGH_SUCCESS:g} | runs |", "|---|---|---|---|---|---|---|"]
+    for g in groups:
+        c = curves[g.label]
+        high = c.percent >= HIGH_SUCCESS
+        first = tuple(int(c.episode[h.argmax()]) if h.any() else None for h in high)
+        runs = ", ".join(str(r.path) for r in g.runs)
+        settings = ", ".join(dict.fromkeys(f"{r.region} {r.joints}" for r in g.runs))
+        lines.append(f"| {g.label} | {settings} | {len(g.runs)} | "
+                     f"{_fmt(stat[g.label])} | {_fmt(interval(c.percent.max(axis=1), PERCENT))} "
+                     f"| {_first_high(first)} | {runs} |")
+    pooled = pooled_lines(groups)
+    if pooled:
+        lines += ["", "**Pooled**: a group below holds runs that differ in more than their "
+                      "seed:", *(f"- {x}" for x in pooled)]
+    lines += ["", *rule_lines(level)[:1], "", *rule_lines(level)[3:6], "",
+              "| A | B | verdict on \"A above B\" | Welch p |", "|---|---|---|---|"]
+    for i, a in enumerate(groups):
+        for b in groups[i + 1:]:
+            verdict = _apart(stat[a.label], stat[b.label])
+            p = welch_p(curves[a.label].level(), curves[b.label].level())
+            lines.append(f"| {a.label} {_fmt(stat[a.label])} | {b.label} "
+                         f"{_fmt(stat[b.label])} | {verdict.value} | {p_text(p)} |")
+    n = len(groups) * (len(groups) - 1) // 2
+    return "\n".join([*lines, "", f"{n} comparison(s), Welch p-values not corrected for their "
+                      "number."]) + "\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.report", description=__doc__.split("\n\n")[0],
@@ -717,9 +764,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_writable(args.out, "--out")
         except OutputError as err:
             parser.error(str(err))
-    groups = settings_from_args(parser, args)
-    summaries = {k: summarise(v, args.confidence) for k, v in groups.items()}
-    text = render(summaries, args.confidence)
+    if args.group_by or args.groups:
+        text = comparison(groups_from_args(parser, args), args.confidence)
+    else:
+        groups = settings_from_args(parser, args)
+        summaries = {k: summarise(v, args.confidence) for k, v in groups.items()}
+        text = render(summaries, args.confidence)
     if args.out is not None:
         from analysis.outputs import OutputError, write_text
 

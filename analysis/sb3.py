@@ -428,6 +428,8 @@ def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes
         rows.append({"episode": episode, **row, "env_steps": int(model.num_timesteps),
                      "wall_s": round(time.perf_counter() - start, 3)})
         folder.write_eval(rows)
+        print(f"episode {episode}/{episodes}: {row['successes']}/{row['tests']} test goals, "
+              f"{rows[-1]['wall_s']:.0f} s", file=sys.stderr, flush=True)
 
     class Protocol(BaseCallback):
         """Counts training episodes; a test session every eval_every; stops at the budget."""
@@ -445,6 +447,8 @@ def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes
             return self.episode < episodes
 
     steps = episodes * (env.spec.max_episode_steps or 1000) + 1
+    print(f"training {type(model).__name__} + HER into {folder.path}: {episodes} episodes, a "
+          f"line per test session (every {eval_every})", file=sys.stderr, flush=True)
     model.learn(total_timesteps=steps, callback=Protocol())
     return rows
 

@@ -234,7 +234,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"no goals in the slice {z} m: {err}")
     maps = []
     for run, policy, task in zip(args.runs, policies, tasks, strict=True):
-        label = f"{Path(run).name} (episode {policy.episode})"
+        label = f"{Path(run).as_posix()} (episode {policy.episode})"  # the run, not "s0"
         reached = evaluate(policy, task, goals, args.batch, label, not args.no_progress)
         maps.append(bin_successes(label, goals, reached, args.cell))
     try:

@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
@@ -412,14 +412,18 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "process per unit; pair it with --env-backend batched)")
     parser.add_argument("--dry-run", action="store_true",
                         help="print one line per run (status, folder, command) and exit")
-    parser.add_argument("--project", action="store_true",
-                        help="with --dry-run: train the first two test intervals (2 x "
-                             "--eval-every episodes, 200 by default) of every unfinished unit, "
-                             "run as the real command would run them (process layout, "
-                             "--workers, --device, --env-backend, arguments after --), in a "
-                             "temporary folder deleted afterwards, and print the projected "
-                             "wall time of the whole run (s and h); costs about 2 x "
-                             "--eval-every / --episodes of the real run (1 %% of the paper's)")
+    parser.add_argument("--project", nargs="?", const="quick", choices=("quick", "full"),
+                        default=None,
+                        help="with --dry-run: print the projected wall time (s and h) of the "
+                             "run. 'quick' (the flag alone): each distinct process layout "
+                             "(joint count, seeds, own arguments) trains 2 episodes (a warm-up "
+                             "and a learning episode of 25 updates, each with a test session "
+                             "of 1 episode per agent) as the real command would run it, in a "
+                             "temporary folder deleted afterwards, scaled by a stated model "
+                             "(seconds to a minute); 'full': then also train the first two "
+                             "test intervals (2 x --eval-every episodes) of every unfinished "
+                             "unit, its cost by the quick model printed before it starts "
+                             "(about 1 %% of the paper's run)")
 
 
 RAY_CONNECT_S = 5.0
@@ -740,13 +744,13 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
         print_projection(units, args, threads, extra)
 
 
-def eval_every(unit: Unit, extra: Sequence[str]) -> int:
-    """Training episodes between two test sessions of ``unit``'s runs, as ``ddpg_her.train``
-    reads its command line (``--eval-every``, 100 by default)."""
+def unit_config(unit: Unit, extra: Sequence[str]) -> Any:
+    """``unit``'s agent configuration (`ddpg_her.AgentConfig`), as ``ddpg_her.train`` reads its
+    command line with ``extra``."""
     from ddpg_her import train
 
-    args = train.parse_args(train.make_parser(), unit.run_args(extra))
-    return train.request(args, resume=True).config.eval_every
+    return train.request(train.parse_args(train.make_parser(), unit.run_args(extra)),
+                         resume=True).config
 
 
 def projected_seconds(walls: Sequence[tuple[int, float]], every: int, episodes: int) -> float:
@@ -775,61 +779,179 @@ def makespan(seconds: Sequence[float], workers: int) -> float:
     return max(free, default=0.0)
 
 
-def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: int,
-                     extra: Sequence[str]) -> float:
-    """Time the unfinished units' first two test intervals, run as `execute` would run them
-    (one process, or ``args.workers`` concurrent ones) in a temporary folder, and print the
-    projected wall time of the real run (s); returns it.
+QUICK_UPDATES = 25
+"""Updates per agent in the quick projection's one timed learning episode; the projection
+scales the time of one update to each unit's ``--updates-per-episode``."""
 
-    Each unit's training is `projected_seconds` from its eval.csv (its trainer's clock); the
-    processes' start-up (imports, envs, networks), the timed run's wall time less its
-    training, is added once. A unit already under way is projected over the episodes it has
-    left. Episodes that end early (a success with ``terminate_on_success``) get shorter as the
-    agents learn, so the projection leans long for tasks the agents learn.
-    """
-    import dataclasses
+QUICK_ARGS = ("--warmup-episodes", "1", "--eval-every", "1", "--eval-episodes", "1",
+              "--updates-per-episode", str(QUICK_UPDATES))
+"""Appended (last, so they win) to the quick projection's timed processes of 2 episodes: a
+warm-up episode and its test session of one episode per agent, then a learning episode and
+its session."""
+
+
+@dataclass(frozen=True)
+class EpisodeCosts:
+    """The stated model of a training process's wall time (s): ``start`` (imports, envs,
+    networks) + every episode one ``rollout`` (one episode of each agent of the process) +
+    every learning episode ``--updates-per-episode`` x ``update`` (one update of each agent) +
+    every test session ``--eval-episodes`` rollouts. A session's episodes are counted one by
+    one: as they cost under --env-backend numpy (an env each), an upper bound where they step
+    together (batched, program). Episodes that end early as agents learn make it lean long."""
+
+    start: float
+    rollout: float
+    update: float
+
+    @classmethod
+    def of_rows(cls, walls: Sequence[float], start: float) -> EpisodeCosts:
+        """From the ``wall_s`` of a timed process's two eval rows (`QUICK_ARGS`): the first is
+        2 rollouts (the warm-up episode, a session of one); the second adds a learning episode
+        with `QUICK_UPDATES` updates and a session."""
+        first, second = walls
+        return cls(start, first / 2, max(second - 2 * first, 0.0) / QUICK_UPDATES)
+
+    def seconds(self, config: Any, done: int = 0) -> float:
+        """Training of ``config`` (an AgentConfig) from episode ``done`` to its budget, s."""
+        left = max(config.episodes - done, 0)
+        warm = min(max(config.warmup_episodes - done, 0), left)
+        sessions = config.episodes // config.eval_every - done // config.eval_every
+        return (left * self.rollout + (left - warm) * config.updates_per_episode * self.update
+                + sessions * config.eval_episodes * self.rollout)
+
+
+PROJECTION_PREFIX = "sweep-projection-"
+"""Temporary folders of projections: ``<prefix><pid>-<random>``."""
+
+
+def projection_folder() -> Path:
+    """A new temporary folder for a projection's timed processes, named with this process's
+    id; the folders of projections whose process has ended (killed before it could delete
+    its own) are deleted first."""
     import shutil
     import tempfile
+
+    for old in Path(tempfile.gettempdir()).glob(f"{PROJECTION_PREFIX}*-*"):
+        pid = old.name[len(PROJECTION_PREFIX):].partition("-")[0]
+        try:
+            alive = pid.isdigit() and (os.kill(int(pid), 0) or True)
+        except ProcessLookupError:
+            alive = False
+        except OSError:  # another user's: alive
+            alive = True
+        if not alive:
+            shutil.rmtree(old, ignore_errors=True)
+    return Path(tempfile.mkdtemp(prefix=f"{PROJECTION_PREFIX}{os.getpid()}-"))
+
+
+def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
+              extra: Sequence[str], what: str) -> tuple[float, list[list[float]]]:
+    """Train ``units`` (their roots in a `projection_folder`) as `execute` would, ``extra``
+    after every unit's own arguments; (wall seconds spent, each unit's first seed's eval
+    ``wall_s``). The folder is deleted afterwards, also on SIGTERM or Ctrl-C; a process that
+    failed is named with its log's last line before (not a path to a deleted log)."""
+    import dataclasses
+    import shutil
+
+    tmp = projection_folder()
+    timed = [dataclasses.replace(u, root=tmp / f"unit{i}") for i, u in enumerate(units)]
+    previous = signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt))
+    try:
+        start = time.perf_counter()
+        with contextlib.redirect_stdout(sys.stderr):
+            if args.one_process:
+                status = run_one_process(timed, argparse.Namespace(**{**vars(args), "out": tmp}),
+                                         threads, extra)
+            else:
+                status = run_local(timed, args.workers, threads, [*extra, *backend_args(args)],
+                                   args.device) and 1
+        spent = time.perf_counter() - start
+        if status != 0:
+            for log in sorted(tmp.rglob("*.log")):
+                lines = [x for x in log.read_text(errors="replace").splitlines() if x.strip()]
+                print(f"projection: {log.stem}: {lines[-1] if lines else 'no output'}",
+                      file=sys.stderr)
+            raise SystemExit(f"projection: {what} failed (each process's last line above); "
+                             "nothing of it is kept")
+        walls = [[float(r["wall_s"]) for r in RunFolder(t.run_dir(t.seeds[0])).read_eval()]
+                 for t in timed]
+    except KeyboardInterrupt:
+        raise SystemExit(f"projection: interrupted; {what} deleted") from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        shutil.rmtree(tmp, ignore_errors=True)
+    return spent, walls
+
+
+def layout(unit: Unit) -> tuple:
+    """What makes two units' processes cost alike: the agents they stack (joints, seeds) and
+    their own arguments; not the region (goals cost alike to draw)."""
+    return unit.joints, len(unit.seeds), unit.train_args
+
+
+def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: int,
+                     extra: Sequence[str]) -> float:
+    """Print the projected wall time (s) of the real run of the unfinished units, and return
+    it: by default ("quick") by `EpisodeCosts`, timed on 2 episodes of one process per
+    distinct `layout` (with ``--one-process``, of the one process), run as the real command
+    would run them; with ``--project full``, then by training the first two test intervals of
+    every unit (`projected_seconds`), its cost by the quick model printed first."""
+    import dataclasses
 
     todo = [u for u in units if u.pending()]
     if not todo:
         print("projection: every unit has finished; nothing to run", file=sys.stderr)
         return 0.0
-    every = [eval_every(u, extra) for u in todo]
-    left = [u.episodes - u.episodes_done() // len(u.seeds) for u in todo]
-    tmp = Path(tempfile.mkdtemp(prefix="sweep-projection-"))
-    try:
-        timed = [dataclasses.replace(u, root=tmp / f"unit{i}", episodes=min(2 * e, u.episodes))
-                 for i, (u, e) in enumerate(zip(todo, every, strict=True))]
-        start = time.perf_counter()
-        with contextlib.redirect_stdout(sys.stderr):
-            status = execute(timed, argparse.Namespace(**{**vars(args), "out": tmp}), threads,
-                             extra)
-        spent = time.perf_counter() - start
-        if status != 0:
-            raise SystemExit(f"projection: the timed run failed; its logs were in {tmp}")
-        seconds, measured = [], []
-        for unit, t, e, n in zip(todo, timed, every, left, strict=True):
-            rows = [(int(r["episode"]), float(r["wall_s"]))
-                    for r in RunFolder(t.run_dir(t.seeds[0])).read_eval()]
-            measured.append(rows[-1][1])
-            seconds.append(rows[-1][1] if t.episodes < 2 * e else
-                           projected_seconds(rows[:2], e, n))
-            print(f"projection: {unit.name:<24} {n:>6} episodes left -> {seconds[-1]:10.0f} s "
-                  "of training", file=sys.stderr)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    configs = [unit_config(u, extra) for u in todo]
+    done = [u.episodes_done() // len(u.seeds) for u in todo]
+    keys = [("all",) if args.one_process else layout(u) for u in todo]
+    reps = list(dict.fromkeys(keys))
+    timed = [dataclasses.replace(u, episodes=2) for u in
+             (todo if args.one_process else [todo[keys.index(k)] for k in reps])]
+    spent, walls = timed_run(timed, args, threads, [*extra, *QUICK_ARGS],
+                             f"the timed run of {len(reps)} process layout(s)")
+    waves = 1 if args.one_process else -(-len(timed) // args.workers)
+    start = max(0.0, spent - (max(w[-1] for w in walls) if args.one_process else
+                              makespan([w[-1] for w in walls], args.workers))) / waves
+    costs = {k: EpisodeCosts.of_rows(w, start) for k, w in zip(reps, walls, strict=True)}
+    seconds = [costs[k].seconds(c, d) for k, c, d in zip(keys, configs, done, strict=True)]
+    for unit, n, sec in zip(todo, done, seconds, strict=True):
+        print(f"projection: {unit.name:<24} {unit.episodes - n:>6} episodes left -> "
+              f"{sec:10.0f} s of training", file=sys.stderr)
 
-    def together(times: Sequence[float]) -> float:
-        return max(times) if args.one_process else makespan(times, args.workers)
+    def together(times: Sequence[float], start: float) -> float:
+        if args.one_process:  # one stack: each episode steps every unit at once
+            return start + max(times)
+        return makespan([start + t for t in times], args.workers)
 
-    start_up = max(0.0, spent - together(measured))
-    total = together(seconds) + start_up
-    layout = "one process" if args.one_process else f"{args.workers} process(es) at a time"
+    total = together(seconds, start)
+    where = "one process" if args.one_process else f"{args.workers} process(es) at a time"
     print(f"projected wall time: {total:.0f} s ({total / 3600:.2f} h) for {len(todo)} "
-          f"unfinished unit(s), {layout}, --device {args.device}, with {start_up:.0f} s of "
-          f"process start-up; measured by training the first {2 * max(every)} episodes of "
-          f"each in {spent:.0f} s", flush=True)
+          f"unfinished unit(s) to {max(u.episodes for u in todo):,} episodes, {where}, "
+          f"--device {args.device}; model: per process {start:.0f} s of start-up + episodes x "
+          "(a rollout of its agents + its updates) + test episodes x a rollout (sessions "
+          "counted episode by episode), each term timed on 2 episodes of each of "
+          f"{len(reps)} process layout(s) in {spent:.0f} s", flush=True)
+    if args.project == "full":
+        first = [dataclasses.replace(c, episodes=min(2 * c.eval_every, c.episodes))
+                 for c in configs]
+        cost = together([costs[k].seconds(c) for k, c in zip(keys, first, strict=True)], start)
+        print(f"projection (full): training the first 2 test intervals of each of {len(todo)} "
+              f"unit(s) costs about {cost:.0f} s by the model above; starting (Ctrl-C stops "
+              "it and deletes what it trained)", file=sys.stderr, flush=True)
+        spent, rows = timed_run([dataclasses.replace(u, episodes=c.episodes)
+                                 for u, c in zip(todo, first, strict=True)], args, threads,
+                                extra, "the full projection's timed run")
+        timed_s = [w[-1] if c.episodes < 2 * c.eval_every else projected_seconds(
+            [(c.eval_every, w[0]), (2 * c.eval_every, w[1])], c.eval_every, u.episodes - d)
+            for u, c, w, d in zip(todo, first, rows, done, strict=True)]
+        start = max(0.0, spent - (max(w[-1] for w in rows) if args.one_process else
+                                  makespan([w[-1] for w in rows], args.workers)))
+        total = (max(timed_s) if args.one_process else makespan(timed_s, args.workers)) + start
+        print(f"projected wall time (full): {total:.0f} s ({total / 3600:.2f} h), with "
+              f"{start:.0f} s of process start-up; measured by training the first "
+              f"{2 * max(c.eval_every for c in configs)} episodes of each in {spent:.0f} s",
+              flush=True)
     if args.env_backend == "program":
         verdict = "fits" if total <= GPU_COMMAND_S else "does not fit"
         print(f"the training program: {verdict} one command of a GPU window ({GPU_COMMAND_S} "
@@ -894,7 +1016,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.dry_run:
         dry_run(units, args, threads, extra)
         return 0
-    return execute(units, args, threads, extra)
+    status = execute(units, args, threads, extra)
+    runs = [unit.run_dir(seed) for unit in units for seed in unit.seeds]
+    done = sum(unit.status(seed) == "done" for unit in units for seed in unit.seeds)
+    print(f"sweep: {done} of {len(runs)} runs finished in {args.out}"
+          + (f", {len(runs) - done} not (their logs: {args.out / 'logs'}; the same command "
+             "resumes)" if done < len(runs) else "")
+          + f"; look at them: python -m analysis.curves {args.out} --out "
+          f"{args.out / 'curves.png'} && python -m analysis.report {args.out}", file=sys.stderr)
+    return status
 
 
 if __name__ == "__main__":

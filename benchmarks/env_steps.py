@@ -253,7 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "(default: %(default)s)")
     parser.add_argument("--region", default=d.region,
                         help="goal region of UR5Reach-v0 (a name or region string)")
-    parser.add_argument("--n-joints", type=int, default=d.n_joints,
+    parser.add_argument("--joints", dest="n_joints", type=int, default=d.n_joints,
                         help="controlled joints of UR5Reach-v0 (2-6)")
     parser.add_argument("--control-mode", default=d.control_mode,
                         choices=("position", "velocity", "torque"),

@@ -727,7 +727,7 @@ def study_cases(fix: Path) -> list[Case]:
             ["--from-csv", str(fix / "bad.json"), "--out", "o"], "refusal", "bad.json"),
         cli("optimality --task garbage", "analysis.optimality", 4, ["--task", "garbage"],
             "usage", "garbage"),
-        cli("contact --n-joints 7", "analysis.contact", 7, ["--n-joints", "7"], "usage",
+        cli("contact --joints 7", "analysis.contact", 7, ["--joints", "7"], "usage",
             "7"),
         cli("contact --steps 0", "analysis.contact", 7, ["--steps", "0"], "usage", "--steps"),
         cli("contact --rounds 0", "analysis.contact", 7, ["--rounds", "0"], "usage",

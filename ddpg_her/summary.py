@@ -1,7 +1,9 @@
 """``python -m ddpg_her.summary RUN_DIR ...``: a Markdown table of the runs' test sessions.
 
-One column of successes per run, then each run's last session, its wall-clock time and the
-time projected for a longer run from its steady pace (the last half of its sessions).
+One column of successes per run (named by its folder; a folder of several seeds' run folders,
+as ``--seeds`` writes them, stands for each of them), then each run's last session, its
+wall-clock time and the time projected for a longer run from its steady pace (the last half of
+its sessions, at least the last interval).
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from ddpg_her.runfolder import RunFolder, RunFolderError
 
@@ -23,13 +26,16 @@ def summarize(run_dirs: Sequence[str], project_to: int) -> str:
         cannot be read; the message names the file.
     """
     runs = []
-    for d in run_dirs:
+    for d in [str(s.parent) for d in run_dirs for s in (
+            [Path(d) / "spec.json"] if (Path(d) / "spec.json").exists() or not Path(d).is_dir()
+            else sorted(Path(d).glob("*/spec.json")) or [Path(d) / "spec.json"])]:
         folder = RunFolder(d)
         spec = folder.read_spec()
         if "seed" not in spec:
             raise RunFolderError(f"{folder.spec_path} has no 'seed': not a ddpg_her run")
         runs.append((d, spec, folder.read_eval()))
-    lines = ["| episode | " + " | ".join(f"seed {spec['seed']}" for _, spec, _ in runs) + " |",
+    lines = ["| episode | " + " | ".join(f"{d} (seed {spec['seed']})" for d, spec, _ in runs)
+             + " |",
              "|---:|" + "---:|" * len(runs)]
     episodes = sorted({int(r["episode"]) for _, _, rows in runs for r in rows})
     for e in episodes:
@@ -46,10 +52,10 @@ def summarize(run_dirs: Sequence[str], project_to: int) -> str:
             lines.append(f"| {d} | - | - | - | - | - | - |")
             continue
         last = rows[-1]
-        half = rows[len(rows) // 2:]
-        first, end = half[0], half[-1]
-        span = int(end["episode"]) - int(first["episode"])
-        pace = (float(end["wall_s"]) - float(first["wall_s"])) / span if span else float("nan")
+        first = rows[min(len(rows) // 2, len(rows) - 2)] if len(rows) > 1 else \
+            {"episode": 0, "wall_s": 0.0}  # one session: its pace from the start
+        span = int(last["episode"]) - int(first["episode"])
+        pace = (float(last["wall_s"]) - float(first["wall_s"])) / span
         projected = float(last["wall_s"]) + pace * (project_to - int(last["episode"]))
         lines.append(f"| {d} | {last['episode']} | {last['successes']}/{last['tests']} | "
                      f"{float(last['mean_final_distance_m']):.3f} | {last['env_steps']} | "

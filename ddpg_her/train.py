@@ -497,6 +497,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(str(e))
     if req.note:
         print(req.note, file=sys.stderr)
+    from ddpg_her.runfolder import run_status
+
+    if args.resume and all(run_status(d, req.config.episodes) == "done" for d in req.run_dirs):
+        print(f"--resume: finished already ({req.config.episodes} episodes in "
+              f"{', '.join(map(str, req.run_dirs))}); nothing to train (a larger --episodes "
+              "extends it)", file=sys.stderr)
     env_kwargs, config, seeds, dirs = req.env_kwargs, req.config, list(req.seeds), \
         list(req.run_dirs)
     start_process(parser, args)

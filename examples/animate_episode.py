@@ -4,7 +4,7 @@ The arm is driven by a scripted reacher: analytic position IK (``ur5kin.ik_posit
 1-3 with the wrist at its start angles, taking the plane-clear solution nearest the current
 angles; with 2 joints, where IK does not apply, by random actions.
 
-    python examples/animate_episode.py --region farbox --n-joints 3 --out episode.gif
+    python examples/animate_episode.py --region farbox --joints 3 --out episode.gif
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--region", default="farbox",
                         help=f"goal region: {regions.spec_help()}")
-    parser.add_argument("--n-joints", type=int, default=3,
+    parser.add_argument("--joints", dest="n_joints", type=int, default=3,
                         help="controlled joints 2-6 (the others are held at the start angles)")
     parser.add_argument("--steps", type=int, default=100,
                         help="most control steps to record (each 0.02 s of simulated time)")

@@ -17,7 +17,7 @@ import pytest
 from cli_tools import run_module
 from scipy import stats
 
-from analysis import report, runs, sweep
+from analysis import curves, report, runs, sweep
 from analysis.paper import CLAIMS, PAPER_GRID
 
 TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--eval-every", "2", "--eval-episodes", "4",
@@ -332,9 +332,12 @@ def test_sweep_runs_skips_finished_and_resumes(tmp_path: Path) -> None:
         return ["analysis.sweep", "--setting", "box:2", "--seeds", "2", "--episodes",
                 str(episodes), "--out", str(tmp_path), "--workers", "1", "--", *TOY]
 
-    run_module(*args(4))
+    first = run_module(*args(4)).stderr.strip().splitlines()[-1]
     for seed in (0, 1):
         assert runs.read_run(tmp_path / "box-j2" / f"s{seed}").finished
+    assert first == f"sweep: 2 of 2 runs finished in {tmp_path}; look at them: python -m " \
+        f"analysis.curves {tmp_path} --out {tmp_path / 'curves.png'} && python -m " \
+        f"analysis.report {tmp_path}"  # the summary, and the commands to look
     log = (tmp_path / "logs" / "box-j2.log").read_text()
     again = run_module(*args(4)).stderr
     assert "1 of 1 settings already finished" in again
@@ -540,3 +543,68 @@ def test_readers_name_a_run_of_another_format_and_an_empty_eval_csv(tmp_path, ca
             err = capsys.readouterr().err
             assert code not in (0, None) and ("ddpg_her-run-2" in err or "is empty" in err), \
                 (folder, main, err)
+
+
+def test_runs_that_differ_beyond_their_seed_are_compared_not_pooled(tmp_path: Path, capsys
+                                                                     ) -> None:
+    """Issue 41/43: two user regions (a box and a mesh) are two groups compared by the rule;
+    runs of one setting that differ in their algorithm are refused unless pooled, and pooling
+    says what differs. The verdict and p-value are checked against scipy's Welch test and
+    the Student-t intervals computed here (the reference)."""
+    box, mesh = [[10, 60, 90, 95, 96, 97, 98, 99], [20, 70, 92, 94, 95, 95, 96, 97],
+                 [15, 65, 88, 93, 97, 96, 95, 98]], [[5, 10, 20, 25, 30, 30, 31, 32],
+                                                     [3, 12, 18, 22, 28, 29, 33, 30],
+                                                     [4, 9, 15, 26, 27, 31, 30, 29]]
+    for seed, s in enumerate(box):
+        _fake_run(tmp_path / "mine" / f"s{seed}", "box:0.3,0.7,-0.2,0.2,0,0.5", 3, seed, s)
+    for seed, s in enumerate(mesh):
+        _fake_run(tmp_path / "theirs" / f"s{seed}", "mesh:shelf.stl", 3, seed, s)
+    out = tmp_path / "cmp.md"
+    assert report.main(["--groups", f"box={tmp_path / 'mine'}", f"mesh={tmp_path / 'theirs'}",
+                        "--out", str(out)]) == 0
+    text = out.read_text()
+    level = [np.mean(x[-5:]) for x in box], [np.mean(x[-5:]) for x in mesh]
+    p = stats.ttest_ind(*level, equal_var=False).pvalue
+    assert f"| {report.p_text(p)} |" in text
+    (m_a, lo_a, hi_a), (m_b, lo_b, hi_b) = (runs.mean_ci(np.array(v), 0.65, runs.PERCENT)
+                                            for v in level)
+    assert lo_a > hi_b  # the reference: the intervals are apart, box above
+    assert f"| box {m_a:.1f} [{lo_a:.1f}, {hi_a:.1f}] | mesh {m_b:.1f} [{lo_b:.1f}, " \
+           f"{hi_b:.1f}] | holds |" in text
+    assert str(tmp_path / "mine" / "s0") in text  # every row names its runs
+    # one setting, two algorithms: refused, then compared by algorithm, then pooled with a note
+    for seed, s in enumerate(box):
+        _fake_run(tmp_path / "algos" / "td3" / f"s{seed}", "farbox", 3, seed, s,
+                  agent={"algo": "td3"})
+        _fake_run(tmp_path / "algos" / "ddpg" / f"s{seed}", "farbox", 3, seed, mesh[seed],
+                  agent={"algo": "ddpg"})
+    capsys.readouterr()
+    for module in (report, curves):
+        with pytest.raises(SystemExit) if module is report else contextlib.nullcontext():
+            module.main([str(tmp_path / "algos"), "--out", str(tmp_path / "x.png")])
+    err = capsys.readouterr().err
+    assert "not pooled: farbox 3: agent.algo (\"ddpg\" / \"td3\")" in err
+    with open(tmp_path / "x.csv") as f:  # curves drew them apart, each labelled
+        labels = {r["group"] for r in csv.DictReader(f)}
+    assert labels == {'farbox 3 (agent.algo="ddpg")', 'farbox 3 (agent.algo="td3")'}
+    assert report.main([str(tmp_path / "algos"), "--group-by", "algorithm"]) == 0
+    assert "| algorithm td3 | farbox 3 | 3 | 96.1 [95.5, 96.6] |" in capsys.readouterr().out
+    assert report.main([str(tmp_path / "algos"), "--pool"]) == 0
+    assert "note: farbox 3: pools 6 runs that differ in agent.algo" in capsys.readouterr().err
+
+
+def test_summary_names_runs_by_folder_and_projects_a_short_multi_seed_run(tmp_path: Path
+                                                                          ) -> None:
+    """Issue 43: two runs of seed 0 were both "seed 0", and a run of two sessions projected
+    nan. Its wall clock here is i - 1 s at session i (episode 100 i): 1 s per 100 episodes,
+    so 20,000 episodes take 1 + 198 s, 0.055 h."""
+    from ddpg_her.summary import summarize
+
+    for name in ("a", "b"):
+        for seed in (0, 1):
+            _fake_run(tmp_path / name / f"s{seed}", "farbox", 3, seed, [3, 40])
+    table = summarize([str(tmp_path / "a"), str(tmp_path / "b" / "s0")], 20_000)
+    assert f"| {tmp_path / 'a' / 's0'} (seed 0) | {tmp_path / 'a' / 's1'} (seed 1) | " \
+           f"{tmp_path / 'b' / 's0'} (seed 0) |" in table
+    rows = [line for line in table.splitlines() if line.startswith(f"| {tmp_path}")]
+    assert len(rows) == 3 and all(line.endswith("| 0.1 |") for line in rows), rows

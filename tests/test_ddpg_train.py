@@ -339,6 +339,11 @@ def test_cli_tiny_run_and_its_errors(tmp_path):
     for seed in (0, 1):
         assert len(RunFolder(tmp_path / "runs" / f"s{seed}").read_eval()) == 2
     assert "seed 1:" in out.stdout
+    again = cli(*tiny, "--seeds", "0", "1", "--out", str(tmp_path / "runs"), "--resume")
+    assert again.returncode == 0 and "--resume: finished already (2 episodes" in again.stderr
+    assert "finished already" not in cli(*tiny, "--seeds", "0", "1", "--episodes", "3",
+                                         "--eval-every", "1", "--out", str(tmp_path / "runs"),
+                                         "--resume").stderr
 
     def fails(*args, message):
         out = cli(*args)

@@ -18,7 +18,7 @@ def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 def test_bench_help_explains_every_flag():
     out = run("-m", "benchmarks.env_steps", "--help")
     assert out.returncode == 0, out.stderr
-    for flag in ("--steps", "--rounds", "--num-envs", "--region", "--n-joints",
+    for flag in ("--steps", "--rounds", "--num-envs", "--region", "--joints",
                  "--control-mode", "--peer", "--seed", "--json", "--reference", "--sync",
                  "--threads", "--batched"):
         assert flag in out.stdout
@@ -41,7 +41,7 @@ def test_animation_example_writes_a_gif(tmp_path):
     script = str(ROOT / "examples" / "animate_episode.py")
     assert run(script, "--help").returncode == 0
     target = tmp_path / "episode.gif"
-    out = run(script, "--region", "zheight", "--n-joints", "3", "--steps", "3", "--out",
+    out = run(script, "--region", "zheight", "--joints", "3", "--steps", "3", "--out",
               str(target))
     assert out.returncode == 0, out.stderr
     assert target.stat().st_size > 1000
@@ -51,7 +51,7 @@ def test_animation_example_writes_a_gif(tmp_path):
 def test_contact_study_runs_and_prints_json():
     out = run("-m", "analysis.contact", "--help")
     assert out.returncode == 0, out.stderr
-    for flag in ("--region", "--n-joints", "--goals", "--steps", "--rounds", "--friction",
+    for flag in ("--region", "--joints", "--goals", "--steps", "--rounds", "--friction",
                  "--seed", "--json"):
         assert flag in out.stdout
     out = run("-m", "analysis.contact", "--goals", "8", "--steps", "30", "--rounds", "1",

@@ -42,9 +42,11 @@ def test_a_tiny_run_writes_the_eval_csv_every_analysis_reads(tmp_path: Path, alg
     params = tmp_path / "h.json"
     params.write_text(json.dumps(tiny))
     out = tmp_path / algo
-    run_module("analysis.sb3", "--algo", algo, "--env-id", "toy_goal_env:ToyReach-v0",
-               "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every", "3",
-               "--eval-episodes", "4", "--hyperparams", str(params), "--out", str(out))
+    first = run_module("analysis.sb3", "--algo", algo, "--env-id", "toy_goal_env:ToyReach-v0",
+                       "--region", "box", "--joints", "2", "--episodes", "6", "--eval-every",
+                       "3", "--eval-episodes", "4", "--hyperparams", str(params), "--out",
+                       str(out))
+    assert "episode 3/6: " in first.stderr and "episode 6/6: " in first.stderr  # progress
     run = read_run(out)
     assert list(run.episode) == [3, 6] and list(run.tests) == [4, 4]
     assert run.setting == ("box", 2) and run.spec["agent"]["algo"] == f"sb3-{algo}"
@@ -241,3 +243,34 @@ def test_a_bad_hyperparameter_file_ends_the_command_in_one_line_before_any_folde
     last = proc.stderr.strip().splitlines()[-1]
     assert "gamma" in last and '"high"' in last and str(params) in last
     assert not out.exists()
+
+
+def test_the_sb3_example_trains_on_the_env_as_given(tmp_path: Path):
+    """examples/sb3_her.py, as the README gives it, on a tiny budget: SB3 + HER on UR5Reach-v0
+    with the dense reward (HER relabels through copy_info_dict); it trains and tests."""
+    import subprocess
+    import sys
+
+    from cli_tools import ROOT, child_env
+
+    out = subprocess.run([sys.executable, str(ROOT / "examples" / "sb3_her.py"), "--timesteps",
+                          "200", "--test-episodes", "1"], capture_output=True, text=True,
+                         env=child_env(), timeout=1200, check=False, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith("of 1 test goals reached after 200 steps"), out.stdout
+
+
+def test_sb3_her_without_the_infos_stops_on_the_dense_reward_saying_why():
+    """What the README says SB3 needs: without copy_info_dict, HER's relabelled rewards lack
+    the action of eq. 2's penalty, and the env's compute_reward stops it naming the fix."""
+    import gymnasium
+    from stable_baselines3 import DDPG, HerReplayBuffer
+
+    import envs  # noqa: F401
+
+    env = gymnasium.make("UR5Reach-v0", region="farbox", n_joints=3, max_episode_steps=20)
+    model = DDPG("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+                 learning_starts=40, batch_size=16, seed=0, device="cpu",
+                 policy_kwargs={"net_arch": [16, 16]})
+    with pytest.raises(ValueError, match="copy_info_dict=True"):
+        model.learn(total_timesteps=80)

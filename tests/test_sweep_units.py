@@ -111,6 +111,48 @@ TINY = ["--", "--eval-every", "2", "--eval-episodes", "2", "--warmup-episodes", 
         "--hidden-sizes", "8", "8", "--updates-per-episode", "2", "--batch-size", "16"]
 
 
+def test_the_quick_model_is_exact_for_a_trainer_whose_clock_is_linear():
+    """A process whose clock is r per rollout (an episode of its agents, training or test) and
+    u per update: the two rows of the quick projection's timed process give back r and u, and
+    the model then gives the trainer's wall time at any budget and start, exactly (the same
+    reference clock as the test above, written out episode by episode)."""
+    r, u, start = 0.8, 0.01, 5.0
+
+    def wall(episodes, warmup, every, tests, updates, done=0):
+        return sum(r + (updates * u if e >= warmup else 0.0) + (tests * r if (e + 1) % every == 0
+                   else 0.0) for e in range(done, episodes))
+
+    rows = [wall(1, 1, 1, 1, sweep.QUICK_UPDATES), wall(2, 1, 1, 1, sweep.QUICK_UPDATES)]
+    costs = sweep.EpisodeCosts.of_rows(rows, start)
+    assert (costs.rollout, costs.update) == (pytest.approx(r), pytest.approx(u))
+    from ddpg_her import AgentConfig
+
+    for episodes, warmup, every, tests, updates, done in [(20_000, 100, 100, 100, 100, 0),
+                                                          (3_000, 0, 50, 10, 40, 0),
+                                                          (1_000, 100, 100, 100, 100, 400),
+                                                          (1_000, 100, 100, 100, 100, 50)]:
+        config = AgentConfig(episodes=episodes, warmup_episodes=warmup, eval_every=every,
+                             eval_episodes=tests, updates_per_episode=updates)
+        assert costs.seconds(config, done) == pytest.approx(
+            wall(episodes, warmup, every, tests, updates, done))
+
+
+def test_a_killed_projections_folder_is_deleted_by_the_next(tmp_path, monkeypatch):
+    import subprocess
+    import sys
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    ended = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                           capture_output=True, text=True, check=True).stdout.strip()
+    dead = tmp_path / f"{sweep.PROJECTION_PREFIX}{ended}-abc"
+    live = tmp_path / f"{sweep.PROJECTION_PREFIX}1-abc"  # init's: alive
+    for folder in (dead, live):
+        (folder / "unit0").mkdir(parents=True)
+    mine = sweep.projection_folder()
+    assert not dead.exists() and live.exists() and mine.exists()
+
+
 def test_a_projection_times_the_real_command_and_leaves_nothing_behind(tmp_path, capsys,
                                                                         monkeypatch):
     import tempfile
@@ -121,17 +163,41 @@ def test_a_projection_times_the_real_command_and_leaves_nothing_behind(tmp_path,
     out = tmp_path / "runs"
     args = ["--setting", "farbox:3", "--episodes", "20", "--seeds", "1", "--out", str(out),
             "--threads", "1"]
-    assert sweep.main([*args, "--dry-run", "--project", *TINY]) == 0
+    assert sweep.main([*args, "--dry-run", "--project", *TINY]) == 0  # quick
     printed = capsys.readouterr()
     line = next(s for s in printed.out.splitlines() if s.startswith("projected wall time:"))
-    assert float(line.split()[3]) > 0
-    assert "first 4 episodes of each" in line
+    assert float(line.split()[3]) > 0 and "to 20 episodes" in line
+    assert "timed on 2 episodes of each of 1 process layout(s)" in line
     assert "farbox-j3" in printed.err and "20 episodes left" in printed.err
+    assert "(full)" not in printed.out
+    assert not out.exists() and list(scratch.iterdir()) == []
+    assert sweep.main([*args, "--dry-run", "--project", "full", *TINY]) == 0
+    printed = capsys.readouterr()
+    line = next(s for s in printed.out.splitlines() if s.startswith("projected wall time (f"))
+    assert float(line.split()[4]) > 0 and "first 4 episodes of each" in line
+    assert "training the first 2 test intervals of each of 1 unit(s) costs about" in printed.err
     assert not out.exists() and list(scratch.iterdir()) == []
     assert sweep.main([*args, *TINY]) == 0  # the real run, then nothing is left to project
     capsys.readouterr()
     assert sweep.main([*args, "--dry-run", "--project", *TINY]) == 0
     assert "every unit has finished" in capsys.readouterr().err
+
+
+def test_a_projection_that_cannot_start_says_why(tmp_path, capsys, monkeypatch):
+    """Without a GPU, --device cuda: the process's own refusal, not a path to a deleted log."""
+    import tempfile
+
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is here: the projection would run")
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with pytest.raises(SystemExit, match="failed .each process's last line above"):
+        sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
+                    str(tmp_path / "runs"), "--device", "cuda", "--dry-run", "--project"])
+    err = capsys.readouterr().err
+    assert "projection: farbox-j3: " in err and "no CUDA device" in err, err
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("flags, message", [
