@@ -75,20 +75,29 @@ def counter_uniform(keys: torch.Tensor, counter: torch.Tensor | int, slots: torc
 
 class CounterDraws:
     """`ddpg_her.exploration.Explorer`'s draws from counter-based streams: agent k's numbers
-    at step ``counter`` (a device tensor the program sets before each call) are a function of
-    its key and the counter alone. keys : (K,) 32-bit ints; device."""
+    at step ``counter`` are a function of its key and the counter alone. The program draws a
+    whole episode's numbers at once (`episode`, one batched call) and sets ``step`` before each
+    call; each step reads its row. keys : (K,) 32-bit ints; device."""
 
-    def __init__(self, keys: Sequence[int], device: torch.device):
+    SLOTS = 2 * NJ
+    """Numbers per agent and step: the most any draw takes (`normal`'s two per joint)."""
+
+    def __init__(self, keys: Sequence[int], device: torch.device, steps: int = 1):
         self.device = device
-        self.keys = torch.tensor(list(keys), dtype=torch.int64, device=device)[:, None]
-        self.counter = torch.zeros((), dtype=torch.int64, device=device)
-        self._slots: dict[int, torch.Tensor] = {}
+        self.keys = torch.tensor(list(keys), dtype=torch.int64, device=device)[:, None, None]
+        self._slots = torch.arange(self.SLOTS, dtype=torch.int64, device=device)
+        self.table = torch.zeros(len(self.keys), steps, self.SLOTS, dtype=torch.float64,
+                                 device=device)
+        """(K, steps, SLOTS) float64: the numbers of the episode's steps."""
+        self.step = 0
+
+    def episode(self, counters: torch.Tensor) -> None:
+        """Draw the numbers of the steps whose counters are ``counters (steps,)`` int64 on
+        the device (step t: slots 0 .. `SLOTS` - 1 of counter ``counters[t]``), in place."""
+        self.table.copy_(counter_uniform(self.keys, counters[:, None], self._slots))
 
     def _uniform(self, n: int) -> torch.Tensor:
-        slots = self._slots.get(n)
-        if slots is None:
-            slots = self._slots[n] = torch.arange(n, dtype=torch.int64, device=self.device)
-        return counter_uniform(self.keys, self.counter, slots)
+        return self.table[:, self.step, :n]
 
     def drawing(self, active: torch.Tensor) -> torch.Tensor:
         return torch.ones_like(active)
@@ -385,7 +394,8 @@ class Program:
         key = lambda stream: torch.tensor(  # noqa: E731
             [stream_seed(s, stream) for s in seeds], dtype=torch.int64, device=self.device)
         self.train_keys, self.eval_keys = key(TRAIN_ENV_STREAM), key(EVAL_ENV_STREAM)[:, None]
-        self.draws = CounterDraws([stream_seed(s, EXPLORE_STREAM) for s in seeds], self.device)
+        self.draws = CounterDraws([stream_seed(s, EXPLORE_STREAM) for s in seeds], self.device,
+                                  env.task.max_episode_steps)
         self.explorer = Explorer(config, self.draws, k, NJ)
         self._allocate()
 
@@ -466,14 +476,10 @@ class Program:
                        ) -> Callable[[int, int], torch.Tensor]:
         """The goal draws' numbers: proposals ``first .. first + count - 1`` of copy b,
         ``(B, count, 6)``, from the stream (keys[b], counter[b]) (slot 6 p + j: joint j of
-        proposal p)."""
+        proposal p), every proposal's drawn at once."""
         keys, counter = keys[:, None], counter[:, None] if counter.ndim else counter
-
-        def uniforms(first: int, count: int) -> torch.Tensor:
-            slots = self._slots[first * NJ:(first + count) * NJ]
-            return counter_uniform(keys, counter, slots).reshape(len(keys), count, NJ)
-
-        return uniforms
+        u = counter_uniform(keys, counter, self._slots).reshape(len(keys), -1, NJ)
+        return lambda first, count: u[:, first:first + count]
 
     def _rollout(self, env: Any, scale: StackScale, keys: torch.Tensor, counter: torch.Tensor,
                  policy: Callable[[torch.Tensor, torch.Tensor, int], torch.Tensor],
@@ -515,11 +521,12 @@ class Program:
         """The training episode of every agent (uniform actions while ``warm``), stored."""
         agent, explorer, draws = self.agent, self.explorer, self.draws
         explorer.reset()
+        draws.episode(self.episode_t * self.T + self._t)
 
         def policy(x: torch.Tensor, active: torch.Tensor, t: int) -> torch.Tensor:
             mu = torch.zeros(self.k, NJ, dtype=torch.float64, device=self.device) if warm \
                 else agent.act(x[:, None].to(self.dtype))[:, 0].double()
-            draws.counter = self.episode_t * self.T + t
+            draws.step = t
             return explorer(mu, active, uniform=warm) * self.act_mask
 
         length, success, goal, _, _ = self._rollout(
@@ -569,8 +576,8 @@ class Program:
     def _learn(self) -> None:
         """``updates_per_episode`` updates of every agent on minibatches of its own stream."""
         self.loss_sum.zero_()
-        for _ in range(self.config.updates_per_episode):
-            batch = self.sampler.sample(self.buffer, self.config.batch_size)
+        for batch in self.sampler.samples(self.buffer, self.config.batch_size,
+                                          self.config.updates_per_episode):
             critic_loss, actor_loss = self.agent.update(*batch)
             self.loss_sum[0] += critic_loss
             self.loss_sum[1] += actor_loss
