@@ -333,13 +333,17 @@ class Program:
         Let CUDA's matrix products round their operands to TF32 (process-wide; recorded).
     dynamics : callable, optional
         The arm of the stack twin (its ``dynamics``; the tests give stand-ins).
+    fused : bool, optional
+        Step the rollouts through `ddpg_her.program_kernels` (Triton; default: on CUDA; on
+        the CPU it needs ``TRITON_INTERPRET=1``) instead of the eager ops that define them.
     """
 
     def __init__(self, env_id: str, env_kwargs: Sequence[dict[str, Any]], config: AgentConfig,
                  seeds: Sequence[int], run_dirs: Sequence[str | Path], *, resume: bool = False,
                  device: str = "cpu", dtype: torch.dtype = torch.float32, progress: bool = True,
                  command: Sequence[str] | None = None, capture: bool | None = None,
-                 tf32: bool = False, dynamics: Callable[..., Any] | None = None):
+                 tf32: bool = False, dynamics: Callable[..., Any] | None = None,
+                 fused: bool | None = None):
         why = unsupported(config)
         if why:
             raise ValueError(f"the training program trains DDPG + HER only: not with {why}")
@@ -351,6 +355,7 @@ class Program:
                              f"{len(run_dirs)} folders")
         self.device = torch.device(device)
         self.capture = self.device.type == "cuda" if capture is None else bool(capture)
+        self.fused = self.device.type == "cuda" if fused is None else bool(fused)
         if self.capture and self.device.type != "cuda":
             raise ValueError(f"capture needs a CUDA device; got {self.device}")
         if self.device.type == "cuda":
@@ -397,6 +402,12 @@ class Program:
         self.draws = CounterDraws([stream_seed(s, EXPLORE_STREAM) for s in seeds], self.device,
                                   env.task.max_episode_steps)
         self.explorer = Explorer(config, self.draws, k, NJ)
+        d, task = env.dynamics, env.task
+        self._params = [torch.tensor(v, dtype=torch.float64, device=self.device) for v in (
+            [config.exploration_rate, config.ou_theta, 2.0 * math.pi],
+            [getattr(d, "_w_to_v", 0.0), getattr(d, "_w_to_accel", 0.0), task.success_radius,
+             task.success_reward, task.distance_weight, task.action_weight,
+             float(task.terminate_on_success), config.obs_clip])]
         self._allocate()
 
         self.episode, self.wall_s = 0, 0.0
@@ -500,6 +511,9 @@ class Program:
             self.obs[:, 0], self.achieved[:, 0] = obs, ag
         stop = env.task.terminate_on_success
         final = ag
+        if self.fused:
+            return self._fused_steps(env, scale, policy, goal, obs, ag, active, length,
+                                     success, ret, final.clone(), store)
         for t in range(self.T):
             u = policy(goal_input(obs, ag, goal), active, t)
             action = scale.to_env(u)
@@ -517,6 +531,31 @@ class Program:
             active = active & ~(term | (env.elapsed >= self.T))
         return length, success, goal, ret, final
 
+    def _fused_steps(self, env: Any, scale: StackScale, policy: Any, goal: torch.Tensor,
+                     obs: torch.Tensor, ag: torch.Tensor, *state: Any) -> tuple[torch.Tensor, ...]:
+        """`_rollout`'s steps through `ddpg_her.program_kernels`: per step the actor (none in
+        warm-up), `explore`, the arm kernel, `settle`. ``policy`` here is (noise kind, the
+        actor of the normalised inputs (K, M, 24) or None, the joint mask (B, 6) float64);
+        ``state``: active, length, success, ret, final, store."""
+        from ddpg_her import program_kernels as fused
+
+        (kind, actor, mask), (active, length, success, ret, final, store) = policy, state
+        k, m, normalizer = self.k, env.num_envs // self.k, self.agent.normalizer
+        x = normalizer(goal_input(obs, ag, goal).to(self.dtype).view(k, m, -1))
+        x = x.reshape(env.num_envs, -1).contiguous()
+        mu = torch.zeros(k, m, NJ, dtype=self.dtype, device=self.device)
+        for t in range(self.T):
+            if actor is not None:
+                mu = actor(x.view(k, m, -1))
+            fused.explore(kind, mu, self.draws.table[:, t], self.explorer.ou, self._params[0],
+                          mask, scale, env, active, self.action[:, t] if store else None)
+            env.dynamics.kernel_step()
+            rows = (self.obs[:, t + 1], self.achieved[:, t + 1], self.reward[:, t],
+                    self.terminated[:, t]) if store else None
+            fused.settle(env, mask, active, ret, final, length, success, rows, x, normalizer,
+                         m, self._params[1], self.T)
+        return length, success, goal, ret, final
+
     def _train_episode(self, warm: bool) -> None:
         """The training episode of every agent (uniform actions while ``warm``), stored."""
         agent, explorer, draws = self.agent, self.explorer, self.draws
@@ -529,6 +568,9 @@ class Program:
             draws.step = t
             return explorer(mu, active, uniform=warm) * self.act_mask
 
+        if self.fused:
+            policy = ("uniform" if warm else self.config.exploration.value,
+                      None if warm else agent.actor, self.act_mask)
         length, success, goal, _, _ = self._rollout(
             self.env, self.scale, self.train_keys, self.episode_t, policy, store=True)
         self.length.copy_(length)
@@ -594,6 +636,8 @@ class Program:
             return self.agent.act(x.reshape(self.k, m, -1).to(self.dtype)).reshape(
                 self.k * m, NJ).double() * self.act_mask.repeat_interleave(m, 0)
 
+        if self.fused:
+            policy = ("none", self.agent.actor, self.act_mask.repeat_interleave(m, 0))
         _, success, goal, ret, final = self._rollout(self.eval_env, self.eval_scale, keys,
                                                      counter, policy, store=False)
         self.logged[0] = success.double()
