@@ -157,10 +157,10 @@ def explore(kind: str, mu: torch.Tensor, table: torch.Tensor, ou: torch.Tensor,
     """`ddpg_her.program`'s policy and ``env.step``'s first half in one launch: the actor's
     ``mu (K, M, 6)`` float32 (copy b of the B = K M: agent b // M), perturbed by ``kind``
     (`KINDS`) from ``table (K, 12)`` (a row of `CounterDraws.table`) and the OU state ``ou
-    (K, 6)`` float64 (written), masked (``mask (B, 6)`` float64), mapped to the box ``scale`` (`StackScale`), stored
-    where ``active (B,)`` into ``stored (B, 6)`` (a strided row view; None: not stored),
-    clipped into ``env.action`` and multiplied by the arm's gain into its bias. params : (3,)
-    float64 [nu, theta, 2 pi]."""
+    (K, 6)`` float64 (written), masked (``mask (B, 6)`` float64), mapped to the box
+    ``scale`` (`StackScale`), stored where ``active (B,)`` into ``stored (B, 6)`` (a strided
+    row view; None: not stored), clipped into ``env.action`` and multiplied by the arm's gain
+    into its bias. params : (3,) float64 [nu, theta, 2 pi]."""
     d, B = env.dynamics, env.num_envs
     row = stored if stored is not None else env.action
     _explore[_grid(B)](mu, mu.shape[1], table, table.stride(0), ou, mask,
@@ -169,12 +169,14 @@ def explore(kind: str, mu: torch.Tensor, table: torch.Tensor, ou: torch.Tensor,
                        KIND=KINDS[kind], STORE=stored is not None, BLOCK=BLOCK)
 
 
-def settle(env: Any, mask: torch.Tensor, active: torch.Tensor, ret: torch.Tensor, final: torch.Tensor,
-           length: torch.Tensor, success: torch.Tensor, rows: tuple[torch.Tensor, ...] | None,
-           x: torch.Tensor, normalizer: Any, norm_m: int, params: torch.Tensor, T: int) -> None:
+def settle(env: Any, mask: torch.Tensor, active: torch.Tensor, ret: torch.Tensor,
+           final: torch.Tensor, length: torch.Tensor, success: torch.Tensor,
+           rows: tuple[torch.Tensor, ...] | None, x: torch.Tensor, normalizer: Any, norm_m: int,
+           params: torch.Tensor, T: int) -> None:
     """After the arm kernel, one launch: its rates, the step's observation, reward and
-    success (``mask (B, 6)`` float64: the env's joints); ``ret``, ``final``, ``length``, ``success``, ``active`` (B,) updated as the eager
-    rollout does; ``rows`` (obs (B, 18), achieved (B, 3), reward (B,), terminated (B,):
+    success (``mask (B, 6)`` float64: the env's joints); ``ret``, ``final``, ``length``,
+    ``success``, ``active`` (B,) updated as the eager rollout does; ``rows`` (obs (B, 18),
+    achieved (B, 3), reward (B,), terminated (B,):
     strided views of step t + 1's and t's rows; None: not stored); and ``x (B, 24)`` float32
     the next normalised input (agent b // ``norm_m``'s normaliser). params : (8,) float64
     [w_to_v, w_to_accel, success radius, success reward, distance weight, action weight,

@@ -249,11 +249,11 @@ class StackReach:
     def draw_goals(self, uniforms: Callable[[int, int], torch.Tensor]) -> torch.Tensor:
         """Goals ``(B, 3)`` m, world frame, by rejection: ``uniforms(first, count)`` gives the
         numbers ``(B, count, 6)`` in [0, 1) of proposals ``first .. first + count - 1`` of
-        each copy (`proposals` in all, ``max(PROPOSAL_CHUNK, PROPOSAL_BUDGET // B)`` at a time). Proposal p of copy
-        b sets its controlled joints to ``(2 u - 1) pi`` (the others at the start pose), as
-        `regions.JointSpaceSampler`; the first proposal whose tool0 lies in the region with
-        every moving link clear of the plane is the goal. A copy with none keeps its current
-        goal and adds one to `goal_misses`."""
+        each copy (`proposals` in all, ``max(PROPOSAL_CHUNK, PROPOSAL_BUDGET // B)`` at a
+        time). Proposal p of copy b sets its controlled joints to ``(2 u - 1) pi`` (the
+        others at the start pose), as `regions.JointSpaceSampler`; the first proposal whose
+        tool0 lies in the region with every moving link clear of the plane is the goal. A copy
+        with none keeps its current goal and adds one to `goal_misses`."""
         b = self.num_envs
         found = torch.zeros(b, dtype=torch.bool, device=self.device)
         goal = self.goal.clone()

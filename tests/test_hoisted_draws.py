@@ -30,7 +30,8 @@ def test_an_episodes_exploration_table_holds_each_steps_numbers():
             for k in KEYS]
     assert torch.equal(draws.table, torch.tensor(want, dtype=torch.float64))
     draws.step = 3
-    assert torch.equal(draws.uniform(None, 6), 2.0 * torch.tensor(want, dtype=torch.float64)[:, 3, :6] - 1.0)
+    want = torch.tensor(want, dtype=torch.float64)
+    assert torch.equal(draws.uniform(None, 6), 2.0 * want[:, 3, :6] - 1.0)
 
 
 def test_the_episodes_minibatches_are_the_updates_one_by_one():
