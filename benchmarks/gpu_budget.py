@@ -30,10 +30,10 @@ The projection (``--node-us`` and the others: every parameter a flag) is
 
 with the update's body taken from its measurement instead: ``--update-ms`` measured with
 ``--update-launches`` launches, less ``node_us`` for each launch removed since, never below
-its bytes / bandwidth. ``arm_us_per_step`` is ``--arm-us-per-step``, or from the compiled arm:
-the larger of one lane's latency (every SASS instruction once per substep, at
-``--cycles-per-instruction`` and ``--clock-ghz``: an upper count, the exact-height pass taken in
-every substep) and the FP64 instructions of all copies at ``--fp64-tflops``. One JSON object
+its bytes / bandwidth. ``arm_us_per_step`` is ``--arm-us-per-step`` (one lane's latency), or
+the FP64 instructions of all copies at ``--fp64-tflops`` if more; the static SASS count at
+``--cycles-per-instruction`` and ``--clock-ghz`` is reported beside it (a lower bound: loops
+inside a substep, such as the exact-height pass, run more than once). One JSON object
 on stdout (``--out`` writes it too, the counts first).
 
     python -m benchmarks.gpu_budget --out results/grid_program/gpu_budget.json
@@ -335,15 +335,12 @@ def project(counts: dict[str, Any], arm: dict[str, Any] | None, p: argparse.Name
     figures and the parameters ``p`` (the module's docstring gives the formula)."""
     bodies, every, updates = counts["bodies"], counts["eval_every"], counts["updates_per_episode"]
     copies, eval_copies = counts["train_copies"], counts["eval_copies"]
-    if arm is not None and p.arm_us_per_step is None:
-        lane = arm["sass_instructions"] * arm["substeps"]     # per step, every substep
-        latency = lane * p.cycles_per_instruction / (p.clock_ghz * 1e3)
-        fp64 = arm["sass_fp64_instructions"] * arm["substeps"]
-        arm_us = {"train": max(latency, fp64 * copies / (p.fp64_tflops * 1e6)),
-                  "test": max(latency, fp64 * eval_copies / (p.fp64_tflops * 1e6))}
-    else:
-        given = p.arm_us_per_step if p.arm_us_per_step is not None else 0.0
-        arm_us = {"train": given, "test": given}
+    fp64 = 0 if arm is None else arm["sass_fp64_instructions"] * arm["substeps"]
+    throughput = {"train": fp64 * copies / (p.fp64_tflops * 1e6),
+                  "test": fp64 * eval_copies / (p.fp64_tflops * 1e6)}
+    arm_us = {k: max(p.arm_us_per_step, v) for k, v in throughput.items()}
+    static = None if arm is None else (arm["sass_instructions"] * arm["substeps"]
+                                       * p.cycles_per_instruction / (p.clock_ghz * 1e3))
 
     def body_ms(b: dict[str, Any], arm_step_us: float) -> float:
         return (b["launches"] * p.node_us * 1e-3 + b["bytes"] / (p.bandwidth_gbs * 1e6)
@@ -360,6 +357,7 @@ def project(counts: dict[str, Any], arm: dict[str, Any] | None, p: argparse.Name
             "ms_by_part": {k: round(v, 2) for k, v in ms.items()},
             "update_ms": round(update_ms, 4), "update_traffic_floor_ms": round(floor, 4),
             "arm_us_per_step": {k: round(v, 1) for k, v in arm_us.items()},
+            "arm_static_sass_us_per_step": None if static is None else round(static, 1),
             "parameters": {k: getattr(p, k) for k in PROJECTION_FLAGS}}
 
 
@@ -443,12 +441,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--clock-ghz", type=float, default=1.98,
                         help="SM clock, GHz (H200 boost 1.98)")
     parser.add_argument("--cycles-per-instruction", type=float, default=1.0,
-                        help="the arm's SASS issue interval of one lane, cycles (latency-bound "
-                        "with two warps: about 1-2.5)")
-    parser.add_argument("--arm-us-per-step", type=float, default=None,
-                        help="the arm kernel's microseconds per control step, taken as given "
-                        "(default: from its SASS: instructions x substeps x cycles per "
-                        "instruction / clock, or FP64 work / --fp64-tflops if more)")
+                        help="one lane's SASS issue interval, cycles, for the static count's "
+                        "figure (arm_static_sass_us_per_step: every instruction once per "
+                        "substep; a lower bound, loops inside a substep run more)")
+    parser.add_argument("--arm-us-per-step", type=float, default=300.0,
+                        help="the arm kernel's microseconds per control step at a few copies "
+                        "(latency-bound; issue 42 projected 150-450 from its SASS), or the "
+                        "FP64 work of all copies at --fp64-tflops if more")
     parser.add_argument("--update-ms", type=float, default=0.87,
                         help="one update of the 55 agents, ms, measured on an H200 "
                         "(the calibration)")
