@@ -334,8 +334,9 @@ class Program:
     dynamics : callable, optional
         The arm of the stack twin (its ``dynamics``; the tests give stand-ins).
     fused : bool, optional
-        Step the rollouts through `ddpg_her.program_kernels` (Triton; default: on CUDA; on
-        the CPU it needs ``TRITON_INTERPRET=1``) instead of the eager ops that define them.
+        Step the rollouts through `ddpg_her.program_kernels` (Triton; default: on CUDA with
+        the stack's own arm; on the CPU it needs ``TRITON_INTERPRET=1``) instead of the eager
+        ops that define them.
     """
 
     def __init__(self, env_id: str, env_kwargs: Sequence[dict[str, Any]], config: AgentConfig,
@@ -355,7 +356,6 @@ class Program:
                              f"{len(run_dirs)} folders")
         self.device = torch.device(device)
         self.capture = self.device.type == "cuda" if capture is None else bool(capture)
-        self.fused = self.device.type == "cuda" if fused is None else bool(fused)
         if self.capture and self.device.type != "cuda":
             raise ValueError(f"capture needs a CUDA device; got {self.device}")
         if self.device.type == "cuda":
@@ -373,6 +373,9 @@ class Program:
             tasks=per_agent, device=self.device, dynamics=dynamics)
         self.env, self.eval_env = make(k), make(k * m)
         env = self.env
+        # the kernels drive the stack's own arm (a stand-in has no kernel_step: eager)
+        self.fused = (self.device.type == "cuda" and hasattr(env.dynamics, "kernel_step")) \
+            if fused is None else bool(fused)
         self.T = env.task.max_episode_steps
         self.joints = [t.n_joints for t in env.tasks]
         self.act_mask = env.joint_mask.to(torch.float64)
