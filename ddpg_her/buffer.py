@@ -359,29 +359,39 @@ class CounterSampler:
         """The host's count of the draws made, kept equal to ``counter`` by its caller
         (``ddpg_her.program``), so a checkpoint never reads the device."""
 
-    def indices(self, filled: torch.Tensor, batch_size: int) -> torch.Tensor:
-        """(K, batch_size) int64 row indices, row < filled[k], for the current counter (which
-        this does not advance). filled : (K,) int64 >= 1 on the device.
+    def indices(self, filled: torch.Tensor, batch_size: int, updates: int = 1) -> torch.Tensor:
+        """(updates, K, batch_size) int64 row indices, row < filled[k], of the counters
+        ``counter .. counter + updates - 1`` (this does not advance it); with ``updates`` 1
+        (K, batch_size). filled : (K,) int64 >= 1 on the device.
 
-        `counter_draws` with its two hashes of a slot in one pass over (K, 2 batch_size) and
-        the keys' first hash kept from the start: 27 small kernels instead of 52 (each costs
-        about as much as its arithmetic on the CPU, and is a node of a CUDA graph)."""
+        `counter_draws` with its two hashes of a slot in one pass over (updates, K, 2
+        batch_size) and the keys' first hash kept from the start: one batch of small kernels
+        for all the episode's updates (each kernel is a node of a CUDA graph)."""
         j = self._pairs.get(batch_size)
         if j is None:  # 0, 1, ..., 2 batch_size - 1: the hashes' inputs 2 slot and 2 slot + 1
             j = self._pairs[batch_size] = torch.arange(2 * batch_size, dtype=torch.int64,
                                                        device=self.keys.device)
-        h = mix32(mix32(self._mixed_keys ^ (self.counter & MASK32)) ^ j).view(
-            len(self.keys), batch_size, 2)
-        return (((h[..., 0] >> 2) << 32) | h[..., 1]) % filled[:, None]
+        c = (self.counter + torch.arange(updates, device=self.keys.device)) & MASK32
+        h = mix32(mix32(self._mixed_keys ^ c[:, None, None]) ^ j).view(
+            updates, len(self.keys), batch_size, 2)
+        idx = (((h[..., 0] >> 2) << 32) | h[..., 1]) % filled[:, None]
+        return idx[0] if updates == 1 else idx
+
+    def samples(self, buffer: ReplayBuffer, batch_size: int, updates: int
+                ) -> list[tuple[torch.Tensor, ...]]:
+        """The minibatches of the next ``updates`` `sample` calls, drawn and gathered at once
+        (the same rows, bit for bit); advances ``counter`` by ``updates`` on the device."""
+        idx = self.indices(buffer.filled, batch_size, updates)
+        self.counter.add_(updates)
+        rows = buffer.rows[buffer._agents[None], idx.view(updates, -1, batch_size)]
+        return [buffer.layout.split(r) for r in rows.unbind(0)]
 
     def sample(self, buffer: ReplayBuffer, batch_size: int) -> tuple[torch.Tensor, ...]:
         """`ReplayBuffer.sample`'s x, u, r, x2, terminated (K, batch, ...) from this stream;
         advances ``counter`` on the device only (a captured graph replays this without
         Python: whoever replays it adds to ``updates``). Every agent needs a stored row (not
         checked here: that would read the device)."""
-        idx = self.indices(buffer.filled, batch_size)
-        self.counter.add_(1)
-        return buffer.layout.split(buffer.rows[buffer._agents, idx])
+        return self.samples(buffer, batch_size, 1)[0]
 
     def state(self) -> int:
         """The update count, for a checkpoint (the keys come from the seeds)."""

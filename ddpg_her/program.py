@@ -77,20 +77,29 @@ def counter_uniform(keys: torch.Tensor, counter: torch.Tensor | int, slots: torc
 
 class CounterDraws:
     """`ddpg_her.exploration.Explorer`'s draws from counter-based streams: agent k's numbers
-    at step ``counter`` (a device tensor the program sets before each call) are a function of
-    its key and the counter alone. keys : (K,) 32-bit ints; device."""
+    at step ``counter`` are a function of its key and the counter alone. The program draws a
+    whole episode's numbers at once (`episode`, one batched call) and sets ``step`` before each
+    call; each step reads its row. keys : (K,) 32-bit ints; device."""
 
-    def __init__(self, keys: Sequence[int], device: torch.device):
+    SLOTS = 2 * NJ
+    """Numbers per agent and step: the most any draw takes (`normal`'s two per joint)."""
+
+    def __init__(self, keys: Sequence[int], device: torch.device, steps: int = 1):
         self.device = device
-        self.keys = torch.tensor(list(keys), dtype=torch.int64, device=device)[:, None]
-        self.counter = torch.zeros((), dtype=torch.int64, device=device)
-        self._slots: dict[int, torch.Tensor] = {}
+        self.keys = torch.tensor(list(keys), dtype=torch.int64, device=device)[:, None, None]
+        self._slots = torch.arange(self.SLOTS, dtype=torch.int64, device=device)
+        self.table = torch.zeros(len(self.keys), steps, self.SLOTS, dtype=torch.float64,
+                                 device=device)
+        """(K, steps, SLOTS) float64: the numbers of the episode's steps."""
+        self.step = 0
+
+    def episode(self, counters: torch.Tensor) -> None:
+        """Draw the numbers of the steps whose counters are ``counters (steps,)`` int64 on
+        the device (step t: slots 0 .. `SLOTS` - 1 of counter ``counters[t]``), in place."""
+        self.table.copy_(counter_uniform(self.keys, counters[:, None], self._slots))
 
     def _uniform(self, n: int) -> torch.Tensor:
-        slots = self._slots.get(n)
-        if slots is None:
-            slots = self._slots[n] = torch.arange(n, dtype=torch.int64, device=self.device)
-        return counter_uniform(self.keys, self.counter, slots)
+        return self.table[:, self.step, :n]
 
     def drawing(self, active: torch.Tensor) -> torch.Tensor:
         return torch.ones_like(active)
@@ -364,6 +373,10 @@ class Program:
         With ``window``: from the second test session on, each session sets the budget to
         what `choose_episodes` projects from the last interval's seconds per episode (test
         session included), rewriting spec.json's ``agent.episodes`` and ``program.budget``.
+    fused : bool, optional
+        Step the rollouts through `ddpg_her.program_kernels` (Triton; default: on CUDA with
+        the stack's own arm; on the CPU it needs ``TRITON_INTERPRET=1``) instead of the eager
+        ops that define them.
     """
 
     def __init__(self, env_id: str, env_kwargs: Sequence[dict[str, Any]], config: AgentConfig,
@@ -371,7 +384,8 @@ class Program:
                  device: str = "cpu", dtype: torch.dtype = torch.float32, progress: bool = True,
                  command: Sequence[str] | None = None, capture: bool | None = None,
                  tf32: bool = False, dynamics: Callable[..., Any] | None = None,
-                 window: bool = False, budget: Budget | None = None):
+                 window: bool = False, budget: Budget | None = None,
+                 fused: bool | None = None):
         if budget is not None and (not window or max(budget.choices) != config.episodes or any(
                 c < 1 or c % config.eval_every for c in budget.choices)):
             raise ValueError(f"a time budget is a window run's (window=True), its choices "
@@ -401,6 +415,9 @@ class Program:
             tasks=per_agent, device=self.device, dynamics=dynamics)
         self.env, self.eval_env = make(k), make(k * m)
         env = self.env
+        # the kernels drive the stack's own arm (a stand-in has no kernel_step: eager)
+        self.fused = (self.device.type == "cuda" and hasattr(env.dynamics, "kernel_step")) \
+            if fused is None else bool(fused)
         self.T = env.task.max_episode_steps
         self.joints = [t.n_joints for t in env.tasks]
         self.act_mask = env.joint_mask.to(torch.float64)
@@ -427,8 +444,15 @@ class Program:
         key = lambda stream: torch.tensor(  # noqa: E731
             [stream_seed(s, stream) for s in seeds], dtype=torch.int64, device=self.device)
         self.train_keys, self.eval_keys = key(TRAIN_ENV_STREAM), key(EVAL_ENV_STREAM)[:, None]
-        self.draws = CounterDraws([stream_seed(s, EXPLORE_STREAM) for s in seeds], self.device)
+        self.draws = CounterDraws([stream_seed(s, EXPLORE_STREAM) for s in seeds], self.device,
+                                  env.task.max_episode_steps)
         self.explorer = Explorer(config, self.draws, k, NJ)
+        d, task = env.dynamics, env.task
+        self._params = [torch.tensor(v, dtype=torch.float64, device=self.device) for v in (
+            [config.exploration_rate, config.ou_theta, 2.0 * math.pi],
+            [getattr(d, "_w_to_v", 0.0), getattr(d, "_w_to_accel", 0.0), task.success_radius,
+             task.success_reward, task.distance_weight, task.action_weight,
+             float(task.terminate_on_success), config.obs_clip])]
         self._allocate()
 
         self.episode, self.wall_s = 0, 0.0
@@ -510,14 +534,10 @@ class Program:
                        ) -> Callable[[int, int], torch.Tensor]:
         """The goal draws' numbers: proposals ``first .. first + count - 1`` of copy b,
         ``(B, count, 6)``, from the stream (keys[b], counter[b]) (slot 6 p + j: joint j of
-        proposal p)."""
+        proposal p), every proposal's drawn at once."""
         keys, counter = keys[:, None], counter[:, None] if counter.ndim else counter
-
-        def uniforms(first: int, count: int) -> torch.Tensor:
-            slots = self._slots[first * NJ:(first + count) * NJ]
-            return counter_uniform(keys, counter, slots).reshape(len(keys), count, NJ)
-
-        return uniforms
+        u = counter_uniform(keys, counter, self._slots).reshape(len(keys), -1, NJ)
+        return lambda first, count: u[:, first:first + count]
 
     def _rollout(self, env: Any, scale: StackScale, keys: torch.Tensor, counter: torch.Tensor,
                  policy: Callable[[torch.Tensor, torch.Tensor, int], torch.Tensor],
@@ -538,6 +558,9 @@ class Program:
             self.obs[:, 0], self.achieved[:, 0] = obs, ag
         stop = env.task.terminate_on_success
         final = ag
+        if self.fused:
+            return self._fused_steps(env, scale, policy, goal, obs, ag, active, length,
+                                     success, ret, final.clone(), store)
         for t in range(self.T):
             u = policy(goal_input(obs, ag, goal), active, t)
             action = scale.to_env(u)
@@ -555,17 +578,46 @@ class Program:
             active = active & ~(term | (env.elapsed >= self.T))
         return length, success, goal, ret, final
 
+    def _fused_steps(self, env: Any, scale: StackScale, policy: Any, goal: torch.Tensor,
+                     obs: torch.Tensor, ag: torch.Tensor, *state: Any) -> tuple[torch.Tensor, ...]:
+        """`_rollout`'s steps through `ddpg_her.program_kernels`: per step the actor (none in
+        warm-up), `explore`, the arm kernel, `settle`. ``policy`` here is (noise kind, the
+        actor of the normalised inputs (K, M, 24) or None, the joint mask (B, 6) float64);
+        ``state``: active, length, success, ret, final, store."""
+        from ddpg_her import program_kernels as fused
+
+        (kind, actor, mask), (active, length, success, ret, final, store) = policy, state
+        k, m, normalizer = self.k, env.num_envs // self.k, self.agent.normalizer
+        x = normalizer(goal_input(obs, ag, goal).to(self.dtype).view(k, m, -1))
+        x = x.reshape(env.num_envs, -1).contiguous()
+        mu = torch.zeros(k, m, NJ, dtype=self.dtype, device=self.device)
+        for t in range(self.T):
+            if actor is not None:
+                mu = actor(x.view(k, m, -1))
+            fused.explore(kind, mu, self.draws.table[:, t], self.explorer.ou, self._params[0],
+                          mask, scale, env, active, self.action[:, t] if store else None)
+            env.dynamics.kernel_step()
+            rows = (self.obs[:, t + 1], self.achieved[:, t + 1], self.reward[:, t],
+                    self.terminated[:, t]) if store else None
+            fused.settle(env, mask, active, ret, final, length, success, rows, x, normalizer,
+                         m, self._params[1], self.T)
+        return length, success, goal, ret, final
+
     def _train_episode(self, warm: bool) -> None:
         """The training episode of every agent (uniform actions while ``warm``), stored."""
         agent, explorer, draws = self.agent, self.explorer, self.draws
         explorer.reset()
+        draws.episode(self.episode_t * self.T + self._t)
 
         def policy(x: torch.Tensor, active: torch.Tensor, t: int) -> torch.Tensor:
             mu = torch.zeros(self.k, NJ, dtype=torch.float64, device=self.device) if warm \
                 else agent.act(x[:, None].to(self.dtype))[:, 0].double()
-            draws.counter = self.episode_t * self.T + t
+            draws.step = t
             return explorer(mu, active, uniform=warm) * self.act_mask
 
+        if self.fused:
+            policy = ("uniform" if warm else self.config.exploration.value,
+                      None if warm else agent.actor, self.act_mask)
         length, success, goal, _, _ = self._rollout(
             self.env, self.scale, self.train_keys, self.episode_t, policy, store=True)
         self.length.copy_(length)
@@ -613,8 +665,8 @@ class Program:
     def _learn(self) -> None:
         """``updates_per_episode`` updates of every agent on minibatches of its own stream."""
         self.loss_sum.zero_()
-        for _ in range(self.config.updates_per_episode):
-            batch = self.sampler.sample(self.buffer, self.config.batch_size)
+        for batch in self.sampler.samples(self.buffer, self.config.batch_size,
+                                          self.config.updates_per_episode):
             critic_loss, actor_loss = self.agent.update(*batch)
             self.loss_sum[0] += critic_loss
             self.loss_sum[1] += actor_loss
@@ -631,6 +683,8 @@ class Program:
             return self.agent.act(x.reshape(self.k, m, -1).to(self.dtype)).reshape(
                 self.k * m, NJ).double() * self.act_mask.repeat_interleave(m, 0)
 
+        if self.fused:
+            policy = ("none", self.agent.actor, self.act_mask.repeat_interleave(m, 0))
         _, success, goal, ret, final = self._rollout(self.eval_env, self.eval_scale, keys,
                                                      counter, policy, store=False)
         self.logged[0] = success.double()

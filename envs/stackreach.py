@@ -36,8 +36,13 @@ PER_COPY_FIELDS = ("region", "n_joints", "start_q", "action_penalty_unit")
 """The task fields in which the copies of one stack may differ; all others must be equal."""
 
 PROPOSAL_CHUNK = 64
-"""Proposals per copy tested at once by `StackReach.draw_goals` (bounds the memory: the plane
-test of B x 64 configurations at a time)."""
+"""Proposals per copy tested at once by `StackReach.draw_goals` at least (more while B x
+proposals stays within `PROPOSAL_BUDGET`)."""
+
+PROPOSAL_BUDGET = 2**17
+"""Proposals of all copies that `StackReach.draw_goals` tests in one pass at most, unless
+`PROPOSAL_CHUNK` per copy is more (bounds the memory: the plane test's (B x count, 358) float64
+heights, 375 MB at this budget; the paper grid's 55 copies test their 2,112 in one pass)."""
 
 GOAL_MISS_PROBABILITY = 1e-9
 """The largest chance that `StackReach.draw_goals` finds no goal among its proposals for one
@@ -244,16 +249,17 @@ class StackReach:
     def draw_goals(self, uniforms: Callable[[int, int], torch.Tensor]) -> torch.Tensor:
         """Goals ``(B, 3)`` m, world frame, by rejection: ``uniforms(first, count)`` gives the
         numbers ``(B, count, 6)`` in [0, 1) of proposals ``first .. first + count - 1`` of
-        each copy (`proposals` in all, taken `PROPOSAL_CHUNK` at a time). Proposal p of copy
-        b sets its controlled joints to ``(2 u - 1) pi`` (the others at the start pose), as
-        `regions.JointSpaceSampler`; the first proposal whose tool0 lies in the region with
-        every moving link clear of the plane is the goal. A copy with none keeps its current
-        goal and adds one to `goal_misses`."""
+        each copy (`proposals` in all, ``max(PROPOSAL_CHUNK, PROPOSAL_BUDGET // B)`` at a
+        time). Proposal p of copy b sets its controlled joints to ``(2 u - 1) pi`` (the
+        others at the start pose), as `regions.JointSpaceSampler`; the first proposal whose
+        tool0 lies in the region with every moving link clear of the plane is the goal. A copy
+        with none keeps its current goal and adds one to `goal_misses`."""
         b = self.num_envs
         found = torch.zeros(b, dtype=torch.bool, device=self.device)
         goal = self.goal.clone()
-        for first in range(0, self.proposals, PROPOSAL_CHUNK):
-            count = min(PROPOSAL_CHUNK, self.proposals - first)
+        chunk = max(PROPOSAL_CHUNK, PROPOSAL_BUDGET // b)
+        for first in range(0, self.proposals, chunk):
+            count = min(chunk, self.proposals - first)
             tool, ok = self.accepts(uniforms(first, count))
             pick = torch.argmax(ok.to(torch.uint8), dim=1)  # the first True (0 when none)
             new = ok.any(1) & ~found

@@ -262,6 +262,14 @@ class StackDynamics:
         # a locked joint's torque never enters the kernels' dynamics (its gain is 0 here,
         # and a NaN there is ignored: tested)
         torch.mul(self._gain, command, out=self._bias)
+        self.kernel_step()
+        torch.mul(self._dw, self._w_to_accel, out=self.acceleration)
+        torch.mul(self.w, self._w_to_v, out=self.v)
+
+    def kernel_step(self) -> None:
+        """`step`'s kernel call alone, from the bias ``gain * command`` already in ``_bias``
+        (B, 6); ``acceleration`` and ``v`` are left to the caller (``dw * w_to_accel``, ``w *
+        w_to_v``: ``ddpg_her.program_kernels.settle`` fuses them)."""
         if self.kernel == "numba":
             control_step(*self._args)
         else:
@@ -270,8 +278,6 @@ class StackDynamics:
             triton_kernel.launch(self._model, self.q, self.w, self.height_bound, self._bias,
                                  self.n_joints, self._dw, self.contact, self.limit_stop,
                                  self.tool, self.block)
-        torch.mul(self._dw, self._w_to_accel, out=self.acceleration)
-        torch.mul(self.w, self._w_to_v, out=self.v)
 
     def reset_where(self, mask: Any) -> None:
         """Put the copies where ``mask (B,) bool`` is True at rest at their own start pose
