@@ -30,10 +30,11 @@ from analysis.report import (
     Check,
     Curves,
     Verdict,
-    _apart,
-    _fmt,
+    apart,
     claim_settings,
+    fmt_interval,
     judge_claims,
+    overall,
     student_t,
     welch_p,
 )
@@ -127,14 +128,13 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
             end = min(base.end, variants[n].end)
             b_level, v_level = _cut(base, end).level(), _cut(variants[n], end).level()
             b, v = interval(b_level, PERCENT), interval(v_level, PERCENT)
-            parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) {_fmt(b)}, "
-                         f"{VARIANTS[n]} {_fmt(v)} ({len(v_level)} seeds)")
+            parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) {fmt_interval(b)}, "
+                         f"{VARIANTS[n]} {fmt_interval(v)} ({len(v_level)} seeds)")
             ps.append(welch_p(b_level, v_level))
-            each.append(_apart(b, v) if name != EXTRA[0][0] else
+            each.append(apart(b, v) if name != EXTRA[0][0] else
                         Verdict.YES if v[2] < NEGLIGIBLE else Verdict.NO if v[1] >= NEGLIGIBLE
                         else Verdict.NOISE)
-        verdict = (Verdict.NO if Verdict.NO in each else Verdict.YES
-                   if all(v is Verdict.YES for v in each) else Verdict.NOISE)
+        verdict = overall(each)
         short = min(variants[n].end for n in have) < EXTRA_EPISODES
         if short:
             parts.insert(0, f"runs short of {EXTRA_EPISODES:,} episodes; so far "

@@ -141,7 +141,7 @@ def reading_lines(summaries: dict[tuple[str, int], SettingSummary]) -> list[str]
     return [*lines, ""]
 
 
-def _fmt(stat: tuple[float, float, float], digits: int = 1) -> str:
+def fmt_interval(stat: tuple[float, float, float], digits: int = 1) -> str:
     mean, low, high = stat
     return (f"{mean:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]" if high > low
             else f"{mean:.{digits}f}")
@@ -300,15 +300,15 @@ def _name(key: tuple[str, int]) -> str:
 
 
 def _stat(key: tuple[str, int], stat: Interval) -> str:
-    return f"{_name(key)} {_fmt(stat)}"
+    return f"{_name(key)} {fmt_interval(stat)}"
 
 
-def _apart(a: Interval, b: Interval) -> Verdict:
+def apart(a: Interval, b: Interval) -> Verdict:
     """YES when interval ``a`` lies above ``b``, NO when below, NOISE when they overlap."""
     return Verdict.YES if a[1] > b[2] else Verdict.NO if b[1] > a[2] else Verdict.NOISE
 
 
-def _overall(each: Sequence[Verdict]) -> Verdict:
+def overall(each: Sequence[Verdict]) -> Verdict:
     """A claim's verdict from its parts': fails when one fails, holds when all hold."""
     return (Verdict.NO if Verdict.NO in each else
             Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
@@ -429,7 +429,7 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         detail = (f"weakest of the first: {_stat(h, stat[h])}; strongest of the second"
                   f"{' (as many joints)' if h[1] == l_[1] else ''}: {_stat(l_, stat[l_])}"
                   + missing([*high, *low]))
-        return judged(claim, [*hi, *lo], _apart(stat[h], stat[l_]), detail,
+        return judged(claim, [*hi, *lo], apart(stat[h], stat[l_]), detail,
                       welch_p(level[h], level[l_]), confounds(h, l_))
 
     def threshold(claim: PaperClaim, keys: Sequence[tuple[str, int]], bound: float,
@@ -458,7 +458,7 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             _, low, high = stat[k]
             each.append(Verdict.YES if lo_b <= low and high <= hi_b else
                         Verdict.NO if high < lo_b or low > hi_b else Verdict.NOISE)
-        return judged(claim, have, _overall(each), ", ".join(_stat(k, stat[k]) for k in have)
+        return judged(claim, have, overall(each), ", ".join(_stat(k, stat[k]) for k in have)
                       + f" against {lo_b:g}-{hi_b:g}" + missing(keys))
 
     def alike(claim: PaperClaim, groups: Sequence[Sequence[tuple[str, int]]]) -> Check:
@@ -477,7 +477,7 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             ps.append(welch_p(level[weak], level[strong]))
             conf += [c for c in confounds(weak, strong) if c not in conf]
             parts.append(", ".join(_stat(k, stat[k]) for k in g))
-        return judged(claim, [k for g in groups for k in g], _overall(each),
+        return judged(claim, [k for g in groups for k in g], overall(each),
                       "; ".join(parts) + f"; the claim allows a band {ALIKE_TOLERANCE:g} wide",
                       _least(ps), tuple(conf))
 
@@ -495,11 +495,11 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         each, parts, ps = [], [], []
         for six, three in pairs:
             s, t = (interval(at[k], (0.0, np.inf)) for k in (six, three))
-            each.append(_apart(s, t))
+            each.append(apart(s, t))
             ps.append(welch_p(at[six], at[three]))
-            parts.append(f"{six[0]}: converged at episode {_fmt(s, 0)} (6 joints) vs "
-                         f"{_fmt(t, 0)} (3 joints)")
-        return judged(claim, [k for pair in pairs for k in pair], _overall(each),
+            parts.append(f"{six[0]}: converged at episode {fmt_interval(s, 0)} (6 joints) vs "
+                         f"{fmt_interval(t, 0)} (3 joints)")
+        return judged(claim, [k for pair in pairs for k in pair], overall(each),
                       "; ".join(parts), _least(ps))
 
     def success_maps(claim: PaperClaim) -> Check:
@@ -576,7 +576,7 @@ def plateau_lines(summaries: Mapping[tuple[str, int], SettingSummary], level: fl
             rows.append(head + "| " + " | ".join(cells) + " | "
                         + ("**" + pl.verdict() + "**" if pl.plateaued else pl.verdict()) + " |")
         last = plateau(c.episode, c.percent)
-        stat = _fmt(student_t(level)(c.level(), PERCENT))
+        stat = fmt_interval(student_t(level)(c.level(), PERCENT))
         judged.append(f"- {_name(key)} at {last.end:,} episodes, last 5 {stat}: "
                       + ("plateaued; a claim about its asymptote can fail here, never hold."
                          if last.plateaued and last.remaining else
@@ -685,8 +685,8 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
     for key in order:
         s = summaries[key]
         paper = PAPER_RESULTS.get(key)
-        lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | {_fmt(s.final)} | "
-                     f"{_fmt(s.best)} | {_first_high(s.first_high)} | "
+        lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | {fmt_interval(s.final)} | "
+                     f"{fmt_interval(s.best)} | {_first_high(s.first_high)} | "
                      f"{paper.text if paper else 'not in the paper'} |")
     checks = ordering_checks(summaries, level, plateaus_at_end(summaries))
     lines += ["", *reading_lines(summaries), *rule_lines(level, plateaus=True),
@@ -730,7 +730,7 @@ def comparison(groups: Sequence[Group], level: float) -> str:
         runs = ", ".join(str(r.path) for r in g.runs)
         settings = ", ".join(dict.fromkeys(f"{r.region} {r.joints}" for r in g.runs))
         lines.append(f"| {g.label} | {settings} | {len(g.runs)} | "
-                     f"{_fmt(stat[g.label])} | {_fmt(interval(c.percent.max(axis=1), PERCENT))} "
+                     f"{fmt_interval(stat[g.label])} | {fmt_interval(interval(c.percent.max(axis=1), PERCENT))} "
                      f"| {_first_high(first)} | {runs} |")
     pooled = pooled_lines(groups)
     if pooled:
@@ -740,10 +740,10 @@ def comparison(groups: Sequence[Group], level: float) -> str:
               "| A | B | verdict on \"A above B\" | Welch p |", "|---|---|---|---|"]
     for i, a in enumerate(groups):
         for b in groups[i + 1:]:
-            verdict = _apart(stat[a.label], stat[b.label])
+            verdict = apart(stat[a.label], stat[b.label])
             p = welch_p(curves[a.label].level(), curves[b.label].level())
-            lines.append(f"| {a.label} {_fmt(stat[a.label])} | {b.label} "
-                         f"{_fmt(stat[b.label])} | {verdict.value} | {p_text(p)} |")
+            lines.append(f"| {a.label} {fmt_interval(stat[a.label])} | {b.label} "
+                         f"{fmt_interval(stat[b.label])} | {verdict.value} | {p_text(p)} |")
     n = len(groups) * (len(groups) - 1) // 2
     return "\n".join([*lines, "", f"{n} comparison(s), Welch p-values not corrected for their "
                       "number."]) + "\n"

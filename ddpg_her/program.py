@@ -847,7 +847,7 @@ def check(env_id: str, tasks: Sequence[dict[str, Any]], config: AgentConfig,
     stack_twin(env_id)
     for task in {repr(t.to_dict()): t for t in stack_tasks(tasks)}.values():
         RegionBounds.of(task_sampler(task).region)
-    from ddpg_her.train import check_device
+    from ddpg_her.units import check_device
 
     dev = torch.device(device)
     check_device(dev.type)

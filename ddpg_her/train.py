@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ddpg_her.config import VALID, AgentConfig, field_docs
-from ddpg_her.units import DEFAULT_JOINTS, Setting, task_fields, task_option
+from ddpg_her.units import DEFAULT_JOINTS, Setting, check_device, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
 def _add_config_flags(group: argparse._ArgumentGroup) -> None:
@@ -389,14 +389,6 @@ def check_stack(settings: Sequence[Setting], device: str, tf32: bool) -> None:
 
     check(settings[0].env_id, [s.env_kwargs for s in settings for _ in s.seeds],
           settings[0].config, device, tf32)
-
-
-def check_device(device: str) -> None:
-    """Raise ValueError for ``--device cuda`` where torch sees no CUDA device."""
-    import torch
-
-    if device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: no CUDA device is available to torch")
 
 
 def run_to_end(trainer: Any) -> Any:

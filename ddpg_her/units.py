@@ -164,3 +164,11 @@ def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:
     make_folder(path.parent)
     atomic_write(path, (json.dumps({PLAN_KEY: [list(u) for u in units]}, indent=1) + "\n")
                  .encode())
+
+
+def check_device(device: str) -> None:
+    """Raise ValueError for ``--device cuda`` where torch sees no CUDA device."""
+    import torch
+
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("--device cuda: no CUDA device is available to torch")
