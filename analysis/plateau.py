@@ -1,19 +1,9 @@
 """The plateau rule: whether a setting's learning curve, at the budget its runs reached, has
 stopped moving enough that a claim about where training ends (at the paper's budget) could be
-contradicted there. It never lets such a claim hold before its budget (docs/design.md, "The
-plateau rule"; why its level and band are what they are: there).
-
-- The window is the last half of the run, at most `PLATEAU_WINDOW` training episodes: every
-  common test session at or after ``end - min(PLATEAU_WINDOW, end // 2)``.
-- On it, the slope (successes per 100 per 1,000 episodes) under two variance models:
-  *pooled*, the least-squares slope of the per-session mean over seeds with its Student-t
-  interval on ``sessions - 2`` degrees of freedom (the sessions' scatter about one line), and
-  *seeds*, the mean of each seed's own least-squares slope with its Student-t interval on
-  ``seeds - 1`` degrees of freedom (the spread of the slopes between seeds).
-- The extrapolated change is the slope carried from the judged budget to the claim's budget:
-  slope x (budget - end). A setting has **plateaued** when the window holds at least
-  `PLATEAU_MIN_SESSIONS` sessions and, under **both** models, the `DECIDING_LEVEL` interval of
-  the extrapolated change lies inside +- `PLATEAU_BAND` successes per 100.
+contradicted there. It never lets such a claim hold before its budget. The window, the slope
+under two variance models (*pooled*, *seeds*), the band on the change extrapolated to the
+claim's budget, and why each is what it is: docs/design.md, "The plateau rule"; its numbers
+are the constants below.
 """
 
 from __future__ import annotations
