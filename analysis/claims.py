@@ -4,15 +4,9 @@
 
 Sixteen claims: the thirteen of section IV (`analysis.paper.CLAIMS`, judged by
 `analysis.report.judge_claims` with the plateau rule) and three of sections III-IV that the
-paper states without a figure (`EXTRA`). Each row: the claim and its section, our figure, the
-rule, the budget run (training episodes), the verdict (*holds*, *contradicted*, *within noise*,
-*not judgeable*, *not run*) and the budget it needs. Interval rule: the paper's 65 % Student-t
-over seeds of each seed's last-5 level, intervals apart (docs/design.md, "The verdict rule").
-
-Where it reads (below ``--results``), the longest run of a setting winning:
-``sensitivity/runs/ours`` (the default reading, 1,000 episodes), ``paper_long/runs`` (2,000),
-and ``claims/{farbox_tall,velocity,torque,sparse,per}/runs`` (far box 3 variants; the baseline is
-the ``ours`` far box 3). A claim whose runs are absent is *not run*.
+paper states without a figure (`EXTRA`), one row each (`COLUMNS`), by docs/design.md's "The
+verdict rule". It reads `SOURCES` and `VARIANTS` below ``--results``, the longest run of a
+setting winning; a claim whose runs are absent is *not run*.
 """
 
 from __future__ import annotations
@@ -45,7 +39,8 @@ SOURCES = ("sensitivity/runs/ours", "paper_long/runs", "claims/farbox_tall/runs"
 
 VARIANTS = {"velocity": "velocity control", "torque": "torque control",
             "sparse": "the sparse reward", "per": "prioritised replay"}
-"""Far box 3 variants: folder below ``claims/`` -> what it changes."""
+"""Far box 3 variants, each compared with the default far box 3: folder below ``claims/`` (its
+runs in ``claims/<folder>/runs``) -> what it changes."""
 
 NEGLIGIBLE = 10.0
 """Successes per 100 below which a success rate is "negligible" (our reading; the paper gives
