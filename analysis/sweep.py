@@ -13,11 +13,9 @@ sweep continues where it stopped when run again; a setting another ``ddpg_her.tr
 ``ddpg_her.train_many`` process is training (it holds a run folder's lock) is left to it.
 Each process's output goes to ``ROOT/logs/<region>-j<joints>.log`` (one process:
 ``ROOT/logs/one-process.log``). Arguments after ``--`` pass to ``ddpg_her.train`` unchanged
-(e.g. ``-- --her-strategy future``), but for the options the study sets itself (`STUDY_FLAGS`:
-its setting, seeds, budget, folder and process flags) and those a unit's reading sets: those are
-refused, naming the flag, as the last flag would win. A unit that could not start (a region
-that does not parse, an argument the trainer refuses, a run folder two units share) is refused
-before any starts, in a dry run too.
+(e.g. ``-- --her-strategy future``) but for those the study or a unit's reading sets
+(`owned_flag_problems`); a unit that could not start (`unit_problems`) is refused before any
+starts, in a dry run too.
 """
 
 from __future__ import annotations
