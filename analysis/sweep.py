@@ -254,6 +254,14 @@ class EpisodeBar:
                                  + (f", {len(self.failed)} FAILED" if self.failed else ""),
                                  refresh=False)
 
+    def finish(self, unit: Unit, code: int) -> int:
+        """Mark ``unit``'s process as ended with exit status ``code``, saying what it said last
+        when it failed (`failure`); 1 when it failed, else 0."""
+        if code != 0:
+            self.write(f"{unit.name} failed (exit {code}): {failure(unit.log_path)}")
+        self.end(unit, failed=code != 0)
+        return int(code != 0)
+
     def write(self, text: str) -> None:
         self.bar.write(text, file=sys.stderr)
 
@@ -278,11 +286,7 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
             for proc in [p for p in running if p.poll() is not None]:
                 unit, log = running.pop(proc)
                 log.close()
-                if proc.returncode != 0:
-                    failed += 1
-                    bar.write(f"{unit.name} failed (exit {proc.returncode}): "
-                              f"{failure(unit.log_path)}")
-                bar.end(unit, failed=proc.returncode != 0)
+                failed += bar.finish(unit, proc.returncode)
             bar.refresh()
             time.sleep(0.2)
     except KeyboardInterrupt:
@@ -328,12 +332,7 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
                 bar.refresh()
                 if not done:
                     continue
-                unit = pending.pop(done[0])
-                code = ray.get(done[0])
-                if code != 0:
-                    failed += 1
-                    bar.write(f"{unit.name} failed (exit {code}): {failure(unit.log_path)}")
-                bar.end(unit, failed=code != 0)
+                failed += bar.finish(pending.pop(done[0]), ray.get(done[0]))
         finally:
             bar.close()
         return failed
@@ -908,9 +907,11 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
              (todo if args.one_process else [todo[keys.index(k)] for k in reps])]
     spent, walls = timed_run(timed, args, threads, [*extra, *QUICK_ARGS],
                              f"the timed run of {len(reps)} process layout(s)")
+    def span(times: Sequence[float]) -> float:  # the processes' wall time, run as planned
+        return max(times) if args.one_process else makespan(times, args.workers)
+
     waves = 1 if args.one_process else -(-len(timed) // args.workers)
-    start = max(0.0, spent - (max(w[-1] for w in walls) if args.one_process else
-                              makespan([w[-1] for w in walls], args.workers))) / waves
+    start = max(0.0, spent - span([w[-1] for w in walls])) / waves
     costs = {k: EpisodeCosts.of_rows(w, start) for k, w in zip(reps, walls, strict=True)}
     seconds = [costs[k].seconds(c, d) for k, c, d in zip(keys, configs, done, strict=True)]
     for unit, n, sec in zip(todo, done, seconds, strict=True):
@@ -943,9 +944,8 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
         timed_s = [w[-1] if c.episodes < 2 * c.eval_every else projected_seconds(
             [(c.eval_every, w[0]), (2 * c.eval_every, w[1])], c.eval_every, u.episodes - d)
             for u, c, w, d in zip(todo, first, rows, done, strict=True)]
-        start = max(0.0, spent - (max(w[-1] for w in rows) if args.one_process else
-                                  makespan([w[-1] for w in rows], args.workers)))
-        total = (max(timed_s) if args.one_process else makespan(timed_s, args.workers)) + start
+        start = max(0.0, spent - span([w[-1] for w in rows]))
+        total = span(timed_s) + start
         print(f"projected wall time (full): {total:.0f} s ({total / 3600:.2f} h), with "
               f"{start:.0f} s of process start-up; measured by training the first "
               f"{2 * max(c.eval_every for c in configs)} episodes of each in {spent:.0f} s",
