@@ -63,7 +63,15 @@ from analysis.report import (
     rule_lines,
     student_t,
 )
-from analysis.runs import CONFIDENCE, PERCENT, Run, aligned_successes, find_runs, mean_ci
+from analysis.runs import (
+    CONFIDENCE,
+    PERCENT,
+    Group,
+    Run,
+    aligned_successes,
+    find_runs,
+    mean_ci,
+)
 from analysis.sweep import (
     HelpFormatter,
     Unit,
@@ -593,8 +601,10 @@ def curve_rows(groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
                level: float) -> list[dict]:
     """Per reading, setting and evaluation episode: mean successes and interval over seeds
     (`analysis.curves.curve_rows` with the reading)."""
-    return [{"reading": reading, **row} for reading, settings in groups.items()
-            for row in setting_curve_rows(dict(settings), level)]
+    return [{"reading": reading, **{k: v for k, v in row.items() if k != "group"}}
+            for reading, settings in groups.items()
+            for row in setting_curve_rows([Group(f"{r} {j}", runs, {})
+                                           for (r, j), runs in settings.items()], level)]
 
 
 def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],

@@ -89,6 +89,9 @@ def check_continues(where: Any, old: dict[str, Any], new: dict[str, Any]) -> Non
         raise ValueError(
             f"{where} holds a window run (--window: no replay buffer or checkpoint was saved "
             "before its end), which cannot be resumed; train it afresh in another --out")
+    if lookup(new, "program.window"):
+        raise ValueError(f"a window run starts afresh; {where} holds a run: choose another "
+                         "--out, or drop --window to continue it")
     for (key, value), path in REMOVED_SETTINGS.items():
         if old.get(key) == value:
             raise ValueError(

@@ -780,10 +780,6 @@ class Program:
 
     def _restore(self, episode: int, states: list[dict[str, Any]],
                  chunks: list[list[tuple[int, Any]]]) -> None:
-        if self.window:
-            raise ValueError(f"a window run starts afresh; {self.folders.folders[0].path} holds "
-                             f"the checkpoint of episode {episode} of a run: choose another "
-                             "--out, or drop --window to continue it")
         padded = [self.agent.agent_state(i) for i in range(self.k)]
         self.agent.load_agent_states([pad_state(s["agent"], p, n, self.config.hidden_sizes[0])
                                       for s, p, n in zip(states, padded, self.joints,
