@@ -217,57 +217,20 @@ SASS_LINE = re.compile(r"/\*[0-9a-f]{4,}\*/\s+(?:@!?U?P\w+\s+)?([A-Z][A-Z0-9_.]*
 
 
 def arm_figures(dtype: str, arch: int, block: int | None) -> dict[str, Any]:
-    """`benchmarks.triton_compile.compile_kernel`'s figures of the arm kernel for sm_``arch``,
-    with ptxas's resource line (registers, stack, spills: its ``-v`` log, which Triton prints
-    under ``knobs.nvidia.dump_ptxas_log``) and the SASS's instruction counts (``cuobjdump
-    -sass`` of the cubin Triton made: static counts, every instruction once)."""
-    import contextlib
-    import io
-
-    import triton.compiler.compiler as compiler
-    from triton import knobs
-
+    """`benchmarks.triton_compile.compile_kernel`'s figures of the arm kernel for sm_``arch``:
+    ptxas's registers, stack and spills, and the SASS's instruction counts (whole kernel and
+    per substep), as that module reads them from the cubin it compiles."""
     from benchmarks import triton_compile
 
-    kept: dict[str, bytes] = {}
-    make = compiler.make_backend
-
-    def keeping_cubin(target: Any) -> Any:
-        backend = make(target)
-        add = backend.add_stages
-
-        def add_stages(stages: dict[str, Any], options: Any, language: Any) -> None:
-            add(stages, options, language)
-            cubin = stages["cubin"]
-
-            def keep(src: Any, metadata: Any) -> Any:
-                kept["cubin"] = cubin(src, metadata)
-                return kept["cubin"]
-
-            stages["cubin"] = keep
-
-        backend.add_stages = add_stages
-        return backend
-
-    log = io.StringIO()
-    compiler.make_backend, knobs.nvidia.dump_ptxas_log = keeping_cubin, True
-    try:
-        with contextlib.redirect_stdout(log):
-            figures = triton_compile.compile_kernel(dtype, arch, block)
-    finally:
-        compiler.make_backend, knobs.nvidia.dump_ptxas_log = make, False
-    usage = ptxas_usage(log.getvalue())
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "arm.cubin"
-        path.write_bytes(kept["cubin"])
-        tool = Path(os.path.dirname(compiler.__file__)).parent / "backends/nvidia/bin/cuobjdump"
-        sass = subprocess.run([str(tool), "-sass", str(path)], check=True, capture_output=True,
-                              text=True).stdout
-    ops = SASS_LINE.findall(sass)
+    figures = triton_compile.compile_kernel(dtype, arch, block)
+    sass = figures["sass"]
     return {**{k: figures[k] for k in ("dtype", "arch", "block", "substeps", "cpu_s",
-                                       "ptx_lines", "ptx_f64_lines", "triton")},
-            **usage, "sass_instructions": len(ops),
-            "sass_fp64_instructions": sum(op.split(".")[0] in FP64_OPS for op in ops)}
+                                       "ptx_lines", "ptx_f64_lines", "triton", "registers",
+                                       "stack_bytes", "spill_store_bytes", "spill_load_bytes")
+               if k in figures},
+            "sass_instructions": sass["instructions"],
+            "sass_fp64_instructions": sass["fp64_instructions"],
+            "sass_substep_loop": sass.get("substep_loop")}
 
 
 FP64_OPS = frozenset({"DADD", "DMUL", "DFMA", "DSETP", "DMNMX", "DSET", "F2F", "I2F", "F2I",

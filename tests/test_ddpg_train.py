@@ -229,7 +229,7 @@ def test_run_folder_contents_and_load(tmp_path):
     assert hits == int(rows[-1]["successes"])
 
     table = summarize([str(tmp_path / "run")], project_to=24)
-    assert "| episode | seed 7 |" in table
+    assert f"| episode | {tmp_path / 'run'} (seed 7) |" in table  # a column names its run
     assert f"| 12 | {rows[-1]['successes']}/4 |" in table
 
 
@@ -260,21 +260,27 @@ def test_tensorboard_gets_eval_and_training_scalars(tmp_path, monkeypatch):
 
 
 def test_learns_the_toy_task_in_seconds_and_her_is_what_makes_it_learn(tmp_path):
-    """HER against a no-HER control with everything else equal (measured with seed 0: the last
-    three sessions score 27, 24, 28 of 30 with HER and 8, 7, 5 without; seeds 1 and 2 keep a
-    margin over 10 too)."""
+    """HER against a no-HER control with everything else equal, judged over four seeds trained
+    as one stack: one seed's curve depends on the CPU's rounding (seed 0 alone scored 27, 24,
+    28 of 30 in its last three sessions on one machine, 26, 17, 19 on another; the control 8,
+    7, 5 and 12, 14, 9). Measured here: each seed's mean of its last three sessions with HER
+    20.3, 30.0, 24.0, 28.0 (mean 25.6), without 14.0, 2.0, 11.0, 11.3 (mean 9.6)."""
     config = AgentConfig(episodes=80, eval_every=10, eval_episodes=30, hidden_sizes=(64, 64),
                          updates_per_episode=40, actor_lr=1e-3, tau=0.05,
                          exploration="epsilon", exploration_rate=0.3, warmup_episodes=0)
-    rows = train([tmp_path / "learn"], seeds=[0], config=config)[0]
-    hits = [r["successes"] for r in rows]
-    assert hits[0] <= 3, hits  # an untrained policy hits next to nothing ...
-    assert hits[-1] >= 18, hits  # ... after 80 episodes most goals
-    assert rows[-1]["mean_final_distance_m"] < 0.3 * rows[0]["mean_final_distance_m"]
-    plain = AgentConfig(**{**config.to_dict(), "her_strategy": "none"})
-    control = [r["successes"] for r in train([tmp_path / "no-her"], seeds=[0],
-                                             config=plain)[0]]
-    assert np.mean(hits[-3:]) >= np.mean(control[-3:]) + 10, (hits, control)
+    seeds = [0, 1, 2, 3]
+
+    def hits(config, name):
+        runs = train([tmp_path / name / f"s{s}" for s in seeds], seeds=seeds, config=config)
+        return (np.array([[r["successes"] for r in rows] for rows in runs]),
+                np.array([[r["mean_final_distance_m"] for r in rows] for rows in runs]))
+
+    her, distance = hits(config, "learn")
+    assert (her[:, 0] <= 3).all(), her  # an untrained policy hits next to nothing ...
+    assert her[:, -1].mean() >= 18, her  # ... after 80 episodes most goals
+    assert distance[:, -1].mean() < 0.3 * distance[:, 0].mean()
+    control, _ = hits(AgentConfig(**{**config.to_dict(), "her_strategy": "none"}), "no-her")
+    assert her[:, -3:].mean() >= control[:, -3:].mean() + 10, (her, control)
 
 
 def test_learns_the_toy_task_with_lillicraps_batch_norm_and_weight_decay(tmp_path):
