@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import subprocess
@@ -367,6 +368,14 @@ def count(args: argparse.Namespace) -> dict[str, Any]:
                        "otherwise; the arm's and the fused kernels' not included"}}
 
 
+def positive(text: str) -> float:
+    """A rate or clock flag's value: a finite number > 0."""
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m benchmarks.gpu_budget", description=__doc__.split("\n\n")[0],
@@ -393,16 +402,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--node-us", type=float, default=2.0,
                         help="microseconds per launch, a CUDA graph node's latency (H100/H200: "
                         "about 1.5-3)")
-    parser.add_argument("--bandwidth-gbs", type=float, default=4800.0,
-                        help="memory bandwidth, GB/s (H200 HBM3e 4,800; H100 SXM 3,350)")
-    parser.add_argument("--tflops", type=float, default=60.0,
-                        help="arithmetic rate of the bodies' ops, TFLOP/s (H200 float32 "
+    parser.add_argument("--bandwidth-gbs", type=positive, default=4800.0,
+                        help="memory bandwidth, GB/s, > 0 (H200 HBM3e 4,800; H100 SXM 3,350)")
+    parser.add_argument("--tflops", type=positive, default=60.0,
+                        help="arithmetic rate of the bodies' ops, TFLOP/s, > 0 (H200 float32 "
                         "without tensor cores: about 60)")
-    parser.add_argument("--fp64-tflops", type=float, default=34.0,
+    parser.add_argument("--fp64-tflops", type=positive, default=34.0,
                         help="FP64 issue rate of the arm kernel when many lanes run, "
-                        "TFLOP/s (H100/H200 vector FP64: 34)")
-    parser.add_argument("--clock-ghz", type=float, default=1.98,
-                        help="SM clock, GHz (H200 boost 1.98)")
+                        "TFLOP/s, > 0 (H100/H200 vector FP64: 34)")
+    parser.add_argument("--clock-ghz", type=positive, default=1.98,
+                        help="SM clock, GHz, > 0 (H200 boost 1.98)")
     parser.add_argument("--cycles-per-instruction", type=float, default=1.0,
                         help="one lane's SASS issue interval, cycles, for the static count's "
                         "figure (arm_static_sass_us_per_step: every instruction once per "
@@ -415,7 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="one update of the 55 agents, ms, measured on an H200 "
                         "(the calibration)")
     parser.add_argument("--update-launches", type=int, default=124,
-                        help="the launches per update when --update-ms was measured")
+                        help="the launches per update when --update-ms was measured (count, >= 1)")
     parser.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     parser.add_argument("--counts-from", type=Path, default=None, metavar="JSON",
                         help="take the counts from this earlier output instead of counting "
