@@ -123,8 +123,9 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
             end = min(base.end, variants[n].end)
             b_level, v_level = _cut(base, end).level(), _cut(variants[n], end).level()
             b, v = interval(b_level, PERCENT), interval(v_level, PERCENT)
-            parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) {fmt_interval(b)}, "
-                         f"{VARIANTS[n]} {fmt_interval(v)} ({len(v_level)} seeds)")
+            parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) "
+                         f"{fmt_interval(b)}, {VARIANTS[n]} {fmt_interval(v)} "
+                         f"({len(v_level)} seeds)")
             ps.append(welch_p(b_level, v_level))
             each.append(apart(b, v) if name != EXTRA[0][0] else
                         Verdict.YES if v[2] < NEGLIGIBLE else Verdict.NO if v[1] >= NEGLIGIBLE

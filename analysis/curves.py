@@ -3,12 +3,12 @@
     python -m analysis.curves RUNS_ROOT... --out fig.png
     python -m analysis.curves RUNS_ROOT... --group-by region --out fig.png   # groups, one axis
 
-Each panel is a (region, joints) setting (runs of one setting that differ in another recorded
-field are drawn apart in it, each labelled with what differs), laid out like the paper's figures (a row per region, a
-column per joint count): the mean over seeds with a 65 % Student-t confidence interval, each seed
-faintly, and the paper's stated asymptote dashed where it gives one. The plotted numbers go to a
-CSV beside the figure (``fig.csv``). With ``--group-by FIELD`` or ``--groups NAME=DIR ...``
-every group is drawn on one axis, each in its colour.
+Each panel is a (region, joints) setting (runs of one setting that differ in another recorded field
+are drawn apart in it, each labelled with what differs), laid out like the paper's figures (a row
+per region, a column per joint count): the mean over seeds with a 65 % Student-t confidence
+interval, each seed faintly, and the paper's stated asymptote dashed where it gives one. The plotted
+numbers go to a CSV beside the figure (``fig.csv``). With ``--group-by FIELD`` or ``--groups
+NAME=DIR ...`` every group is drawn on one axis, each in its colour.
 """
 
 from __future__ import annotations
@@ -38,7 +38,8 @@ from analysis.runs import (
 )
 from regions.registry import paper_order
 
-CSV_COLUMNS = ("group", "region", "joints", "episode", "seeds", "mean_successes", "ci_low", "ci_high")
+CSV_COLUMNS = ("group", "region", "joints", "episode", "seeds", "mean_successes", "ci_low",
+               "ci_high")
 """Columns of the CSV beside the figure; successes are per 100 test goals, the interval is clipped
 to 0-100."""
 

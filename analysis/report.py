@@ -685,8 +685,9 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
     for key in order:
         s = summaries[key]
         paper = PAPER_RESULTS.get(key)
-        lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | {fmt_interval(s.final)} | "
-                     f"{fmt_interval(s.best)} | {_first_high(s.first_high)} | "
+        lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | "
+                     f"{fmt_interval(s.final)} | {fmt_interval(s.best)} | "
+                     f"{_first_high(s.first_high)} | "
                      f"{paper.text if paper else 'not in the paper'} |")
     checks = ordering_checks(summaries, level, plateaus_at_end(summaries))
     lines += ["", *reading_lines(summaries), *rule_lines(level, plateaus=True),
@@ -730,7 +731,8 @@ def comparison(groups: Sequence[Group], level: float) -> str:
         runs = ", ".join(str(r.path) for r in g.runs)
         settings = ", ".join(dict.fromkeys(f"{r.region} {r.joints}" for r in g.runs))
         lines.append(f"| {g.label} | {settings} | {len(g.runs)} | "
-                     f"{fmt_interval(stat[g.label])} | {fmt_interval(interval(c.percent.max(axis=1), PERCENT))} "
+                     f"{fmt_interval(stat[g.label])} | "
+                     f"{fmt_interval(interval(c.percent.max(axis=1), PERCENT))} "
                      f"| {_first_high(first)} | {runs} |")
     pooled = pooled_lines(groups)
     if pooled:

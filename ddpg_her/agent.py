@@ -10,10 +10,10 @@ parameters, the soft target update one pass over all, and an online network and 
 each parameter's two stacks side by side, run as one stack of 2K agents.
 
 The update is fast through three private torch functions (``torch._fused_adam_``,
-``torch.ops.aten.threshold_backward``, ``torch._foreach_lerp_``). Each is checked once at import against the public computation it
-replaces (:func:`probe_fast_paths`); one that is missing or answers differently is replaced
-by that public computation, with a warning naming it: a torch upgrade costs speed, never
-correctness.
+``torch.ops.aten.threshold_backward``, ``torch._foreach_lerp_``). Each is checked once at import
+against the public computation it replaces (:func:`probe_fast_paths`); one that is missing or
+answers differently is replaced by that public computation, with a warning naming it: a torch
+upgrade costs speed, never correctness.
 """
 
 from __future__ import annotations
