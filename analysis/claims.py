@@ -99,12 +99,6 @@ def load(results: Path) -> tuple[dict[tuple[str, int], Curves], dict[str, Curves
     return curves, variants
 
 
-def _cut(c: Curves, end: int) -> Curves:
-    """``c`` up to its session at ``end`` episodes: settings compared at one budget."""
-    keep = c.episode <= end
-    return Curves(c.episode[keep], c.percent[:, keep])
-
-
 def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curves]
                 ) -> list[Check]:
     """The three claims of `EXTRA`, each comparing variants with the default far box 3 cut to
@@ -121,7 +115,7 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
         each, parts, ps = [], [], []
         for n in have:
             end = min(base.end, variants[n].end)
-            b_level, v_level = _cut(base, end).level(), _cut(variants[n], end).level()
+            b_level, v_level = base.until(end).level(), variants[n].until(end).level()
             b, v = interval(b_level, PERCENT), interval(v_level, PERCENT)
             parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) "
                          f"{fmt_interval(b)}, {VARIANTS[n]} {fmt_interval(v)} "
@@ -149,7 +143,7 @@ def table(results: Path) -> list[dict[str, str]]:
         # every setting a claim compares cut to the shortest one's budget: one budget per claim
         keys = [k for k in needs[claim.name] if k in curves]
         end = min((curves[k].end for k in keys), default=0)
-        cut[claim.name] = {k: _cut(curves[k], end) for k in keys}
+        cut[claim.name] = {k: curves[k].until(end) for k in keys}
         plateaus = {k: plateau(c.episode, c.percent) for k, c in cut[claim.name].items()}
         checks.append(judge_claims(cut[claim.name], plateaus=plateaus)[i])
     checks += judge_extra(curves, variants)

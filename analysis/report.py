@@ -212,12 +212,19 @@ class Curves:
     def of(cls, runs: Sequence[Run], upto: int | None = None) -> Curves:
         """The runs' common sessions (`analysis.runs.aligned_successes`), those after ``upto``
         (training episodes) dropped."""
-        episode, percent = aligned_successes(runs)
-        keep = episode <= upto if upto is not None else np.ones(len(episode), bool)
-        if not keep.any():
+        curves = cls(*aligned_successes(runs))
+        if upto is not None:
+            curves = curves.until(upto)
+        if not len(curves.episode):
             raise ValueError(f"runs {[str(r.path) for r in runs]} share no test session"
                              + (f" at or below episode {upto}" if upto is not None else ""))
-        return cls(episode[keep], percent[:, keep])
+        return curves
+
+    def until(self, end: int) -> Curves:
+        """The sessions at or below ``end`` training episodes (settings compared at one
+        budget)."""
+        keep = self.episode <= end
+        return Curves(self.episode[keep], self.percent[:, keep])
 
     @property
     def end(self) -> int:
