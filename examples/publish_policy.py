@@ -4,6 +4,10 @@ and observation normaliser alone, the part `ddpg_her.load` (and so ``analysis.re
 
     python examples/publish_policy.py runs/demo runs/published/demo
 
+``out`` may also be the committed copy of the same run (its spec.json identical, its eval.csv
+the run's up to a test session): then the checkpoint alone is added beside them, so that a
+reported run's folder under ``results/`` replays as it stands.
+
 The checkpoint keeps, per agent (an ensemble's members each), the actor's weights and the
 normaliser's count, sums and sums of squares (float32, unchanged); the critics, target
 networks, optimisers, random streams and the replay buffer stay behind. A policy of 400-300
@@ -46,15 +50,20 @@ def publish(run: Path, out: Path) -> Path:
     episodes = source.checkpoints()
     if not episodes:
         raise FileNotFoundError(f"{run} has no checkpoint")
-    if RunFolder(out).exists():
-        raise FileExistsError(f"{out} holds a run already; choose another folder")
     episode = max(episodes)
+    rows = (run / "eval.csv").read_text().splitlines(keepends=True)  # up to the checkpoint's
+    rows = "".join(rows[:1] + [r for r in rows[1:] if int(r.split(",")[0]) <= episode])
+    if RunFolder(out).exists():
+        same = ((out / "spec.json").read_bytes() == (run / "spec.json").read_bytes()
+                and (out / "eval.csv").read_text() == rows)
+        if not same or (out / "checkpoints").exists():
+            raise FileExistsError(f"{out} holds another run, or a published checkpoint already "
+                                  "(expected a new folder, or the committed copy of this run "
+                                  f"up to episode {episode} without checkpoints)")
     state = policy_state(source.load_checkpoint(episode))
     (out / "checkpoints").mkdir(parents=True)
     shutil.copyfile(run / "spec.json", out / "spec.json")
-    rows = (run / "eval.csv").read_text().splitlines(keepends=True)  # up to the checkpoint's
-    (out / "eval.csv").write_text("".join(rows[:1] + [r for r in rows[1:]
-                                                      if int(r.split(",")[0]) <= episode]))
+    (out / "eval.csv").write_text(rows)
     path = out / "checkpoints" / f"episode-{episode:06d}.pt"
     torch.save(state, path)
     return path
@@ -64,8 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run", type=Path, help="the trained run folder (spec.json, eval.csv, "
                                                 "checkpoints)")
-    parser.add_argument("out", type=Path, help="the folder to publish into (must not hold a "
-                                                "run)")
+    parser.add_argument("out", type=Path, help="the folder to publish into: a new one, or the "
+                        "committed copy of this same run (spec.json and eval.csv equal)")
     args = parser.parse_args(argv)
     try:
         path = publish(args.run, args.out)

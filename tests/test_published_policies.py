@@ -1,5 +1,6 @@
-"""The policies committed under results/policies (issue 43): small, read by ``ddpg_her.load``,
-replayed and mapped straight from results/, and as good as their own eval.csv says."""
+"""The policies committed under results/ (issue 43): results/policies and the reported claims
+runs' own folders (results/claims/UNIT/runs/sSEED); small, read by ``ddpg_her.load``, replayed
+and mapped straight from results/, and as good as their own eval.csv says."""
 
 from __future__ import annotations
 
@@ -9,16 +10,17 @@ import numpy as np
 import pytest
 from cli_tools import ROOT
 
-POLICIES = sorted(p.parent.parent for p in (ROOT / "results" / "policies").glob(
-    "*/checkpoints/episode-*.pt"))
+POLICIES = sorted(p.parent.parent for pattern in ("policies/*", "claims/*/runs/s*")
+                  for p in (ROOT / "results").glob(f"{pattern}/checkpoints/episode-*.pt"))
 
 
 def test_the_published_policies_are_there():
-    names = {p.name for p in POLICIES}
-    assert {"farbox-j3-s0", "program-farbox-j3-s0"} <= names, names
+    names = {str(p.relative_to(ROOT / "results")) for p in POLICIES}
+    assert {"policies/farbox-j3-s0", "policies/program-farbox-j3-s0", "claims/per/runs/s0",
+            "claims/sparse/runs/s0"} <= names, names
 
 
-@pytest.mark.parametrize("run", POLICIES, ids=[p.name for p in POLICIES])
+@pytest.mark.parametrize("run", POLICIES, ids=[str(p.relative_to(ROOT)) for p in POLICIES])
 def test_a_published_policy_is_small_loads_and_reaches_what_its_eval_csv_says(run: Path):
     """The reference is the trainer's own last test session (its eval.csv: 100 goals of the
     task, through the trainer's collector); here 200 goals of the same sampler through
