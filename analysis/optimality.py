@@ -31,12 +31,12 @@ from typing import Any
 import numpy as np
 
 from analysis.outputs import (
-    OutputError,
-    check_folder,
-    check_writable,
+    check_files,
     pyplot,
     save_figure,
+    usage_errors,
     write_csv,
+    write_errors,
 )
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
@@ -882,21 +882,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     missing = [str(p) for p in args.curves or [] if not p.is_dir()]
     if missing:  # found only after the whole computation before
         parser.error(f"--curves: {', '.join(missing)} is not a folder of runs")
-    try:  # before any computing
-        check_folder(args.out, "--out")
-        for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):
-            check_writable(args.out / name, "--out")
-    except OutputError as err:
-        parser.error(str(err))
+    with usage_errors(parser):  # before any computing
+        check_files(args.out, ("optimality.csv", "optimality.png", "optimality_curves.png"),
+                    "--out")
     if args.from_csv:
         try:
             rows = read_csvs(args.from_csv)
         except ValueError as err:
             parser.error(str(err))
-        try:
+        with write_errors(parser):
             write_outputs(rows, args.out, args.curves)
-        except OutputError as err:
-            parser.exit(1, f"error: {err}\n")
         print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
         return 0
     settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
@@ -911,10 +906,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not rows:
         print("nothing to do: every reading was skipped", file=sys.stderr)
         return 1
-    try:
+    with write_errors(parser):
         write_outputs(rows, args.out, args.curves)
-    except OutputError as err:
-        parser.exit(1, f"error: {err}\n")
     print(f"{'region':<14}{'n':>2} {'reading':<14}{'worth %':>8} {'95 % CI':>13} "
           f"{'reachable %':>12} {'mean gap':>9} {'grid worth %':>13}")
     for r in rows:

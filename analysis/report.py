@@ -766,13 +766,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write the Markdown to this file")
     args = parser.parse_args(argv)
-    if args.out is not None:
-        from analysis.outputs import OutputError, check_writable
+    from analysis.outputs import check_writable, usage_errors, write_errors, write_text
 
-        try:  # before reading any run
+    if args.out is not None:
+        with usage_errors(parser):  # before reading any run
             check_writable(args.out, "--out")
-        except OutputError as err:
-            parser.error(str(err))
     if args.group_by or args.groups:
         text = comparison(groups_from_args(parser, args), args.confidence)
     else:
@@ -780,12 +778,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         summaries = {k: summarise(v, args.confidence) for k, v in groups.items()}
         text = render(summaries, args.confidence)
     if args.out is not None:
-        from analysis.outputs import OutputError, write_text
-
-        try:  # whole or not at all: a failed write keeps the previous report
+        with write_errors(parser):  # whole or not at all: a failed write keeps the old report
             write_text(args.out, text)
-        except OutputError as err:
-            parser.exit(1, f"error: {err}\n")
     print(text, end="")
     return 0
 

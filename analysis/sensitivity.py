@@ -39,14 +39,14 @@ import numpy as np
 
 from analysis.curves import curve_rows as setting_curve_rows
 from analysis.outputs import (
-    OutputError,
-    WouldReplace,
+    check_files,
     check_folder,
-    check_writable,
     pyplot,
     save_figure,
     unless_replacing,
+    usage_errors,
     write_csv,
+    write_errors,
     write_text,
 )
 from analysis.paper import PAPER_EPISODES
@@ -886,20 +886,15 @@ def report_main(argv: Sequence[str]) -> int:
     if args.worth_goals < 0:
         parser.error(f"--worth-goals must be >= 0; got {args.worth_goals}")
     out = args.out or args.root
-    try:  # before any computing
-        check_folder(out, "--out" if args.out else "ROOT")
-        for name in ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
-                     "worth_reaching.png", "report.md"):
-            check_writable(out / name, "--out" if args.out else "ROOT")
-    except OutputError as err:
-        parser.error(str(err))
+    with usage_errors(parser):  # before any computing
+        check_files(out, ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
+                          "worth_reaching.png", "report.md"), "--out" if args.out else "ROOT")
     try:
-        with unless_replacing(args.force, f"report {args.root} --out {out}"):
-            result = report(args.root, args.out or args.root, args.episodes, args.seeds,
-                            args.confidence, args.reps, args.bootstrap_seed, args.worth_goals,
-                            args.readings, _user_readings(parser, args))
-    except OutputError as err:
-        parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
+        with write_errors(parser), unless_replacing(args.force,
+                                                    f"report {args.root} --out {out}"):
+            result = report(args.root, out, args.episodes, args.seeds, args.confidence,
+                            args.reps, args.bootstrap_seed, args.worth_goals, args.readings,
+                            _user_readings(parser, args))
     except (FileNotFoundError, ValueError) as err:
         parser.error(str(err))
     print(result.text, end="")
@@ -934,25 +929,21 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
     (`write_reading`) in the root."""
     threads = check_execution_arguments(parser, args)
     if args.collect is not None:
-        try:
+        with usage_errors(parser):
             check_folder(args.collect / "runs", "--collect")
-        except OutputError as err:
-            parser.error(str(err))
     units = units_for(readings, args.setting or settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
         dry_run(units, args, threads, extra)
         return 0
     root = args.out if args.collect is None else args.collect / "runs"
-    try:
-        with unless_replacing(args.force, f"--collect {args.collect}"):
+    try:  # a full disk, or runs it would replace: nothing half-written
+        with write_errors(parser), unless_replacing(args.force, f"--collect {args.collect}"):
             copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
             done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
             for reading in readings:  # units started by hand have no reading.json of their own
                 if args.collect is not None and (reading.name in done
                                                  or (root / reading.name).is_dir()):
                     write_reading(root, reading)
-    except OutputError as err:  # a full disk, or runs it would replace; nothing half-written
-        parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
     except ValueError as err:
         parser.error(str(err))
     if args.collect is None:  # a run it would refuse leaves no reading.json behind

@@ -486,12 +486,10 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
         if problem:
             parser.error(f"--ray-address {args.ray_address}: {problem}")
     if not args.dry_run and getattr(args, "collect", None) is None:
-        from analysis.outputs import OutputError, check_folder
+        from analysis.outputs import check_folder, usage_errors
 
-        try:  # the root of the runs (and its logs), before any unit starts
+        with usage_errors(parser):  # the root of the runs (and its logs), before any unit starts
             check_folder(args.out / "logs", "--out")
-        except OutputError as err:
-            parser.error(str(err))
     return args.threads or DEFAULT_THREADS
 
 
