@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis.curves import CSV_COLUMNS as SETTING_CURVE_COLUMNS
 from analysis.curves import curve_rows as setting_curve_rows
 from analysis.outputs import (
     check_files,
@@ -55,6 +56,7 @@ from analysis.report import (
     LAST_SESSIONS,
     Check,
     Curves,
+    Interval,
     Verdict,
     claim_settings,
     comparisons_line,
@@ -68,7 +70,6 @@ from analysis.runs import (
     PERCENT,
     Group,
     Run,
-    aligned_successes,
     find_runs,
     mean_ci,
 )
@@ -232,9 +233,6 @@ def collect(units: Sequence[Unit], dest: Path) -> tuple[int, list[str]]:
 
 
 # --- the report ---------------------------------------------------------------------------------
-
-Interval = tuple[float, float, float]
-"""(estimate, low, high), successes per 100 test goals."""
 
 
 @dataclass(frozen=True)
@@ -461,10 +459,8 @@ def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level:
 def cut_curves(runs: Sequence[Run], budget: int) -> Curves:
     """The runs' common test sessions at or below the budget (the first session when none is:
     judged there, and marked partial)."""
-    episode, _ = aligned_successes(runs)
-    if len(episode) == 0:
-        raise ValueError(f"runs {[str(r.path) for r in runs]} share no evaluation episode")
-    return Curves.of(runs, max(budget, int(episode[0])))
+    curves = Curves.of(runs)
+    return curves.until(max(budget, int(curves.episode[0])))
 
 
 def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
@@ -572,9 +568,9 @@ FINAL_COLUMNS = ("reading", "region", "joints", "seeds", "episode", "partial", "
 over its last 5 test sessions up to the judged evaluation (';'-separated), their intervals, and
 the worth-reaching share (%)."""
 
-CURVE_COLUMNS = ("reading", "region", "joints", "episode", "seeds", "mean_successes", "ci_low",
-                 "ci_high")
-"""Columns of curves.csv: the plotted numbers, successes per 100 test goals."""
+CURVE_COLUMNS = ("reading", *SETTING_CURVE_COLUMNS[1:])
+"""Columns of curves.csv: `analysis.curves`' with the reading for the group, successes per 100
+test goals."""
 
 
 def _r(x: float | None) -> str:
@@ -792,8 +788,6 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
     FileNotFoundError
         When ``root`` does not exist.
     """
-    if not root.exists():
-        raise FileNotFoundError(f"runs root {root} does not exist")
     known = known_readings(root, extra)
     groups = group_runs(root, known)
     names = list(readings) if readings else [*READINGS, *sorted(set(groups) - set(READINGS))]
