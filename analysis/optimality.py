@@ -39,7 +39,7 @@ from analysis.outputs import (
     write_errors,
 )
 from analysis.readings import READINGS as STUDY_READINGS
-from analysis.readings import task_fields
+from analysis.readings import missing_fields, task_fields
 from analysis.sweep import parse_setting, positive_count
 from ddpg_her.units import task_option
 
@@ -574,14 +574,6 @@ def reading_fields(name: str) -> dict[str, Any]:
     return dict(READINGS[name])
 
 
-def missing_fields(fields: Mapping[str, Any]) -> list[str]:
-    """The names in ``fields`` that TaskSpec does not have (a reading of a later version)."""
-    from envs.spec import TaskSpec
-
-    known = {f.name for f in dataclasses.fields(TaskSpec)}
-    return sorted(set(fields) - known)
-
-
 def check_overrides(overrides: Sequence[tuple[str, Any]], readings: Sequence[str]
                     ) -> dict[str, Any]:
     """The ``--task KEY=VALUE`` pairs as the TaskSpec fields they set, checked before any
@@ -639,7 +631,7 @@ def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
 
     skipped, usable = [], []
     for name in readings:
-        missing = missing_fields(reading_fields(name))
+        missing = sorted(missing_fields(reading_fields(name)))
         if missing:
             skipped.append(f"reading {name!r} skipped: TaskSpec has no field(s) {missing} in "
                            "this version")

@@ -51,7 +51,7 @@ from analysis.outputs import (
     write_text,
 )
 from analysis.paper import PAPER_EPISODES
-from analysis.readings import CHOICES, READINGS, Reading, run_choices
+from analysis.readings import CHOICES, READINGS, Reading, missing_fields, run_choices
 from analysis.report import (
     LAST_SESSIONS,
     Check,
@@ -180,19 +180,13 @@ def write_reading(root: Path, reading: Reading) -> None:
 
 
 def missing_task_fields(reading: Reading, extra: Sequence[str] = ()) -> list[str]:
-    """The ``--task KEY=...`` keys of ``reading`` that this code's TaskSpec lacks (a reading
-    written for a field another branch adds, e.g. ``contact_model``); none when ``--env-id``
-    in the reading or ``extra`` names another env, whose task fields may differ."""
-    import dataclasses
-
-    from envs.spec import TaskSpec
-
+    """The ``--task KEY=...`` keys of ``reading`` that this code's TaskSpec lacks
+    (`analysis.readings.missing_fields`); none when ``--env-id`` in the reading or ``extra``
+    names another env, whose task fields may differ."""
     if "--env-id" in (*reading.args, *extra):
         return []
-    have = {f.name for f in dataclasses.fields(TaskSpec)}
-    keys = [reading.args[i + 1].partition("=")[0] for i, a in enumerate(reading.args[:-1])
-            if a == "--task"]
-    return [k for k in keys if k not in have]
+    return missing_fields(reading.args[i + 1].partition("=")[0]
+                          for i, a in enumerate(reading.args[:-1]) if a == "--task")
 
 
 def units_for(readings: Sequence[Reading], settings: Sequence[tuple[str, int]], seeds: int,
