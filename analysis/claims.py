@@ -71,8 +71,8 @@ RULES = ["seeds hitting 90 by 1,000 vs the paper's misses"] * 2 + [
     "uniform above prioritised (65 % t, apart)"]
 """The rule of each claim, in table order (`analysis.report.rule_lines` states them in full)."""
 
-WORDS = {Verdict.YES: "holds", Verdict.NO: "contradicted", Verdict.NOISE: "within noise",
-         Verdict.NOT_JUDGEABLE: "not judgeable", Verdict.NOT_RUN: "not run"}
+WORDS = {**{v: v.value for v in Verdict}, Verdict.NO: "contradicted"}
+"""The verdicts' words in the table: `analysis.report.Verdict`'s, a failed claim contradicted."""
 COLUMNS = ("claim", "section", "our figure", "rule", "budget run", "verdict", "budget needed")
 
 

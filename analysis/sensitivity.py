@@ -923,26 +923,24 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
     if args.dry_run:
         dry_run(units, args, threads, extra)
         return 0
-    root = args.out if args.collect is None else args.collect / "runs"
+    if args.collect is None:
+        refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
+        try:
+            for reading in readings:
+                write_reading(args.out, reading)
+        except ValueError as err:
+            parser.error(str(err))
+        return execute(units, args, threads, extra, unit_word="units")
+    root = args.collect / "runs"
     try:  # a full disk, or runs it would replace: nothing half-written
         with write_errors(parser), unless_replacing(args.force, f"--collect {args.collect}"):
-            copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
+            copied, skipped = collect(units, args.collect)
             done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
             for reading in readings:  # units started by hand have no reading.json of their own
-                if args.collect is not None and (reading.name in done
-                                                 or (root / reading.name).is_dir()):
+                if reading.name in done or (root / reading.name).is_dir():
                     write_reading(root, reading)
     except ValueError as err:
         parser.error(str(err))
-    if args.collect is None:  # a run it would refuse leaves no reading.json behind
-        refuse_problems(units, extra, args)
-    try:
-        for reading in readings if args.collect is None else ():
-            write_reading(root, reading)
-    except ValueError as err:
-        parser.error(str(err))
-    if args.collect is None:
-        return execute(units, args, threads, extra, unit_word="units")
     print(f"copied {copied} finished unit(s) to {root}; {len(skipped)} not finished"
           + (": " + ", ".join(skipped) if skipped else ""), file=sys.stderr)
     return 0
