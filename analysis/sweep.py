@@ -481,14 +481,13 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.project and args.ray_address:
         parser.error("--project times the units on this machine, not on a Ray cluster; drop "
                      "--ray-address")
-    if args.ray_address and not args.dry_run and getattr(args, "collect", None) is None:
-        problem = ray_address_problem(args.ray_address)
-        if problem:
-            parser.error(f"--ray-address {args.ray_address}: {problem}")
-    if not args.dry_run and getattr(args, "collect", None) is None:
+    if not args.dry_run and getattr(args, "collect", None) is None:  # before any unit starts
         from analysis.outputs import check_folder, usage_errors
 
-        with usage_errors(parser):  # the root of the runs (and its logs), before any unit starts
+        problem = args.ray_address and ray_address_problem(args.ray_address)
+        if problem:
+            parser.error(f"--ray-address {args.ray_address}: {problem}")
+        with usage_errors(parser):  # the root of the runs (and its logs)
             check_folder(args.out / "logs", "--out")
     return args.threads or DEFAULT_THREADS
 
