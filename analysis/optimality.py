@@ -877,20 +877,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     with usage_errors(parser):  # before any computing
         check_files(args.out, ("optimality.csv", "optimality.png", "optimality_curves.png"),
                     "--out")
-    if args.from_csv:
-        try:
-            rows = read_csvs(args.from_csv)
-        except ValueError as err:
-            parser.error(str(err))
-        with write_errors(parser):
-            write_outputs(rows, args.out, args.curves)
-        print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
-        return 0
     settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
     try:
-        rows, skipped = study(settings, args.readings, overrides,
-                              args.goals, args.gamma, args.seed, grid=args.grid,
-                              progress=not args.no_progress)
+        rows, skipped = (read_csvs(args.from_csv), []) if args.from_csv else study(
+            settings, args.readings, overrides, args.goals, args.gamma, args.seed,
+            grid=args.grid, progress=not args.no_progress)
     except ValueError as err:
         parser.error(str(err))
     for line in skipped:
@@ -900,6 +891,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     with write_errors(parser):
         write_outputs(rows, args.out, args.curves)
+    if args.from_csv:
+        print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
+        return 0
     print(f"{'region':<14}{'n':>2} {'reading':<14}{'worth %':>8} {'95 % CI':>13} "
           f"{'reachable %':>12} {'mean gap':>9} {'grid worth %':>13}")
     for r in rows:
