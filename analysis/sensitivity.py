@@ -71,7 +71,6 @@ from analysis.runs import (
     Group,
     Run,
     find_runs,
-    mean_ci,
 )
 from analysis.sweep import (
     HelpFormatter,
@@ -242,7 +241,7 @@ class Cell:
     """Per seed, goals hit per 100 test goals, the mean over its last `LAST_SESSIONS` test
     sessions up to ``episode``."""
     t: Interval
-    """Mean with the Student-t interval (analysis.runs.mean_ci)."""
+    """Mean with the Student-t interval (analysis.report.student_t)."""
     boot_mean: Interval | None
     """Mean with its percentile bootstrap interval (`bootstrap_intervals`)."""
     boot_iqm: Interval | None
@@ -444,7 +443,7 @@ def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level:
         short.append(f"{len(runs)} of {seeds} seeds")
     if curves.end < budget:
         short.append(f"{curves.end:,} of {budget:,} episodes")
-    t = tuple(float(x) for x in mean_ci(values, level, PERCENT))
+    t = student_t(level)(values, PERCENT)
     boot_mean, boot_iqm = bootstrap_intervals(values, level, reps, boot_seed)
     return Cell(reading, runs[0].region, runs[0].joints, curves.end,
                 tuple(float(v) for v in values), t, boot_mean, boot_iqm, "; ".join(short))
