@@ -330,12 +330,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--size must be at least 64 x 64 pixels; got {args.size}")
     if args.at is not None and not (math.isfinite(args.at) and args.at >= 0):
         parser.error(f"--at must be a finite time >= 0 (s); got {args.at}")
-    from analysis.outputs import OutputError, check_writable, write_bytes
+    from analysis.outputs import check_writable, usage_errors, write_bytes, write_errors
 
-    try:
+    with usage_errors(parser):
         check_writable(args.out, "--out")
-    except OutputError as err:
-        parser.error(str(err))
     try:
         with Browser(size=args.size) as browser:
             page = ViewerPage(browser, args.page)
@@ -345,10 +343,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrowserError as err:
         print(f"analysis.browser: {err}", file=sys.stderr)
         return 1
-    try:
+    with write_errors(parser):
         write_bytes(args.out, png)
-    except OutputError as err:
-        parser.exit(1, f"error: {err}\n")
     print(f"-> {args.out}", file=sys.stderr)
     return 0
 

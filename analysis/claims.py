@@ -12,12 +12,11 @@ setting winning; a claim whose runs are absent is *not run*.
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from analysis.outputs import write_csv, write_errors, write_text
 from analysis.paper import CLAIMS, PAPER_EPISODES
 from analysis.plateau import plateau
 from analysis.report import (
@@ -72,8 +71,8 @@ RULES = ["seeds hitting 90 by 1,000 vs the paper's misses"] * 2 + [
     "uniform above prioritised (65 % t, apart)"]
 """The rule of each claim, in table order (`analysis.report.rule_lines` states them in full)."""
 
-WORDS = {Verdict.YES: "holds", Verdict.NO: "contradicted", Verdict.NOISE: "within noise",
-         Verdict.NOT_JUDGEABLE: "not judgeable", Verdict.NOT_RUN: "not run"}
+WORDS = {**{v: v.value for v in Verdict}, Verdict.NO: "contradicted"}
+"""The verdicts' words in the table: `analysis.report.Verdict`'s, a failed claim contradicted."""
 COLUMNS = ("claim", "section", "our figure", "rule", "budget run", "verdict", "budget needed")
 
 
@@ -216,13 +215,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as err:
         parser.exit(1, f"error: {err}\n")
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "claims.md").write_text(markdown(rows) + "\n")
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
-        (args.out / "claims.csv").write_text(buf.getvalue())
+        with write_errors(parser):
+            write_text(args.out / "claims.md", markdown(rows) + "\n")
+            write_csv(args.out / "claims.csv", COLUMNS, rows)
     print(markdown(rows))
     return 0
 

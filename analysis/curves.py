@@ -19,12 +19,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from analysis.outputs import (
-    OutputError,
     check_writable,
     figure_path,
     pyplot,
     save_figure,
+    usage_errors,
     write_csv,
+    write_errors,
 )
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
@@ -134,20 +135,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("curves.png"),
                         help="figure file (.png, .pdf, .svg); the CSV goes beside it")
     args = parser.parse_args(argv)
-    try:  # before any reading or computing
+    with usage_errors(parser):  # before any reading or computing
         out = figure_path(args.out, "--out")
         csv_path = check_writable(out.with_suffix(".csv"), "--out")
-    except OutputError as err:
-        parser.error(str(err))
     groups = groups_from_args(parser, args)
     for line in pooled_lines(groups):
         print(f"note: {line}", file=sys.stderr)
     rows = curve_rows(groups, args.confidence)
-    try:
+    with write_errors(parser):
         plot(groups, out, args.confidence, overlay=bool(args.group_by or args.groups))
         write_csv(csv_path, CSV_COLUMNS, rows)
-    except OutputError as err:
-        parser.exit(1, f"error: {err}\n")
     runs = sum(len(g.runs) for g in groups)
     print(f"{runs} runs in {len(groups)} groups -> {out} and {csv_path}",
           file=sys.stderr)

@@ -31,15 +31,15 @@ from typing import Any
 import numpy as np
 
 from analysis.outputs import (
-    OutputError,
-    check_folder,
-    check_writable,
+    check_files,
     pyplot,
     save_figure,
+    usage_errors,
     write_csv,
+    write_errors,
 )
 from analysis.readings import READINGS as STUDY_READINGS
-from analysis.readings import task_fields
+from analysis.readings import missing_fields, task_fields
 from analysis.sweep import parse_setting, positive_count
 from ddpg_her.units import task_option
 
@@ -574,14 +574,6 @@ def reading_fields(name: str) -> dict[str, Any]:
     return dict(READINGS[name])
 
 
-def missing_fields(fields: Mapping[str, Any]) -> list[str]:
-    """The names in ``fields`` that TaskSpec does not have (a reading of a later version)."""
-    from envs.spec import TaskSpec
-
-    known = {f.name for f in dataclasses.fields(TaskSpec)}
-    return sorted(set(fields) - known)
-
-
 def check_overrides(overrides: Sequence[tuple[str, Any]], readings: Sequence[str]
                     ) -> dict[str, Any]:
     """The ``--task KEY=VALUE`` pairs as the TaskSpec fields they set, checked before any
@@ -639,7 +631,7 @@ def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
 
     skipped, usable = [], []
     for name in readings:
-        missing = missing_fields(reading_fields(name))
+        missing = sorted(missing_fields(reading_fields(name)))
         if missing:
             skipped.append(f"reading {name!r} skipped: TaskSpec has no field(s) {missing} in "
                            "this version")
@@ -882,28 +874,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     missing = [str(p) for p in args.curves or [] if not p.is_dir()]
     if missing:  # found only after the whole computation before
         parser.error(f"--curves: {', '.join(missing)} is not a folder of runs")
-    try:  # before any computing
-        check_folder(args.out, "--out")
-        for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):
-            check_writable(args.out / name, "--out")
-    except OutputError as err:
-        parser.error(str(err))
-    if args.from_csv:
-        try:
-            rows = read_csvs(args.from_csv)
-        except ValueError as err:
-            parser.error(str(err))
-        try:
-            write_outputs(rows, args.out, args.curves)
-        except OutputError as err:
-            parser.exit(1, f"error: {err}\n")
-        print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
-        return 0
+    with usage_errors(parser):  # before any computing
+        check_files(args.out, ("optimality.csv", "optimality.png", "optimality_curves.png"),
+                    "--out")
     settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
     try:
-        rows, skipped = study(settings, args.readings, overrides,
-                              args.goals, args.gamma, args.seed, grid=args.grid,
-                              progress=not args.no_progress)
+        rows, skipped = (read_csvs(args.from_csv), []) if args.from_csv else study(
+            settings, args.readings, overrides, args.goals, args.gamma, args.seed,
+            grid=args.grid, progress=not args.no_progress)
     except ValueError as err:
         parser.error(str(err))
     for line in skipped:
@@ -911,10 +889,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not rows:
         print("nothing to do: every reading was skipped", file=sys.stderr)
         return 1
-    try:
+    with write_errors(parser):
         write_outputs(rows, args.out, args.curves)
-    except OutputError as err:
-        parser.exit(1, f"error: {err}\n")
+    if args.from_csv:
+        print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
+        return 0
     print(f"{'region':<14}{'n':>2} {'reading':<14}{'worth %':>8} {'95 % CI':>13} "
           f"{'reachable %':>12} {'mean gap':>9} {'grid worth %':>13}")
     for r in rows:

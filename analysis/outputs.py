@@ -9,6 +9,7 @@ the work starts, and each file is written to a temporary name and moved into pla
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import csv
 import io
@@ -91,6 +92,33 @@ def check_folder(folder: str | os.PathLike, flag: str, of: Path | None = None) -
         reason = "a read-only file system" if _read_only(probe) else "no write permission"
         raise OutputError(f"{what}: cannot write in {probe} ({reason})")
     return folder
+
+
+def check_files(folder: str | os.PathLike, names: Iterable[str], flag: str) -> None:
+    """`check_folder` of ``folder``, then `check_writable` of each file ``names`` in it."""
+    check_folder(folder, flag)
+    for name in names:
+        check_writable(Path(folder) / name, flag)
+
+
+@contextlib.contextmanager
+def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
+    """An OutputError of the block, an output checked before any work, is a usage error:
+    ``parser.error`` (status 2)."""
+    try:
+        yield
+    except OutputError as err:
+        parser.error(str(err))
+
+
+@contextlib.contextmanager
+def write_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
+    """An OutputError of the block ends the command with ``error: ...``: status 1 (a failed
+    write), or 2 where `unless_replacing` refused (`WouldReplace`, a usage error)."""
+    try:
+        yield
+    except OutputError as err:
+        parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
 
 
 def _read_only(path: Path) -> bool:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import itertools
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -79,6 +79,17 @@ def task_fields(args: Sequence[str]) -> dict[str, Any]:
     """The TaskSpec fields that ``ddpg_her.train`` arguments set (their ``--task`` pairs)."""
     return dict(task_option(value) for flag, value in itertools.pairwise(args)
                 if flag == "--task")
+
+
+def missing_fields(fields: Iterable[str]) -> list[str]:
+    """The names in ``fields`` that this code's TaskSpec does not have (a reading written for
+    a field another branch or a later version adds, e.g. ``contact_model``), in their order."""
+    import dataclasses
+
+    from envs.spec import TaskSpec
+
+    known = {f.name for f in dataclasses.fields(TaskSpec)}
+    return [name for name in dict.fromkeys(fields) if name not in known]
 
 
 CHOICES: tuple[tuple[str, str, str, str], ...] = (

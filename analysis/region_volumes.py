@@ -33,7 +33,9 @@ from analysis.outputs import (
     figure_path,
     pyplot,
     save_figure,
+    usage_errors,
     write_csv,
+    write_errors,
     write_text,
 )
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
@@ -535,12 +537,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.plot is not None and n_plot not in settings.joints:
         parser.error(f"--plot-joints {n_plot} must be one of --joints {list(settings.joints)}")
     if args.plot is not None:
-        try:  # before the study
+        with usage_errors(parser):  # before the study
             args.plot = figure_path(args.plot, "--plot")
             for suffix in (".json", ".csv"):
                 check_writable(args.plot.with_suffix(suffix), "--plot")
-        except OutputError as err:
-            parser.error(str(err))
     if args.view is not None:
         try:
             check_writable(pathlib.Path(args.view), "--view")
@@ -554,10 +554,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         print(format_table(study, settings))
     if args.plot is not None:
-        try:
+        with write_errors(parser):
             written = plot(study, settings, args.plot, n_plot)
-        except OutputError as err:
-            parser.exit(1, f"error: {err}\n")
         print("wrote " + ", ".join(map(str, written)), file=sys.stderr)
     return 0
 

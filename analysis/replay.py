@@ -249,13 +249,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_run(args.run)
     except ReplayError as err:
         parser.error(str(err))
-    from analysis.outputs import OutputError, check_writable
+    from analysis.outputs import check_writable, usage_errors, write_errors
 
     if not args.serve:
-        try:  # before the rollout, which takes minutes
+        with usage_errors(parser):  # before the rollout, which takes minutes
             check_writable(args.out, "--out")
-        except OutputError as err:
-            parser.error(str(err))
     from analysis import scene as scenes
 
     try:
@@ -279,10 +277,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"serving at {vis.url()} (Ctrl-C ends it)", flush=True)
         serve_until_stopped()
         return 0
-    try:
+    with write_errors(parser):
         size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)
-    except OutputError as err:
-        parser.exit(1, f"error: {err}\n")
     print(f"-> {args.out} ({size / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 

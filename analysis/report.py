@@ -554,12 +554,6 @@ def ordering_checks(summaries: dict[tuple[str, int], SettingSummary],
                         plateaus)
 
 
-def plateaus_at_end(summaries: Mapping[tuple[str, int], SettingSummary]
-                    ) -> dict[tuple[str, int], Plateau]:
-    """The plateau rule applied to each setting at the end of its common sessions."""
-    return {k: plateau(s.curves.episode, s.curves.percent) for k, s in summaries.items()}
-
-
 def _ci(low: float, high: float) -> str:
     return f"[{low:+.1f}, {high:+.1f}]"
 
@@ -582,7 +576,7 @@ def plateau_lines(summaries: Mapping[tuple[str, int], SettingSummary], level: fl
             cells += [_ci(*pl.change(m)[1:]) for m in MODELS]
             rows.append(head + "| " + " | ".join(cells) + " | "
                         + ("**" + pl.verdict() + "**" if pl.plateaued else pl.verdict()) + " |")
-        last = plateau(c.episode, c.percent)
+        last = pl  # the last stage is the end of the common sessions
         stat = fmt_interval(student_t(level)(c.level(), PERCENT))
         judged.append(f"- {_name(key)} at {last.end:,} episodes, last 5 {stat}: "
                       + ("plateaued; a claim about its asymptote can fail here, never hold."
@@ -696,7 +690,8 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
                      f"{fmt_interval(s.final)} | {fmt_interval(s.best)} | "
                      f"{_first_high(s.first_high)} | "
                      f"{paper.text if paper else 'not in the paper'} |")
-    checks = ordering_checks(summaries, level, plateaus_at_end(summaries))
+    checks = ordering_checks(summaries, level, {  # the plateau rule at each setting's end
+        k: plateau(s.curves.episode, s.curves.percent) for k, s in summaries.items()})
     lines += ["", *reading_lines(summaries), *rule_lines(level, plateaus=True),
               *plateau_lines(summaries, level), "## The paper's claims", "",
               *claim_table(checks), "", comparisons_line(checks)]
@@ -766,13 +761,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write the Markdown to this file")
     args = parser.parse_args(argv)
-    if args.out is not None:
-        from analysis.outputs import OutputError, check_writable
+    from analysis.outputs import check_writable, usage_errors, write_errors, write_text
 
-        try:  # before reading any run
+    if args.out is not None:
+        with usage_errors(parser):  # before reading any run
             check_writable(args.out, "--out")
-        except OutputError as err:
-            parser.error(str(err))
     if args.group_by or args.groups:
         text = comparison(groups_from_args(parser, args), args.confidence)
     else:
@@ -780,12 +773,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         summaries = {k: summarise(v, args.confidence) for k, v in groups.items()}
         text = render(summaries, args.confidence)
     if args.out is not None:
-        from analysis.outputs import OutputError, write_text
-
-        try:  # whole or not at all: a failed write keeps the previous report
+        with write_errors(parser):  # whole or not at all: a failed write keeps the old report
             write_text(args.out, text)
-        except OutputError as err:
-            parser.exit(1, f"error: {err}\n")
     print(text, end="")
     return 0
 

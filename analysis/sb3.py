@@ -23,7 +23,7 @@ import datetime
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -198,9 +198,10 @@ def _check_keys(params: dict[str, Any], allowed: dict[str, Any], algo: str, wher
 
 def _check_value(name: str, value: Any, hint: Any, algo: str) -> None:
     """Refuse ``value`` of the key ``name`` when JSON's value is not of SB3's type ``hint``."""
-    if not _accepts(value, hint):
+    fits, words = _json_form(hint)
+    if not fits(value):
         raise ValueError(f"{algo}: {name} = {json.dumps(value)[:80]} ({_json_kind(value)}): "
-                         f"expected {_describe(hint)}")
+                         f"expected {words}")
     choices = CHOICES.get(name.rpartition(".")[2])
     if choices and isinstance(value, str) and value not in choices:
         raise ValueError(f"{algo}: {name} = {value!r}: expected one of {', '.join(choices)}")
@@ -214,86 +215,56 @@ def _json_kind(value: Any) -> str:
             list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
 
 
-def _members(hint: Any) -> tuple[Any, ...] | None:
-    """The members of a union annotation (``a | b``, ``Optional``), or None for another."""
+def _json_form(hint: Any) -> tuple[Callable[[Any], bool], str]:
+    """What JSON values fit SB3's annotation ``hint``: a test of a value read from JSON, and
+    the forms in JSON's words. Any, and a keyword SB3 did not annotate, fit every value;
+    classes JSON cannot give (a Callable, a torch module's class) fit none (`UNWRITABLE`)."""
+    import inspect
     import types
     import typing
 
-    if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        return typing.get_args(hint)
-    return None
-
-
-def _accepts(value: Any, hint: Any) -> bool:
-    """Whether a JSON value fits SB3's annotation ``hint`` (classes JSON cannot give, such as
-    a Callable or a torch module's class, fit no value)."""
-    import typing
-
-    members = _members(hint)
-    if members is not None:
-        return any(_accepts(value, m) for m in members)
-    if hint is Any or hint is _unannotated():
-        return True
-    if hint is type(None):
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if hint is float:
-        return isinstance(value, int | float) and not isinstance(value, bool)
-    if hint is str:
-        return isinstance(value, str)
     origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if hint is dict or origin is dict:
-        return isinstance(value, dict) and (not args or all(
-            isinstance(k, str) and _accepts(v, args[1]) for k, v in value.items()))
-    if hint is list or origin is list:
-        return isinstance(value, list) and (not args or all(_accepts(v, args[0])
-                                                            for v in value))
-    if origin is tuple:
-        return (isinstance(value, list) and len(value) == len(args)
-                and all(_accepts(v, a) for v, a in zip(value, args, strict=True)))
-    return False
-
-
-def _unannotated() -> Any:
-    """``inspect.Parameter.empty``: a keyword SB3 did not annotate takes any value."""
-    import inspect
-
-    return inspect.Parameter.empty
-
-
-def _describe(hint: Any) -> str:
-    """SB3's annotation ``hint`` in JSON's words (the forms of it JSON can give)."""
-    import typing
-
-    members = _members(hint)
-    if members is not None:
-        words = [_describe(m) for m in members if _describe(m) != UNWRITABLE]
-        return " or ".join(dict.fromkeys(words)) or UNWRITABLE
-    simple = {type(None): "null", bool: "true or false", int: "an integer",
-              float: "a number", str: "a string", dict: "an object", list: "a list"}
-    if hint in simple:
-        return simple[hint]
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):  # a | b, Optional
+        forms = [_json_form(m) for m in args]
+        words = [w for _, w in forms if w != UNWRITABLE]
+        return (lambda v: any(fits(v) for fits, _ in forms),
+                " or ".join(dict.fromkeys(words)) or UNWRITABLE)
+    if hint is Any or hint is inspect.Parameter.empty:
+        return (lambda v: True), UNWRITABLE
+    simple = {type(None): (lambda v: v is None, "null"),
+              bool: (lambda v: isinstance(v, bool), "true or false"),
+              int: (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer"),
+              float: (lambda v: isinstance(v, int | float) and not isinstance(v, bool),
+                      "a number"),
+              str: (lambda v: isinstance(v, str), "a string"),
+              dict: (lambda v: isinstance(v, dict), "an object"),
+              list: (lambda v: isinstance(v, list), "a list")}
+    bare = origin if origin in (dict, list) and not args else hint  # typing.Dict: dict
+    if bare in simple:
+        return simple[bare]
     if origin is dict:
-        if args[1] is Any:
-            return "an object"
-        return f"an object whose values are {_describe(args[1])}"
+        fits, words = _json_form(args[1])
+        return (lambda v: isinstance(v, dict) and all(isinstance(k, str) and fits(x)
+                                                      for k, x in v.items()),
+                "an object" if args[1] is Any else f"an object whose values are {words}")
     if origin is list:
-        return f"a list of {_plural(_describe(args[0]))}"
+        fits, words = _json_form(args[0])
+        return (lambda v: isinstance(v, list) and all(map(fits, v)),
+                f"a list of {_plural(words)}")
     if origin is tuple:
-        return f"a list [{', '.join(_describe(a) for a in args)}]"
-    return UNWRITABLE
+        forms = [_json_form(a) for a in args]
+        return (lambda v: isinstance(v, list) and len(v) == len(forms)
+                and all(fits(x) for (fits, _), x in zip(forms, v, strict=True)),
+                f"a list [{', '.join(w for _, w in forms)}]")
+    return (lambda v: False), UNWRITABLE
 
 
 UNWRITABLE = "a Python object, which a JSON file cannot give (leave it out)"
-"""What `_describe` says of an annotation no JSON value fits."""
+"""What `_json_form` says of an annotation no JSON value fits."""
 
 
 def _plural(words: str) -> str:
-    """'an integer' -> 'integers' (for `_describe` of a list)."""
+    """'an integer' -> 'integers' (for `_json_form` of a list)."""
     return " or ".join(w.split(" ", 1)[1] + "s" if w.startswith(("a ", "an ")) else w
                        for w in words.split(" or "))
 

@@ -37,24 +37,26 @@ from typing import Any
 
 import numpy as np
 
+from analysis.curves import CSV_COLUMNS as SETTING_CURVE_COLUMNS
 from analysis.curves import curve_rows as setting_curve_rows
 from analysis.outputs import (
-    OutputError,
-    WouldReplace,
+    check_files,
     check_folder,
-    check_writable,
     pyplot,
     save_figure,
     unless_replacing,
+    usage_errors,
     write_csv,
+    write_errors,
     write_text,
 )
 from analysis.paper import PAPER_EPISODES
-from analysis.readings import CHOICES, READINGS, Reading, run_choices
+from analysis.readings import CHOICES, READINGS, Reading, missing_fields, run_choices
 from analysis.report import (
     LAST_SESSIONS,
     Check,
     Curves,
+    Interval,
     Verdict,
     claim_settings,
     comparisons_line,
@@ -68,9 +70,7 @@ from analysis.runs import (
     PERCENT,
     Group,
     Run,
-    aligned_successes,
     find_runs,
-    mean_ci,
 )
 from analysis.sweep import (
     HelpFormatter,
@@ -179,19 +179,13 @@ def write_reading(root: Path, reading: Reading) -> None:
 
 
 def missing_task_fields(reading: Reading, extra: Sequence[str] = ()) -> list[str]:
-    """The ``--task KEY=...`` keys of ``reading`` that this code's TaskSpec lacks (a reading
-    written for a field another branch adds, e.g. ``contact_model``); none when ``--env-id``
-    in the reading or ``extra`` names another env, whose task fields may differ."""
-    import dataclasses
-
-    from envs.spec import TaskSpec
-
+    """The ``--task KEY=...`` keys of ``reading`` that this code's TaskSpec lacks
+    (`analysis.readings.missing_fields`); none when ``--env-id`` in the reading or ``extra``
+    names another env, whose task fields may differ."""
     if "--env-id" in (*reading.args, *extra):
         return []
-    have = {f.name for f in dataclasses.fields(TaskSpec)}
-    keys = [reading.args[i + 1].partition("=")[0] for i, a in enumerate(reading.args[:-1])
-            if a == "--task"]
-    return [k for k in keys if k not in have]
+    return missing_fields(reading.args[i + 1].partition("=")[0]
+                          for i, a in enumerate(reading.args[:-1]) if a == "--task")
 
 
 def units_for(readings: Sequence[Reading], settings: Sequence[tuple[str, int]], seeds: int,
@@ -233,9 +227,6 @@ def collect(units: Sequence[Unit], dest: Path) -> tuple[int, list[str]]:
 
 # --- the report ---------------------------------------------------------------------------------
 
-Interval = tuple[float, float, float]
-"""(estimate, low, high), successes per 100 test goals."""
-
 
 @dataclass(frozen=True)
 class Cell:
@@ -250,7 +241,7 @@ class Cell:
     """Per seed, goals hit per 100 test goals, the mean over its last `LAST_SESSIONS` test
     sessions up to ``episode``."""
     t: Interval
-    """Mean with the Student-t interval (analysis.runs.mean_ci)."""
+    """Mean with the Student-t interval (analysis.report.student_t)."""
     boot_mean: Interval | None
     """Mean with its percentile bootstrap interval (`bootstrap_intervals`)."""
     boot_iqm: Interval | None
@@ -452,7 +443,7 @@ def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level:
         short.append(f"{len(runs)} of {seeds} seeds")
     if curves.end < budget:
         short.append(f"{curves.end:,} of {budget:,} episodes")
-    t = tuple(float(x) for x in mean_ci(values, level, PERCENT))
+    t = student_t(level)(values, PERCENT)
     boot_mean, boot_iqm = bootstrap_intervals(values, level, reps, boot_seed)
     return Cell(reading, runs[0].region, runs[0].joints, curves.end,
                 tuple(float(v) for v in values), t, boot_mean, boot_iqm, "; ".join(short))
@@ -461,10 +452,8 @@ def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level:
 def cut_curves(runs: Sequence[Run], budget: int) -> Curves:
     """The runs' common test sessions at or below the budget (the first session when none is:
     judged there, and marked partial)."""
-    episode, _ = aligned_successes(runs)
-    if len(episode) == 0:
-        raise ValueError(f"runs {[str(r.path) for r in runs]} share no evaluation episode")
-    return Curves.of(runs, max(budget, int(episode[0])))
+    curves = Curves.of(runs)
+    return curves.until(max(budget, int(curves.episode[0])))
 
 
 def worth_shares(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, int], list[Run]]],
@@ -572,9 +561,9 @@ FINAL_COLUMNS = ("reading", "region", "joints", "seeds", "episode", "partial", "
 over its last 5 test sessions up to the judged evaluation (';'-separated), their intervals, and
 the worth-reaching share (%)."""
 
-CURVE_COLUMNS = ("reading", "region", "joints", "episode", "seeds", "mean_successes", "ci_low",
-                 "ci_high")
-"""Columns of curves.csv: the plotted numbers, successes per 100 test goals."""
+CURVE_COLUMNS = ("reading", *SETTING_CURVE_COLUMNS[1:])
+"""Columns of curves.csv: `analysis.curves`' with the reading for the group, successes per 100
+test goals."""
 
 
 def _r(x: float | None) -> str:
@@ -792,8 +781,6 @@ def report(root: Path, out: Path, budget: int = STUDY_EPISODES, seeds: int = STU
     FileNotFoundError
         When ``root`` does not exist.
     """
-    if not root.exists():
-        raise FileNotFoundError(f"runs root {root} does not exist")
     known = known_readings(root, extra)
     groups = group_runs(root, known)
     names = list(readings) if readings else [*READINGS, *sorted(set(groups) - set(READINGS))]
@@ -886,20 +873,15 @@ def report_main(argv: Sequence[str]) -> int:
     if args.worth_goals < 0:
         parser.error(f"--worth-goals must be >= 0; got {args.worth_goals}")
     out = args.out or args.root
-    try:  # before any computing
-        check_folder(out, "--out" if args.out else "ROOT")
-        for name in ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
-                     "worth_reaching.png", "report.md"):
-            check_writable(out / name, "--out" if args.out else "ROOT")
-    except OutputError as err:
-        parser.error(str(err))
+    with usage_errors(parser):  # before any computing
+        check_files(out, ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
+                          "worth_reaching.png", "report.md"), "--out" if args.out else "ROOT")
     try:
-        with unless_replacing(args.force, f"report {args.root} --out {out}"):
-            result = report(args.root, args.out or args.root, args.episodes, args.seeds,
-                            args.confidence, args.reps, args.bootstrap_seed, args.worth_goals,
-                            args.readings, _user_readings(parser, args))
-    except OutputError as err:
-        parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
+        with write_errors(parser), unless_replacing(args.force,
+                                                    f"report {args.root} --out {out}"):
+            result = report(args.root, out, args.episodes, args.seeds, args.confidence,
+                            args.reps, args.bootstrap_seed, args.worth_goals, args.readings,
+                            _user_readings(parser, args))
     except (FileNotFoundError, ValueError) as err:
         parser.error(str(err))
     print(result.text, end="")
@@ -934,36 +916,30 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
     (`write_reading`) in the root."""
     threads = check_execution_arguments(parser, args)
     if args.collect is not None:
-        try:
+        with usage_errors(parser):
             check_folder(args.collect / "runs", "--collect")
-        except OutputError as err:
-            parser.error(str(err))
     units = units_for(readings, args.setting or settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
         dry_run(units, args, threads, extra)
         return 0
-    root = args.out if args.collect is None else args.collect / "runs"
-    try:
-        with unless_replacing(args.force, f"--collect {args.collect}"):
-            copied, skipped = (0, []) if args.collect is None else collect(units, args.collect)
+    if args.collect is None:
+        refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
+        try:
+            for reading in readings:
+                write_reading(args.out, reading)
+        except ValueError as err:
+            parser.error(str(err))
+        return execute(units, args, threads, extra, unit_word="units")
+    root = args.collect / "runs"
+    try:  # a full disk, or runs it would replace: nothing half-written
+        with write_errors(parser), unless_replacing(args.force, f"--collect {args.collect}"):
+            copied, skipped = collect(units, args.collect)
             done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
             for reading in readings:  # units started by hand have no reading.json of their own
-                if args.collect is not None and (reading.name in done
-                                                 or (root / reading.name).is_dir()):
+                if reading.name in done or (root / reading.name).is_dir():
                     write_reading(root, reading)
-    except OutputError as err:  # a full disk, or runs it would replace; nothing half-written
-        parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
     except ValueError as err:
         parser.error(str(err))
-    if args.collect is None:  # a run it would refuse leaves no reading.json behind
-        refuse_problems(units, extra, args)
-    try:
-        for reading in readings if args.collect is None else ():
-            write_reading(root, reading)
-    except ValueError as err:
-        parser.error(str(err))
-    if args.collect is None:
-        return execute(units, args, threads, extra, unit_word="units")
     print(f"copied {copied} finished unit(s) to {root}; {len(skipped)} not finished"
           + (": " + ", ".join(skipped) if skipped else ""), file=sys.stderr)
     return 0

@@ -23,13 +23,14 @@ from typing import Any
 import numpy as np
 
 from analysis.outputs import (
-    OutputError,
     available_bytes,
     check_writable,
     figure_path,
     pyplot,
     save_figure,
+    usage_errors,
     write_csv,
+    write_errors,
 )
 
 WORKSPACE_REACH_M = 1.1
@@ -198,11 +199,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--goals {args.goals} and --cell {args.cell} m would need about "
                      f"{need / 2 ** 30:.3g} GiB ({args.goals} goals and {cells:.3g} grid cells "
                      f"per run), more than the {have / 2 ** 30:.3g} GiB of memory available")
-    try:  # before loading any policy or rolling out
+    with usage_errors(parser):  # before loading any policy or rolling out
         out = figure_path(args.out, "--out")
         csv_path = check_writable(out.with_suffix(".csv"), "--out")
-    except OutputError as err:
-        parser.error(str(err))
     z = (min(args.z), max(args.z))
     if z[0] == z[1]:
         parser.error(f"--z needs two different heights; got {args.z}")
@@ -237,11 +236,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         label = f"{Path(run).as_posix()} (episode {policy.episode})"  # the run, not "s0"
         reached = evaluate(policy, task, goals, args.batch, label, not args.no_progress)
         maps.append(bin_successes(label, goals, reached, args.cell))
-    try:
+    with write_errors(parser):
         plot(maps, z, out)
         write_csv(csv_path, CSV_COLUMNS, csv_rows(maps))
-    except OutputError as err:
-        parser.exit(1, f"error: {err}\n")
     for m in maps:
         print(f"{m.run}: {m.successes.sum()} of {m.goals.sum()} goals reached "
               f"({100.0 * m.successes.sum() / m.goals.sum():.1f} %)")

@@ -481,17 +481,14 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.project and args.ray_address:
         parser.error("--project times the units on this machine, not on a Ray cluster; drop "
                      "--ray-address")
-    if args.ray_address and not args.dry_run and getattr(args, "collect", None) is None:
-        problem = ray_address_problem(args.ray_address)
+    if not args.dry_run and getattr(args, "collect", None) is None:  # before any unit starts
+        from analysis.outputs import check_folder, usage_errors
+
+        problem = args.ray_address and ray_address_problem(args.ray_address)
         if problem:
             parser.error(f"--ray-address {args.ray_address}: {problem}")
-    if not args.dry_run and getattr(args, "collect", None) is None:
-        from analysis.outputs import OutputError, check_folder
-
-        try:  # the root of the runs (and its logs), before any unit starts
+        with usage_errors(parser):  # the root of the runs (and its logs)
             check_folder(args.out / "logs", "--out")
-        except OutputError as err:
-            parser.error(str(err))
     return args.threads or DEFAULT_THREADS
 
 
@@ -908,6 +905,7 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     spent, walls = timed_run(timed, args, threads, [*extra, *QUICK_ARGS],
                              f"the timed run of {len(reps)} process layout(s)")
     def span(times: Sequence[float]) -> float:  # the processes' wall time, run as planned
+        # one process is one stack: each episode steps every unit at once
         return max(times) if args.one_process else makespan(times, args.workers)
 
     waves = 1 if args.one_process else -(-len(timed) // args.workers)
@@ -917,13 +915,7 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     for unit, n, sec in zip(todo, done, seconds, strict=True):
         print(f"projection: {unit.name:<24} {unit.episodes - n:>6} episodes left -> "
               f"{sec:10.0f} s of training", file=sys.stderr)
-
-    def together(times: Sequence[float], start: float) -> float:
-        if args.one_process:  # one stack: each episode steps every unit at once
-            return start + max(times)
-        return makespan([start + t for t in times], args.workers)
-
-    total = together(seconds, start)
+    total = span([start + s for s in seconds])
     where = "one process" if args.one_process else f"{args.workers} process(es) at a time"
     print(f"projected wall time: {total:.0f} s ({total / 3600:.2f} h) for {len(todo)} "
           f"unfinished unit(s) to {max(u.episodes for u in todo):,} episodes, {where}, "
@@ -934,7 +926,7 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     if args.project == "full":
         first = [dataclasses.replace(c, episodes=min(2 * c.eval_every, c.episodes))
                  for c in configs]
-        cost = together([costs[k].seconds(c) for k, c in zip(keys, first, strict=True)], start)
+        cost = span([start + costs[k].seconds(c) for k, c in zip(keys, first, strict=True)])
         print(f"projection (full): training the first 2 test intervals of each of {len(todo)} "
               f"unit(s) costs about {cost:.0f} s by the model above; starting (Ctrl-C stops "
               "it and deletes what it trained)", file=sys.stderr, flush=True)
