@@ -213,15 +213,14 @@ class Loop:
                 **self._agent_state(k)}
 
     def _save(self) -> None:
-        if not self.window:
-            self.folders.save(self.episode, [self.state(k) for k in range(self.k)],
-                              self._saved_buffer())
-            return
-        final = self.done
-        states = [self.state(k) if final else {"rows": self.rows[k]} for k in range(self.k)]
-        for state in states if final else ():
+        """Every folder's checkpoint and eval.csv; a window run's: its eval.csv, and at the end
+        a checkpoint of the actors and normalisers."""
+        whole = self.done or not self.window
+        states = [self.state(k) if whole else {"rows": self.rows[k]} for k in range(self.k)]
+        for state in states if whole and self.window else ():
             state["agent"] = {key: state["agent"][key] for key in ("actor", "normalizer")}
-        self.folders.save_window(self.episode, states, final)
+        self.folders.save(self.episode, states, None if self.window else self._saved_buffer(),
+                          checkpoint=whole)
 
     def _restore(self, episode: int, states: list[dict[str, Any]],
                  chunks: list[list[tuple[int, Any]]]) -> None:
