@@ -67,11 +67,14 @@ def one_stack(group: Sequence[Setting]) -> bool:
         all(n in (base, base + every) for n in latest)
 
 
-def group_settings(settings: Sequence[Setting], resume: bool) -> list[list[Setting]]:
-    """The settings grouped into stacks: equal env id, layout and agent configuration and
-    (with ``resume``) one resume point: a group whose folders `one_stack` accepts stays whole,
-    another is split by each setting's `resume_point`; groups in the order of their first
-    setting."""
+def group_settings(settings: Sequence[Setting], resume: bool, env_backend: str = "numpy"
+                   ) -> list[list[Setting]]:
+    """The settings grouped into stacks: under ``env_backend`` program one stack; else equal
+    env id, layout and agent configuration and (with ``resume``) one resume point: a group
+    whose folders `one_stack` accepts stays whole, another is split by each setting's
+    `resume_point`; groups in the order of their first setting."""
+    if len(settings) == 1 or (settings and env_backend == "program"):
+        return [list(settings)]
     groups: dict[str, list[Setting]] = {}
     for s in settings:
         key = json.dumps([s.env_id, layout(s.env_id, s.env_kwargs), s.config.to_dict()],
@@ -106,8 +109,7 @@ class MultiTrainer:
         if len(set(dirs)) != len(dirs):
             raise ValueError("two settings share a run folder: "
                              f"{sorted({str(d) for d in dirs if dirs.count(d) > 1})}")
-        self.groups = [list(settings)] if env_backend == "program" or len(settings) == 1 \
-            else group_settings(settings, resume)
+        self.groups = group_settings(settings, resume, env_backend)
         self.progress = progress
         self.trainers: list[Loop] = []
         engine: type[Loop] = Trainer
@@ -133,8 +135,8 @@ class MultiTrainer:
         """Train every group to its budget; returns each setting's runs' eval rows, in the order
         of the settings within `groups` (``rows[g][i]``: setting i of group g)."""
         n = len(self.trainers)
-        run(self.trainers, self.progress, f"train {self.agents} agents in {n} group"
-                                          f"{'s' if n > 1 else ''}")
+        run(self.trainers, self.progress, f"{self.trainers[0].desc}: {self.agents} agent"
+            f"{'s' if self.agents > 1 else ''}" + (f" in {n} groups" if n > 1 else ""))
         out = []
         for group, t in zip(self.groups, self.trainers, strict=True):
             rows, i = [], 0

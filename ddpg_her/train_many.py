@@ -162,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(str(err))
     if args.dry_run:
         try:
-            groups = group_settings(todo, args.resume)
+            groups = group_settings(todo, args.resume, args.env_backend)
         except (ValueError, TypeError, gymnasium.error.Error) as e:
             parser.error(f"{type(e).__name__}: {e}")
         stack = {id(s): g for g, group in enumerate(groups, start=1) for s in group}
