@@ -152,8 +152,9 @@ class Trainer(Loop):
             "the task's reward scale")
 
     def _train(self, warm: bool) -> None:
-        if self._log is None:
-            raise RuntimeError("call start() before step()")
+        if self._log is None:  # TensorBoard from the first step on (`finish` closes it)
+            self._log = Interval(self.k, self.device, [f.path for f in self.folders.folders],
+                                 self.episode, self.tensorboard)
         self._flush_denormals()
         self._log.successes += self.train_episode()
         self._log.episodes += 1
@@ -207,12 +208,6 @@ class Trainer(Loop):
         seeds = [stream_seed(s, EVAL_ENV_STREAM, session, i) for s in self.seeds for i in range(m)]
         return eval_rows(self.episode, m, self.env_steps,
                          *self.collector.test_session(self.agent, seeds))
-
-    def start(self) -> None:
-        """Open the TensorBoard logs and start the clock; before the first `step`."""
-        self._log = Interval(self.k, self.device, [f.path for f in self.folders.folders],
-                             self.episode, self.tensorboard)
-        super().start()
 
     def finish(self) -> None:
         """Close the TensorBoard logs; after the last `step`."""
