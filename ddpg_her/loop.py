@@ -31,23 +31,17 @@ class Diverged(RuntimeError):
 def agents_of(env_kwargs: dict[str, Any] | Sequence[dict[str, Any]], seeds: Sequence[int],
               run_dirs: Sequence[str | Path]) -> tuple[list[dict[str, Any]], list[int]]:
     """(K env-keyword dicts, K seeds) of a loop's agents: ``env_kwargs`` one dict for all or
-    one per seed; seeds >= 0, distinct among the agents of one task; K distinct folders (else
-    ValueError)."""
+    one per seed, seeds >= 0 distinct among the agents of one task, K distinct folders (else
+    ValueError naming them)."""
     seeds = [int(s) for s in seeds]
     per_agent = [dict(env_kwargs)] * len(seeds) if isinstance(env_kwargs, dict) else \
         [dict(kw) for kw in env_kwargs]
-    if len(per_agent) != len(seeds):
-        raise ValueError(f"need one env_kwargs dict per seed: {len(seeds)} seeds, "
-                         f"{len(per_agent)} dicts")
-    runs = [json.dumps([kw, s], sort_keys=True) for kw, s in zip(per_agent, seeds, strict=True)]
-    if not seeds or len(set(runs)) != len(runs) or min(seeds) < 0:
-        raise ValueError(f"need one or more seeds >= 0, distinct among the agents of one "
-                         f"task, got {seeds}")
-    if len(run_dirs) != len(seeds):
-        raise ValueError(f"need one run folder per seed: {len(seeds)} seeds, "
-                         f"{len(run_dirs)} folders")
-    if len({Path(d).resolve() for d in run_dirs}) != len(run_dirs):
-        raise ValueError(f"need a distinct run folder per agent, got {list(run_dirs)}")
+    runs = {json.dumps([kw, s], sort_keys=True) for kw, s in zip(per_agent, seeds, strict=False)}
+    if not seeds or min(seeds) < 0 or not len(runs) == len(per_agent) == len(seeds) == len(
+            run_dirs) == len({Path(d).resolve() for d in run_dirs}):
+        raise ValueError(f"need one or more seeds >= 0, distinct among the agents of one task, "
+                         f"with one env_kwargs dict and one distinct run folder each; got seeds "
+                         f"{seeds}, {len(per_agent)} dicts, folders {list(run_dirs)}")
     return per_agent, seeds
 
 
@@ -82,16 +76,16 @@ def choose_episodes(elapsed_s: float, episode: int, s_per_episode: float, second
 
 class Loop:
     """The protocol of K agents (see the module docstring). An engine (a subclass) sets
-    ``config``, ``k``, ``specs`` (one spec.json per agent), ``progress`` and ``env_steps``
-    ((K,) counts), calls `_open` once its agents exist, and writes the hooks that `step` and
-    the checkpoints call: ``_train(warm)``, one exploring episode of every agent (uniform
-    actions while ``warm``), stored; ``_updates()``, ``updates_per_episode`` updates of every
-    agent; ``evaluate()``, a test session's eval rows, one per agent without ``wall_s`` (an
-    engine may raise `Diverged` there or in ``_updates``); ``_agent_state(k)``, what agent k's
-    checkpoint holds of its agent and streams; ``_load(episode, states, chunks)``, their
-    inverse, ``env_steps`` and the replay buffers included (`RunFolders.restore_buffer`); and
-    ``_saved_buffer()``, the buffer that `RunFolders.save` reads. ``_logged()`` follows each
-    session's rows (the host trainer's TensorBoard).
+    ``config``, ``k``, ``specs`` (one spec.json per agent), ``progress``, ``env_steps`` ((K,)
+    counts) and ``buffer``, calls `_open` once its agents exist, and writes the hooks that
+    `step` and the checkpoints call: ``_train(warm)``, one exploring episode of every agent
+    (uniform actions while ``warm``), stored; ``_updates()``, ``updates_per_episode`` updates
+    of every agent; ``evaluate()``, a test session's eval rows, one per agent without
+    ``wall_s`` (an engine may raise `Diverged` there or in ``_updates``); ``_agent_state(k)``,
+    what agent k's checkpoint holds of its agent and streams; ``_load(episode, states,
+    chunks)``, their inverse, ``env_steps`` and the buffers included
+    (`RunFolders.restore_buffer`). It may write ``_saved_buffer()``, the buffer that
+    `RunFolders.save` reads (``buffer``), and ``_logged()``, after each session's rows.
 
     window : a run for one GPU window: eval.csv at every session, no buffer chunk and no
     checkpoint but the last (the actors and normalisers); it cannot be resumed. budget : with
@@ -134,6 +128,9 @@ class Loop:
 
     def _logged(self) -> None:
         pass
+
+    def _saved_buffer(self) -> Any:
+        return self.buffer
 
     @property
     def done(self) -> bool:

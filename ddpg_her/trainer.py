@@ -129,9 +129,6 @@ class Trainer(Loop):
             if isinstance(self.buffer, PrioritizedBuffer):
                 self.buffer.load_state(k, s["priority"])
 
-    def _saved_buffer(self) -> ReplayBuffer:
-        return self.buffer
-
     # --- the engine (`Loop.step` calls these) ---------------------------------------------------
     def _check_finite(self, losses: torch.Tensor) -> None:
         """Raise `Diverged` when an agent's mean losses (2, K) of this episode's updates are
