@@ -153,8 +153,6 @@ class TodayRunner:
             torch.cuda.synchronize()
 
     def close(self) -> None:
-        for t in self.trainer.trainers:
-            t.finish()
         self.trainer.close()
 
 

@@ -141,9 +141,6 @@ class Loop:
         """Start the clock; before the first `step`."""
         self._tick = time.perf_counter()
 
-    def finish(self) -> None:
-        """After the last `step`."""
-
     def step(self) -> None:
         """One training episode and its updates; then, every ``eval_every`` episodes, a test
         session, its eval rows and a checkpoint (and a checkpoint at the last episode).
@@ -258,5 +255,3 @@ def run(loops: Sequence[Loop], progress: bool, desc: str) -> None:
     finally:
         if bar is not None:
             bar.close()
-        for t in loops:
-            t.finish()

@@ -149,7 +149,7 @@ class Trainer(Loop):
             "the task's reward scale")
 
     def _train(self, warm: bool) -> None:
-        if self._log is None:  # TensorBoard from the first step on (`finish` closes it)
+        if self._log is None:  # TensorBoard from the first step on (`close` closes it)
             self._log = Interval(self.k, self.device, [f.path for f in self.folders.folders],
                                  self.episode, self.tensorboard)
         self._flush_denormals()
@@ -206,14 +206,10 @@ class Trainer(Loop):
         return eval_rows(self.episode, m, self.env_steps,
                          *self.collector.test_session(self.agent, seeds))
 
-    def finish(self) -> None:
-        """Close the TensorBoard logs; after the last `step`."""
+    def close(self) -> None:
+        """Close the TensorBoard logs and the envs and release the run folders' locks."""
         if self._log is not None:
             self._log.close()
-            self._log = None
-
-    def close(self) -> None:
-        """Close the envs and release the run folders' locks."""
         self.envs.close()
         self.eval_envs.close()
         super().close()
