@@ -391,8 +391,9 @@ def check_stack(settings: Sequence[Setting], device: str, tf32: bool) -> None:
           settings[0].config, device, tf32)
 
 
-def run_to_end(trainer: Any) -> Any:
-    """Train ``trainer`` to its budget and close it; its rows, or None when interrupted (what
+def run_to_end(trainer: Any, named: bool = False) -> int:
+    """Train ``trainer`` (`build`'s) to its budget, close it and print each run's last test
+    session (``named``: after its setting's name); the exit status, 130 when interrupted (what
     is finished is on disk, and ``--resume`` continues).
 
     A run folder that can no longer be written (full disk, made read-only) ends the process
@@ -403,10 +404,10 @@ def run_to_end(trainer: Any) -> Any:
     from ddpg_her.runfolder import RunFolderWriteError
 
     try:
-        return trainer.run()
+        rows = trainer.run()
     except KeyboardInterrupt:
         print("interrupted; continue with the same command and --resume", file=sys.stderr)
-        return None
+        return 130
     except RunFolderWriteError as err:
         print(f"error: {err}. Training stopped; the last checkpoint written is whole: free "
               "space or make the folder writable, then run the same command with --resume",
@@ -417,6 +418,11 @@ def run_to_end(trainer: Any) -> Any:
         raise SystemExit(1) from None
     finally:
         trainer.close()
+    for group, group_rows in zip(trainer.groups, rows, strict=True):
+        for s, setting_rows in zip(group, group_rows, strict=True):
+            for seed, d, r in zip(s.seeds, s.run_dirs, setting_rows, strict=True):
+                print(f"{s.name + ' ' if named else ''}seed {seed}: {last_session(r)} -> {d}")
+    return 0
 
 
 def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -499,12 +505,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     register_envs(parser, [args.env_id])
     trainer = build(parser, args, [req], ["python", "-m", "ddpg_her.train",
                                           *(argv or sys.argv[1:])])
-    rows = run_to_end(trainer)
-    if rows is None:
-        return 130
-    for d, seed, r in zip(req.run_dirs, req.seeds, rows[0][0], strict=True):
-        print(f"seed {seed}: {last_session(r)} -> {d}")
-    return 0
+    return run_to_end(trainer)
 
 
 if __name__ == "__main__":

@@ -187,14 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     trainer = train.build(parser, args, todo, command)
     print(f"{trainer.agents} agents of {len(todo)} units in {len(trainer.groups)} stack(s): "
           + ", ".join(f"{t.k}" for t in trainer.trainers), file=sys.stderr)
-    rows = train.run_to_end(trainer)
-    if rows is None:
-        return 130
-    for group, group_rows in zip(trainer.groups, rows, strict=True):
-        for s, setting_rows in zip(group, group_rows, strict=True):
-            for seed, d, r in zip(s.seeds, s.run_dirs, setting_rows, strict=True):
-                print(f"{s.name} seed {seed}: {train.last_session(r)} -> {d}")
-    return 0
+    return train.run_to_end(trainer, named=True)
 
 
 if __name__ == "__main__":
