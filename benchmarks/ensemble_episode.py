@@ -87,7 +87,6 @@ def main(argv: list[str] | None = None) -> int:
                     seconds[name].append(time.perf_counter() - start)
         finally:
             for t in trainers.values():
-                t.finish()
                 t.close()
     ratios = [e / p for e, p in zip(seconds["ensemble"], seconds["plain"], strict=True)]
     print(json.dumps({

@@ -153,8 +153,6 @@ class TodayRunner:
             torch.cuda.synchronize()
 
     def close(self) -> None:
-        for t in self.trainer.trainers:
-            t.finish()
         self.trainer.close()
 
 
@@ -208,7 +206,8 @@ class ProgramRunner:
 
     def session(self, repeats: int) -> dict[str, Any]:
         """The test session's body, warmed up and captured, then timed ``repeats`` times, and
-        what follows it on the host (`Program._session`: the read, the rows, the save)."""
+        what follows it on the host (`Program._read` and `_session`: the read, the rows, the
+        save)."""
         from ddpg_her.program import WARMUP_REPLAYS
 
         test = self.program._bodies["test"]
@@ -222,7 +221,7 @@ class ProgramRunner:
             self.synchronize()
             body.append(time.perf_counter() - tic)
             tic = time.perf_counter()
-            self.program._session()
+            self.program._session(self.program._read())
             save.append(time.perf_counter() - tic)
         return {"test_session_ms": 1e3 * statistics.median(body),
                 "save_ms": 1e3 * statistics.median(save),

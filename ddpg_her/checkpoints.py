@@ -251,37 +251,31 @@ class RunFolders:
         self._saved_total = buffer.total.copy()
         self._kept_totals = [self._saved_total]
 
-    def save(self, episode: int, states: list[dict[str, Any]], buffer: ReplayBuffer) -> None:
+    def save(self, episode: int, states: list[dict[str, Any]], buffer: ReplayBuffer | None,
+             checkpoint: bool = True) -> None:
         """Buffer chunk, then checkpoint (``states[k]``, with the episode, the spec's config
-        and the buffer's count added), then eval.csv (``states[k]["rows"]``), per folder."""
-        self._kept_totals = [*self._kept_totals[-1:], buffer.total.copy()]
+        and the buffer's count added), then eval.csv (``states[k]["rows"]``), per folder.
+        Without ``buffer`` (a window run's, `ddpg_her.loop.Loop`): no chunk, and a checkpoint
+        only with ``checkpoint`` (at the run's end: such a run does not resume)."""
+        if buffer is not None:
+            self._kept_totals = [*self._kept_totals[-1:], buffer.total.copy()]
         for k, (f, state) in enumerate(zip(self.folders, states, strict=True)):
-            start, rows = buffer.since(k, int(self._saved_total[k]))
-            f.save_chunk(episode, start, rows)
-            f.save_checkpoint(episode, {
-                "episode": episode,
-                "config": {key: self.specs[k][key] for key in CONFIG_KEYS
-                           if key in self.specs[k]},
-                **state,
-                "buffer_total": int(buffer.total[k]),
-            })
-            f.write_eval(state["rows"])
-            oldest = int(self._kept_totals[0][k]) - self.buffer_size
-            f.prune(upto=episode, keep_from=oldest)
-        self._saved_total = buffer.total.copy()
-
-    def save_window(self, episode: int, states: list[dict[str, Any]], final: bool) -> None:
-        """A window run's save (`ddpg_her.program.Program`'s ``window``): eval.csv
-        (``states[k]["rows"]``) per folder, at the run's end after a checkpoint of
-        ``states[k]`` (its actor and normaliser: what `ddpg_her.load` reads). No buffer chunk
-        and no checkpoint before the end: such a run does not resume."""
-        for k, (f, state) in enumerate(zip(self.folders, states, strict=True)):
-            if final:
+            count = {}
+            if buffer is not None:
+                start, rows = buffer.since(k, int(self._saved_total[k]))
+                f.save_chunk(episode, start, rows)
+                count = {"buffer_total": int(buffer.total[k])}
+            if checkpoint:
                 f.save_checkpoint(episode, {
-                    "episode": episode, **state,
+                    "episode": episode,
                     "config": {key: self.specs[k][key] for key in CONFIG_KEYS
-                               if key in self.specs[k]}})
+                               if key in self.specs[k]},
+                    **state, **count})
             f.write_eval(state["rows"])
+            if buffer is not None:
+                f.prune(upto=episode, keep_from=int(self._kept_totals[0][k]) - self.buffer_size)
+        if buffer is not None:
+            self._saved_total = buffer.total.copy()
 
     def close(self) -> None:
         """Release the folders' locks."""

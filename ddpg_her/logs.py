@@ -31,15 +31,6 @@ def eval_rows(episode: int, m: int, env_steps: np.ndarray, success: np.ndarray,
     return rows
 
 
-def progress_bar(enabled: bool, total: int, initial: int, unit: str, desc: str):
-    """A tqdm bar on stderr, or None when not ``enabled``."""
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=initial, unit=unit, dynamic_ncols=True, desc=desc)
-
-
 def postfix(bar, rows: list[list[dict[str, Any]]]) -> str:
     """Latest success counts and the projected finish (clock time)."""
     text = "hits " + ("/".join(str(r[-1]["successes"]) for r in rows)
@@ -50,23 +41,6 @@ def postfix(bar, rows: list[list[dict[str, Any]]]) -> str:
         finish = datetime.datetime.now() + datetime.timedelta(seconds=left)
         text += f", done ~{finish:%a %H:%M}"
     return text
-
-
-def run_with_progress(trainer: Any, desc: str) -> list[list[dict[str, Any]]]:
-    """Step ``trainer`` (a `ddpg_her.trainer.Trainer` or a `ddpg_her.program.Program`: its
-    ``done``, ``step()``, ``rows``, ``progress``, ``config.episodes`` and ``episode``) until
-    it is done, under a progress bar of training episodes; returns its eval rows."""
-    bar = progress_bar(trainer.progress, trainer.config.episodes, trainer.episode, "ep", desc)
-    try:
-        while not trainer.done:
-            trainer.step()
-            if bar is not None:
-                bar.set_postfix_str(postfix(bar, trainer.rows), refresh=False)
-                bar.update(1)
-    finally:
-        if bar is not None:
-            bar.close()
-    return trainer.rows
 
 
 def _tb_writer(path: Path, episode: int):

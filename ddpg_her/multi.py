@@ -5,7 +5,8 @@ configuration, seeds and run folders. Settings that share the env id, the observ
 layout (`GoalVecEnv.dims`), the whole `AgentConfig` and the checkpoint they resume from share one
 stacked agent: one `Trainer` whose K is the sum of their seeds, agent k with its own task. The
 others form further groups, each its own `Trainer`; every round, each unfinished group trains one
-episode (updates, test session and checkpoint included) in turn.
+episode (updates, test session and checkpoint included) in turn (`ddpg_her.loop.run`). The
+training program (``env_backend="program"``) takes every setting as one stack instead.
 
 Nothing is padded and no stack mixes agent configurations or Adam step counts, so every run
 folder is the one the run gets alone (README, "Training many seeds fast", says to what precision).
@@ -13,7 +14,6 @@ folder is the one the run gets alone (README, "Training many seeds fast", says t
 
 from __future__ import annotations
 
-import datetime
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from ddpg_her.logs import progress_bar
+from ddpg_her.loop import Loop, run
 from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
 from ddpg_her.units import Setting
@@ -67,11 +67,14 @@ def one_stack(group: Sequence[Setting]) -> bool:
         all(n in (base, base + every) for n in latest)
 
 
-def group_settings(settings: Sequence[Setting], resume: bool) -> list[list[Setting]]:
-    """The settings grouped into stacks: equal env id, layout and agent configuration and
-    (with ``resume``) one resume point: a group whose folders `one_stack` accepts stays whole,
-    another is split by each setting's `resume_point`; groups in the order of their first
-    setting."""
+def group_settings(settings: Sequence[Setting], resume: bool, env_backend: str = "numpy"
+                   ) -> list[list[Setting]]:
+    """The settings grouped into stacks: under ``env_backend`` program one stack; else equal
+    env id, layout and agent configuration and (with ``resume``) one resume point: a group
+    whose folders `one_stack` accepts stays whole, another is split by each setting's
+    `resume_point`; groups in the order of their first setting."""
+    if len(settings) == 1 or (settings and env_backend == "program"):
+        return [list(settings)]
     groups: dict[str, list[Setting]] = {}
     for s in settings:
         key = json.dumps([s.env_id, layout(s.env_id, s.env_kwargs), s.config.to_dict()],
@@ -90,31 +93,36 @@ def group_settings(settings: Sequence[Setting], resume: bool) -> list[list[Setti
 
 
 class MultiTrainer:
-    """Trains every setting of ``settings`` in this process, one `Trainer` per group of
-    `group_settings`; the keyword arguments are `Trainer`'s."""
+    """Trains every setting of ``settings`` in this process: with ``env_backend`` ``program``
+    as one `ddpg_her.program.Program` (``program`` its own keyword arguments: tf32, window,
+    budget), otherwise one `Trainer` per group of `group_settings`; the other keyword
+    arguments are theirs."""
 
     def __init__(self, settings: Sequence[Setting], *, resume: bool = False,
                  device: str = "cpu", env_backend: str = "numpy",
                  dtype: torch.dtype = torch.float32, progress: bool = True,
-                 tensorboard: bool = True, command: Sequence[str] | None = None):
+                 tensorboard: bool = True, command: Sequence[str] | None = None,
+                 **program: Any):
         if not settings:
             raise ValueError("need one or more settings")
         dirs = [Path(d).resolve() for s in settings for d in s.run_dirs]
         if len(set(dirs)) != len(dirs):
             raise ValueError("two settings share a run folder: "
                              f"{sorted({str(d) for d in dirs if dirs.count(d) > 1})}")
-        self.groups = group_settings(settings, resume)
+        self.groups = group_settings(settings, resume, env_backend)
         self.progress = progress
-        self.trainers: list[Trainer] = []
+        self.trainers: list[Loop] = []
+        engine: type[Loop] = Trainer
+        kwargs = dict(resume=resume, device=device, dtype=dtype, progress=False, command=command)
+        if env_backend == "program":
+            from ddpg_her.program import Program
+
+            engine, kwargs = Program, {**kwargs, **program}
+        else:
+            kwargs.update(env_backend=env_backend, tensorboard=tensorboard)
         try:
             for group in self.groups:
-                self.trainers.append(Trainer(
-                    group[0].env_id, [s.env_kwargs for s in group for _ in s.seeds],
-                    group[0].config, [seed for s in group for seed in s.seeds],
-                    [d for s in group for d in s.run_dirs], resume=resume, device=device,
-                    env_backend=env_backend, dtype=dtype,
-                    progress=False,
-                    tensorboard=tensorboard, command=command))
+                self.trainers.append(engine.of_settings(group, **kwargs))
         except BaseException:
             self.close()
             raise
@@ -126,21 +134,9 @@ class MultiTrainer:
     def run(self) -> list[list[list[dict[str, Any]]]]:
         """Train every group to its budget; returns each setting's runs' eval rows, in the order
         of the settings within `groups` (``rows[g][i]``: setting i of group g)."""
-        bar = _progress(self.progress, self.trainers)
-        for t in self.trainers:
-            t.start()
-        try:
-            while not all(t.done for t in self.trainers):
-                for t in self.trainers:
-                    if not t.done:
-                        t.step()
-                        if bar is not None:
-                            bar.update(t.k)
-        finally:
-            if bar is not None:
-                bar.close()
-            for t in self.trainers:
-                t.finish()
+        n = len(self.trainers)
+        run(self.trainers, self.progress, f"{self.trainers[0].desc}: {self.agents} agent"
+            f"{'s' if self.agents > 1 else ''}" + (f" in {n} groups" if n > 1 else ""))
         out = []
         for group, t in zip(self.groups, self.trainers, strict=True):
             rows, i = [], 0
@@ -153,14 +149,3 @@ class MultiTrainer:
     def close(self) -> None:
         for t in self.trainers:
             t.close()
-
-
-def _progress(enabled: bool, trainers: Sequence[Trainer]):
-    """One bar over the agent-episodes of every group (a group's episode counts K)."""
-    bar = progress_bar(enabled, sum(t.k * t.config.episodes for t in trainers),
-                       sum(t.k * t.episode for t in trainers), "agent-ep",
-                       f"train {sum(t.k for t in trainers)} agents in {len(trainers)} group"
-                       f"{'s' if len(trainers) > 1 else ''}")
-    if bar is not None:
-        bar.set_postfix_str(f"started {datetime.datetime.now():%a %H:%M}", refresh=False)
-    return bar

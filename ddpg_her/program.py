@@ -20,10 +20,7 @@ its stack.
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -34,10 +31,11 @@ import torch
 
 from ddpg_her.agent import DDPG
 from ddpg_her.buffer import CounterSampler, Layout, ReplayBuffer, counter_draws, pack_tensors
-from ddpg_her.checkpoints import RunFolders, run_spec
+from ddpg_her.checkpoints import run_spec
 from ddpg_her.config import AgentConfig, Algo, HERStrategy
 from ddpg_her.exploration import Explorer
-from ddpg_her.logs import eval_rows, run_with_progress
+from ddpg_her.logs import eval_rows
+from ddpg_her.loop import Budget, Diverged, Loop, agents_of
 from ddpg_her.normalizer import RunningNormalizer
 from ddpg_her.spaces import goal_input
 from ddpg_her.trainer import (
@@ -46,7 +44,6 @@ from ddpg_her.trainer import (
     INIT_STREAM,
     SAMPLE_STREAM,
     TRAIN_ENV_STREAM,
-    Diverged,
     stream_seed,
 )
 from ddpg_her.vecenv import register_env
@@ -314,36 +311,7 @@ class Graphed:
         self.replays += 1
 
 
-@dataclasses.dataclass(frozen=True)
-class Budget:
-    """A window run's time budget: train the most of ``choices`` episodes (each a multiple of
-    ``eval_every``, the largest the configuration's ``episodes``) that `choose_episodes`
-    projects to end within ``seconds`` of ``start`` (a ``clock()`` reading, s)."""
-
-    seconds: float
-    choices: tuple[int, ...]
-    start: float
-    clock: Callable[[], float] = time.monotonic
-
-
-def choose_episodes(elapsed_s: float, episode: int, s_per_episode: float, seconds: float,
-                    choices: Sequence[int]) -> tuple[int, float]:
-    """(budget, projected s): the largest of ``choices`` not below ``episode`` whose remaining
-    episodes at ``s_per_episode`` end within ``seconds`` (``elapsed_s`` spent), or, when none
-    does, the smallest of them; its projected end in seconds since the start."""
-    left = [c for c in choices if c >= episode]
-    if not left:
-        raise ValueError(f"episode {episode} is past every budget of {sorted(choices)}")
-
-    def end(c: int) -> float:
-        return elapsed_s + (c - episode) * s_per_episode
-
-    fits = [c for c in left if end(c) <= seconds]
-    chosen = max(fits) if fits else min(left)
-    return chosen, end(chosen)
-
-
-class Program:
+class Program(Loop):
     """Trains K DDPG + HER agents, agent k on ``env_kwargs[k]`` with ``seeds[k]`` into
     ``run_dirs[k]``, as one stack on ``device`` (see the module docstring).
 
@@ -364,20 +332,16 @@ class Program:
         Let CUDA's matrix products round their operands to TF32 (process-wide; recorded).
     dynamics : callable, optional
         The arm of the stack twin (its ``dynamics``; the tests give stand-ins).
-    window : bool
-        A run for one GPU window, whose replay buffers cannot leave the machine: eval.csv at
-        every test session, the actors and normalisers at the end (`ddpg_her.load` reads
-        them), no buffer chunk and no checkpoint before; it cannot be resumed (spec.json's
-        ``program.window``).
-    budget : Budget, optional
-        With ``window``: from the second test session on, each session sets the budget to
-        what `choose_episodes` projects from the last interval's seconds per episode (test
-        session included), rewriting spec.json's ``agent.episodes`` and ``program.budget``.
+    window, budget : bool, Budget, optional
+        A run for one GPU window (spec.json's ``program.window``) and its time budget, as
+        `ddpg_her.loop.Loop` says.
     fused : bool, optional
         Step the rollouts through `ddpg_her.program_kernels` (Triton; default: on CUDA with
         the stack's own arm; on the CPU it needs ``TRITON_INTERPRET=1``) instead of the eager
         ops that define them.
     """
+
+    desc = "program"
 
     def __init__(self, env_id: str, env_kwargs: Sequence[dict[str, Any]], config: AgentConfig,
                  seeds: Sequence[int], run_dirs: Sequence[str | Path], *, resume: bool = False,
@@ -386,17 +350,7 @@ class Program:
                  tf32: bool = False, dynamics: Callable[..., Any] | None = None,
                  window: bool = False, budget: Budget | None = None,
                  fused: bool | None = None):
-        if budget is not None and (not window or max(budget.choices) != config.episodes or any(
-                c < 1 or c % config.eval_every for c in budget.choices)):
-            raise ValueError(f"a time budget is a window run's (window=True), its choices "
-                             f"{list(budget.choices)} multiples of --eval-every "
-                             f"{config.eval_every}, the largest --episodes {config.episodes}")
-        seeds = [int(s) for s in seeds]
-        per_agent = [dict(kw) for kw in env_kwargs]
-        if not seeds or len(per_agent) != len(seeds) or len(run_dirs) != len(seeds):
-            raise ValueError(f"need one env_kwargs dict and one run folder per seed: "
-                             f"{len(seeds)} seeds, {len(per_agent)} dicts, "
-                             f"{len(run_dirs)} folders")
+        per_agent, seeds = agents_of(env_kwargs, seeds, run_dirs)
         check(env_id, per_agent, config, device, tf32, dtype)
         self.device = torch.device(device)
         self.capture = self.device.type == "cuda" if capture is None else bool(capture)
@@ -455,11 +409,7 @@ class Program:
              float(task.terminate_on_success), config.obs_clip])]
         self._allocate()
 
-        self.episode, self.wall_s = 0, 0.0
-        self._tick = time.perf_counter()
         self._finite = torch.ones((), dtype=torch.bool, device=self.device)
-        self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
-        self.window, self.budget, self._interval_start = window, budget, None
         self.specs = [{"program": {"streams": STREAMS,
                                    "matmul": "tf32" if tf32 else "float32",
                                    **({"window": True} if window else {})},
@@ -467,23 +417,12 @@ class Program:
                                   env_kwargs=per_agent[i], task=env.tasks[i].to_dict(),
                                   seed=seeds[i], config=config, dims=self._dims(i),
                                   command=command)} for i in range(k)]
-        self.folders = RunFolders(run_dirs, self.specs, config)
-        self.folders.open(resume, self._restore)
+        self._open(run_dirs, resume, window, budget)
         self._bodies = {
             "warm": Graphed(lambda: self._train_episode(warm=True), self.capture),
             "act": Graphed(lambda: self._train_episode(warm=False), self.capture),
             "learn": Graphed(self._learn, self.capture),
             "test": Graphed(self._test_session, self.capture)}
-
-    @classmethod
-    def of_settings(cls, settings: Sequence[Any], **kwargs: Any) -> Program:
-        """The program of every run of ``settings`` (`ddpg_her.units.Setting` s of one env id
-        and agent configuration: the first's are taken), one agent per seed, in order;
-        ``kwargs`` as the constructor's."""
-        first = settings[0]
-        return cls(first.env_id, [s.env_kwargs for s in settings for _ in s.seeds],
-                   first.config, [seed for s in settings for seed in s.seeds],
-                   [d for s in settings for d in s.run_dirs], **kwargs)
 
     # ------------------------------------------------------------------ set-up
     def _dims(self, k: int) -> dict[str, Any]:
@@ -691,33 +630,23 @@ class Program:
         self.logged[1] = ret
         self.logged[2] = torch.linalg.vector_norm(final - goal, dim=-1)
 
-    # ------------------------------------------------------------------ the protocol
-    @property
-    def done(self) -> bool:
-        return self.episode >= self.config.episodes
+    # ------------------------------------------------------------------ the engine's hooks
+    def _train(self, warm: bool) -> None:
+        self._bodies["warm" if warm else "act"]()
 
-    def step(self) -> None:
-        """One training episode and its updates; every ``eval_every`` episodes the test
-        session, its eval rows and a checkpoint (and a checkpoint at the last episode)."""
-        cfg = self.config
-        self._bodies["warm" if self.episode < cfg.warmup_episodes else "act"]()
-        if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
-            self._bodies["learn"]()
-            self.sampler.updates += cfg.updates_per_episode
-            self._finite &= torch.isfinite(self.loss_sum).all()
-        self.episode += 1
-        if self.episode % cfg.eval_every == 0:
-            self._bodies["test"]()
-            self._session()
-        elif self.episode == cfg.episodes:
-            self._save()
+    def _updates(self) -> None:
+        self._bodies["learn"]()
+        self.sampler.updates += self.config.updates_per_episode
+        self._finite &= torch.isfinite(self.loss_sum).all()
 
-    def _session(self) -> None:
-        """Read the test session and the counts back (the one read of the interval), check
-        the losses, append the eval rows, save."""
-        now = time.perf_counter()
-        self.wall_s += now - self._tick
-        self._tick = now
+    def evaluate(self) -> list[dict[str, Any]]:
+        """The test session (`_test_session`) and its eval rows."""
+        self._bodies["test"]()
+        return self._read()
+
+    def _read(self) -> list[dict[str, Any]]:
+        """The eval rows of the test session and the counts (the one read of the interval),
+        once the losses and goal draws are checked."""
         logged, steps, finite, misses = (self.logged.cpu().numpy(), self.env_steps.cpu().numpy(),
                                          bool(self._finite), int(self.env.goal_misses
                                                                  + self.eval_env.goal_misses))
@@ -729,57 +658,19 @@ class Program:
         if misses:
             raise RuntimeError(f"{misses} goal draws found no goal among "
                                f"{self.env.proposals} proposals")
-        rows = eval_rows(self.episode, self.config.eval_episodes, steps, logged[0] > 0.5,
+        return eval_rows(self.episode, self.config.eval_episodes, steps, logged[0] > 0.5,
                          logged[1], logged[2])
-        for mine, row in zip(self.rows, rows, strict=True):
-            mine.append({**row, "wall_s": round(self.wall_s, 2)})
-        if self.budget is not None:
-            self._choose_budget()
-        self._save()
 
-    def _choose_budget(self) -> None:
-        """`Budget`: from the last interval's seconds per episode, the budget to train to;
-        said on stderr and recorded in every spec.json when it changes."""
-        b, now = self.budget, self.budget.clock()
-        start, self._interval_start = self._interval_start, now
-        if start is None:  # the first session: its interval held the start-up
-            return
-        rate = (now - start) / self.config.eval_every
-        chosen, end = choose_episodes(now - b.start, self.episode, rate, b.seconds, b.choices)
-        if chosen == self.config.episodes and "budget" in self.specs[0]["program"]:
-            return
-        fits = "" if end <= b.seconds else " (none of the choices fits: the smallest left)"
-        print(f"window budget: {1e3 * rate:.1f} ms per episode over episodes "
-              f"{self.episode - self.config.eval_every + 1}-{self.episode} (its test session "
-              f"included) -> {chosen} episodes{fits}, projected to end at {end:.0f} s of the "
-              f"{b.seconds:.0f} s budget (choices {'/'.join(map(str, b.choices))})",
-              file=sys.stderr, flush=True)
-        self.config = dataclasses.replace(self.config, episodes=chosen)
-        record = {"seconds": b.seconds, "choices": list(b.choices), "episode": self.episode,
-                  "ms_per_episode": round(1e3 * rate, 3), "elapsed_s": round(now - b.start, 1),
-                  "projected_s": round(end, 1)}
-        for f, spec in zip(self.folders.folders, self.specs, strict=True):
-            spec["agent"]["episodes"], spec["program"]["budget"] = chosen, record
-            f.write_spec(spec)
-
-    def _save(self) -> None:
-        if self.window:
-            final = self.episode >= self.config.episodes
-            states = [self._state(i) if final else {"rows": self.rows[i]} for i in range(self.k)]
-            for state in states if final else ():
-                state["agent"] = {key: state["agent"][key] for key in ("actor", "normalizer")}
-            self.folders.save_window(self.episode, states, final)
-            return
+    def _saved_buffer(self) -> PaddedBuffer:
         self.buffer.total[:] = self.total.cpu().numpy()
-        self.folders.save(self.episode, [self._state(i) for i in range(self.k)], self.chunks)
+        return self.chunks
 
-    def _state(self, k: int) -> dict[str, Any]:
-        return {"env_steps": int(self.env_steps[k]), "wall_s": self.wall_s, "rows": self.rows[k],
-                "agent": unpad_state(self.agent.agent_state(k), self.joints[k], self.hidden),
+    def _agent_state(self, k: int) -> dict[str, Any]:
+        return {"agent": unpad_state(self.agent.agent_state(k), self.joints[k], self.hidden),
                 "rng": {"streams": STREAMS, "sample_counter": self.sampler.state()}}
 
-    def _restore(self, episode: int, states: list[dict[str, Any]],
-                 chunks: list[list[tuple[int, Any]]]) -> None:
+    def _load(self, episode: int, states: list[dict[str, Any]],
+              chunks: list[list[tuple[int, Any]]]) -> None:
         padded = [self.agent.agent_state(i) for i in range(self.k)]
         self.agent.load_agent_states([pad_state(s["agent"], p, n, self.config.hidden_sizes[0])
                                       for s, p, n in zip(states, padded, self.joints,
@@ -788,17 +679,7 @@ class Program:
         self.folders.restore_buffer(episode, states, chunks, self.chunks)
         self.total.copy_(torch.from_numpy(self.buffer.total))
         self.env_steps.copy_(torch.tensor([s["env_steps"] for s in states]))
-        self.rows = [list(s["rows"]) for s in states]
-        self.episode, self.wall_s = episode, float(states[0]["wall_s"])
         self.episode_t.fill_(episode)
-
-    def run(self) -> list[list[dict[str, Any]]]:
-        """Train to ``config.episodes``; returns every agent's eval rows."""
-        self._tick = time.perf_counter()
-        return run_with_progress(self, f"program: {self.k} agent{'s' if self.k > 1 else ''}")
-
-    def close(self) -> None:
-        self.folders.close()
 
 
 TEST_COPY_BYTES = 250_000

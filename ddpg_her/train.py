@@ -18,7 +18,7 @@ import re
 import sys
 import time
 import typing
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from ddpg_her.config import VALID, AgentConfig, field_docs
@@ -342,38 +342,38 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
     return Setting(args.env_id, env_kwargs, config, tuple(seeds), tuple(dirs), note)
 
 
-def build_trainer(parser: argparse.ArgumentParser, make: Callable[[], Any]) -> Any:
-    """``make()`` a trainer; a setup it refuses (bad task, env id or run folders) becomes a
-    usage error through ``parser``."""
+def build(parser: argparse.ArgumentParser, args: argparse.Namespace,
+          settings: Sequence[Setting], command: Sequence[str]) -> Any:
+    """The `ddpg_her.multi.MultiTrainer` of every run of ``settings`` under the process flags
+    ``args`` (with ``--env-backend program`` one stack: a usage error when the settings'
+    agent configurations or env ids differ, or the program refuses them); a setup it refuses
+    (bad task, env id or run folders) becomes a usage error through ``parser``."""
     import gymnasium  # late, as in main: --help stays fast
 
+    from ddpg_her.multi import MultiTrainer
+
+    program: dict[str, Any] = {}
+    if args.env_backend == "program":
+        try:
+            check_stack(settings, args.device, args.tf32)
+        except ValueError as err:
+            parser.error(str(err))
+        from ddpg_her.loop import Budget
+
+        budget = None
+        if args.budget_seconds is not None:
+            config = settings[0].config
+            choices = args.episodes_choices or [config.episodes >> i for i in range(4) if not (
+                config.episodes % (1 << i) or (config.episodes >> i) % config.eval_every)]
+            budget = Budget(args.budget_seconds, tuple(sorted(set(choices), reverse=True)),
+                            args.started)
+        program = dict(tf32=args.tf32, window=args.window, budget=budget)
     try:
-        return make()
+        return MultiTrainer(settings, resume=args.resume, device=args.device,
+                            env_backend=args.env_backend, progress=not args.no_progress,
+                            tensorboard=not args.no_tensorboard, command=command, **program)
     except (ValueError, TypeError, gymnasium.error.Error) as e:
         parser.error(f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
-
-
-def build_program(parser: argparse.ArgumentParser, args: argparse.Namespace,
-                  settings: Sequence[Setting], command: Sequence[str]) -> Any:
-    """The training program (`ddpg_her.program.Program`) of every run of ``settings`` as one
-    stack; a usage error when the settings' agent configurations or env ids differ, or the
-    program refuses them."""
-    try:
-        check_stack(settings, args.device, args.tf32)
-    except ValueError as err:
-        parser.error(str(err))
-    from ddpg_her.program import Budget, Program
-
-    budget = None
-    if args.budget_seconds is not None:
-        config = settings[0].config
-        choices = args.episodes_choices or [config.episodes >> i for i in range(4) if not (
-            config.episodes % (1 << i) or (config.episodes >> i) % config.eval_every)]
-        budget = Budget(args.budget_seconds, tuple(sorted(set(choices), reverse=True)),
-                        args.started)
-    return build_trainer(parser, lambda: Program.of_settings(
-        settings, resume=args.resume, device=args.device, progress=not args.no_progress,
-        command=command, tf32=args.tf32, window=args.window, budget=budget))
 
 
 def check_stack(settings: Sequence[Setting], device: str, tf32: bool) -> None:
@@ -391,22 +391,23 @@ def check_stack(settings: Sequence[Setting], device: str, tf32: bool) -> None:
           settings[0].config, device, tf32)
 
 
-def run_to_end(trainer: Any) -> Any:
-    """Train ``trainer`` to its budget and close it; its rows, or None when interrupted (what
+def run_to_end(trainer: Any, named: bool = False) -> int:
+    """Train ``trainer`` (`build`'s) to its budget, close it and print each run's last test
+    session (``named``: after its setting's name); the exit status, 130 when interrupted (what
     is finished is on disk, and ``--resume`` continues).
 
     A run folder that can no longer be written (full disk, made read-only) ends the process
     with status 1 and a message naming the file and the reason; the last checkpoint written
     stays whole, and ``--resume`` continues from it once the disk is fixed.
     """
+    from ddpg_her.loop import Diverged
     from ddpg_her.runfolder import RunFolderWriteError
-    from ddpg_her.trainer import Diverged
 
     try:
-        return trainer.run()
+        rows = trainer.run()
     except KeyboardInterrupt:
         print("interrupted; continue with the same command and --resume", file=sys.stderr)
-        return None
+        return 130
     except RunFolderWriteError as err:
         print(f"error: {err}. Training stopped; the last checkpoint written is whole: free "
               "space or make the folder writable, then run the same command with --resume",
@@ -417,6 +418,11 @@ def run_to_end(trainer: Any) -> Any:
         raise SystemExit(1) from None
     finally:
         trainer.close()
+    for group, group_rows in zip(trainer.groups, rows, strict=True):
+        for s, setting_rows in zip(group, group_rows, strict=True):
+            for seed, d, r in zip(s.seeds, s.run_dirs, setting_rows, strict=True):
+                print(f"{s.name + ' ' if named else ''}seed {seed}: {last_session(r)} -> {d}")
+    return 0
 
 
 def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -495,27 +501,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"--resume: finished already ({req.config.episodes} episodes in "
               f"{', '.join(map(str, req.run_dirs))}); nothing to train (a larger --episodes "
               "extends it)", file=sys.stderr)
-    env_kwargs, config, seeds, dirs = req.env_kwargs, req.config, list(req.seeds), \
-        list(req.run_dirs)
     start_process(parser, args)
-    from ddpg_her.trainer import Trainer
-
     register_envs(parser, [args.env_id])
-    if args.env_backend == "program":
-        trainer = build_program(parser, args, [req], ["python", "-m", "ddpg_her.train",
-                                                      *(argv or sys.argv[1:])])
-    else:
-        trainer = build_trainer(parser, lambda: Trainer(
-        args.env_id, env_kwargs, config, seeds, dirs, resume=args.resume, device=args.device,
-            env_backend=args.env_backend, progress=not args.no_progress,
-            tensorboard=not args.no_tensorboard,
-            command=["python", "-m", "ddpg_her.train", *(argv or sys.argv[1:])]))
-    rows = run_to_end(trainer)
-    if rows is None:
-        return 130
-    for d, seed, r in zip(dirs, seeds, rows, strict=True):
-        print(f"seed {seed}: {last_session(r)} -> {d}")
-    return 0
+    trainer = build(parser, args, [req], ["python", "-m", "ddpg_her.train",
+                                          *(argv or sys.argv[1:])])
+    return run_to_end(trainer)
 
 
 if __name__ == "__main__":

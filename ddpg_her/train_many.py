@@ -139,7 +139,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import gymnasium
 
-    from ddpg_her.multi import MultiTrainer, group_settings
+    from ddpg_her.multi import group_settings
     from ddpg_her.runfolder import run_status
 
     train.register_envs(parser, sorted({s.env_id for s in settings}))
@@ -162,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(str(err))
     if args.dry_run:
         try:
-            groups = group_settings(todo, args.resume)
+            groups = group_settings(todo, args.resume, args.env_backend)
         except (ValueError, TypeError, gymnasium.error.Error) as e:
             parser.error(f"{type(e).__name__}: {e}")
         stack = {id(s): g for g, group in enumerate(groups, start=1) for s in group}
@@ -184,30 +184,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     train.start_process(parser, args)
     command = ["python", "-m", "ddpg_her.train_many",
                *(argv if argv is not None else sys.argv[1:])]
-    if args.env_backend == "program":
-        trainer = train.build_program(parser, args, todo, command)
-        print(f"{trainer.k} agents of {len(todo)} units in one program stack", file=sys.stderr)
-        rows = train.run_to_end(trainer)
-        if rows is None:
-            return 130
-        flat = iter(rows)
-        for s in todo:
-            for seed, d in zip(s.seeds, s.run_dirs, strict=True):
-                print(f"{s.name} seed {seed}: {train.last_session(next(flat))} -> {d}")
-        return 0
-    trainer = train.build_trainer(parser, lambda: MultiTrainer(
-        todo, resume=args.resume, device=args.device, env_backend=args.env_backend,
-        progress=not args.no_progress, tensorboard=not args.no_tensorboard, command=command))
+    trainer = train.build(parser, args, todo, command)
     print(f"{trainer.agents} agents of {len(todo)} units in {len(trainer.groups)} stack(s): "
           + ", ".join(f"{t.k}" for t in trainer.trainers), file=sys.stderr)
-    rows = train.run_to_end(trainer)
-    if rows is None:
-        return 130
-    for group, group_rows in zip(trainer.groups, rows, strict=True):
-        for s, setting_rows in zip(group, group_rows, strict=True):
-            for seed, d, r in zip(s.seeds, s.run_dirs, setting_rows, strict=True):
-                print(f"{s.name} seed {seed}: {train.last_session(r)} -> {d}")
-    return 0
+    return train.run_to_end(trainer, named=True)
 
 
 if __name__ == "__main__":

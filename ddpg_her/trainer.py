@@ -1,21 +1,19 @@
-"""The paper's training protocol for K independent agents in one process.
+"""The host engine of the training loop (`ddpg_her.loop.Loop`: sessions, eval rows,
+checkpoints, resume) for K independent agents in one process.
 
-Every training episode each agent runs one episode in its own env copy (all K in lockstep),
-stores it and its HER copies in its own buffer, then all agents make ``updates_per_episode``
-batched updates. Every ``eval_every`` episodes each agent runs ``eval_episodes`` test episodes of
-its deterministic policy, and every run folder gets its eval row and a checkpoint.
+Every training episode each agent runs one episode in its own env copy (all K in lockstep,
+`ddpg_her.collect`), stores it and its HER copies in its own buffer, then all agents make
+``updates_per_episode`` batched updates; a test session runs ``eval_episodes`` episodes of each
+agent's deterministic policy.
 
 The K agents may pursue different tasks of one observation and action layout (``env_kwargs``
 per agent: regions, reward readings, contact models); they share the agent configuration.
 Agent k's randomness comes from its seed alone (env episodes, initial weights, exploration, HER
 goals, minibatches), so K = 1 and K > 1 train agent k alike, and a resumed run continues exactly.
-`ddpg_her.multi` runs several such trainers (other layouts or configurations) in turn.
-"""
+`ddpg_her.multi` runs several such trainers (other layouts or configurations) in turn."""
 
 from __future__ import annotations
 
-import json
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -25,11 +23,12 @@ import torch
 
 from ddpg_her.agents import check_memory, make_agent
 from ddpg_her.buffer import PrioritizedBuffer, ReplayBuffer, anneal_beta
-from ddpg_her.checkpoints import RunFolders, check_recorded, run_spec
+from ddpg_her.checkpoints import check_recorded, run_spec
 from ddpg_her.collect import ENV_BACKENDS, Collector, make_envs
 from ddpg_her.config import AgentConfig
 from ddpg_her.ensemble import make_buffer, spec_entry, task_partitions
-from ddpg_her.logs import Interval, eval_rows, run_with_progress
+from ddpg_her.logs import Interval, eval_rows
+from ddpg_her.loop import Diverged, Loop, agents_of
 
 # Keys of the independent random streams derived from a seed (numpy SeedSequence spawn keys).
 INIT_STREAM, EXPLORE_STREAM, SAMPLE_STREAM, TRAIN_ENV_STREAM, EVAL_ENV_STREAM = range(5)
@@ -37,16 +36,12 @@ INIT_STREAM, EXPLORE_STREAM, SAMPLE_STREAM, TRAIN_ENV_STREAM, EVAL_ENV_STREAM = 
 EVAL_ENV_STREAM, session, i)`` for test episode i of a session (public: other trainers, such
 as ``analysis.sb3``, test on the same goals)."""
 
-class Diverged(RuntimeError):
-    """Training produced networks with inf or NaN (a diverging run)."""
-
-
 def stream_seed(seed: int, *key: int) -> int:
     """A 32-bit seed for the random stream ``key`` of the run with ``seed``."""
     return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1)[0])
 
 
-class Trainer:
+class Trainer(Loop):
     """Trains one agent per seed, writing one run folder per seed (see `ddpg_her.run`).
 
     env_id, env_kwargs : ``gymnasium.make(env_id, **env_kwargs)`` makes the task: one dict for
@@ -67,22 +62,7 @@ class Trainer:
             raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
                              f"{env_backend!r}")
         self.env_backend = env_backend
-        seeds = [int(s) for s in seeds]
-        per_agent = [dict(env_kwargs)] * len(seeds) if isinstance(env_kwargs, dict) else \
-            [dict(kw) for kw in env_kwargs]
-        if len(per_agent) != len(seeds):
-            raise ValueError(f"need one env_kwargs dict per seed: {len(seeds)} seeds, "
-                             f"{len(per_agent)} dicts")
-        runs = [json.dumps([kw, s], sort_keys=True) for kw, s in zip(per_agent, seeds,
-                                                                     strict=True)]
-        if not seeds or len(set(runs)) != len(runs) or min(seeds) < 0:
-            raise ValueError(f"need one or more seeds >= 0, distinct among the agents of one "
-                             f"task, got {seeds}")
-        if len(run_dirs) != len(seeds):
-            raise ValueError(f"need one run folder per seed: {len(seeds)} seeds, "
-                             f"{len(run_dirs)} folders")
-        if len({Path(d).resolve() for d in run_dirs}) != len(run_dirs):
-            raise ValueError(f"need a distinct run folder per agent, got {list(run_dirs)}")
+        per_agent, seeds = agents_of(env_kwargs, seeds, run_dirs)
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.device = torch.device(device)
         # Set-up in exact arithmetic: the flush is process-wide and reaches Python's own floats
@@ -113,19 +93,14 @@ class Trainer:
         self.buffer: ReplayBuffer = make_buffer(config, self.k, self.layout, self.agent,
                                                 dtype=dtype, device=self.device)
 
-        self.episode = 0
         self.env_steps = np.zeros(self.k, dtype=np.int64)
-        self.wall_s = 0.0
-        self.rows: list[list[dict[str, Any]]] = [[] for _ in seeds]
         self.specs = [{**spec_entry(self.agent, k),
                        **run_spec(env_backend=env_backend, env_id=env_id,
                                   env_kwargs=per_agent[k], task=envs.task_of(k), seed=seeds[k],
                                   config=config, dims=envs.dims, command=command)}
                       for k in range(self.k)]
-        self.folders = RunFolders(run_dirs, self.specs, config)
-        self.folders.open(resume, self._restore)
         self._log: Interval | None = None
-        self._tick = 0.0
+        self._open(run_dirs, resume)
         self._flush_denormals()
 
     def _flush_denormals(self) -> None:
@@ -134,36 +109,27 @@ class Trainer:
         if self.device.type == "cpu":
             torch.set_flush_denormal(self.config.flush_denormals)
 
-    # --- checkpoints ----------------------------------------------------------------------------
-    def state(self, k: int) -> dict[str, Any]:
-        """What agent k's checkpoint holds of this trainer (`RunFolders.save` adds the rest)."""
-        return {"env_steps": int(self.env_steps[k]), "wall_s": self.wall_s, "rows": self.rows[k],
-                "agent": self.agent.agent_state(k),
+    # --- checkpoints (`Loop.state`, `Loop._restore`) ----------------------------------------------
+    def _agent_state(self, k: int) -> dict[str, Any]:
+        return {"agent": self.agent.agent_state(k),
                 "rng": {"explore": self.rngs[k].bit_generator.state,
                         "sample": self.sample_generators[k].get_state()},
                 **({"priority": self.buffer.state(k)}
                    if isinstance(self.buffer, PrioritizedBuffer) else {})}
 
-    def _restore(self, episode: int, states: list[dict[str, Any]],
-                 chunks: list[list[tuple[int, Any]]]) -> None:
-        """Continue from the checkpoints ``states`` of ``episode`` (see `state`)."""
+    def _load(self, episode: int, states: list[dict[str, Any]],
+              chunks: list[list[tuple[int, Any]]]) -> None:
         self.agent.load_agent_states([s["agent"] for s in states])
         for k, s in enumerate(states):
             self.rngs[k].bit_generator.state = s["rng"]["explore"]
             self.sample_generators[k].set_state(s["rng"]["sample"])
             self.env_steps[k] = s["env_steps"]
-            self.rows[k] = list(s["rows"])
         self.folders.restore_buffer(episode, states, chunks, self.buffer)
         for k, s in enumerate(states):
             if isinstance(self.buffer, PrioritizedBuffer):
                 self.buffer.load_state(k, s["priority"])
-        self.episode = episode
-        self.wall_s = float(states[0]["wall_s"])
 
-    def _save(self) -> None:
-        self.folders.save(self.episode, [self.state(k) for k in range(self.k)], self.buffer)
-
-    # --- the protocol ---------------------------------------------------------------------------
+    # --- the engine (`Loop.step` calls these) ---------------------------------------------------
     def _check_finite(self, losses: torch.Tensor) -> None:
         """Raise `Diverged` when an agent's mean losses (2, K) of this episode's updates are
         not finite: its networks hold inf or NaN, and every later action and eval row would
@@ -181,6 +147,25 @@ class Trainer:
             + f". The last checkpoint written is from before; lower --critic-lr "
             f"({self.config.critic_lr:g}) or --actor-lr ({self.config.actor_lr:g}), or check "
             "the task's reward scale")
+
+    def _train(self, warm: bool) -> None:
+        if self._log is None:  # TensorBoard from the first step on (`close` closes it)
+            self._log = Interval(self.k, self.device, [f.path for f in self.folders.folders],
+                                 self.episode, self.tensorboard)
+        self._flush_denormals()
+        self._log.successes += self.train_episode()
+        self._log.episodes += 1
+
+    def _updates(self) -> None:
+        updates = self.config.updates_per_episode
+        losses = self.learn(updates)
+        self._check_finite(losses)
+        self._log.losses += losses
+        self._log.updates += updates
+        self._log.learning += 1
+
+    def _logged(self) -> None:
+        self._log.write(self.rows, self.episode)
 
     def train_episode(self) -> np.ndarray:
         """One exploring episode per agent, stored with its HER copies; returns successes (K,)."""
@@ -221,68 +206,10 @@ class Trainer:
         return eval_rows(self.episode, m, self.env_steps,
                          *self.collector.test_session(self.agent, seeds))
 
-    @property
-    def done(self) -> bool:
-        """Whether the agents have trained ``config.episodes`` episodes."""
-        return self.episode >= self.config.episodes
-
-    def start(self) -> None:
-        """Open the TensorBoard logs and start the clock; before the first `step`."""
-        self._log = Interval(self.k, self.device, [f.path for f in self.folders.folders],
-                             self.episode, self.tensorboard)
-        self._tick = time.perf_counter()
-
-    def step(self) -> None:
-        """One training episode and its updates; then, every ``eval_every`` episodes, a test
-        session and a checkpoint (and one at the last episode).
-
-        ``wall_s`` counts the clock since `start`, including the time that other trainers of
-        the process (`ddpg_her.multi`) spend between two steps of this one.
-        """
-        cfg, log = self.config, self._log
-        if log is None:
-            raise RuntimeError("call start() before step()")
-        self._flush_denormals()
-        log.successes += self.train_episode()
-        if self.episode >= cfg.warmup_episodes and cfg.updates_per_episode > 0:
-            losses = self.learn(cfg.updates_per_episode)
-            self._check_finite(losses)
-            log.losses += losses
-            log.updates += cfg.updates_per_episode
-            log.learning += 1
-        self.episode += 1
-        log.episodes += 1
-        if self.episode % cfg.eval_every == 0:
-            new_rows = self.evaluate()
-            now = time.perf_counter()
-            self.wall_s += now - self._tick
-            self._tick = now
-            for rows, row in zip(self.rows, new_rows, strict=True):
-                rows.append({**row, "wall_s": round(self.wall_s, 2)})
-            log.write(self.rows, self.episode)
-            self._save()
-        elif self.episode == cfg.episodes:
-            self._save()
-        now = time.perf_counter()
-        self.wall_s += now - self._tick
-        self._tick = now
-
-    def finish(self) -> None:
-        """Close the TensorBoard logs; after the last `step`."""
+    def close(self) -> None:
+        """Close the TensorBoard logs and the envs and release the run folders' locks."""
         if self._log is not None:
             self._log.close()
-            self._log = None
-
-    def run(self) -> list[list[dict[str, Any]]]:
-        """Train to ``config.episodes``; returns every agent's eval rows."""
-        self.start()
-        try:
-            return run_with_progress(self, f"train {self.k} agent{'s' if self.k > 1 else ''}")
-        finally:
-            self.finish()
-
-    def close(self) -> None:
-        """Close the envs and release the run folders' locks."""
         self.envs.close()
         self.eval_envs.close()
-        self.folders.close()
+        super().close()

@@ -26,8 +26,6 @@ from cli_tools import (
     takes_a_number,
 )
 
-from ddpg_her.program import Program
-
 CLIS = cli_modules() + example_scripts()
 
 DEFAULT = re.compile(r"\(default: (?:%\(default\)s|[^)]*)\)|%\(default\)s")
@@ -147,38 +145,27 @@ def collect_examples() -> list[tuple[str, str, list[str]]]:
 EXAMPLES = collect_examples()
 
 
-class _StubTrainer:
-    """Stands in for ddpg_her.trainer.Trainer: builds the env as the trainer would, which checks
-    every task field, and trains nothing."""
+class _StubMulti:
+    """Stands in for ddpg_her.multi.MultiTrainer: builds each env as the trainer would, which
+    checks every task field (the program: every agent's task as one stack, its own check),
+    and trains nothing."""
 
-    def __init__(self, env_id, env_kwargs, config, seeds, dirs, **kwargs):
-        import gymnasium
-
-        gymnasium.make(env_id, **env_kwargs).close()
-        self.seeds = seeds
-
-    def run(self):
-        return [[] for _ in self.seeds]
-
-    def close(self):
-        pass
-
-
-class _StubProgram(_StubTrainer):
-    """Stands in for ddpg_her.program.Program: checks every agent's task as one stack (the
-    program's own check), builds each env, and trains nothing."""
-
-    def __init__(self, env_id, env_kwargs, config, seeds, dirs, **kwargs):
+    def __init__(self, settings, env_backend="numpy", **kwargs):
         import gymnasium
 
         from envs.stackreach import stack_tasks
 
-        stack_tasks(env_kwargs)
-        for kwargs_k in env_kwargs:
-            gymnasium.make(env_id, **kwargs_k).close()
-        self.seeds = seeds
+        if env_backend == "program":
+            stack_tasks([s.env_kwargs for s in settings for _ in s.seeds])
+        for s in settings:
+            gymnasium.make(s.env_id, **s.env_kwargs).close()
+        self.groups, self.trainers, self.agents = [settings], [], 0
 
-    of_settings = classmethod(Program.of_settings.__func__)  # the real one, building a stub
+    def run(self):
+        return [[[[] for _ in s.seeds] for s in group] for group in self.groups]
+
+    def close(self):
+        pass
 
 
 def _run_train(argv: list[str], monkeypatch) -> None:
@@ -187,8 +174,7 @@ def _run_train(argv: list[str], monkeypatch) -> None:
 
     from ddpg_her import train
 
-    monkeypatch.setattr("ddpg_her.trainer.Trainer", _StubTrainer)
-    monkeypatch.setattr("ddpg_her.program.Program", _StubProgram)
+    monkeypatch.setattr("ddpg_her.multi.MultiTrainer", _StubMulti)
     deterministic, threads = torch.are_deterministic_algorithms_enabled(), torch.get_num_threads()
     try:
         assert train.main(argv) == 0

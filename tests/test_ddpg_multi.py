@@ -100,6 +100,9 @@ def test_settings_group_by_layout_agent_configuration_and_resume_point(tmp_path)
     groups = group_settings([s(BOX2, name="a"), s(BOX3, name="b"), s(COSTLY, name="c"),
                              s(BOX2, gauss, name="d")], resume=False)
     assert [[x.run_dirs[0][-1] for x in g] for g in groups] == [["a", "c"], ["b"], ["d"]]
+    # the training program takes every setting as one stack, and train_many's dry run says so
+    every = [s(BOX2, name="a"), s(BOX3, name="b"), s(BOX2, gauss, name="d")]
+    assert group_settings(every, resume=False, env_backend="program") == [every]
     # a setting resumed from another checkpoint is another stack
     alone(tmp_path / "e", BOX2, 0, config=AgentConfig(**{**TINY.to_dict(), "episodes": 3}))
     groups = group_settings([s(BOX2, name="a"), s(BOX2, name="e")], resume=True)

@@ -372,7 +372,7 @@ def test_choose_episodes_takes_the_largest_budget_projected_to_fit():
     episodes at 36 ms each (after 30 s spent at episode 200: 30 + 19,800 x 0.036 = 742.8 s,
     over; 34 ms fits: 703.2 s), 10,000 at 70 ms (716 s), 2,500 at 300 ms (720 s), and when
     nothing fits, the smallest left."""
-    from ddpg_her.program import choose_episodes
+    from ddpg_her.loop import choose_episodes
 
     choices = (20000, 10000, 5000, 2500)
     assert choose_episodes(30.0, 200, 0.036, 720, choices)[0] == 10000
@@ -390,7 +390,7 @@ def test_a_window_run_trains_the_budget_its_measured_rate_fits(tmp_path, seconds
     second at each further one (1/3 s per episode, eval_every 3): at the second session
     (episode 6, 11 s) 12 episodes project to 11 + 6/3 = 13 s. A 12 s budget stops at 6, a
     14 s one trains 12; spec.json records the choice."""
-    from ddpg_her.program import Budget
+    from ddpg_her.loop import Budget
 
     ticks = iter(10.0 + np.arange(10))
     budget = Budget(seconds, (12, 6), start=0.0, clock=lambda: float(next(ticks)))
@@ -500,7 +500,7 @@ def test_train_many_runs_a_mixed_stack_on_the_arm_kernel(tmp_path):
         assert all(0 <= int(r["successes"]) <= 3 for r in rows)
         spec = json.loads((tmp_path / run / "spec.json").read_text())
         assert spec["env_backend"] == "program" and spec["program"]["streams"]
-    assert "3 agents of 2 units in one program stack" in out.stderr
+    assert "3 agents of 2 units in 1 stack(s): 3" in out.stderr
 
 
 def test_a_window_run_from_the_command_line_chooses_its_budget_and_refuses_resume(tmp_path):

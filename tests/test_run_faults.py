@@ -15,6 +15,7 @@ from test_run_errors import TASK, TINY, eval_rows, train
 from toy_goal_env import ENV_ID
 
 from ddpg_her.config import AgentConfig
+from ddpg_her.multi import MultiTrainer
 from ddpg_her.trainer import Trainer
 
 SHORT = AgentConfig(**{**TINY.to_dict(), "episodes": 8, "eval_every": 1, "buffer_size": 60})
@@ -211,13 +212,13 @@ def test_resume_without_episodes_keeps_the_recorded_budget_and_says_so(tmp_path,
     run = copy_to(two_episodes, tmp_path / "run")
     before = {p: (run / p).read_bytes() for p in ("spec.json", "eval.csv")}
     planned = []
-    real_run = Trainer.run
+    real_run = MultiTrainer.run
 
     def run_and_note(self):
-        planned.append(self.config.episodes)
-        return real_run(self) if self.config.episodes < 100 else self.rows
+        planned.append(self.trainers[0].config.episodes)
+        return real_run(self) if planned[-1] < 100 else [[t.rows for t in self.trainers]]
 
-    monkeypatch.setattr(Trainer, "run", run_and_note)
+    monkeypatch.setattr(MultiTrainer, "run", run_and_note)
     assert main([*CLI, "--out", str(run), "--resume"]) == 0
     assert planned == [2]
     assert "training to the 2 episodes that spec.json records" in capsys.readouterr().err
