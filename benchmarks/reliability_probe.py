@@ -67,7 +67,7 @@ PRELOAD = ("torch", "gymnasium", "pinocchio", "matplotlib.pyplot", "envs", "envs
            "ddpg_her.summary", "ddpg_her.run", "analysis.sweep", "analysis.sensitivity",
            "analysis.algorithms", "analysis.optimality", "analysis.contact", "analysis.curves",
            "analysis.report", "analysis.replay", "analysis.success_map",
-           "analysis.region_volumes", "analysis.sb3", "analysis.browser")
+           "analysis.region_volumes", "analysis.sb3", "benchmarks.browser")
 """Imported once in the parent, so each forked case starts at once."""
 
 
@@ -387,7 +387,7 @@ def old_reader_cases(fix: Path) -> list[Case]:
             ["--readings", "nosuch", "--dry-run"], "refusal", "nosuch"),
         cli("sensitivity --reading bad name", "analysis.sensitivity", 7,
             ["--reading", "a b=--tau 1", "--dry-run"], "refusal", "a b"),
-        cli("browser missing page", "analysis.browser", 7, [str(fix / "nosuch.html")],
+        cli("browser missing page", "benchmarks.browser", 7, [str(fix / "nosuch.html")],
             "refusal", "nosuch.html"),
         cli("train --resume on a garbage lock", "ddpg_her.train", 6,
             ["--region", "farbox", "--out", str(fix / "locked"), "--resume"], "refusal",
@@ -828,13 +828,13 @@ def study_cases(fix: Path) -> list[Case]:
         cli("train_many --dry-run of two units", "ddpg_her.train_many", 4,
             ["--unit", "--region farbox --out u1", "--unit", "--region closebox --out u2",
              "--dry-run"], "ok"),
-        cli("browser --at -1", "analysis.browser", 7, ["p.html", "--at", "-1"], "refusal",
+        cli("browser --at -1", "benchmarks.browser", 7, ["p.html", "--at", "-1"], "refusal",
             "--at", setup=lambda d: (d / "p.html").write_text("<html></html>")),
-        cli("browser --at nan", "analysis.browser", 7, ["p.html", "--at", "nan"], "refusal",
+        cli("browser --at nan", "benchmarks.browser", 7, ["p.html", "--at", "nan"], "refusal",
             "--at", setup=lambda d: (d / "p.html").write_text("<html></html>")),
-        cli("browser --size 10 10", "analysis.browser", 7, ["p.html", "--size", "10", "10"],
+        cli("browser --size 10 10", "benchmarks.browser", 7, ["p.html", "--size", "10", "10"],
             "refusal", "--size", setup=lambda d: (d / "p.html").write_text("<html></html>")),
-        cli("browser --out under a file", "analysis.browser", 3,
+        cli("browser --out under a file", "benchmarks.browser", 3,
             ["p.html", "--out", str(fix / "blocker" / "s.png")], "refusal", "s.png",
             setup=lambda d: (d / "p.html").write_text("<html></html>")),
         cli("train --out a file", "ddpg_her.train", 3,
@@ -852,7 +852,7 @@ def study_cases(fix: Path) -> list[Case]:
             ["report", str(fix / "ur5"), "--out", str(fix / "blocker")], "usage", "blocker"),
         cli("sensitivity report of a root without the study's runs ('not run')",
             "analysis.sensitivity", 7, ["report", str(fix / "ur5"), "--out", "o"], "ok"),
-        cli("browser page a folder", "analysis.browser", 7, [str(fix)], "refusal", str(fix)),
+        cli("browser page a folder", "benchmarks.browser", 7, [str(fix)], "refusal", str(fix)),
     ]
     return out
 

@@ -252,7 +252,7 @@ def test_a_browser_draws_the_arm_and_plays_the_replay(replayed):
     control advances it in real time, and the frame it is paused at differs from the first
     where the arm is. (Paused for each screenshot: a software-rendered screenshot takes about
     0.5 s on a loaded machine, longer than the untrained policy's whole move.)"""
-    from analysis.browser import Browser, BrowserError, ViewerPage, find_chromium
+    from benchmarks.browser import Browser, BrowserError, ViewerPage, find_chromium
 
     if find_chromium() is None:
         pytest.skip("no Chromium for the browser test: apt-get install chromium (bash dev.sh "
@@ -328,7 +328,7 @@ def test_serve_shows_the_scene_live_and_ends_its_server(tiny_ur5_run):
 def test_browser_refuses_a_time_that_is_not_finite_before_starting_one(tmp_path, capsys, at):
     """Issue 37, kind 7 (found by benchmarks/reliability_probe.py): ``--at nan`` passed the
     check (nan < 0 is false) and was found only after a browser had been waited for 30 s."""
-    from analysis import browser
+    from benchmarks import browser
 
     page = tmp_path / "p.html"
     page.write_text("<html></html>")

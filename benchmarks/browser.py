@@ -1,7 +1,7 @@
 """Screenshots of a 3D page of analysis.replay or analysis.region_volumes --view, taken in
 headless Chromium at a chosen time of its animation.
 
-    python -m analysis.browser replay.html --at 1.5 --out replay.png
+    python -m benchmarks.browser replay.html --at 1.5 --out replay.png
 
 Chromium is driven over its DevTools protocol on a pipe (``--remote-debugging-pipe``: no port,
 no extra package), renders WebGL in software (SwiftShader), and answers questions about the
@@ -310,9 +310,9 @@ class ViewerPage:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m analysis.browser``."""
+    """Entry point of ``python -m benchmarks.browser``."""
     parser = argparse.ArgumentParser(
-        prog="python -m analysis.browser", description=__doc__.split("\n\n")[0],
+        prog="python -m benchmarks.browser", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("page", type=pathlib.Path, metavar="PAGE.html",
                         help="a page of analysis.replay or analysis.region_volumes --view")
@@ -341,7 +341,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 page.seek(min(args.at, page.duration))
             png = browser.screenshot()
     except BrowserError as err:
-        print(f"analysis.browser: {err}", file=sys.stderr)
+        print(f"benchmarks.browser: {err}", file=sys.stderr)
         return 1
     with write_errors(parser):
         write_bytes(args.out, png)
