@@ -26,6 +26,8 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from ddpg_her.config import Parser
+
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 """Executables tried, in order, when none is given (Debian's package is ``chromium``)."""
 
@@ -311,7 +313,7 @@ class ViewerPage:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m analysis.browser``."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.browser", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("page", type=pathlib.Path, metavar="PAGE.html",

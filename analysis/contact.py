@@ -28,6 +28,7 @@ import gymnasium
 import numpy as np
 
 import ur5kin
+from ddpg_her.config import Parser
 from envs.checks import validate
 from envs.physics import make_dynamics
 from envs.spec import CONTACT_MODELS, TaskSpec
@@ -142,7 +143,7 @@ def measure(config: ContactConfig) -> list[ContactRow]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m analysis.contact", description=__doc__,
+    parser = Parser(prog="python -m analysis.contact", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     docs = {"region": "goal region (any TaskSpec region string)",
             "n_joints": "controlled joints, 2-6",

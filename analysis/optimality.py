@@ -41,6 +41,7 @@ from analysis.outputs import (
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
 from analysis.sweep import parse_setting, positive_count
+from ddpg_her.config import Parser
 from ddpg_her.units import task_option
 
 DEFAULT_GAMMA = 0.98
@@ -821,7 +822,7 @@ def read_csvs(paths: Sequence[Path]) -> list[dict[str, str]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.optimality",
         description="Share of goals for which reaching them under a constant joint command "
                     "(an analytic IK branch) earns a higher discounted return than holding the "

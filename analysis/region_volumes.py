@@ -36,6 +36,7 @@ from analysis.outputs import (
     write_csv,
     write_text,
 )
+from ddpg_her.config import Parser
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
 from regions.coverage import (
     DEFAULT_RESOLUTION,
@@ -418,7 +419,7 @@ def view(settings: Settings, path: pathlib.Path, meshes: str = "collision") -> i
 def build_parser() -> argparse.ArgumentParser:
     """The command line; every flag's help gives its unit."""
     d = Settings()
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.region_volumes",
         description=__doc__.split("\n\n")[0] + " World frame: plane z = 0, base at "
         "(0, 0, base height), m.",

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from ddpg_her.config import Parser
+
 SUPPORTED_ENV_IDS = ("UR5Reach-v0",)
 """Env ids whose runs can be replayed: the UR5 goal env, whose arm this module draws."""
 
@@ -207,7 +209,7 @@ def serve_until_stopped() -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line; every flag's help gives its unit or range."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.replay", description=__doc__.split("\n\n")[0],
         epilog="Pages hold the arm's collision meshes by default (about 1.3 MB for 10 "
         "episodes, most of it the viewer's script); --meshes visual embeds the COLLADA visual "

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from ddpg_her.config import Parser
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_HYPERPARAMS = ROOT / "examples" / "sb3_her.json"
 """The hyperparameter file a user copies."""
@@ -454,7 +456,7 @@ def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sb3", description=__doc__.split("\n\n")[0])
     parser.add_argument("--algo", choices=ALGOS, default="ddpg",
                         help="Stable-Baselines3 algorithm (default: ddpg)")

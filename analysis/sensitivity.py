@@ -83,6 +83,7 @@ from analysis.sweep import (
     positive_count,
     refuse_problems,
 )
+from ddpg_her.config import Parser
 from ddpg_her.units import split_passthrough
 
 # --- readings -----------------------------------------------------------------------------------
@@ -849,7 +850,7 @@ def _user_readings(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
 
 
 def report_main(argv: Sequence[str]) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sensitivity report",
         description="Judge the paper's claims for every reading below ROOT (ROOT/<reading>/"
                     "<region>-j<joints>/s<seed>, e.g. runs/sensitivity or a --collect "
@@ -974,7 +975,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv[:1] == ["report"]:
         return report_main(argv[1:])
     argv, extra = split_passthrough(argv)
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sensitivity", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to every python -m ddpg_her.train (after the reading's "
                "own). 'python -m analysis.sensitivity report --help' explains the report. "

@@ -31,6 +31,7 @@ from analysis.outputs import (
     save_figure,
     write_csv,
 )
+from ddpg_her.config import Parser
 
 WORKSPACE_REACH_M = 1.1
 """A bound (m) on tool0's distance from the shoulder axis (the reach ball's radius is under it):
@@ -163,7 +164,7 @@ def csv_rows(maps: Sequence[SuccessMap]) -> list[list[Any]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.success_map", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("runs", nargs="+", metavar="RUN",

@@ -35,6 +35,7 @@ from typing import IO, Any
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
+from ddpg_her.config import Parser
 from ddpg_her.runfolder import RunFolder, run_status
 from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passthrough
 
@@ -986,7 +987,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv, extra = split_passthrough(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sweep", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to python -m ddpg_her.train.",
         formatter_class=HelpFormatter)

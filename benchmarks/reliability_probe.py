@@ -22,7 +22,6 @@ fixtures); ``traceback``; ``hang``; ``other`` (another mismatch).
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import csv
 import dataclasses
@@ -46,6 +45,8 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium
+
+from ddpg_her.config import Parser
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = ROOT / "tests"
@@ -1552,7 +1553,7 @@ def verdict(case: Case, got: str, message: str, before: dict[str, str], after: d
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.reliability_probe",
+    parser = Parser(prog="python -m benchmarks.reliability_probe",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("results/reliability/probe.csv"),
                         help="the table written (CSV)")

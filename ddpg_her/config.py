@@ -5,6 +5,7 @@ Each field's docstring is its documentation and its ``--help`` text (see `field_
 
 from __future__ import annotations
 
+import argparse
 import ast
 import dataclasses
 import enum
@@ -16,7 +17,14 @@ import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
-from typing import Any
+from typing import Any, NoReturn
+
+
+class Parser(argparse.ArgumentParser):
+    """The parser of every command: a usage error is one line (the usage comes with --help)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (--help for the usage)\n")
 
 
 class Exploration(str, enum.Enum):

@@ -406,8 +406,6 @@ class Program:
             torch.backends.cuda.matmul.allow_tf32 = bool(tf32)
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.dtype, self.progress = dtype, progress
-        if self.device.type == "cpu":
-            torch.set_flush_denormal(config.flush_denormals)
         m, k = config.eval_episodes, self.k
         twin = register_env(env_id)
         make = lambda n: gymnasium.make_vec(  # noqa: E731
@@ -469,6 +467,8 @@ class Program:
                                   command=command)} for i in range(k)]
         self.folders = RunFolders(run_dirs, self.specs, config)
         self.folders.open(resume, self._restore)
+        if self.device.type == "cpu":  # after the record: the flush reaches Python's floats
+            torch.set_flush_denormal(config.flush_denormals)
         self._bodies = {
             "warm": Graphed(lambda: self._train_episode(warm=True), self.capture),
             "act": Graphed(lambda: self._train_episode(warm=False), self.capture),

@@ -8,11 +8,11 @@ its sessions, at least the last interval).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ddpg_her.config import Parser
 from ddpg_her.runfolder import RunFolder, RunFolderError
 
 
@@ -64,7 +64,7 @@ def summarize(run_dirs: Sequence[str], project_to: int) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ddpg_her.summary", description=__doc__)
+    parser = Parser(prog="python -m ddpg_her.summary", description=__doc__)
     parser.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders")
     parser.add_argument("--project-to", type=int, default=20_000, metavar="EPISODES",
                         help="episodes of the projected run (default: 20000, the paper's)")

@@ -21,7 +21,7 @@ import typing
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ddpg_her.config import VALID, AgentConfig, field_docs
+from ddpg_her.config import VALID, AgentConfig, Parser, field_docs
 from ddpg_her.units import DEFAULT_JOINTS, Setting, check_device, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
@@ -115,7 +115,7 @@ def add_process_flags(group: Any, what: str) -> None:
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m ddpg_her.train",
         description="Train DDPG + HER (Lewis, Moll, Kavraki 2019, Table I) on a goal-reaching "
                     "task. Every --eval-every training episodes, --eval-episodes test episodes "

@@ -382,3 +382,21 @@ def test_ctrl_c_of_a_sweep_ends_with_its_line_not_a_traceback(tmp_path, monkeypa
         code, err = run_main(sweep.main, ["--setting", "farbox:3", "--seeds", "1", "--out",
                                           str(tmp_path / "sw"), *flags])
         assert code == 130 and "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------- kind 7
+COMMANDS = sorted(f"{p.parent.name}.{p.stem}" for package in ("ddpg_her", "analysis")
+                  for p in (Path(__file__).parents[1] / package).glob("*.py")
+                  if "= Parser(" in p.read_text())
+
+
+@pytest.mark.parametrize("module", COMMANDS)
+def test_a_usage_error_is_one_line(module):
+    """Every command's usage error is one line naming the bad flag (argparse's own parser, the
+    reference, prints the usage first: for ddpg_her.train about 35 lines)."""
+    import importlib
+
+    code, err = run_main(importlib.import_module(module).main, ["--no-such-flag-41"])
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1, err
+    assert "--help" in err and ("--no-such-flag-41" in err or "required" in err), err
