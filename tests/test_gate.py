@@ -400,3 +400,23 @@ def test_a_usage_error_is_one_line(module):
     assert code == 2
     assert len(err.strip().splitlines()) == 1, err
     assert "--help" in err and ("--no-such-flag-41" in err or "required" in err), err
+
+
+# ---------------------------------------------------------------------------- kind 5
+def test_the_program_records_a_subnormal_start_angle_as_typed(tmp_path):
+    """The program set the CPU's subnormal flush before writing spec.json, and the flush reaches
+    Python's floats: a start_q entry of 1e-320 was recorded as 0.0. The reference is the typed
+    value (the numpy trainer's record, tests/test_ddpg_train.py)."""
+    from ddpg_her.program import Program
+    from tests.test_program import FirstOrderArm
+
+    start = (1e-320, -0.785, 1.57, 0.0, 0.0, 0.0)
+    config = AgentConfig(hidden_sizes=(8, 8), warmup_episodes=1, eval_every=2, eval_episodes=2,
+                         updates_per_episode=2, batch_size=8, buffer_size=400, episodes=2)
+    try:
+        Program("UR5Reach-v0", [dict(region="farbox", n_joints=3, start_q=start)], config, [0],
+                [tmp_path / "r"], progress=False, dynamics=FirstOrderArm).close()
+    finally:
+        torch.set_flush_denormal(False)  # json.loads under the flush reads 1e-320 as 0.0 too
+    spec = json.loads((tmp_path / "r" / "spec.json").read_text())
+    assert tuple(spec["task"]["start_q"]) == start and spec["task"]["start_q"][0] > 0
