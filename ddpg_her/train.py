@@ -21,7 +21,7 @@ import typing
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ddpg_her.config import VALID, AgentConfig, Parser, field_docs
+from ddpg_her.config import COMBINATIONS, VALID, AgentConfig, Parser, field_docs
 from ddpg_her.units import DEFAULT_JOINTS, Setting, check_device, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
@@ -32,8 +32,9 @@ def _add_config_flags(group: argparse._ArgumentGroup) -> None:
     for f in dataclasses.fields(AgentConfig):
         flag = "--" + f.name.replace("_", "-")
         kind = hints[f.name]
-        valid = f" Valid: {VALID[f.name][0]}." if f.name in VALID else ""
-        help_text = (docs[f.name] + valid).replace("%", "%%") + " (default: %(default)s)"
+        valid = ", and ".join([VALID[f.name].words,
+                               *(w for n, w, _ in COMBINATIONS if n == f.name)])
+        help_text = f"{docs[f.name]} Valid: {valid}.".replace("%", "%%") + " (default: %(default)s)"
         if kind is bool:
             group.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default,
                                help=help_text)
