@@ -14,6 +14,7 @@ from collections.abc import Callable
 
 from regions.reach import reach_ball
 from regions.shapes import Box, Intersection, MeshRegion, Region, ZLimit, region_from_dict
+from ur5kin.checks import number
 from ur5kin.world import DEFAULT_BASE_HEIGHT
 
 UNCONSTRAINED_REGION = "unconstrained"
@@ -35,6 +36,9 @@ def default_start(region: str) -> tuple[float, ...]:
     start = UNCONSTRAINED_START if region == UNCONSTRAINED_REGION else CONSTRAINED_START
     return tuple(float(x) for x in start)
 
+
+BASE_HEIGHT = number(0, note="m")
+"""A base height (m above the ground plane): every region's and every task's."""
 
 PLANE_Z = 0.0
 """Height (m) of the ground plane, the floor of every paper region."""
@@ -100,7 +104,7 @@ def get(name: str, base_height: float = DEFAULT_BASE_HEIGHT) -> Region:
     """
     if name not in _BUILDERS:
         raise ValueError(f"unknown region {name!r}; known regions: {', '.join(PAPER_REGIONS)}")
-    return _BUILDERS[name](base_height)
+    return _BUILDERS[name](BASE_HEIGHT("base_height", base_height))
 
 
 SPEC_FORMS = (
@@ -163,7 +167,7 @@ def parse(spec: str, base_height: float = DEFAULT_BASE_HEIGHT) -> Region:
     """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"a region string is needed; got {spec!r}. Forms: {spec_help()}")
-    spec = spec.strip()
+    spec, base_height = spec.strip(), BASE_HEIGHT("base_height", base_height)
     if spec in _BUILDERS:
         return get(spec, base_height)
     if spec.startswith("{"):

@@ -155,7 +155,7 @@ def test_info_clearance_is_the_lowest_moving_link_height_at_the_end_of_the_step(
     (["--steps", "-1"], "--steps must be >= 1; got -1"),
     (["--rounds", "0"], "--rounds must be >= 1; got 0"),
     (["--friction", "nan"], "--friction must be a finite number"),
-    (["--joints", "7"], "n_joints must be an integer 2..6; got 7"),
+    (["--joints", "7"], "n_joints=7 (expected an integer in 2..6)"),
     (["--region", "nowhere"], "cannot read region 'nowhere'"),
     # issue 37, kind 7: numpy's ValueError and the sampler's error were tracebacks
     (["--seed", "-1"], "--seed must be an integer >= 0 (numpy's seeds are); got -1"),

@@ -420,3 +420,17 @@ def test_the_program_records_a_subnormal_start_angle_as_typed(tmp_path):
         torch.set_flush_denormal(False)  # json.loads under the flush reads 1e-320 as 0.0 too
     spec = json.loads((tmp_path / "r" / "spec.json").read_text())
     assert tuple(spec["task"]["start_q"]) == start and spec["task"]["start_q"][0] > 0
+
+
+@pytest.mark.parametrize("name", ["farbox", "closebox", "zheight", "box:0.5,0.9,-0.4,0.4,0,0.4"])
+@pytest.mark.parametrize("height", [-1.0, float("nan"), float("inf"), "0.1"])
+def test_a_region_refuses_the_base_height_a_task_refuses(name, height):
+    """regions.get('farbox', base_height=-1) was accepted (a box does not use the height);
+    TaskSpec, the reference, refuses the same heights: both now through one description."""
+    import regions
+    from envs.spec import TaskSpec
+
+    for build in (lambda: regions.parse(name, height), lambda: TaskSpec(base_height=height),
+                  *([lambda: regions.get(name, base_height=height)] * (":" not in name))):
+        with pytest.raises(ValueError, match=r"base_height=.* \(expected a finite number >= 0"):
+            build()
