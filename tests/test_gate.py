@@ -434,3 +434,21 @@ def test_a_region_refuses_the_base_height_a_task_refuses(name, height):
                   *([lambda: regions.get(name, base_height=height)] * (":" not in name))):
         with pytest.raises(ValueError, match=r"base_height=.* \(expected a finite number >= 0"):
             build()
+
+
+def test_success_maps_default_slice_outside_the_region_suggests_a_z_inside(tiny_ur5_run,
+                                                                           tmp_path):
+    """The default slice (0.7-0.8 m) misses the far box (z in [0, 0.4] m) and the refusal never
+    said --z; the suggested slice, the reference, then draws a map."""
+    import re
+
+    from analysis import success_map
+
+    out = ["--goals", "20", "--out", str(tmp_path / "map.png"), "--no-progress"]
+    code, err = run_main(success_map.main, [str(tiny_ur5_run), *out])
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    z = re.search(r"try --z (\S+) (\S+)", err)
+    assert z and "[0, 0.4] m" in err, err
+    assert 0.0 <= float(z[1]) < float(z[2]) <= 0.4
+    assert run_main(success_map.main, [str(tiny_ur5_run), *out, "--z", z[1], z[2]])[0] == 0
+    assert (tmp_path / "map.png").exists()

@@ -6,6 +6,7 @@ value and what was expected.
 
 from __future__ import annotations
 
+import argparse
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
@@ -114,12 +115,22 @@ class Kind(NamedTuple):
     words: str
     test: Callable[[Any], bool]
     cast: Callable[[Any], Any] = lambda v: v
+    parse: Callable[[str], Any] = str
+    """How a command line's text becomes the value (`read`)."""
 
     def __call__(self, name: str, value: Any) -> Any:
         """``value`` cast, or a one-line ``ValueError`` naming ``name``, the value and words."""
         if not holds(self.test, value):
             raise ValueError(f"{name}={value!r:.200} (expected {self.words})")
         return self.cast(value)
+
+    def read(self, text: str) -> Any:
+        """The argparse ``type`` of a flag of this kind: argparse names the flag, this line
+        the text and what was expected (``argument --seed: -1 (expected an integer >= 0)``)."""
+        try:
+            return self("", self.parse(text))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text} (expected {self.words})") from None
 
 
 def holds(test: Callable[..., bool], *args: Any) -> bool:
@@ -149,18 +160,25 @@ def number(lo: float = -math.inf, hi: float = math.inf, *, above: bool = False,
     finite_words = finite and not -math.inf < lo <= hi < math.inf  # a closed span says it
     words = f"a{' finite' * finite_words} number {span}".strip() + (f" ({note})" if note else "")
     return Kind(words, lambda v: is_real(v) and (math.isfinite(v) or (not finite and v == v))
-                and (lo < v if above else lo <= v) and (v < hi if below else v <= hi), float)
+                and (lo < v if above else lo <= v) and (v < hi if below else v <= hi), float,
+                float)
 
 
 def integer(lo: int, hi: int | None = None, note: str = "") -> Kind:
     """An integer in lo..hi (no upper bound when ``hi`` is None), stored as an int."""
     words = f"an integer {f'in {lo}..{hi}' if hi is not None else f'>= {lo}'}"
     return Kind(words + (f" ({note})" if note else ""), lambda v: is_integer(v) and lo <= v
-                and (hi is None or v <= hi), int)
+                and (hi is None or v <= hi), int, int)
 
 
 FLAG = Kind("True or False", lambda v: isinstance(v, bool | np.bool_), bool)
 """A flag, stored as a Python bool."""
+
+COUNT = integer(1)
+"""A count of things (goals, episodes, rounds), at least one."""
+
+SEED = integer(0, note="numpy's seeds are")
+"""A seed of ``numpy.random.default_rng`` (and of torch)."""
 
 
 def choice(options: Sequence[Any], cast: Callable[[Any], Any] = lambda v: v) -> Kind:
