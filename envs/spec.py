@@ -42,7 +42,7 @@ from ur5kin.checks import (
     number,
     vector,
 )
-from ur5kin.world import DEFAULT_BASE_HEIGHT
+from ur5kin.world import BASE_HEIGHT, DEFAULT_BASE_HEIGHT
 
 if TYPE_CHECKING:
     import regions
@@ -253,7 +253,7 @@ class TaskSpec:
     the plane."""
 
     def __post_init__(self) -> None:
-        base = registry.BASE_HEIGHT("base_height", self.base_height)
+        base = BASE_HEIGHT("base_height", self.base_height)
         object.__setattr__(self, "region", _region_string(self.region, base))
         if self.start_q is None:
             object.__setattr__(self, "start_q", default_start(self.region))
@@ -344,7 +344,7 @@ class TaskSpec:
 
 
 FIELDS: dict[str, Kind] = kinds(
-    (registry.BASE_HEIGHT, "base_height"), (number(0, note="m"), "plane_margin"),
+    (BASE_HEIGHT, "base_height"), (number(0, note="m"), "plane_margin"),
     (integer(*N_JOINTS_RANGE), "n_joints"),
     *((choice(options), name) for name, options in (
         ("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),

@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 
+from ur5kin.checks import COUNT
+
 
 def check_num_envs(num_envs: Any) -> int:
     """``num_envs`` as an int, or a ValueError when it is not an integer >= 1."""
-    if not isinstance(num_envs, int | np.integer) or num_envs < 1:
-        raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
-    return int(num_envs)
+    return COUNT("num_envs", num_envs)
 
 
 def reset_options(options: Any, known: Sequence[str], example: str) -> dict[str, Any]:

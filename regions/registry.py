@@ -14,8 +14,7 @@ from collections.abc import Callable
 
 from regions.reach import reach_ball
 from regions.shapes import Box, Intersection, MeshRegion, Region, ZLimit, region_from_dict
-from ur5kin.checks import number
-from ur5kin.world import DEFAULT_BASE_HEIGHT
+from ur5kin.world import BASE_HEIGHT, DEFAULT_BASE_HEIGHT
 
 UNCONSTRAINED_REGION = "unconstrained"
 """The region whose default start pose is :data:`UNCONSTRAINED_START` (all zeros); every other
@@ -36,9 +35,6 @@ def default_start(region: str) -> tuple[float, ...]:
     start = UNCONSTRAINED_START if region == UNCONSTRAINED_REGION else CONSTRAINED_START
     return tuple(float(x) for x in start)
 
-
-BASE_HEIGHT = number(0, note="m")
-"""A base height (m above the ground plane): every region's and every task's."""
 
 PLANE_Z = 0.0
 """Height (m) of the ground plane, the floor of every paper region."""

@@ -87,7 +87,7 @@ def test_compute_reward_still_broadcasts_goals():
 @pytest.mark.parametrize("q", [np.array([1 + 1j, 0, 0, 0, 0, 0]), np.zeros((2, 6)) + 0j,
                                "abcdef"])
 def test_ur5kin_refuses_complex_and_non_numeric_angles(function, q):
-    with pytest.raises(ValueError, match=r"q must be (real|an array of real numbers) \(joint "
+    with pytest.raises(ValueError, match=r"q must be real numbers \(joint "
                                          r"angles in rad\)"):
         function(q)
 

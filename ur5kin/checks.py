@@ -36,12 +36,12 @@ def real_array(x: Any, name: str, what: str) -> np.ndarray:
     """
     arr = np.asarray(x)
     if arr.dtype.kind not in "biuf":
-        if arr.dtype.kind == "c":
-            raise ValueError(f"{name} must be real ({what}); got complex values {_describe(x)}")
         try:
+            if arr.dtype.kind == "c":
+                raise TypeError("complex")
             arr = np.asarray(x, dtype=float)
         except (TypeError, ValueError) as err:
-            raise ValueError(f"{name} must be an array of real numbers ({what}); got {x!r}"
+            raise ValueError(f"{name} must be real numbers ({what}); got {_describe(x)}"
                              ) from err
     return arr.astype(float, copy=False)
 

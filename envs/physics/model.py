@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
+from ur5kin.checks import COUNT, joint_count
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -73,10 +74,7 @@ def require_kernels(task: TaskSpec, who: str) -> None:
 
 def check_num_copies(num_copies: Any) -> int:
     """``num_copies`` (B) as an int, or a ValueError when it is not an integer >= 1."""
-    if isinstance(num_copies, bool) or not isinstance(num_copies, int | np.integer) \
-            or num_copies < 1:
-        raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-    return int(num_copies)
+    return COUNT("num_copies", num_copies)
 
 
 def check_aba_batch(q: Any, v: Any, tau: Any, free: int) -> None:
@@ -92,9 +90,7 @@ def check_aba_batch(q: Any, v: Any, tau: Any, free: int) -> None:
 
 def check_free(free: Any) -> int:
     """``free``, the joints 1..free that move, as an int in 1..6, or a ValueError."""
-    if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
-        raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
-    return int(free)
+    return joint_count(free, "free")
 
 
 # ---------------------------------------------------------------------------- geometry
