@@ -452,3 +452,39 @@ def test_success_maps_default_slice_outside_the_region_suggests_a_z_inside(tiny_
     assert 0.0 <= float(z[1]) < float(z[2]) <= 0.4
     assert run_main(success_map.main, [str(tiny_ur5_run), *out, "--z", z[1], z[2]])[0] == 0
     assert (tmp_path / "map.png").exists()
+
+
+@pytest.mark.parametrize(("field", "value"), [("n_joints", 9), ("base_height", -1),
+                                              ("region", "nowhere")])
+def test_readers_refuse_a_recorded_task_outside_its_description(tiny_ur5_run, tmp_path, field,
+                                                                value):
+    """analysis.curves drew a spec.json saying 9 joints; a reader now reads the recorded task
+    through TaskSpec, the same description the trainer wrote it from. The unedited copy, the
+    reference, is drawn."""
+    from analysis import curves
+
+    shutil.copytree(tiny_ur5_run, tmp_path / "runs" / "run")
+    draw = ["--out", str(tmp_path / "c.png")]
+    assert run_main(curves.main, [str(tmp_path / "runs"), *draw])[0] == 0
+    folder = RunFolder(tmp_path / "runs" / "run")
+    spec = folder.read_spec()
+    spec["task"][field] = value
+    folder.spec_path.write_text(json.dumps(spec))
+    code, err = run_main(curves.main, [str(tmp_path / "runs"), *draw])
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"{field}={value}" in err or repr(value) in err, err
+
+
+def test_make_of_the_stack_twin_refuses_in_one_line_and_make_vec_builds_it():
+    """gymnasium.make('UR5StackReach-v0') failed with Gymnasium's own 'entry_point is not
+    specified', naming no way out; make_vec, the reference, builds the stack."""
+    import gymnasium
+
+    import envs  # noqa: F401  (registers the ids)
+
+    with pytest.raises(ValueError, match=r"envs\.stackreach\.StackReach directly"):
+        gymnasium.make("UR5StackReach-v0")
+    stack = gymnasium.make_vec("UR5StackReach-v0", num_envs=2,
+                               vectorization_mode="vector_entry_point",
+                               tasks=[dict(region="farbox", n_joints=3)] * 2)
+    assert type(stack).__name__ == "StackReach"
