@@ -42,6 +42,7 @@ from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
 from analysis.sweep import parse_setting, positive_count
 from ddpg_her.config import VALID, Parser
+from ddpg_her.runfolder import RunFolderError
 from ddpg_her.units import task_option
 from ur5kin.checks import COUNT, SEED, Kind, is_integer
 
@@ -867,13 +868,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "made in parallel) into DIR and draw the figures from them")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
-    try:
+    from analysis.runs import find_runs
+
+    try:  # the runs of --curves read before computing: a bad one was found only at the end
         overrides = check_overrides(args.task, args.readings)
-    except ValueError as err:
-        parser.error(str(err))
-    missing = [str(p) for p in args.curves or [] if not p.is_dir()]
-    if missing:  # found only after the whole computation before
-        parser.error(f"--curves: {', '.join(missing)} is not a folder of runs")
+        find_runs(args.curves or [])
+    except (FileNotFoundError, ValueError) as err:
+        parser.error(f"--curves: {err}" if isinstance(err, FileNotFoundError | RunFolderError)
+                     else str(err))
     try:  # before any computing
         check_folder(args.out, "--out")
         for name in ("optimality.csv", "optimality.png", "optimality_curves.png"):

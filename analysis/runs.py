@@ -40,7 +40,7 @@ def find_runs(roots: Iterable[str | Path]) -> list[Run]:
     Raises
     ------
     FileNotFoundError
-        When a root does not exist.
+        When a root is not a folder.
     RunFolderError
         (a ValueError) When a run folder cannot be read (a truncated or garbled ``spec.json``,
         a malformed ``eval.csv``); the message names the folder or file.
@@ -48,8 +48,8 @@ def find_runs(roots: Iterable[str | Path]) -> list[Run]:
     runs = []
     for root in roots:
         root = Path(root)
-        if not root.exists():
-            raise FileNotFoundError(f"runs root {root} does not exist")
+        if not root.is_dir():
+            raise FileNotFoundError(f"runs root {root} is not a folder (of runs)")
         for spec in sorted(root.rglob("spec.json")):
             try:
                 content = json.loads(spec.read_text())

@@ -488,3 +488,21 @@ def test_make_of_the_stack_twin_refuses_in_one_line_and_make_vec_builds_it():
                                vectorization_mode="vector_entry_point",
                                tasks=[dict(region="farbox", n_joints=3)] * 2)
     assert type(stack).__name__ == "StackReach"
+
+
+def test_optimality_reads_the_curves_runs_before_computing(tiny_ur5_run, tmp_path):
+    """optimality --curves over a truncated eval.csv ended in a traceback after the whole
+    study; it is now refused first, in one line naming the file, and nothing is written. The
+    intact run, the reference, is drawn."""
+    from analysis import optimality
+
+    shutil.copytree(tiny_ur5_run, tmp_path / "runs" / "run")
+    csv_in = Path(__file__).parents[1] / "results" / "optimality" / "optimality.csv"
+    argv = ["--from-csv", str(csv_in), "--curves", str(tmp_path / "runs"), "--out"]
+    assert run_main(optimality.main, [*argv, str(tmp_path / "ok")])[0] == 0
+    assert (tmp_path / "ok" / "optimality_curves.png").exists()
+    eval_csv = tmp_path / "runs" / "run" / "eval.csv"
+    eval_csv.write_bytes(eval_csv.read_bytes()[:60])
+    code, err = run_main(optimality.main, [*argv, str(tmp_path / "bad")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "eval.csv" in err, err
+    assert not (tmp_path / "bad").exists()
