@@ -506,3 +506,26 @@ def test_optimality_reads_the_curves_runs_before_computing(tiny_ur5_run, tmp_pat
     code, err = run_main(optimality.main, [*argv, str(tmp_path / "bad")])
     assert code == 2 and len(err.strip().splitlines()) == 1 and "eval.csv" in err, err
     assert not (tmp_path / "bad").exists()
+
+
+def test_load_names_a_checkpoint_of_another_joint_count(tiny_ur5_run, tmp_path):
+    """A run folder whose spec.json says 4 joints holding a 3-joint checkpoint: replay ended in
+    torch's size mismatch, naming no file. The unedited run, the reference, loads."""
+    import math
+
+    import ddpg_her
+    from analysis import replay
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_ur5_run, run)
+    assert ddpg_her.load(run).episode == 2
+    folder = RunFolder(run)
+    spec = folder.read_spec()
+    spec["task"]["n_joints"] = spec["env_kwargs"]["n_joints"] = 4
+    spec["dims"].update(obs_dim=12, act_dim=4, action_low=[-math.pi] * 4,
+                        action_high=[math.pi] * 4)
+    folder.spec_path.write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=r"episode-000002\.pt does not fit spec\.json"):
+        ddpg_her.load(run)
+    code, err = run_main(replay.main, [str(run), "--out", str(tmp_path / "r.mp4")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "episode-000002.pt" in err
