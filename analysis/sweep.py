@@ -982,6 +982,10 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             failed = run_local(todo, args.workers, threads, extra, args.device)
     except KeyboardInterrupt:
         return 130
+    except OSError as err:  # a full disk, a folder made read-only: what finished stays whole
+        print(f"error: {err}; free space or make {args.out} writable, then run the same "
+              "command again to resume", file=sys.stderr)
+        return 1
     return 1 if failed else 0
 
 

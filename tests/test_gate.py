@@ -529,3 +529,24 @@ def test_load_names_a_checkpoint_of_another_joint_count(tiny_ur5_run, tmp_path):
         ddpg_her.load(run)
     code, err = run_main(replay.main, [str(run), "--out", str(tmp_path / "r.mp4")])
     assert code == 2 and len(err.strip().splitlines()) == 1 and "episode-000002.pt" in err
+
+
+def test_sweep_program_on_a_full_disk_ends_in_one_line(tmp_path, monkeypatch):
+    """sweep --program on a full disk ended in a traceback (its plan and log are written by the
+    sweep process itself); now one line, status 1, saying how to resume."""
+    import errno
+
+    from analysis import sweep
+    from ddpg_her import units
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(units, "write_plan", full)
+    code, err = run_main(sweep.main, ["--setting", "farbox:3", "--seeds", "1", "--episodes", "2",
+                                      "--out", str(tmp_path / "sw"), "--program", "--",
+                                      *TINY[2:]])
+    assert code == 1, err
+    assert "Traceback" not in err
+    assert any(line.startswith("error: [Errno 28] No space left") and "again" in line
+               for line in err.splitlines()), err
