@@ -40,7 +40,7 @@ from analysis.outputs import (
 )
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import task_fields
-from analysis.sweep import parse_setting, positive_count
+from analysis.sweep import parse_setting
 from ddpg_her.config import VALID, Parser
 from ddpg_her.runfolder import RunFolderError
 from ddpg_her.units import task_option
@@ -846,7 +846,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="override a TaskSpec field for every setting (VALUE read as JSON, "
                              "else as a string), e.g. --task action_weight=0.5; a reading's "
                              "own fields win over these")
-    parser.add_argument("--goals", type=positive_count, default=500,
+    parser.add_argument("--goals", type=COUNT.read, default=500,
                         help="goals per setting (count >= 1)")
     parser.add_argument("--gamma", type=VALID["gamma"].read, default=DEFAULT_GAMMA,
                         help="discount per 0.02 s control step, in [0, 1] (the paper: 0.98)")
