@@ -307,13 +307,10 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
         When a task field is given twice, n_joints is out of range, seeds repeat, or the agent
         configuration is invalid; the message names the flag and the expected values.
     """
-    env_kwargs = task_fields(args.region, args.joints, args.task)
-    joints = env_kwargs["n_joints"]
-    from envs.spec import N_JOINTS_RANGE
+    from envs.spec import FIELDS
 
-    lo, hi = N_JOINTS_RANGE
-    if not isinstance(joints, int) or not lo <= joints <= hi:
-        raise ValueError(f"--task n_joints must be an integer in {lo}..{hi}, got {joints!r}")
+    env_kwargs = task_fields(args.region, args.joints, args.task)
+    joints = FIELDS["n_joints"]("n_joints", env_kwargs["n_joints"])
     seeds = args.seeds if args.seeds is not None else [args.seed]
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"--seeds must be distinct, got {seeds}")

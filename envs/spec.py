@@ -356,8 +356,9 @@ FIELDS: dict[str, Kind] = kinds(
     (number(0, above=True, note="m"), "contact_max_depth", "success_radius"),
     (FLAG, "terminate_on_success", "gravity_compensation"),
     (integer(1), "max_episode_steps", "control_hz", "sim_hz"),
-    (vector(6, "N m/rad", positive=True), "kp"), (vector(6, "N m s/rad", positive=True), "kd"),
-    (vector(6, "rad"), "start_q"))
+    (vector(6, "N m/rad, joints 1-6", positive=True), "kp"),
+    (vector(6, "N m s/rad, joints 1-6", positive=True), "kd"),
+    (vector(6, "rad, joints 1-6"), "start_q"))
 """The type and range of each `TaskSpec` field but ``region`` (parsed by :mod:`regions`)."""
 
 COMBINATIONS: tuple[Combination, ...] = (

@@ -166,8 +166,8 @@ class GoalSampler(abc.ABC):
     def __post_init__(self) -> None:
         if not isinstance(self.region, Region):
             raise ValueError(f"region must be a regions.Region; got {type(self.region).__name__}")
-        check_fields(self, {"n_joints": integer(*MOVING_JOINTS_RANGE), "start_q": vector(6, "rad"),
-                            "base_height": BASE_HEIGHT}, "goal sampler")
+        check_fields(self, {"n_joints": integer(*MOVING_JOINTS_RANGE), "base_height": BASE_HEIGHT,
+                            "start_q": vector(6, "rad, joints 1-6")}, "goal sampler")
         _ = self.acceptance  # fail fast
 
     @abc.abstractmethod

@@ -188,12 +188,12 @@ def choice(options: Sequence[Any], cast: Callable[[Any], Any] = lambda v: v) -> 
 
 
 def vector(n: int, unit: str, positive: bool = False) -> Kind:
-    """``n`` finite numbers (> 0 when ``positive``), one per joint, stored as a tuple of floats."""
+    """``n`` finite numbers (> 0 when ``positive``), stored as a tuple of floats."""
     def test(v: Any) -> bool:
         arr = np.asarray(v, dtype=float) if not isinstance(v, str | bytes) else None
         return arr is not None and arr.shape == (n,) and bool(np.isfinite(arr).all()) and (
             not positive or bool((arr > 0).all()))
-    return Kind(f"{n} finite numbers{' > 0' * positive} ({unit}, joints 1-{n})", test,
+    return Kind(f"{n} finite numbers{' > 0' * positive} ({unit})", test,
                 lambda v: tuple(float(x) for x in v))
 
 
