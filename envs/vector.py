@@ -10,13 +10,6 @@ from typing import Any
 
 import numpy as np
 
-from ur5kin.checks import COUNT
-
-
-def check_num_envs(num_envs: Any) -> int:
-    """``num_envs`` as an int, or a ValueError when it is not an integer >= 1."""
-    return COUNT("num_envs", num_envs)
-
 
 def reset_options(options: Any, known: Sequence[str], example: str) -> dict[str, Any]:
     """The reset ``options`` as a dict (empty for None), or a ValueError when they are not a

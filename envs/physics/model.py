@@ -24,7 +24,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
-from ur5kin.checks import COUNT, joint_count
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -72,11 +71,6 @@ def require_kernels(task: TaskSpec, who: str) -> None:
                          f"contact_model={task.contact_model!r}")
 
 
-def check_num_copies(num_copies: Any) -> int:
-    """``num_copies`` (B) as an int, or a ValueError when it is not an integer >= 1."""
-    return COUNT("num_copies", num_copies)
-
-
 def check_aba_batch(q: Any, v: Any, tau: Any, free: int) -> None:
     """The checks of the batched ``aba`` function (numba's) on ``(B, 6)`` arrays or
     tensors: one shape, and zero velocity in the locked joints' columns ``free ..``."""
@@ -86,11 +80,6 @@ def check_aba_batch(q: Any, v: Any, tau: Any, free: int) -> None:
     if bool((v[:, free:] != 0).any()):
         raise ValueError(f"locked joints {free + 1}..{NJ} must have zero velocity; got "
                          f"{v[:, free:].tolist()}")
-
-
-def check_free(free: Any) -> int:
-    """``free``, the joints 1..free that move, as an int in 1..6, or a ValueError."""
-    return joint_count(free, "free")
 
 
 # ---------------------------------------------------------------------------- geometry
