@@ -145,11 +145,6 @@ def is_integer(x: Any) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool | np.bool_)
 
 
-def is_real(x: Any) -> bool:
-    """A real number, not a bool or a string (NaN fails every range)."""
-    return isinstance(x, numbers.Real) and not isinstance(x, bool | np.bool_)
-
-
 def number(lo: float = -math.inf, hi: float = math.inf, *, above: bool = False,
            below: bool = False, finite: bool = True, note: str = "") -> Kind:
     """A real number in [lo, hi] (``above``: > lo, ``below``: < hi), finite unless ``finite`` is
@@ -159,9 +154,9 @@ def number(lo: float = -math.inf, hi: float = math.inf, *, above: bool = False,
             f"{'<' if below else '<='} {hi:g}" if hi < math.inf else "")
     finite_words = finite and not -math.inf < lo <= hi < math.inf  # a closed span says it
     words = f"a{' finite' * finite_words} number {span}".strip() + (f" ({note})" if note else "")
-    return Kind(words, lambda v: is_real(v) and (math.isfinite(v) or (not finite and v == v))
-                and (lo < v if above else lo <= v) and (v < hi if below else v <= hi), float,
-                float)
+    return Kind(words, lambda v: isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_)
+                and (math.isfinite(v) or (not finite and v == v)) and (lo < v if above else lo <= v)
+                and (v < hi if below else v <= hi), float, float)
 
 
 def integer(lo: int, hi: int | None = None, note: str = "") -> Kind:
