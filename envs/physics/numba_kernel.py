@@ -28,7 +28,7 @@ from envs.physics.model import (
     ur5_chain,
     ur5_plane,
 )
-from ur5kin.checks import COUNT, joint_count
+from ur5kin.checks import COUNT, integer, joint_count
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -615,12 +615,10 @@ class NumbaDynamics:
         B = self.num_copies = COUNT("num_copies", num_copies)
         require_kernels(task, "NumbaDynamics")
         pool = numba.config.NUMBA_NUM_THREADS
-        if not isinstance(threads, int | np.integer) or not 1 <= threads <= pool:
-            raise ValueError(f"threads must be an integer in [1, {pool}] (numba's pool on this "
-                             f"machine); got {threads!r}")
+        threads = integer(1, pool, note="numba's pool on this machine")("threads", threads)
         name = dtype_name(dtype)
         cast = DTYPES[name]
-        self.task, self.dtype, self.threads = validate(task), name, int(threads)
+        self.task, self.dtype, self.threads = validate(task), name, threads
         arm = self.arm = arm_model(task)
         self._chain, self._plane = arm.chain.astype(cast), ur5_plane(name)
         self._tool_pos = tool_offset().astype(cast)
