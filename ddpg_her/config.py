@@ -25,6 +25,7 @@ from ur5kin.checks import (
     integer,
     is_integer,
     kinds,
+    known_fields,
     number,
 )
 
@@ -229,10 +230,7 @@ class AgentConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> AgentConfig:
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown agent configuration keys {sorted(unknown)}")
+        known_fields(cls, d, "agent configuration")
         return cls(**d)
 
 

@@ -39,6 +39,7 @@ from ur5kin.checks import (
     choice,
     integer,
     kinds,
+    known_fields,
     number,
     vector,
 )
@@ -297,9 +298,7 @@ class TaskSpec:
         ValueError
             As :meth:`from_dict`.
         """
-        if not isinstance(data, Mapping):
-            raise ValueError(f"a task description must be a mapping of fields; got {data!r:.200}")
-        return cls.from_dict({**RECORD_DEFAULTS, **data})
+        return cls.from_dict({**RECORD_DEFAULTS, **data} if isinstance(data, Mapping) else data)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> TaskSpec:
@@ -312,7 +311,7 @@ class TaskSpec:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"a task description must be a mapping of fields; got {data!r:.200}")
-        _check_field_names(data)
+        known_fields(cls, data, "task")
         return cls(**data)
 
     def to_json(self, **kwargs: Any) -> str:
@@ -336,7 +335,7 @@ class TaskSpec:
         ValueError
             For an unknown field name (the message lists the fields) or a bad value.
         """
-        _check_field_names(overrides)
+        known_fields(TaskSpec, overrides, "task")
         if ("region" in overrides and "start_q" not in overrides
                 and self.start_q == default_start(self.region)):
             overrides["start_q"] = None  # a default start follows the region; a chosen one stays
@@ -374,13 +373,6 @@ DEFAULT_EPISODE_STEPS: int = TaskSpec.__dataclass_fields__["max_episode_steps"].
 
 
 # ---------------------------------------------------------------------- field checks
-def _check_field_names(data: Mapping[str, Any]) -> None:
-    names = {f.name for f in dataclasses.fields(TaskSpec)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ValueError(f"unknown task field(s) {unknown}; the fields are {sorted(names)}")
-
-
 def _region_string(region: Any, base_height: float) -> str:
     """The canonical string form of a region given as a string, a Region or its dict form.
 

@@ -7,6 +7,7 @@ value and what was expected.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
@@ -195,6 +196,13 @@ def vector(n: int, unit: str, positive: bool = False) -> Kind:
 def kinds(*groups: tuple[Any, ...]) -> dict[str, Kind]:
     """``{field: kind}`` from groups ``(kind, field, field, ...)`` of fields that share a kind."""
     return {name: kind for kind, *names in groups for name in names}
+
+
+def known_fields(cls: type, data: Mapping[str, Any], what: str) -> None:
+    """Raise ``ValueError`` naming the keys of ``data`` that are no fields of dataclass ``cls``."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    if unknown := sorted(set(data) - names):
+        raise ValueError(f"unknown {what} field(s) {unknown}; the fields are {sorted(names)}")
 
 
 Combination = tuple[str, str, Callable[[Any], bool]]
