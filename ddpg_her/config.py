@@ -16,18 +16,7 @@ from dataclasses import dataclass
 from functools import cache
 from typing import Any, NoReturn
 
-from ur5kin.checks import (
-    FLAG,
-    Combination,
-    Kind,
-    check_fields,
-    choice,
-    integer,
-    is_integer,
-    kinds,
-    known_fields,
-    number,
-)
+from ur5kin import checks as gate
 
 
 class Parser(argparse.ArgumentParser):
@@ -217,7 +206,7 @@ class AgentConfig:
     def __post_init__(self) -> None:
         if isinstance(self.hidden_sizes, list):
             object.__setattr__(self, "hidden_sizes", tuple(self.hidden_sizes))
-        check_fields(self, VALID, "agent configuration", COMBINATIONS)
+        gate.check_fields(self, VALID, "agent configuration", COMBINATIONS)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (enums as strings, tuples as lists)."""
@@ -230,7 +219,7 @@ class AgentConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> AgentConfig:
-        known_fields(cls, d, "agent configuration")
+        gate.known_fields(cls, d, "agent configuration")
         return cls(**d)
 
 
@@ -238,28 +227,28 @@ MAX_ENSEMBLE = 64
 """Most members of a regional ensemble: each acts on every input to be routed (M x the acting
 cost) and needs goals in its cell; 64 is far beyond what the task's budget feeds."""
 
-VALID: dict[str, Kind] = kinds(
-    (number(0, 1), "gamma", "ou_theta", "per_alpha", "per_beta"),
-    (number(0, 1, above=True), "tau", "batch_norm_momentum"),
-    (number(0, above=True), "actor_lr", "critic_lr", "final_init", "norm_eps",
+VALID: dict[str, gate.Kind] = gate.kinds(
+    (gate.number(0, 1), "gamma", "ou_theta", "per_alpha", "per_beta"),
+    (gate.number(0, 1, above=True), "tau", "batch_norm_momentum"),
+    (gate.number(0, above=True), "actor_lr", "critic_lr", "final_init", "norm_eps",
      "sac_init_alpha", "sac_alpha_lr", "per_eps"),
-    (number(0), "critic_l2", "td3_target_noise", "td3_target_noise_clip"),
-    (number(0, above=True, finite=False, note="inf: no clipping"), "obs_clip"),
-    (integer(0), "episodes", "warmup_episodes", "updates_per_episode"),
-    (integer(1), "batch_size", "eval_every", "eval_episodes", "her_k", "td3_policy_delay",
+    (gate.number(0), "critic_l2", "td3_target_noise", "td3_target_noise_clip"),
+    (gate.number(0, above=True, finite=False, note="inf: no clipping"), "obs_clip"),
+    (gate.integer(0), "episodes", "warmup_episodes", "updates_per_episode"),
+    (gate.integer(1), "batch_size", "eval_every", "eval_episodes", "her_k", "td3_policy_delay",
      "buffer_size"),
-    (integer(1, MAX_ENSEMBLE), "ensemble"),
-    (FLAG, "normalize_obs", "flush_denormals", "batch_norm", "prioritized_replay"),
-    (choice(HERStrategy, HERStrategy), "her_strategy"),
-    (choice(Exploration, Exploration), "exploration"), (choice(Algo, Algo), "algo"),
-    (Kind("two integers >= 1", lambda v: isinstance(v, tuple) and len(v) == 2
-          and all(is_integer(h) and h >= 1 for h in v), lambda v: tuple(map(int, v))),
+    (gate.integer(1, MAX_ENSEMBLE), "ensemble"),
+    (gate.FLAG, "normalize_obs", "flush_denormals", "batch_norm", "prioritized_replay"),
+    (gate.choice(HERStrategy, HERStrategy), "her_strategy"),
+    (gate.choice(Exploration, Exploration), "exploration"), (gate.choice(Algo, Algo), "algo"),
+    (gate.Kind("two integers >= 1", lambda v: isinstance(v, tuple) and len(v) == 2
+               and all(gate.is_integer(h) and h >= 1 for h in v), lambda v: tuple(map(int, v))),
      "hidden_sizes"),
-    (number(0), "exploration_rate"))
+    (gate.number(0), "exploration_rate"))
 """The type and range of each `AgentConfig` field: the words appear in the error message and
 in ``--help``."""
 
-COMBINATIONS: tuple[Combination, ...] = (
+COMBINATIONS: tuple[gate.Combination, ...] = (
     ("exploration_rate", "a probability (<= 1) with --exploration epsilon",
      lambda c: c.exploration != Exploration.EPSILON or c.exploration_rate <= 1.0),
     ("buffer_size", "an integer >= batch_size", lambda c: c.buffer_size >= c.batch_size),

@@ -31,18 +31,7 @@ from typing import TYPE_CHECKING, Any
 from regions import registry
 from regions.registry import UNCONSTRAINED_REGION, default_start
 from regions.samplers import CartesianSampler
-from ur5kin.checks import (
-    FLAG,
-    Combination,
-    Kind,
-    check_fields,
-    choice,
-    integer,
-    kinds,
-    known_fields,
-    number,
-    vector,
-)
+from ur5kin import checks as gate
 from ur5kin.world import BASE_HEIGHT, DEFAULT_BASE_HEIGHT
 
 if TYPE_CHECKING:
@@ -258,7 +247,7 @@ class TaskSpec:
         object.__setattr__(self, "region", _region_string(self.region, base))
         if self.start_q is None:
             object.__setattr__(self, "start_q", default_start(self.region))
-        check_fields(self, FIELDS, "task", COMBINATIONS)
+        gate.check_fields(self, FIELDS, "task", COMBINATIONS)
 
     # ------------------------------------------------------------------ derived quantities
     @property
@@ -311,7 +300,7 @@ class TaskSpec:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"a task description must be a mapping of fields; got {data!r:.200}")
-        known_fields(cls, data, "task")
+        gate.known_fields(cls, data, "task")
         return cls(**data)
 
     def to_json(self, **kwargs: Any) -> str:
@@ -335,32 +324,32 @@ class TaskSpec:
         ValueError
             For an unknown field name (the message lists the fields) or a bad value.
         """
-        known_fields(TaskSpec, overrides, "task")
+        gate.known_fields(TaskSpec, overrides, "task")
         if ("region" in overrides and "start_q" not in overrides
                 and self.start_q == default_start(self.region)):
             overrides["start_q"] = None  # a default start follows the region; a chosen one stays
         return dataclasses.replace(self, **overrides)
 
 
-FIELDS: dict[str, Kind] = kinds(
-    (BASE_HEIGHT, "base_height"), (number(0, note="m"), "plane_margin"),
-    (integer(*N_JOINTS_RANGE), "n_joints"),
-    *((choice(options), name) for name, options in (
+FIELDS: dict[str, gate.Kind] = gate.kinds(
+    (BASE_HEIGHT, "base_height"), (gate.number(0, note="m"), "plane_margin"),
+    (gate.integer(*N_JOINTS_RANGE), "n_joints"),
+    *((gate.choice(options), name) for name, options in (
         ("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),
         ("reward_type", REWARD_TYPES), ("action_penalty_unit", ACTION_PENALTY_UNITS),
         ("contact_model", CONTACT_MODELS), ("held_joints", HELD_JOINTS))),
-    (number(0), "distance_weight", "action_weight", "success_reward"),
-    (number(0, above=True, note="N/m"), "contact_stiffness"),
-    (number(0, note="N s/m"), "contact_damping"), (number(0), "contact_friction"),
-    (number(0, above=True, note="m"), "contact_max_depth", "success_radius"),
-    (FLAG, "terminate_on_success", "gravity_compensation"),
-    (integer(1), "max_episode_steps", "control_hz", "sim_hz"),
-    (vector(6, "N m/rad, joints 1-6", positive=True), "kp"),
-    (vector(6, "N m s/rad, joints 1-6", positive=True), "kd"),
-    (vector(6, "rad, joints 1-6"), "start_q"))
+    (gate.number(0), "distance_weight", "action_weight", "success_reward"),
+    (gate.number(0, above=True, note="N/m"), "contact_stiffness"),
+    (gate.number(0, note="N s/m"), "contact_damping"), (gate.number(0), "contact_friction"),
+    (gate.number(0, above=True, note="m"), "contact_max_depth", "success_radius"),
+    (gate.FLAG, "terminate_on_success", "gravity_compensation"),
+    (gate.integer(1), "max_episode_steps", "control_hz", "sim_hz"),
+    (gate.vector(6, "N m/rad, joints 1-6", positive=True), "kp"),
+    (gate.vector(6, "N m s/rad, joints 1-6", positive=True), "kd"),
+    (gate.vector(6, "rad, joints 1-6"), "start_q"))
 """The type and range of each `TaskSpec` field but ``region`` (parsed by :mod:`regions`)."""
 
-COMBINATIONS: tuple[Combination, ...] = (
+COMBINATIONS: tuple[gate.Combination, ...] = (
     ("goal_sampler", f"'joint': 'cartesian' needs n_joints >= {CartesianSampler.MIN_JOINTS} "
      "(with fewer, tool0 reaches only a surface)", lambda t: t.goal_sampler != "cartesian"
      or t.n_joints >= CartesianSampler.MIN_JOINTS),
