@@ -23,6 +23,7 @@ from pathlib import Path
 from analysis.readings import Reading
 from analysis.sensitivity import add_study_arguments, run_study
 from analysis.sweep import HelpFormatter
+from ddpg_her.config import Parser
 from ddpg_her.units import split_passthrough
 
 ALGORITHMS: dict[str, Reading] = {r.name: r for r in (
@@ -59,7 +60,7 @@ DEFAULT_OUT = Path("runs/algorithms")
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.algorithms", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to every python -m ddpg_her.train (after the "
                "algorithm's own). Algorithms: " + "; ".join(

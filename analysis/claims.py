@@ -11,7 +11,6 @@ setting winning; a claim whose runs are absent is *not run*.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -32,6 +31,7 @@ from analysis.report import (
     welch_p,
 )
 from analysis.runs import PERCENT, find_runs, group_by_setting
+from ddpg_her.config import Parser
 
 SOURCES = ("sensitivity/runs/ours", "paper_long/runs", "claims/farbox_tall/runs")
 """Run roots of the paper's settings under the default reading (below ``--results``)."""
@@ -195,7 +195,7 @@ def block(rows: Sequence[dict[str, str]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m analysis.claims",
+    parser = Parser(prog="python -m analysis.claims",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--results", type=Path, default=Path("results"),
                         help="the committed results folder to read (default: results)")

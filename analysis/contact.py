@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import statistics
 import sys
 import time
@@ -28,10 +27,12 @@ import gymnasium
 import numpy as np
 
 import ur5kin
+from ddpg_her.config import Parser, field_docs
 from envs.checks import validate
 from envs.physics import make_dynamics
 from envs.spec import CONTACT_MODELS, TaskSpec
 from envs.task import task_sampler
+from ur5kin.checks import SEED, integer, kinds, number
 
 
 @dataclass(frozen=True)
@@ -141,39 +142,31 @@ def measure(config: ContactConfig) -> list[ContactRow]:
     return rows
 
 
+KINDS = kinds((integer(1), "goals", "steps", "rounds"), (SEED, "seed"),
+              (number(note="dimensionless"), "friction"))
+"""The checked flags' kinds (their words are in --help)."""
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m analysis.contact", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    docs = {"region": "goal region (any TaskSpec region string)",
-            "n_joints": "controlled joints, 2-6",
-            "goals": "goals per contact model for the reach share, >= 1",
-            "steps": "random-action env steps per round (contact share and cost), >= 1",
-            "rounds": "interleaved timing rounds, >= 1; the cost is the median over them",
-            "friction": "Coulomb coefficient mu of the compliant model (dimensionless, >= 0); "
-                        "negative: the TaskSpec default",
-            "seed": "seed of the goals and the actions",
-            "json": "print JSON instead of text"}
+    parser = Parser(prog="python -m analysis.contact", description=__doc__,
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
+    docs = field_docs(ContactConfig)
     for f in fields(ContactConfig):
         flag = "--joints" if f.name == "n_joints" else "--" + f.name.replace("_", "-")
         if f.type == "bool":
             parser.add_argument(flag, action="store_true", help=docs[f.name])
         else:
-            kind = {"int": int, "float": float, "str": str}[f.type]
-            parser.add_argument(flag, dest=f.name, type=kind, default=f.default,
-                                help=f"{docs[f.name]} (default: {f.default})")
+            kind = KINDS.get(f.name)
+            valid = f" Valid: {kind.words}." if kind else ""
+            parser.add_argument(flag, dest=f.name, default=f.default,
+                                type=kind.read if kind else {"int": int, "str": str}[f.type],
+                                help=f"{docs[f.name]}{valid} (default: {f.default})")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
-    for name in ("goals", "steps", "rounds"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name} must be >= 1; got {getattr(args, name)}")
-    if args.seed < 0:
-        parser.error(f"--seed must be an integer >= 0 (numpy's seeds are); got {args.seed}")
-    if not math.isfinite(args.friction):
-        parser.error(f"--friction must be a finite number (dimensionless); got {args.friction}")
     try:
         TaskSpec(region=args.region, n_joints=args.n_joints)
     except ValueError as err:

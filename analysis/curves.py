@@ -37,6 +37,7 @@ from analysis.runs import (
     mean_ci,
     pooled_lines,
 )
+from ddpg_her.config import Parser
 from regions.registry import paper_order
 
 CSV_COLUMNS = ("group", "region", "joints", "episode", "seeds", "mean_successes", "ci_low",
@@ -128,7 +129,7 @@ def plot(groups: list[Group], out: Path, level: float, overlay: bool = False) ->
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.curves", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     add_runs_arguments(parser)

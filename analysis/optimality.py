@@ -40,8 +40,11 @@ from analysis.outputs import (
 )
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import missing_fields, task_fields
-from analysis.sweep import parse_setting, positive_count
+from analysis.sweep import parse_setting
+from ddpg_her.config import VALID, Parser
+from ddpg_her.runfolder import RunFolderError
 from ddpg_her.units import task_option
+from ur5kin.checks import COUNT, SEED, Kind, is_integer
 
 DEFAULT_GAMMA = 0.98
 """The discount of the paper's Table I (and of :class:`ddpg_her.config.AgentConfig`)."""
@@ -308,12 +311,9 @@ def simulate(task: Any, goals: int = 500, seed: int = 0) -> Simulation:
         Goal i is the one the env draws after ``reset(seed=seed + i)``.
     """
     _check_task(task)
-    if not isinstance(goals, int | np.integer) or goals < 1:
-        raise ValueError(f"goals must be an integer >= 1 (number of goals); got {goals!r}")
-    if not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0; got {seed!r}")
+    goals, seed = COUNT("goals", goals), SEED("seed", seed)
     began = time.perf_counter()
-    g, q = env_goals(task, int(goals), int(seed))
+    g, q = env_goals(task, goals, seed)
     branches = ik_branches(task, g, q)
     N, K, n = branches.shape
     T = task.max_episode_steps
@@ -461,8 +461,7 @@ def evaluate(simulation: Simulation, task: Any | None = None,
     if _dynamics_key(task) != _dynamics_key(simulation.task):
         raise ValueError("the task differs from the simulated one in a field that changes the "
                          f"motion (only {list(EVALUATION_FIELDS)} may differ); simulate it anew")
-    if not isinstance(gamma, int | float | np.floating) or not 0.0 <= gamma <= 1.0:
-        raise ValueError(f"gamma must be a discount in [0, 1]; got {gamma!r}")
+    gamma = VALID["gamma"]("gamma", gamma)
     sim = simulation
     N, K = sim.branches.shape[:2]
     goal_of = np.broadcast_to(sim.goals[:, None, :], (N, K, 3))
@@ -768,13 +767,6 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
     save_figure(fig, out, dpi=120, bbox_inches="tight")
 
 
-def _gamma(text: str) -> float:
-    value = float(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"gamma must be in [0, 1]; got {text}")
-    return value
-
-
 def write_outputs(rows: Sequence[Mapping[str, Any]], out: Path, curves: Any) -> None:
     """optimality.csv and optimality.png in ``out``, and optimality_curves.png when
     ``curves`` names the runs to draw beside them."""
@@ -812,8 +804,13 @@ def read_csvs(paths: Sequence[Path]) -> list[dict[str, str]]:
     return rows
 
 
+GRID = Kind("0 (off) or an integer >= 2 (angles per joint)",
+            lambda v: is_integer(v) and (v == 0 or v >= 2), int, int)
+"""The --grid count."""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.optimality",
         description="Share of goals for which reaching them under a constant joint command "
                     "(an analytic IK branch) earns a higher discounted return than holding the "
@@ -841,14 +838,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="override a TaskSpec field for every setting (VALUE read as JSON, "
                              "else as a string), e.g. --task action_weight=0.5; a reading's "
                              "own fields win over these")
-    parser.add_argument("--goals", type=positive_count, default=500,
+    parser.add_argument("--goals", type=COUNT.read, default=500,
                         help="goals per setting (count >= 1)")
-    parser.add_argument("--gamma", type=_gamma, default=DEFAULT_GAMMA,
+    parser.add_argument("--gamma", type=VALID["gamma"].read, default=DEFAULT_GAMMA,
                         help="discount per 0.02 s control step, in [0, 1] (the paper: 0.98)")
-    parser.add_argument("--seed", type=int, default=0,
+    parser.add_argument("--seed", type=SEED.read, default=0,
                         help="goal i of a setting is the env's goal after reset(seed=SEED+i) "
                              "(integer >= 0)")
-    parser.add_argument("--grid", type=int, default=0, metavar="PER_JOINT",
+    parser.add_argument("--grid", type=GRID.read, default=0, metavar="PER_JOINT",
                         help="also check each setting against a brute-force search over a grid "
                              "of PER_JOINT constant angles in [-pi, pi] rad per controlled joint "
                              f"(0: off; skipped where PER_JOINT^n > {BRUTE_MAX_COMMANDS}); "
@@ -863,17 +860,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "made in parallel) into DIR and draw the figures from them")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
-    if args.seed < 0:
-        parser.error(f"--seed must be >= 0; got {args.seed}")
-    if args.grid != 0 and args.grid < 2:
-        parser.error(f"--grid must be 0 (off) or >= 2 angles per joint; got {args.grid}")
-    try:
+    from analysis.runs import find_runs
+
+    try:  # the runs of --curves read before computing: a bad one was found only at the end
         overrides = check_overrides(args.task, args.readings)
-    except ValueError as err:
-        parser.error(str(err))
-    missing = [str(p) for p in args.curves or [] if not p.is_dir()]
-    if missing:  # found only after the whole computation before
-        parser.error(f"--curves: {', '.join(missing)} is not a folder of runs")
+        find_runs(args.curves or [])
+    except (FileNotFoundError, ValueError) as err:
+        parser.error(f"--curves: {err}" if isinstance(err, FileNotFoundError | RunFolderError)
+                     else str(err))
     with usage_errors(parser):  # before any computing
         check_files(args.out, ("optimality.csv", "optimality.png", "optimality_curves.png"),
                     "--out")

@@ -38,6 +38,7 @@ from analysis.outputs import (
     write_errors,
     write_text,
 )
+from ddpg_her.config import Parser
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
 from regions.coverage import (
     DEFAULT_RESOLUTION,
@@ -48,8 +49,9 @@ from regions.coverage import (
     coverage_row,
     sample_workspace,
 )
-from regions.registry import DEFAULT_BASE_HEIGHT, PAPER_REGIONS
+from regions.registry import BASE_HEIGHT, DEFAULT_BASE_HEIGHT, PAPER_REGIONS
 from regions.samplers import CartesianSampler, UnreachableRegionError
+from ur5kin.checks import COUNT, SEED, integer, number
 
 START_CHOICES = ("paper", "zero", "constrained")
 """``--start`` values: the paper's per-region choice, or one start for every region."""
@@ -420,7 +422,7 @@ def view(settings: Settings, path: pathlib.Path, meshes: str = "collision") -> i
 def build_parser() -> argparse.ArgumentParser:
     """The command line; every flag's help gives its unit."""
     d = Settings()
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.region_volumes",
         description=__doc__.split("\n\n")[0] + " World frame: plane z = 0, base at "
         "(0, 0, base height), m.",
@@ -428,17 +430,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--regions", nargs="+", default=list(d.regions), metavar="REGION",
                         help="regions, space-separated; each one of: " + regions.spec_help())
-    parser.add_argument("--joints", nargs="+", type=int, default=list(d.joints), metavar="N",
+    parser.add_argument("--joints", nargs="+", type=JOINTS.read, default=list(d.joints),
+                        metavar="N",
                         help="controlled joint counts (joints 1..N move, the rest stay at the "
                         "start angles), 1-6")
-    parser.add_argument("--samples", type=int, default=d.samples,
+    parser.add_argument("--samples", type=COUNT.read, default=d.samples,
                         help="uniform joint-space samples per joint count (and held-joint "
                         "angles); the workspace estimate wants >= 10 per voxel of the reach "
                         "ball's 6.9 m^3 box (see --convergence)")
-    parser.add_argument("--seed", type=int, default=d.seed, help="seed of every generator")
-    parser.add_argument("--resolution", type=float, default=d.resolution,
+    parser.add_argument("--seed", type=SEED.read, default=d.seed, help="seed of every generator")
+    parser.add_argument("--resolution", type=number(0, above=True, note="m").read,
+                        default=d.resolution,
                         help="voxel edge of the workspace estimate (m)")
-    parser.add_argument("--base-height", type=float, default=d.base_height,
+    parser.add_argument("--base-height", type=BASE_HEIGHT.read, default=d.base_height,
                         help="height of the robot base above the plane (m)")
     parser.add_argument("--start", choices=START_CHOICES, default=d.start,
                         help="start pose of the rows: paper = zero start [0,0,0,0,0,0] rad for "
@@ -449,7 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "paper's (accepted / uniform joint samples); cartesian = uniform in the "
                         "region, kept where IK reaches it (acceptance = reachable fraction of the "
                         "region; needs N >= 3)")
-    parser.add_argument("--goals", type=int, default=d.goals,
+    parser.add_argument("--goals", type=COUNT.read, default=d.goals,
                         help="goals per row drawn by --sampler cartesian")
     parser.add_argument("--json", action="store_true",
                         help="print a JSON list of rows (keys: " + ", ".join(CoverageRow.JSON_KEYS)
@@ -487,18 +491,11 @@ def voxel_bytes(resolution: float, base_height: float) -> float:
     return cells * VOXEL_GRID_COPIES
 
 
+JOINTS = integer(1, 6, note="joints 1..n move")
+"""A --joints count."""
+
+
 def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Settings:
-    if not args.joints or any(not 1 <= n <= 6 for n in args.joints):
-        parser.error(f"--joints must be counts in 1..6; got {args.joints}")
-    for flag, value in (("--samples", args.samples), ("--goals", args.goals)):
-        if value < 1:
-            parser.error(f"{flag} must be >= 1; got {value}")
-    if not (math.isfinite(args.resolution) and args.resolution > 0):
-        parser.error(f"--resolution must be a voxel edge > 0 (m); got {args.resolution}")
-    if not (math.isfinite(args.base_height) and args.base_height >= 0):
-        parser.error(f"--base-height must be a height >= 0 (m); got {args.base_height}")
-    if args.seed < 0:
-        parser.error(f"--seed must be an integer >= 0 (numpy's seeds are); got {args.seed}")
     need, have = voxel_bytes(args.resolution, args.base_height), available_bytes()
     if have is not None and need > have:
         parser.error(f"--resolution {args.resolution} m: the workspace's voxel grids would need "

@@ -26,6 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from ddpg_her.config import Parser
+from ur5kin.checks import SEED, integer
+
 SUPPORTED_ENV_IDS = ("UR5Reach-v0",)
 """Env ids whose runs can be replayed: the UR5 goal env, whose arm this module draws."""
 
@@ -207,7 +210,7 @@ def serve_until_stopped() -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line; every flag's help gives its unit or range."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.replay", description=__doc__.split("\n\n")[0],
         epilog="Pages hold the arm's collision meshes by default (about 1.3 MB for 10 "
         "episodes, most of it the viewer's script); --meshes visual embeds the COLLADA visual "
@@ -216,9 +219,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("run", type=pathlib.Path, metavar="RUN_DIR",
                         help="run folder of python -m ddpg_her.train (spec.json and a "
                         "checkpoint) of a UR5Reach-v0 task")
-    parser.add_argument("--episodes", type=int, default=DEFAULT_EPISODES,
+    parser.add_argument("--episodes", type=integer(1, MAX_EPISODES).read, default=DEFAULT_EPISODES,
                         help=f"episodes replayed, one goal each, 1..{MAX_EPISODES}")
-    parser.add_argument("--seed", type=int, default=0,
+    parser.add_argument("--seed", type=SEED.read, default=0,
                         help="seed of the goals, >= 0 (the episodes' env seeds derive from it)")
     parser.add_argument("--episode", type=int, default=None,
                         help="training episode of the checkpoint whose policy acts; None: the "
@@ -241,10 +244,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m analysis.replay``."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not 1 <= args.episodes <= MAX_EPISODES:
-        parser.error(f"--episodes must be a count in 1..{MAX_EPISODES}; got {args.episodes}")
-    if args.seed < 0:
-        parser.error(f"--seed must be >= 0; got {args.seed}")
     try:
         check_run(args.run)
     except ReplayError as err:

@@ -66,6 +66,7 @@ from analysis.runs import (
     pooled_lines,
     settings_from_args,
 )
+from ddpg_her.config import Parser
 from regions.registry import default_start, paper_order
 
 READING_NOTE = (
@@ -754,7 +755,7 @@ def comparison(groups: Sequence[Group], level: float) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.report", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     add_runs_arguments(parser)

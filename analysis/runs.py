@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ddpg_her.runfolder import RUN_FORMAT_PREFIX, Run, RunFolderError, is_run_spec, read_run
+from ur5kin.checks import number
 
 __all__ = ["CONFIDENCE", "PERCENT", "RUN_FORMAT_PREFIX", "Group", "Run", "RunFolderError",
            "add_runs_arguments", "aligned_successes", "configuration", "differences",
@@ -31,6 +32,10 @@ PERCENT = (0.0, 100.0)
 CONFIDENCE = 0.65
 """Two-sided confidence level of the interval over seeds (the paper's figures use 65 %)."""
 
+LEVEL = number(0, 1, above=True, below=True)
+"""A two-sided confidence level."""
+
+
 def find_runs(roots: Iterable[str | Path]) -> list[Run]:
     """Every run below the given folders, in (region, joints, seed) order.
 
@@ -40,7 +45,7 @@ def find_runs(roots: Iterable[str | Path]) -> list[Run]:
     Raises
     ------
     FileNotFoundError
-        When a root does not exist.
+        When a root is not a folder.
     RunFolderError
         (a ValueError) When a run folder cannot be read (a truncated or garbled ``spec.json``,
         a malformed ``eval.csv``); the message names the folder or file.
@@ -48,8 +53,8 @@ def find_runs(roots: Iterable[str | Path]) -> list[Run]:
     runs = []
     for root in roots:
         root = Path(root)
-        if not root.exists():
-            raise FileNotFoundError(f"runs root {root} does not exist")
+        if not root.is_dir():
+            raise FileNotFoundError(f"runs root {root} is not a folder (of runs)")
         for spec in sorted(root.rglob("spec.json")):
             try:
                 content = json.loads(spec.read_text())
@@ -258,7 +263,7 @@ def add_runs_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pool", action="store_true",
                         help="pool the runs of a setting (region, joints) that differ in other "
                              "recorded fields as its seeds, saying what differs")
-    parser.add_argument("--confidence", type=float, default=CONFIDENCE,
+    parser.add_argument("--confidence", type=LEVEL.read, default=CONFIDENCE,
                         help="two-sided confidence level of the interval over seeds (fraction)")
 
 
@@ -270,8 +275,6 @@ def groups_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) 
     missing root, a run folder that cannot be read, an unknown field, or no run with
     evaluations.
     """
-    if not 0.0 < args.confidence < 1.0:
-        parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
     if bool(args.groups) == bool(args.roots):
         parser.error("give RUNS_ROOT folders or --groups NAME=DIR ..., one of the two")
     if args.groups and (args.group_by or args.pool):

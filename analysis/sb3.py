@@ -29,6 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from ddpg_her.config import Parser
+from ur5kin.checks import COUNT, SEED
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_HYPERPARAMS = ROOT / "examples" / "sb3_her.json"
 """The hyperparameter file a user copies."""
@@ -425,7 +428,7 @@ def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sb3", description=__doc__.split("\n\n")[0])
     parser.add_argument("--algo", choices=ALGOS, default="ddpg",
                         help="Stable-Baselines3 algorithm (default: ddpg)")
@@ -435,12 +438,12 @@ def make_parser() -> argparse.ArgumentParser:
                         help="controlled joints, 2..6 for UR5Reach-v0 (default: 3)")
     parser.add_argument("--task", action="append", default=[], metavar="KEY=VALUE",
                         help="a TaskSpec field, as ddpg_her.train --task; repeatable")
-    parser.add_argument("--seed", type=int, default=0, help="seed, >= 0 (default: 0)")
-    parser.add_argument("--episodes", type=int, default=1000,
+    parser.add_argument("--seed", type=SEED.read, default=0, help="seed, >= 0 (default: 0)")
+    parser.add_argument("--episodes", type=COUNT.read, default=1000,
                         help="training episodes, >= 1 (default: 1000)")
-    parser.add_argument("--eval-every", type=int, default=100,
+    parser.add_argument("--eval-every", type=COUNT.read, default=100,
                         help="training episodes between test sessions, >= 1 (default: 100)")
-    parser.add_argument("--eval-episodes", type=int, default=100,
+    parser.add_argument("--eval-episodes", type=COUNT.read, default=100,
                         help="test episodes per session, >= 1 (default: 100)")
     parser.add_argument("--hyperparams", type=Path, default=DEFAULT_HYPERPARAMS,
                         help=f"JSON hyperparameter file (default: {DEFAULT_HYPERPARAMS})")
@@ -458,11 +461,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = make_parser()
     args = parser.parse_args(argv)
-    for flag, value, low in (("--seed", args.seed, 0), ("--episodes", args.episodes, 1),
-                             ("--eval-every", args.eval_every, 1),
-                             ("--eval-episodes", args.eval_episodes, 1)):
-        if value < low:
-            parser.error(f"{flag} must be >= {low}, got {value}")
     try:
         overrides = [task_option(t) for t in args.task]
         env_kwargs = task_fields(args.region, args.joints, overrides)

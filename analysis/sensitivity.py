@@ -67,6 +67,7 @@ from analysis.report import (
 )
 from analysis.runs import (
     CONFIDENCE,
+    LEVEL,
     PERCENT,
     Group,
     Run,
@@ -80,10 +81,11 @@ from analysis.sweep import (
     dry_run,
     execute,
     parse_setting,
-    positive_count,
     refuse_problems,
 )
+from ddpg_her.config import Parser
 from ddpg_her.units import split_passthrough
+from ur5kin.checks import COUNT, integer
 
 # --- readings -----------------------------------------------------------------------------------
 
@@ -836,7 +838,7 @@ def _user_readings(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
 
 
 def report_main(argv: Sequence[str]) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sensitivity report",
         description="Judge the paper's claims for every reading below ROOT (ROOT/<reading>/"
                     "<region>-j<joints>/s<seed>, e.g. runs/sensitivity or a --collect "
@@ -845,19 +847,19 @@ def report_main(argv: Sequence[str]) -> int:
     parser.add_argument("root", type=Path, metavar="ROOT", help="the study's runs root")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder of the report's files (default: ROOT)")
-    parser.add_argument("--episodes", type=positive_count, default=STUDY_EPISODES,
+    parser.add_argument("--episodes", type=COUNT.read, default=STUDY_EPISODES,
                         help="the budget (training episodes, >= 1): claims are judged at the "
                              "last evaluation at or below it; less is partial")
-    parser.add_argument("--seeds", type=positive_count, default=STUDY_SEEDS,
+    parser.add_argument("--seeds", type=COUNT.read, default=STUDY_SEEDS,
                         help="seeds a complete setting has (count, >= 1); fewer is partial")
-    parser.add_argument("--confidence", type=float, default=CONFIDENCE,
+    parser.add_argument("--confidence", type=LEVEL.read, default=CONFIDENCE,
                         help="two-sided level of every interval (fraction in (0, 1); the "
                              "paper's figures: 0.65)")
-    parser.add_argument("--reps", type=positive_count, default=BOOTSTRAP_REPS,
+    parser.add_argument("--reps", type=COUNT.read, default=BOOTSTRAP_REPS,
                         help="bootstrap resamples per interval (count, >= 1)")
     parser.add_argument("--bootstrap-seed", type=int, default=0,
                         help="seed of the bootstrap resampling and of the worth-reaching goals")
-    parser.add_argument("--worth-goals", type=int, default=WORTH_GOALS,
+    parser.add_argument("--worth-goals", type=integer(0).read, default=WORTH_GOALS,
                         help="goals per setting and reading for analysis.optimality's "
                              "worth-reaching share (count, >= 0; 0 skips it)")
     parser.add_argument("--readings", nargs="+", default=None, metavar="NAME",
@@ -868,10 +870,6 @@ def report_main(argv: Sequence[str]) -> int:
                         help="replace report files in --out that hold another report "
                              "(refused by default, naming them)")
     args = parser.parse_args(argv)
-    if not 0.0 < args.confidence < 1.0:
-        parser.error(f"--confidence must be in (0, 1); got {args.confidence}")
-    if args.worth_goals < 0:
-        parser.error(f"--worth-goals must be >= 0; got {args.worth_goals}")
     out = args.out or args.root
     with usage_errors(parser):  # before any computing
         check_files(out, ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
@@ -950,7 +948,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv[:1] == ["report"]:
         return report_main(argv[1:])
     argv, extra = split_passthrough(argv)
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sensitivity", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to every python -m ddpg_her.train (after the reading's "
                "own). 'python -m analysis.sensitivity report --help' explains the report. "

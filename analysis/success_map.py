@@ -32,6 +32,8 @@ from analysis.outputs import (
     write_csv,
     write_errors,
 )
+from ddpg_her.config import Parser
+from ur5kin.checks import COUNT, SEED, number
 
 WORKSPACE_REACH_M = 1.1
 """A bound (m) on tool0's distance from the shoulder axis (the reach ball's radius is under it):
@@ -164,32 +166,26 @@ def csv_rows(maps: Sequence[SuccessMap]) -> list[list[Any]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.success_map", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("runs", nargs="+", metavar="RUN",
                         help="run folders (with spec.json and a checkpoint); several runs get "
                              "side-by-side maps on the same goals")
-    parser.add_argument("--goals", type=int, default=10_000, help="goals per run (count)")
-    parser.add_argument("--z", type=float, nargs=2, default=(0.7, 0.8), metavar=("Z0", "Z1"),
-                        help="height slice of the goals (m, world frame)")
-    parser.add_argument("--cell", type=float, default=CELL, help="grid cell edge (m)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the goals")
+    parser.add_argument("--goals", type=COUNT.read, default=10_000, help="goals per run (count)")
+    parser.add_argument("--z", type=number(note="m").read, nargs=2, default=(0.7, 0.8),
+                        metavar=("Z0", "Z1"), help="height slice of the goals (m, world frame)")
+    parser.add_argument("--cell", type=number(0, above=True, note="m").read, default=CELL,
+                        help="grid cell edge (m)")
+    parser.add_argument("--seed", type=SEED.read, default=0, help="seed of the goals")
     parser.add_argument("--episode", type=int, default=None,
                         help="checkpoint episode of the policy (default: the latest)")
-    parser.add_argument("--batch", type=int, default=BATCH,
+    parser.add_argument("--batch", type=COUNT.read, default=BATCH,
                         help="episodes run at once in the batched env (copies)")
     parser.add_argument("--out", type=Path, default=Path("success_map.png"),
                         help="figure file; the CSV goes beside it")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
-    if args.goals < 1 or args.batch < 1 or not 0 < args.cell < math.inf:
-        parser.error(f"--goals, --batch and --cell must be positive (and finite); got "
-                     f"{args.goals}, {args.batch}, {args.cell}")
-    if not all(math.isfinite(v) for v in args.z):
-        parser.error(f"--z needs two finite heights (m); got {args.z}")
-    if args.seed < 0:
-        parser.error(f"--seed must be an integer >= 0 (numpy's seeds are); got {args.seed}")
     # what a map holds: its goals and outcomes per run, and its grid (two histograms and the
     # rate per cell over the slice, at most the reach ball's diameter wide)
     cells = math.ceil(2 * WORKSPACE_REACH_M / args.cell) ** 2
@@ -230,7 +226,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         goals = slice_goals(tasks[0], args.goals, z, args.seed)
     except ValueError as err:  # includes regions.UnreachableRegionError
-        parser.error(f"no goals in the slice {z} m: {err}")
+        lo, hi = tasks[0].goal_region.bounds[:, 2]
+        parser.error(f"no goals in the slice {z} m: {err}; the region spans z in [{lo:g}, "
+                     f"{hi:g}] m: try --z {lo:g} {min(hi, lo + z[1] - z[0]):g}")
     maps = []
     for run, policy, task in zip(args.runs, policies, tasks, strict=True):
         label = f"{Path(run).as_posix()} (episode {policy.episode})"  # the run, not "s0"

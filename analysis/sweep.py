@@ -35,8 +35,10 @@ from typing import IO, Any
 
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
+from ddpg_her.config import Parser
 from ddpg_her.runfolder import RunFolder, run_status
 from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passthrough
+from ur5kin.checks import COUNT
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
     "paper": PAPER_GRID,
@@ -129,14 +131,6 @@ def parse_setting(text: str) -> tuple[str, int]:
         raise argparse.ArgumentTypeError(
             f"expected REGION:JOINTS with joints in 2..6; got {text!r}")
     return region, int(joints)
-
-
-def positive_count(text: str) -> int:
-    """An argparse type: an integer >= 1."""
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a count >= 1; got {value}")
-    return value
 
 
 def units_for(settings: Sequence[tuple[str, int]], seeds: int, root: Path,
@@ -353,20 +347,20 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                             unit_word: str = "setting") -> None:
     """The flags of every study that trains units: budget, root, where and how they run."""
-    parser.add_argument("--episodes", type=int, default=PAPER_EPISODES,
+    parser.add_argument("--episodes", type=COUNT.read, default=PAPER_EPISODES,
                         help="training episodes per run (count, >= 1); a run with fewer is "
                              "resumed up to it")
-    parser.add_argument("--seeds", type=int, default=PAPER_SEEDS,
+    parser.add_argument("--seeds", type=COUNT.read, default=PAPER_SEEDS,
                         help=f"seeds per {unit_word}, 0..K-1, trained together in one process "
                              "(count, >= 1)")
     parser.add_argument("--out", type=Path, default=default_out, help="root folder of the runs")
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=1,
+    where.add_argument("--workers", type=COUNT.read, default=1,
                        help="concurrent local training processes (count, >= 1)")
     where.add_argument("--ray-address", default=None,
                        help="run on this Ray cluster ('auto', 'ray://host:port', or 'local' "
                             "to start one on this machine)")
-    parser.add_argument("--threads", type=int, default=None,
+    parser.add_argument("--threads", type=COUNT.read, default=None,
                         help="torch threads per training process (count, >= 1; default: "
                              f"{DEFAULT_THREADS}, ddpg_her.train's, which keeps a fair share "
                              "of the cores when other work runs)")
@@ -467,10 +461,6 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
     if args.budget_seconds is not None and not (args.window and args.budget_seconds > 0):
         parser.error(f"--budget-seconds {args.budget_seconds}: a time budget is a --window "
                      "run's, in seconds > 0")
-    for flag in ("episodes", "seeds", "workers", "threads"):
-        value = getattr(args, flag)
-        if value is not None and value < 1:
-            parser.error(f"--{flag} must be >= 1; got {value}")
     if args.one_process and args.ray_address:
         parser.error("--one-process runs here, not on Ray; drop --ray-address or add "
                      "--no-one-process")
@@ -973,12 +963,16 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             failed = run_local(todo, args.workers, threads, extra, args.device)
     except KeyboardInterrupt:
         return 130
+    except OSError as err:  # a full disk, a folder made read-only: what finished stays whole
+        print(f"error: {err}; free space or make {args.out} writable, then run the same "
+              "command again to resume", file=sys.stderr)
+        return 1
     return 1 if failed else 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv, extra = split_passthrough(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m analysis.sweep", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to python -m ddpg_her.train.",
         formatter_class=HelpFormatter)
@@ -988,7 +982,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                             "closebox, farbox with 3 and 6 joints (11 settings)")
     which.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
                        help="a setting instead of a named grid; repeatable")
-    parser.add_argument("--part", type=positive_count, default=None, metavar="JOINTS",
+    parser.add_argument("--part", type=COUNT.read, default=None, metavar="JOINTS",
                         help="only the settings with this many controlled joints (2-6): a "
                              "part of the grid that fits one GPU window with --program")
     add_execution_arguments(parser, Path("runs/sweep"))

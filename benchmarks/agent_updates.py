@@ -34,7 +34,6 @@ machine's load cancel):
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -45,7 +44,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from ddpg_her.config import AgentConfig
+from ddpg_her.config import AgentConfig, Parser
 
 PEAK_SIZES = {"cpu": (1024, 2048), "cuda": (4096, 8192)}
 """Square matrix sizes n of the peak measurement per device: large enough that the product
@@ -291,7 +290,7 @@ def measure_rollouts(k: int, joints: int, rounds: int) -> dict[str, float]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.agent_updates",
         description="Agent-updates per second of our batched DDPG update next to Stable-"
                     "Baselines3's DDPG + HER and a plain PyTorch DDPG on the same env, and the "

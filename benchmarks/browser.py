@@ -15,7 +15,6 @@ import argparse
 import base64
 import contextlib
 import json
-import math
 import os
 import pathlib
 import shutil
@@ -25,6 +24,9 @@ import tempfile
 import time
 from collections.abc import Sequence
 from typing import Any
+
+from ddpg_her.config import Parser
+from ur5kin.checks import integer, number
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 """Executables tried, in order, when none is given (Debian's package is ``chromium``)."""
@@ -311,25 +313,22 @@ class ViewerPage:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m benchmarks.browser``."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.browser", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("page", type=pathlib.Path, metavar="PAGE.html",
                         help="a page of analysis.replay or analysis.region_volumes --view")
-    parser.add_argument("--at", type=float, default=None, metavar="T",
+    parser.add_argument("--at", type=number(0, note="s").read, default=None, metavar="T",
                         help="time of the animation to show (s, >= 0); None: the page as "
                         "loaded, its animation playing")
-    parser.add_argument("--size", type=int, nargs=2, default=list(DEFAULT_SIZE),
+    parser.add_argument("--size", type=integer(64, note="pixels").read, nargs=2,
+                        default=list(DEFAULT_SIZE),
                         metavar=("W", "H"), help="viewport width and height (CSS pixels, >= 64)")
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("screenshot.png"),
                         metavar="FILE.png", help="the PNG written")
     args = parser.parse_args(argv)
     if not args.page.is_file():
         parser.error(f"{args.page} is not a file")
-    if min(args.size) < 64:
-        parser.error(f"--size must be at least 64 x 64 pixels; got {args.size}")
-    if args.at is not None and not (math.isfinite(args.at) and args.at >= 0):
-        parser.error(f"--at must be a finite time >= 0 (s); got {args.at}")
     from analysis.outputs import check_writable, usage_errors, write_bytes, write_errors
 
     with usage_errors(parser):

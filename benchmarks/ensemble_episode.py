@@ -20,13 +20,13 @@ from pathlib import Path
 
 import torch
 
-from ddpg_her.config import AgentConfig
+from ddpg_her.config import AgentConfig, Parser
 from ddpg_her.ensemble import task_partitions
 from ddpg_her.trainer import Trainer
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.ensemble_episode", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--env-id", default="UR5Reach-v0", help="the env (module:id for a "

@@ -37,6 +37,7 @@ import gymnasium
 import numpy as np
 
 import envs
+from ddpg_her.config import Parser
 from envs.spec import TaskSpec
 
 
@@ -230,7 +231,7 @@ def format_table(result: dict[str, Any]) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line: one flag per :class:`BenchConfig` field."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.env_steps", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     d = BenchConfig()

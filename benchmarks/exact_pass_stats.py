@@ -22,6 +22,8 @@ import sys
 
 import numpy as np
 
+from ddpg_her.config import Parser
+
 GRID = [("unconstrained", 2), ("zheight", 3), ("closebox", 6), ("unconstrained", 5),
         ("farbox", 4), ("unconstrained", 6), ("zheight", 6), ("unconstrained", 3)]
 """(region, n_joints) of the copies, in turn (tests/test_stack_dynamics.py's grid)."""
@@ -30,7 +32,7 @@ BLOCKS = (1, 4, 8, 16, 32)
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--copies", type=int, default=55, help="copies, >= 1 (default 55)")
     parser.add_argument("--steps", type=int, default=100,
                         help="control steps, >= 1; an episode is 100 (default 100)")

@@ -13,7 +13,6 @@ entry that differs (exit 1) or says that all are equal.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import hashlib
 import json
@@ -25,6 +24,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ddpg_her.config import Parser
 
 STEPS = 220
 """Steps per rollout: over two episodes of 100 steps, so every rollout crosses an autoreset."""
@@ -164,7 +165,7 @@ def record(train: bool) -> dict[str, str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.fingerprint",
+    parser = Parser(prog="python -m benchmarks.fingerprint",
                                      description=__doc__.split("\n\n")[0])
     verbs = parser.add_subparsers(dest="verb", required=True,
                                   help="record: hash this tree's behaviour; compare: two records")

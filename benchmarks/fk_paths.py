@@ -23,6 +23,7 @@ import torch
 from tqdm import tqdm
 
 import ur5kin
+from ddpg_her.config import Parser
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ def measure(n: int, rounds: int, seed: int, show_progress: bool = True) -> list[
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.fk_paths",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,

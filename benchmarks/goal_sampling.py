@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 import regions
 import ur5kin
+from ddpg_her.config import Parser
 from regions.samplers import CartesianSampler, JointSpaceSampler
 
 ENV_BATCH = 20
@@ -100,7 +101,7 @@ def compare_samplers(joints: Sequence[int], goals: int, seed: int, progress: boo
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m benchmarks.goal_sampling``."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.goal_sampling", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--goals", type=int, default=10_000,

@@ -58,6 +58,7 @@ from typing import Any
 import torch
 
 from benchmarks.launches import LaunchCounter
+from ddpg_her.config import Parser
 
 MATMULS = frozenset({"mm", "addmm", "bmm", "baddbmm", "matmul"})
 """Ops whose FLOPs are ``2 M N K`` (the rest: one per output element)."""
@@ -377,7 +378,7 @@ def positive(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.gpu_budget", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--part", type=int, default=None, metavar="J",

@@ -26,6 +26,8 @@ import tarfile
 from collections.abc import Sequence
 from pathlib import Path
 
+from ddpg_her.config import Parser
+
 MAX_FILES = 8
 """Files a device run may bring back (the device tool's limit); ``--max-files`` leaves room
 for the other files of a GPU window (its smoke log and figures)."""
@@ -134,7 +136,7 @@ def setting_arg(text: str) -> tuple[str, int]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.gpu_collect",
         description="Pack a grid's run folders (spec.json, eval.csv, slim policy checkpoints) "
                     "into at most 8 files of at most --max-mib each, to bring back from a GPU "

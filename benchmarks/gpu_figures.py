@@ -54,6 +54,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from ddpg_her.config import Parser
+
 GRID_SHARE = 0.7
 """The share of ``--budget-s`` the grid episode's process may take before it is killed."""
 
@@ -425,7 +427,7 @@ def write(path: Path, result: dict[str, Any]) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.gpu_figures", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="the JSON file to write")

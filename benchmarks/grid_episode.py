@@ -63,6 +63,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from analysis.paper import PAPER_GRID, PAPER_SEEDS
+from ddpg_her.config import Parser
 from ddpg_her.train_many import unit_arguments
 
 CPU_READS = ("item", "cpu", "numpy", "tolist", "__bool__")
@@ -380,7 +381,7 @@ def device_name(device: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.grid_episode", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cuda",

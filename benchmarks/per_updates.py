@@ -20,11 +20,11 @@ import torch
 
 from ddpg_her.agent import DDPG
 from ddpg_her.buffer import Layout, PrioritizedBuffer, ReplayBuffer
-from ddpg_her.config import AgentConfig
+from ddpg_her.config import AgentConfig, Parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.per_updates",
+    parser = Parser(prog="python -m benchmarks.per_updates",
                                      description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--seeds", type=int, default=5, help="K agents of the stack, >= 1")

@@ -22,7 +22,6 @@ fixtures); ``traceback``; ``hang``; ``other`` (another mismatch).
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import csv
 import dataclasses
@@ -46,6 +45,8 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium
+
+from ddpg_her.config import Parser
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = ROOT / "tests"
@@ -1033,6 +1034,120 @@ def gate_cases(fix: Path) -> list[Case]:
     return out
 
 
+def _one_line(module: str, argv: list[str]) -> Callable[[Path], Any]:
+    """A command run in the case's process whose usage error must be one line: a refusal is
+    raised as a ValueError holding that line (``usage``), a longer one is a `WrongAnswer`."""
+    def call(_: Path) -> Any:
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                code = importlib.import_module(module).main(argv)
+            except SystemExit as stop:
+                code = stop.code
+        lines = err.getvalue().strip().splitlines()
+        if code == 2:
+            _check(len(lines) == 1, f"a usage error of {len(lines)} lines: {lines[:2]}")
+            raise ValueError(lines[0])
+        return code
+    return call
+
+
+def gate2_cases(fix: Path) -> list[Case]:
+    """Issue 41, the one gate (names ``gate: g2 ...``): every command's usage error in one line,
+    each record (a region's base height, the task, the agent's configuration, a recorded task)
+    checked by its one description, and the cases of kinds 5-7 left by the first pass."""
+    import regions
+    from ddpg_her.config import AgentConfig
+    from envs.spec import TaskSpec
+
+    nan, inf = float("nan"), float("inf")
+    out: list[Case] = []
+    commands = sorted(f"{p.parent.name}.{p.stem}" for package in ("ddpg_her", "analysis")
+                      for p in (ROOT / package).glob("*.py") if "= Parser(" in p.read_text())
+    for module in commands:
+        out.append(api(f"gate: g2 {module} an unknown flag in one line", module, 7,
+                       _one_line(module, ["--no-such-flag-41"]), "usage",
+                       "--no-such-flag-41|required"))
+    bad_flags = [("analysis.replay", [str(fix / "ur5" / "s0"), "--seed", "-1"], "--seed"),
+                 ("analysis.replay", [str(fix / "ur5" / "s0"), "--episodes", "0"], "--episodes"),
+                 ("analysis.optimality", ["--seed", "x"], "--seed"),
+                 ("analysis.optimality", ["--grid", "1"], "--grid"),
+                 ("analysis.optimality", ["--gamma", "nan"], "--gamma"),
+                 ("analysis.success_map", [str(fix / "ur5" / "s0"), "--goals", "0"], "--goals"),
+                 ("analysis.success_map", [str(fix / "ur5" / "s0"), "--cell", "inf"], "--cell"),
+                 ("analysis.success_map", [str(fix / "ur5" / "s0"), "--z", "0", "nan"], "--z"),
+                 ("analysis.success_map", [str(fix / "ur5" / "s0"), "--batch", "-3"], "--batch"),
+                 ("analysis.contact", ["--steps", "0"], "--steps"),
+                 ("analysis.contact", ["--rounds", "1.5"], "--rounds"),
+                 ("analysis.region_volumes", ["--joints", "0"], "--joints"),
+                 ("analysis.region_volumes", ["--resolution", "0"], "--resolution"),
+                 ("analysis.region_volumes", ["--base-height", "-1"], "--base-height"),
+                 ("analysis.region_volumes", ["--samples", "0"], "--samples"),
+                 ("ddpg_her.train", ["--region", "farbox", "--gamma", "2"], "gamma"),
+                 ("ddpg_her.train", ["--region", "farbox", "--exploration", "epsilon",
+                                     "--exploration-rate", "1.5"], "exploration_rate")]
+    for module, argv, words in bad_flags:
+        out.append(api(f"gate: g2 {module} {' '.join(argv[-2:])} in one line", module, 7,
+                       _one_line(module, argv), "usage", words))
+    for name in ("farbox", "closebox", "zheight", "unconstrained", "box:0.5,0.9,-0.4,0.4,0,0.4"):
+        for height in (-1.0, nan, inf, "0.1"):
+            out.append(api(f"gate: g2 regions.parse({name!r}, base_height={height!r})",
+                           "regions.parse", 5,
+                           lambda _, n=name, h=height: regions.parse(n, h), "usage",
+                           "base_height"))
+            if ":" not in name:
+                out.append(api(f"gate: g2 regions.get({name!r}, base_height={height!r})",
+                               "regions.get", 5,
+                               lambda _, n=name, h=height: regions.get(n, base_height=h),
+                               "usage", "base_height"))
+    for field, value in (("n_joints", 9), ("n_joints", 2.0), ("kp", [1.0] * 5),
+                         ("kd", "abcdef"), ("start_q", [nan] * 6), ("sim_hz", 1001),
+                         ("control_hz", True), ("success_radius", 0.0),
+                         ("contact_stiffness", inf), ("held_joints", "welded"),
+                         ("terminate_on_success", "yes"), ("max_episode_steps", 0)):
+        out.append(api(f"gate: g2 TaskSpec({field}={value!r})", "envs.TaskSpec", 5,
+                       lambda _, f=field, v=value: TaskSpec(**{f: v}), "usage",
+                       "sim_hz" if field == "sim_hz" else field))
+    for field, value in (("gamma", 1.5), ("tau", 0.0), ("hidden_sizes", (8,)),
+                         ("ensemble", 3), ("buffer_size", 8), ("algo", "ppo"),
+                         ("normalize_obs", 1), ("obs_clip", nan)):
+        out.append(api(f"gate: g2 AgentConfig({field}={value!r})", "ddpg_her.AgentConfig", 5,
+                       lambda _, f=field, v=value: AgentConfig(**{f: v}), "usage", field))
+    for field, value in (("n_joints", 9), ("base_height", -1), ("region", "nowhere"),
+                         ("kp", [1.0])):
+        def change(spec: dict, f: str = field, v: Any = value) -> None:
+            spec["task"][f] = v
+        for module, argv in (("analysis.curves", ["run", "--out", "c.png"]),
+                             ("analysis.report", ["run"]),
+                             ("analysis.replay", ["run/s0", "--out", "r.mp4"])):
+            out.append(cli(f"gate: g2 {module} of a spec.json task {field}={value!r}", module,
+                           5, argv, "usage", f"{field}|{value}",
+                           setup=copy_run(fix, edit_spec(change))))
+    out.append(api("gate: g2 gymnasium.make('UR5StackReach-v0')", "gymnasium.make", 6,
+                   lambda _: gymnasium.make("UR5StackReach-v0"), "usage", "StackReach"))
+    out.append(cli("gate: g2 optimality --curves over a truncated eval.csv",
+                   "analysis.optimality", 6,
+                   ["--from-csv", str(ROOT / "results" / "optimality" / "optimality.csv"),
+                    "--curves", "run", "--out", "o"], "usage", "eval.csv",
+                   setup=copy_run(fix, truncate("eval.csv"))))
+
+    def four_joints(spec: dict) -> None:
+        spec["task"]["n_joints"] = spec["env_kwargs"]["n_joints"] = 4
+        spec["dims"].update(obs_dim=12, act_dim=4, action_low=[-math.pi] * 4,
+                            action_high=[math.pi] * 4)
+    out.append(cli("gate: g2 replay of a checkpoint of another joint count", "analysis.replay",
+                   6, ["run/s0", "--out", "r.mp4"], "usage", "episode-000002.pt",
+                   setup=copy_run(fix, edit_spec(four_joints))))
+    out.append(api("gate: g2 ddpg_her.load of a checkpoint of another joint count",
+                   "ddpg_her.load", 6, _load("run/s0"), "usage", "does not fit",
+                   setup=copy_run(fix, edit_spec(four_joints))))
+    out.append(cli("gate: g2 success_map's default slice outside the far box",
+                   "analysis.success_map", 7,
+                   [str(fix / "ur5" / "s0"), "--goals", "20", "--out", "m.png",
+                    "--no-progress"], "usage", "--z 0"))
+    return out
+
+
 def _check(ok: bool, what: str) -> None:
     if not ok:
         raise WrongAnswer(what)
@@ -1552,7 +1667,7 @@ def verdict(case: Case, got: str, message: str, before: dict[str, str], after: d
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.reliability_probe",
+    parser = Parser(prog="python -m benchmarks.reliability_probe",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("results/reliability/probe.csv"),
                         help="the table written (CSV)")
@@ -1580,7 +1695,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         make_fixtures(fix)
         all_cases = [*old_cases(fix), *reader_cases(fix), *train_cases(fix),
                      *study_cases(fix), *api_cases(fix), *kill_cases(fix),
-                     *gate_cases(fix)]
+                     *gate_cases(fix), *gate2_cases(fix)]
         names = [c.name for c in all_cases]
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:

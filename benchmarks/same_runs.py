@@ -20,7 +20,6 @@ Examples::
 
 from __future__ import annotations
 
-import argparse
 import csv
 import subprocess
 import sys
@@ -28,6 +27,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from ddpg_her.config import Parser
 
 BASE = ["--region", "zheight", "--joints", "3", "--seeds", "0", "1", "--eval-every", "3",
         "--no-progress", "--threads", "1", "--device", "cpu", "--no-tensorboard"]
@@ -163,7 +164,7 @@ def compare(a: Path, b: Path) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.same_runs",
+    parser = Parser(prog="python -m benchmarks.same_runs",
                                      description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True,
                                 help="record: train the runs; compare: two recordings")

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpg_her.config import Parser
+
 GRID_AGENTS = 55
 """Agents of the paper's grid: one folder each, pruned at every save."""
 
@@ -48,7 +50,7 @@ def fill(folder: Path, buffer_size: int, chunk_rows: int, width: int, old_names:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.save_prune",
+    parser = Parser(prog="python -m benchmarks.save_prune",
                                      description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--buffer-size", type=int, default=1_000_000,

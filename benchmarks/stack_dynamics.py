@@ -51,6 +51,8 @@ from typing import Any
 
 import numpy as np
 
+from ddpg_her.config import Parser
+
 GRID = (("unconstrained", 2), ("unconstrained", 3), ("unconstrained", 4), ("unconstrained", 5),
         ("unconstrained", 6), ("zheight", 3), ("zheight", 6), ("closebox", 3), ("closebox", 6),
         ("farbox", 3), ("farbox", 6))
@@ -312,7 +314,7 @@ def format_table(result: dict[str, Any]) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line: one flag per :class:`BenchConfig` field."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m benchmarks.stack_dynamics", description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     d = BenchConfig()

@@ -17,7 +17,6 @@ Examples::
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
@@ -29,6 +28,8 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
+
+from ddpg_her.config import Parser
 
 RUN = ["--region", "farbox", "--joints", "3", "--seed", "0", "--no-progress",
        "--no-tensorboard", "--device", "cpu", "--warmup-episodes", "10"]
@@ -77,7 +78,7 @@ def _round(seconds: float) -> float | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.thread_share",
+    parser = Parser(prog="python -m benchmarks.thread_share",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=int, default=50, help="episodes per run (count)")
     parser.add_argument("--repeats", type=int, default=2, help="rounds per setting (count)")

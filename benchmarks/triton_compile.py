@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from ddpg_her.config import Parser
+
 DTYPES = ("float64", "float32")
 
 STAGES = ("ttir", "ttgir", "llir", "ptx", "cubin")
@@ -60,7 +62,7 @@ LANE_MEMORY_OP = re.compile(r"\btt\.(load|store)\b[^\n]*tensor<[^\n]*!tt\.ptr<")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--dtype", choices=DTYPES, default="float64",
                         help="the kernel's arithmetic (default float64)")
     parser.add_argument("--arch", type=int, default=90,

@@ -5,18 +5,25 @@ Each field's docstring is its documentation and its ``--help`` text (see `field_
 
 from __future__ import annotations
 
+import argparse
 import ast
 import dataclasses
 import enum
 import inspect
 import itertools
-import math
-import numbers
 import textwrap
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
-from typing import Any
+from typing import Any, NoReturn
+
+from ur5kin import checks as gate
+
+
+class Parser(argparse.ArgumentParser):
+    """The parser of every command: a usage error is one line (the usage comes with --help)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (--help for the usage)\n")
 
 
 class Exploration(str, enum.Enum):
@@ -197,21 +204,9 @@ class AgentConfig:
     of magnitude below the weights."""
 
     def __post_init__(self) -> None:
-        for name, kind in (("her_strategy", HERStrategy), ("exploration", Exploration),
-                           ("algo", Algo)):
-            try:
-                object.__setattr__(self, name, kind(getattr(self, name)))
-            except ValueError:
-                raise ValueError(f"invalid agent configuration: {name}={getattr(self, name)!r} "
-                                 f"(expected one of {[e.value for e in kind]})") from None
-        sizes = self.hidden_sizes
-        if isinstance(sizes, list | tuple):  # a string is not a sequence of sizes
-            object.__setattr__(self, "hidden_sizes", tuple(sizes))
-        bad = [name for name, (_, ok) in VALID.items() if not _holds(ok, self)]
-        if bad:
-            raise ValueError(
-                "invalid agent configuration: "
-                + ", ".join(f"{n}={getattr(self, n)!r} (expected {VALID[n][0]})" for n in bad))
+        if isinstance(self.hidden_sizes, list):
+            object.__setattr__(self, "hidden_sizes", tuple(self.hidden_sizes))
+        gate.check_fields(self, VALID, "agent configuration", COMBINATIONS)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (enums as strings, tuples as lists)."""
@@ -224,85 +219,46 @@ class AgentConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> AgentConfig:
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown agent configuration keys {sorted(unknown)}")
+        gate.known_fields(cls, d, "agent configuration")
         return cls(**d)
-
-
-def _holds(check: Any, config: AgentConfig) -> bool:
-    """Whether ``check(config)`` is true; a value of the wrong type (a string, None) is not."""
-    try:
-        return bool(check(config))
-    except TypeError:
-        return False
-
-
-def _integer(x: Any) -> bool:
-    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
-
-
-def _real(x: Any) -> bool:
-    """A real number, not a bool or a string (NaN fails every range below)."""
-    return isinstance(x, numbers.Real) and not isinstance(x, bool)
 
 
 MAX_ENSEMBLE = 64
 """Most members of a regional ensemble: each acts on every input to be routed (M x the acting
 cost) and needs goals in its cell; 64 is far beyond what the task's budget feeds."""
 
+VALID: dict[str, gate.Kind] = gate.kinds(
+    (gate.number(0, 1), "gamma", "ou_theta", "per_alpha", "per_beta"),
+    (gate.number(0, 1, above=True), "tau", "batch_norm_momentum"),
+    (gate.number(0, above=True), "actor_lr", "critic_lr", "final_init", "norm_eps",
+     "sac_init_alpha", "sac_alpha_lr", "per_eps"),
+    (gate.number(0), "critic_l2", "td3_target_noise", "td3_target_noise_clip"),
+    (gate.number(0, above=True, finite=False, note="inf: no clipping"), "obs_clip"),
+    (gate.integer(0), "episodes", "warmup_episodes", "updates_per_episode"),
+    (gate.integer(1), "batch_size", "eval_every", "eval_episodes", "her_k", "td3_policy_delay",
+     "buffer_size"),
+    (gate.integer(1, MAX_ENSEMBLE), "ensemble"),
+    (gate.FLAG, "normalize_obs", "flush_denormals", "batch_norm", "prioritized_replay"),
+    (gate.choice(HERStrategy, HERStrategy), "her_strategy"),
+    (gate.choice(Exploration, Exploration), "exploration"), (gate.choice(Algo, Algo), "algo"),
+    (gate.Kind("two integers >= 1", lambda v: isinstance(v, tuple) and len(v) == 2
+               and all(gate.is_integer(h) and h >= 1 for h in v), lambda v: tuple(map(int, v))),
+     "hidden_sizes"),
+    (gate.number(0), "exploration_rate"))
+"""The type and range of each `AgentConfig` field: the words appear in the error message and
+in ``--help``."""
 
-_RANGES: tuple[tuple[str, Callable[[Any], bool], tuple[str, ...]], ...] = (
-    ("a number in [0, 1]", lambda v: _real(v) and 0.0 <= v <= 1.0,
-     ("gamma", "ou_theta", "per_alpha", "per_beta")),
-    ("a number in (0, 1]", lambda v: _real(v) and 0.0 < v <= 1.0,
-     ("tau", "batch_norm_momentum")),
-    ("a finite number > 0", lambda v: _real(v) and 0.0 < v < math.inf,
-     ("actor_lr", "critic_lr", "final_init", "norm_eps", "sac_init_alpha", "sac_alpha_lr",
-      "per_eps")),
-    ("a finite number >= 0", lambda v: _real(v) and 0.0 <= v < math.inf,
-     ("critic_l2", "td3_target_noise", "td3_target_noise_clip")),
-    ("a number > 0 (inf: no clipping)", lambda v: _real(v) and v > 0.0, ("obs_clip",)),
-    ("an integer >= 0", lambda v: _integer(v) and v >= 0,
-     ("episodes", "warmup_episodes", "updates_per_episode")),
-    ("an integer >= 1", lambda v: _integer(v) and v >= 1,
-     ("batch_size", "eval_every", "eval_episodes", "her_k", "td3_policy_delay")),
-    ("true or false", lambda v: isinstance(v, bool),
-     ("normalize_obs", "flush_denormals", "batch_norm")),
+COMBINATIONS: tuple[gate.Combination, ...] = (
+    ("exploration_rate", "a probability (<= 1) with --exploration epsilon",
+     lambda c: c.exploration != Exploration.EPSILON or c.exploration_rate <= 1.0),
+    ("buffer_size", "an integer >= batch_size", lambda c: c.buffer_size >= c.batch_size),
+    ("prioritized_replay", "true only with algo ddpg, ensemble 1, no batch_norm",
+     lambda c: not c.prioritized_replay or (c.algo is Algo.DDPG and c.ensemble == 1
+                                            and not c.batch_norm)),
+    ("ensemble", "a divisor of updates_per_episode",
+     lambda c: c.updates_per_episode % c.ensemble == 0),
 )
-"""The ranges that fields share: (the range in words, the test of a value, the fields)."""
-
-
-def _field_check(name: str, test: Callable[[Any], bool]) -> Callable[[AgentConfig], bool]:
-    return lambda c: test(getattr(c, name))
-
-
-_CHECKS: dict[str, tuple[str, Any]] = {
-    **{name: (words, _field_check(name, test)) for words, test, names in _RANGES
-       for name in names},
-    "exploration_rate": ("a finite number >= 0, and a probability (<= 1) with --exploration "
-                         "epsilon", lambda c: _real(c.exploration_rate)
-                         and 0.0 <= c.exploration_rate < math.inf
-                         and (c.exploration != "epsilon" or c.exploration_rate <= 1.0)),
-    "buffer_size": ("an integer >= batch_size",
-                    lambda c: _integer(c.buffer_size) and c.buffer_size >= c.batch_size),
-    "hidden_sizes": ("two integers >= 1",
-                     lambda c: isinstance(c.hidden_sizes, tuple) and len(c.hidden_sizes) == 2
-                     and all(_integer(h) and h >= 1 for h in c.hidden_sizes)),
-    "prioritized_replay": ("true or false; true only with algo ddpg, ensemble 1, no batch_norm",
-                           lambda c: isinstance(c.prioritized_replay, bool) and not (
-                               c.prioritized_replay and (c.algo is not Algo.DDPG
-                                                         or c.ensemble != 1 or c.batch_norm))),
-    "ensemble": (f"an integer in 1..{MAX_ENSEMBLE} that divides updates_per_episode",
-                 lambda c: _integer(c.ensemble) and 1 <= c.ensemble <= MAX_ENSEMBLE
-                 and c.updates_per_episode % c.ensemble == 0),
-}
-
-VALID: dict[str, tuple[str, Any]] = {
-    f.name: _CHECKS[f.name] for f in dataclasses.fields(AgentConfig) if f.name in _CHECKS}
-"""The valid values of the checked `AgentConfig` fields: {field: (the range in words, test)}.
-The words appear in the error message and in ``--help``."""
+"""What `AgentConfig`'s fields may be combined with."""
 
 
 BEFORE: dict[str, Any] = {"batch_norm": False, "batch_norm_momentum": 0.01, "algo": "ddpg",

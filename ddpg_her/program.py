@@ -360,8 +360,6 @@ class Program(Loop):
             torch.backends.cuda.matmul.allow_tf32 = bool(tf32)
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.dtype, self.progress = dtype, progress
-        if self.device.type == "cpu":
-            torch.set_flush_denormal(config.flush_denormals)
         m, k = config.eval_episodes, self.k
         twin = register_env(env_id)
         make = lambda n: gymnasium.make_vec(  # noqa: E731
@@ -418,6 +416,8 @@ class Program(Loop):
                                   seed=seeds[i], config=config, dims=self._dims(i),
                                   command=command)} for i in range(k)]
         self._open(run_dirs, resume, window, budget)
+        if self.device.type == "cpu":  # after the record: the flush reaches Python's floats
+            torch.set_flush_denormal(config.flush_denormals)
         self._bodies = {
             "warm": Graphed(lambda: self._train_episode(warm=True), self.capture),
             "act": Graphed(lambda: self._train_episode(warm=False), self.capture),

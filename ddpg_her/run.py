@@ -217,11 +217,17 @@ def load(run_dir: str | os.PathLike, *, episode: int | None = None,
     net = {"dtype": torch.float32, "device": torch.device(device)}
     # an ensemble's state holds its M members and its partition (ddpg_her.ensemble)
     members = state.get("ensemble", [state])
-    actor = _actor(config, members, in_dim, dims["act_dim"], net)
     normalizer = RunningNormalizer(len(members), in_dim, eps=config.norm_eps,
                                    clip=config.obs_clip, enabled=config.normalize_obs, **net)
-    for k, member in enumerate(members):
-        normalizer.load_state(k, member["normalizer"])
+    try:
+        actor = _actor(config, members, in_dim, dims["act_dim"], net)
+        for k, member in enumerate(members):
+            normalizer.load_state(k, member["normalizer"])
+    except (KeyError, RuntimeError, ValueError) as err:
+        raise RunFolderError(f"{ckpts[episode]} does not fit spec.json's networks (input "
+                             f"{in_dim}, {dims['act_dim']} actions, hidden "
+                             f"{list(config.hidden_sizes)}): a checkpoint of another run? "
+                             f"({type(err).__name__}: {str(err).splitlines()[0]})") from None
     if "ensemble" in state:
         from ddpg_her.ensemble import RoutedPolicy
 

@@ -619,6 +619,13 @@ def read_run(path: str | os.PathLike) -> Run:
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise RunFolderError(f"{folder.spec_path} lacks a run's fields ({type(err).__name__}: "
                              f"{err})") from err
+    if str(spec.get("env_id", "")).startswith("UR5"):  # a task of the gate's description
+        from envs.spec import TaskSpec
+
+        try:
+            TaskSpec.from_record(spec.get("task", {}))
+        except ValueError as err:
+            raise RunFolderError(f"{folder.spec_path}: {err}") from None
 
     def column(name: str, kind: type) -> np.ndarray:
         try:

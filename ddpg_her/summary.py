@@ -8,12 +8,13 @@ its sessions, at least the last interval).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ddpg_her.config import Parser
 from ddpg_her.runfolder import RunFolder, RunFolderError
+from ur5kin.checks import COUNT
 
 
 def summarize(run_dirs: Sequence[str], project_to: int) -> str:
@@ -64,13 +65,11 @@ def summarize(run_dirs: Sequence[str], project_to: int) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ddpg_her.summary", description=__doc__)
+    parser = Parser(prog="python -m ddpg_her.summary", description=__doc__)
     parser.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders")
-    parser.add_argument("--project-to", type=int, default=20_000, metavar="EPISODES",
+    parser.add_argument("--project-to", type=COUNT.read, default=20_000, metavar="EPISODES",
                         help="episodes of the projected run (default: 20000, the paper's)")
     args = parser.parse_args(argv)
-    if args.project_to < 1:
-        parser.error(f"--project-to must be a count of episodes >= 1; got {args.project_to}")
     try:
         print(summarize(args.run_dirs, args.project_to))
     except (OSError, ValueError) as e:

@@ -21,7 +21,7 @@ import typing
 from collections.abc import Sequence
 from typing import Any
 
-from ddpg_her.config import VALID, AgentConfig, field_docs
+from ddpg_her.config import COMBINATIONS, VALID, AgentConfig, Parser, field_docs
 from ddpg_her.units import DEFAULT_JOINTS, Setting, check_device, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
@@ -32,8 +32,9 @@ def _add_config_flags(group: argparse._ArgumentGroup) -> None:
     for f in dataclasses.fields(AgentConfig):
         flag = "--" + f.name.replace("_", "-")
         kind = hints[f.name]
-        valid = f" Valid: {VALID[f.name][0]}." if f.name in VALID else ""
-        help_text = (docs[f.name] + valid).replace("%", "%%") + " (default: %(default)s)"
+        valid = ", and ".join([VALID[f.name].words,
+                               *(w for n, w, _ in COMBINATIONS if n == f.name)])
+        help_text = f"{docs[f.name]} Valid: {valid}.".replace("%", "%%") + " (default: %(default)s)"
         if kind is bool:
             group.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default,
                                help=help_text)
@@ -115,7 +116,7 @@ def add_process_flags(group: Any, what: str) -> None:
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m ddpg_her.train",
         description="Train DDPG + HER (Lewis, Moll, Kavraki 2019, Table I) on a goal-reaching "
                     "task. Every --eval-every training episodes, --eval-episodes test episodes "
@@ -306,13 +307,10 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
         When a task field is given twice, n_joints is out of range, seeds repeat, or the agent
         configuration is invalid; the message names the flag and the expected values.
     """
-    env_kwargs = task_fields(args.region, args.joints, args.task)
-    joints = env_kwargs["n_joints"]
-    from envs.spec import N_JOINTS_RANGE
+    from envs.spec import FIELDS
 
-    lo, hi = N_JOINTS_RANGE
-    if not isinstance(joints, int) or not lo <= joints <= hi:
-        raise ValueError(f"--task n_joints must be an integer in {lo}..{hi}, got {joints!r}")
+    env_kwargs = task_fields(args.region, args.joints, args.task)
+    joints = FIELDS["n_joints"]("n_joints", env_kwargs["n_joints"])
     seeds = args.seeds if args.seeds is not None else [args.seed]
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"--seeds must be distinct, got {seeds}")

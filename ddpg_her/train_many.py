@@ -24,11 +24,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ddpg_her import train
+from ddpg_her.config import Parser
 from ddpg_her.units import option_dests, overrides, read_plan, split_passthrough
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m ddpg_her.train_many",
         description="Train several ddpg_her.train units (settings x seeds) in one process: "
                     "units of one observation/action layout and agent configuration share one "

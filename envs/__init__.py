@@ -14,6 +14,8 @@ so that ``import envs.spec`` (reading a task) loads neither Pinocchio nor torch.
 
 from __future__ import annotations
 
+from typing import NoReturn
+
 import gymnasium
 
 from envs.checks import validate
@@ -32,8 +34,17 @@ for _env_id in ENV_IDS:
             max_episode_steps=DEFAULT_EPISODE_STEPS,
         )
 
+
+
+def _no_single_stack_env(**_: object) -> NoReturn:
+    raise ValueError("UR5StackReach-v0 is a stack of copies with no single env (no reset()): "
+                     "build envs.stackreach.StackReach directly, or gymnasium.make_vec("
+                     "'UR5StackReach-v0', num_envs=B, vectorization_mode='vector_entry_point', "
+                     "tasks=[...])")
+
+
 if "UR5StackReach-v0" not in gymnasium.registry:
-    gymnasium.register("UR5StackReach-v0", entry_point=None,
+    gymnasium.register("UR5StackReach-v0", entry_point=_no_single_stack_env,
                        vector_entry_point="envs.stackreach:StackReach")
 
 STACK_TWINS: dict[str, str] = {"UR5Reach-v0": "UR5StackReach-v0"}

@@ -16,7 +16,8 @@ from envs.physics import make_dynamics
 from envs.render import RENDER_MODES, check_render_mode
 from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec, make_task
 from envs.task import INFO_KEYS, as_autoreset_mode, real_actions
-from envs.vector import check_num_envs, copy_seeds, reset_options
+from envs.vector import copy_seeds, reset_options
+from ur5kin.checks import COUNT
 
 
 class BatchedReach(gymnasium.vector.VectorEnv):
@@ -64,7 +65,7 @@ class BatchedReach(gymnasium.vector.VectorEnv):
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  render_mode: str | None = None, dynamics: str = "auto", device: str = "cpu",
                  threads: int = 1, **overrides: Any) -> None:
-        num_envs = check_num_envs(num_envs)
+        num_envs = COUNT("num_envs", num_envs)
         mode = as_autoreset_mode(autoreset_mode)
         given = task is not None or "spec" in overrides  # spec=: task='s deprecated name
         if given and overrides.get("max_episode_steps") == DEFAULT_EPISODE_STEPS:

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ur5kin import checks
+
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
 
@@ -29,18 +31,8 @@ GOAL_DIM = 3
 
 def real_array(x: Any, name: str, what: str) -> np.ndarray:
     """``x`` as a finite float64 array, or ValueError naming ``name`` and what was expected."""
-    arr = np.asarray(x)
-    if arr.dtype.kind not in "biuf":
-        try:
-            if arr.dtype.kind == "c":
-                raise TypeError("complex")
-            arr = np.asarray(x, dtype=np.float64)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"{name} must be real numbers ({what}); got {x!r}") from err
-    arr = arr.astype(np.float64, copy=False)
-    if not np.isfinite(arr).all():
-        where = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} must be finite ({what}); {name}{list(where)} = {arr[where]}")
+    arr = checks.real_array(x, name, what)
+    checks.check_finite(arr, name)
     return arr
 
 

@@ -23,18 +23,16 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import math
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from regions import registry
 from regions.registry import UNCONSTRAINED_REGION, default_start
 from regions.samplers import CartesianSampler
-from ur5kin.world import DEFAULT_BASE_HEIGHT
+from ur5kin import checks as gate
+from ur5kin.world import BASE_HEIGHT, DEFAULT_BASE_HEIGHT
 
 if TYPE_CHECKING:
     import regions
@@ -245,49 +243,11 @@ class TaskSpec:
     the plane."""
 
     def __post_init__(self) -> None:
-        _set = functools.partial(object.__setattr__, self)
-        _set("base_height", _number("base_height", self.base_height, minimum=0.0, unit="m"))
-        _set("region", _region_string(self.region, self.base_height))
-        _set("n_joints", _integer("n_joints", self.n_joints, *N_JOINTS_RANGE))
-        for name, choices in (("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),
-                              ("reward_type", REWARD_TYPES),
-                              ("action_penalty_unit", ACTION_PENALTY_UNITS),
-                              ("contact_model", CONTACT_MODELS),
-                              ("held_joints", HELD_JOINTS)):
-            value = getattr(self, name)
-            if value not in choices:
-                raise ValueError(f"{name} must be one of {list(choices)}; got {value!r}")
-        for name in ("distance_weight", "action_weight", "success_reward", "plane_margin"):
-            _set(name, _number(name, getattr(self, name), minimum=0.0))
-        for name, unit, strict in (("contact_stiffness", "N/m", True),
-                                   ("contact_damping", "N s/m", False),
-                                   ("contact_friction", "dimensionless", False),
-                                   ("contact_max_depth", "m", True)):
-            _set(name, _number(name, getattr(self, name), minimum=0.0, strict=strict, unit=unit))
-        if self.goal_sampler == "cartesian" and self.n_joints < CartesianSampler.MIN_JOINTS:
-            raise ValueError(
-                f"goal_sampler='cartesian' needs n_joints >= {CartesianSampler.MIN_JOINTS}"
-                f" (with fewer, tool0 reaches only a surface); got n_joints={self.n_joints}. "
-                "Use goal_sampler='joint'"
-            )
-        _set("success_radius", _number("success_radius", self.success_radius, minimum=0.0,
-                                       strict=True, unit="m"))
-        for name in ("terminate_on_success", "gravity_compensation"):
-            if not isinstance(getattr(self, name), bool | np.bool_):
-                raise ValueError(f"{name} must be True or False; got {getattr(self, name)!r}")
-            _set(name, bool(getattr(self, name)))
-        _set("max_episode_steps", _integer("max_episode_steps", self.max_episode_steps, 1, None))
-        _set("control_hz", _integer("control_hz", self.control_hz, 1, None))
-        _set("sim_hz", _integer("sim_hz", self.sim_hz, 1, None))
-        if self.sim_hz % self.control_hz:
-            raise ValueError(
-                f"sim_hz must be a multiple of control_hz (whole substeps per control step); got "
-                f"sim_hz={self.sim_hz} Hz, control_hz={self.control_hz} Hz"
-            )
-        _set("kp", _joint_vector("kp", self.kp, "N m/rad", positive=True))
-        _set("kd", _joint_vector("kd", self.kd, "N m s/rad", positive=True))
-        start_q = default_start(self.region) if self.start_q is None else self.start_q
-        _set("start_q", _joint_vector("start_q", start_q, "rad"))
+        base = BASE_HEIGHT("base_height", self.base_height)
+        object.__setattr__(self, "region", _region_string(self.region, base))
+        if self.start_q is None:
+            object.__setattr__(self, "start_q", default_start(self.region))
+        gate.check_fields(self, FIELDS, "task", COMBINATIONS)
 
     # ------------------------------------------------------------------ derived quantities
     @property
@@ -327,9 +287,7 @@ class TaskSpec:
         ValueError
             As :meth:`from_dict`.
         """
-        if not isinstance(data, Mapping):
-            raise ValueError(f"a task description must be a mapping of fields; got {data!r:.200}")
-        return cls.from_dict({**RECORD_DEFAULTS, **data})
+        return cls.from_dict({**RECORD_DEFAULTS, **data} if isinstance(data, Mapping) else data)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> TaskSpec:
@@ -342,7 +300,7 @@ class TaskSpec:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"a task description must be a mapping of fields; got {data!r:.200}")
-        _check_field_names(data)
+        gate.known_fields(cls, data, "task")
         return cls(**data)
 
     def to_json(self, **kwargs: Any) -> str:
@@ -366,68 +324,44 @@ class TaskSpec:
         ValueError
             For an unknown field name (the message lists the fields) or a bad value.
         """
-        _check_field_names(overrides)
+        gate.known_fields(TaskSpec, overrides, "task")
         if ("region" in overrides and "start_q" not in overrides
                 and self.start_q == default_start(self.region)):
             overrides["start_q"] = None  # a default start follows the region; a chosen one stays
         return dataclasses.replace(self, **overrides)
 
 
+FIELDS: dict[str, gate.Kind] = gate.kinds(
+    (BASE_HEIGHT, "base_height"), (gate.number(0, note="m"), "plane_margin"),
+    (gate.integer(*N_JOINTS_RANGE), "n_joints"),
+    *((gate.choice(options), name) for name, options in (
+        ("goal_sampler", GOAL_SAMPLERS), ("control_mode", CONTROL_MODES),
+        ("reward_type", REWARD_TYPES), ("action_penalty_unit", ACTION_PENALTY_UNITS),
+        ("contact_model", CONTACT_MODELS), ("held_joints", HELD_JOINTS))),
+    (gate.number(0), "distance_weight", "action_weight", "success_reward"),
+    (gate.number(0, above=True, note="N/m"), "contact_stiffness"),
+    (gate.number(0, note="N s/m"), "contact_damping"), (gate.number(0), "contact_friction"),
+    (gate.number(0, above=True, note="m"), "contact_max_depth", "success_radius"),
+    (gate.FLAG, "terminate_on_success", "gravity_compensation"),
+    (gate.integer(1), "max_episode_steps", "control_hz", "sim_hz"),
+    (gate.vector(6, "N m/rad, joints 1-6", positive=True), "kp"),
+    (gate.vector(6, "N m s/rad, joints 1-6", positive=True), "kd"),
+    (gate.vector(6, "rad, joints 1-6"), "start_q"))
+"""The type and range of each `TaskSpec` field but ``region`` (parsed by :mod:`regions`)."""
+
+COMBINATIONS: tuple[gate.Combination, ...] = (
+    ("goal_sampler", f"'joint': 'cartesian' needs n_joints >= {CartesianSampler.MIN_JOINTS} "
+     "(with fewer, tool0 reaches only a surface)", lambda t: t.goal_sampler != "cartesian"
+     or t.n_joints >= CartesianSampler.MIN_JOINTS),
+    ("sim_hz", "a multiple of control_hz (whole substeps per control step)",
+     lambda t: t.sim_hz % t.control_hz == 0))
+"""What `TaskSpec`'s fields may be combined with."""
+
 DEFAULT_EPISODE_STEPS: int = TaskSpec.__dataclass_fields__["max_episode_steps"].default
 """The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
 
 
 # ---------------------------------------------------------------------- field checks
-def _check_field_names(data: Mapping[str, Any]) -> None:
-    names = {f.name for f in dataclasses.fields(TaskSpec)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ValueError(f"unknown task field(s) {unknown}; the fields are {sorted(names)}")
-
-
-def _number(name: str, value: Any, minimum: float | None = None, strict: bool = False,
-            unit: str = "") -> float:
-    """``value`` as a finite float >= ``minimum`` (> when ``strict``), or ``ValueError``."""
-    bad = isinstance(value, bool | np.bool_)
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        bad = True
-    unit_text = f" ({unit})" if unit else ""
-    if bad or not math.isfinite(x):
-        raise ValueError(f"{name} must be a finite number{unit_text}; got {value!r}")
-    if minimum is not None and (x < minimum or (strict and x == minimum)):
-        relation = ">" if strict else ">="
-        raise ValueError(f"{name} must be {relation} {minimum}{unit_text}; got {value!r}")
-    return x
-
-
-def _integer(name: str, value: Any, lo: int, hi: int | None) -> int:
-    """``value`` as an int in ``lo..hi`` (no upper bound when ``hi`` is None), or ``ValueError``."""
-    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
-        raise ValueError(f"{name} must be an integer; got {value!r}")
-    if value < lo or (hi is not None and value > hi):
-        span = f"{lo}..{hi}" if hi is not None else f">= {lo}"
-        raise ValueError(f"{name} must be an integer {span}; got {value!r}")
-    return int(value)
-
-
-def _joint_vector(name: str, value: Any, unit: str, positive: bool = False
-                  ) -> tuple[float, ...]:
-    """``value`` as a tuple of 6 finite floats (> 0 when ``positive``), or ``ValueError``."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be 6 numbers ({unit}, joints 1-6); got {value!r}") from err
-    if arr.shape != (6,):
-        raise ValueError(f"{name} must be 6 numbers ({unit}, joints 1-6); got shape {arr.shape}: "
-                         f"{value!r}")
-    if not np.all(np.isfinite(arr)) or (positive and not np.all(arr > 0.0)):
-        what = "finite and > 0" if positive else "finite"
-        raise ValueError(f"{name} must be {what} ({unit}, joints 1-6); got {arr.tolist()}")
-    return tuple(float(x) for x in arr)
-
-
 def _region_string(region: Any, base_height: float) -> str:
     """The canonical string form of a region given as a string, a Region or its dict form.
 

@@ -27,6 +27,7 @@ from envs.physics.model import NJ, PlaneModel, ur5_plane
 from envs.reward import goal_distance, reach_reward
 from envs.spec import TaskSpec, make_task
 from envs.task import action_bounds, action_penalty_scale, task_sampler
+from ur5kin.checks import number
 
 OBS_DIM = 3 * NJ
 """Observation length of every copy: theta, theta_dot, theta_ddot of six joints (rad, rad/s,
@@ -141,8 +142,7 @@ class RegionBounds:
 def proposals_for(acceptance: float, miss: float = GOAL_MISS_PROBABILITY) -> int:
     """Proposals per goal so that all miss with probability at most ``miss``: the least P with
     ``(1 - acceptance)^P <= miss``."""
-    if not 0.0 < acceptance <= 1.0:
-        raise ValueError(f"acceptance must lie in (0, 1]; got {acceptance!r}")
+    acceptance = number(0, 1, above=True)("acceptance", acceptance)
     if acceptance == 1.0:
         return 1
     return max(1, math.ceil(math.log(miss) / math.log1p(-acceptance)))

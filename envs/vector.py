@@ -11,13 +11,6 @@ from typing import Any
 import numpy as np
 
 
-def check_num_envs(num_envs: Any) -> int:
-    """``num_envs`` as an int, or a ValueError when it is not an integer >= 1."""
-    if not isinstance(num_envs, int | np.integer) or num_envs < 1:
-        raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
-    return int(num_envs)
-
-
 def reset_options(options: Any, known: Sequence[str], example: str) -> dict[str, Any]:
     """The reset ``options`` as a dict (empty for None), or a ValueError when they are not a
     mapping (``example`` shows one) or hold a key not in ``known``."""

@@ -27,7 +27,7 @@ import numpy as np
 from regions.samplers import draw_joint_space
 from regions.shapes import Region
 from ur5kin import fk_world, plane_clear
-from ur5kin.checks import joint_array, joint_count
+from ur5kin.checks import COUNT, joint_array, joint_count
 from ur5kin.world import check_base_height
 
 SURFACE_JOINTS = 2
@@ -89,8 +89,7 @@ def sample_workspace(n_joints: int, start_q: Any, base_height: float, count: int
         Samples per block (bounds the memory of the clearance check).
     """
     n_joints = joint_count(n_joints)
-    if not isinstance(count, int | np.integer) or count < 1:
-        raise ValueError(f"count must be an integer >= 1 (samples); got {count!r}")
+    count = COUNT("count", count)
     start_q = joint_array(start_q, "start_q")
     if start_q.shape != (6,):
         raise ValueError(f"start_q must have shape (6,) (rad); got shape {start_q.shape}")

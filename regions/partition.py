@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from ur5kin.checks import integer
+
 
 @dataclass(frozen=True)
 class KMeansSettings:
@@ -65,8 +67,7 @@ def kmeans(goals: np.ndarray, m: int, rng: np.random.Generator, max_iterations: 
     goals = np.asarray(goals, dtype=np.float64)
     if goals.ndim != 2 or not np.isfinite(goals).all():
         raise ValueError(f"goals must be (n, d) finite numbers, got shape {goals.shape}")
-    if not isinstance(m, int | np.integer) or m < 1:
-        raise ValueError(f"the cell count must be an integer >= 1, got {m!r}")
+    m = integer(1, note="cells")("m", m)
     if len(np.unique(goals, axis=0)) < m:
         raise ValueError(f"need at least {m} distinct goals for {m} cells, got "
                          f"{len(np.unique(goals, axis=0))}")

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 from regions.reach import reach_ball
 from regions.shapes import Box, Intersection, MeshRegion, Region, ZLimit, region_from_dict
-from ur5kin.world import DEFAULT_BASE_HEIGHT
+from ur5kin.world import BASE_HEIGHT, DEFAULT_BASE_HEIGHT
 
 UNCONSTRAINED_REGION = "unconstrained"
 """The region whose default start pose is :data:`UNCONSTRAINED_START` (all zeros); every other
@@ -100,7 +100,7 @@ def get(name: str, base_height: float = DEFAULT_BASE_HEIGHT) -> Region:
     """
     if name not in _BUILDERS:
         raise ValueError(f"unknown region {name!r}; known regions: {', '.join(PAPER_REGIONS)}")
-    return _BUILDERS[name](base_height)
+    return _BUILDERS[name](BASE_HEIGHT("base_height", base_height))
 
 
 SPEC_FORMS = (
@@ -163,7 +163,7 @@ def parse(spec: str, base_height: float = DEFAULT_BASE_HEIGHT) -> Region:
     """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"a region string is needed; got {spec!r}. Forms: {spec_help()}")
-    spec = spec.strip()
+    spec, base_height = spec.strip(), BASE_HEIGHT("base_height", base_height)
     if spec in _BUILDERS:
         return get(spec, base_height)
     if spec.startswith("{"):

@@ -27,8 +27,17 @@ import numpy as np
 import ur5kin  # lazy: Pinocchio loads at the first sample, not on import
 from regions.reach import reach_ball
 from regions.shapes import Region, region_from_dict
-from ur5kin.checks import joint_array, joint_count
-from ur5kin.world import DEFAULT_BASE_HEIGHT, check_base_height, to_base
+from ur5kin.checks import (
+    COUNT,
+    MOVING_JOINTS_RANGE,
+    Kind,
+    check_fields,
+    integer,
+    kinds,
+    number,
+    vector,
+)
+from ur5kin.world import BASE_HEIGHT, DEFAULT_BASE_HEIGHT, to_base
 
 PROBE_SEED = 20190916
 """Seed of the acceptance probe. The probe never touches the caller's generator, so the goals
@@ -61,14 +70,11 @@ class SamplingLimits:
     probe's acceptance), which only an acceptance far below the probe's estimate can cause."""
 
     def __post_init__(self) -> None:
-        if not self.probe_rounds or any(int(r) < 1 for r in self.probe_rounds):
-            raise ValueError(f"probe_rounds must be positive counts; got {self.probe_rounds!r}")
-        if self.probe_hits < 1:
-            raise ValueError(f"probe_hits must be >= 1; got {self.probe_hits!r}")
-        if not 0.0 < self.min_acceptance < 1.0:
-            raise ValueError(f"min_acceptance must lie in (0, 1); got {self.min_acceptance!r}")
-        if self.max_batch < 1 or self.overdraw_sigmas < 0 or self.max_overdraw < 1:
-            raise ValueError(f"bad sampling limits: {self!r}")
+        check_fields(self, kinds(
+            (Kind("counts >= 1", lambda v: len(v) > 0 and all(COUNT.test(r) for r in v), tuple),
+             "probe_rounds"), (COUNT, "probe_hits", "max_batch"),
+            (number(0, 1, above=True, below=True), "min_acceptance"),
+            (number(0), "overdraw_sigmas"), (number(1), "max_overdraw")), "sampling limits")
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,12 +166,8 @@ class GoalSampler(abc.ABC):
     def __post_init__(self) -> None:
         if not isinstance(self.region, Region):
             raise ValueError(f"region must be a regions.Region; got {type(self.region).__name__}")
-        start_q = joint_array(self.start_q, "start_q")
-        if start_q.shape != (6,):
-            raise ValueError(f"start_q must have shape (6,) (rad); got shape {start_q.shape}")
-        object.__setattr__(self, "n_joints", joint_count(self.n_joints))
-        object.__setattr__(self, "start_q", tuple(float(x) for x in start_q))
-        object.__setattr__(self, "base_height", check_base_height(self.base_height))
+        check_fields(self, {"n_joints": integer(*MOVING_JOINTS_RANGE), "base_height": BASE_HEIGHT,
+                            "start_q": vector(6, "rad, joints 1-6")}, "goal sampler")
         _ = self.acceptance  # fail fast
 
     @abc.abstractmethod
@@ -221,8 +223,7 @@ class GoalSampler(abc.ABC):
         GoalBatch
             ``goals (n, 3)`` m (world) in the region, ``q (n, 6)`` rad reaching them.
         """
-        if not isinstance(n, int | np.integer) or n < 0:
-            raise ValueError(f"n must be an integer >= 0 (number of goals); got {n!r}")
+        n = integer(0, note="number of goals")("n", n)
         if not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng must be a numpy.random.Generator; got {type(rng).__name__}")
         acc, lim = self.acceptance, self.limits
@@ -314,8 +315,7 @@ class CartesianSampler(GoalSampler):
                 "with fewer joints tool0 reaches only a surface, so no goal distribution is "
                 "uniform in a volume. Use JointSpaceSampler"
             )
-        if not isinstance(self.wrist_tries, int | np.integer) or self.wrist_tries < 1:
-            raise ValueError(f"wrist_tries must be an integer >= 1; got {self.wrist_tries!r}")
+        COUNT("wrist_tries", self.wrist_tries)
         super().__post_init__()
 
     @functools.cached_property

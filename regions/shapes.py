@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from ur5kin.checks import check_fields, number, vector
+
 if TYPE_CHECKING:
     import trimesh
 
@@ -276,14 +278,8 @@ class Ball(Region):
     kind: ClassVar[str] = "ball"
 
     def __post_init__(self) -> None:
-        center = as_points(self.center, "Ball center")
-        if center.shape != (3,) or not np.all(np.isfinite(center)):
-            raise ValueError(f"Ball center must be 3 finite numbers (m); got {self.center!r}")
-        radius = float(self.radius)
-        if not (np.isfinite(radius) and radius > 0.0):
-            raise ValueError(f"Ball radius must be a finite length > 0 (m); got {self.radius!r}")
-        object.__setattr__(self, "center", tuple(float(c) for c in center))
-        object.__setattr__(self, "radius", radius)
+        check_fields(self, {"center": vector(3, "m, world frame"),
+                            "radius": number(0, above=True, note="m")}, "Ball")
 
     def contains(self, points: Any) -> np.ndarray:
         d = as_points(points) - np.asarray(self.center)

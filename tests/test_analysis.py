@@ -55,7 +55,7 @@ def test_summary_refuses_a_projection_to_no_episodes(tmp_path, capsys, episodes)
     with pytest.raises(SystemExit) as stop:
         summary_main([str(tmp_path / "s0"), "--project-to", episodes])
     assert stop.value.code == 2
-    assert f"--project-to must be a count of episodes >= 1; got {episodes}" in \
+    assert f"argument --project-to: {episodes} (expected an integer >= 1)" in \
         capsys.readouterr().err
 
 

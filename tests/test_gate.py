@@ -382,3 +382,171 @@ def test_ctrl_c_of_a_sweep_ends_with_its_line_not_a_traceback(tmp_path, monkeypa
         code, err = run_main(sweep.main, ["--setting", "farbox:3", "--seeds", "1", "--out",
                                           str(tmp_path / "sw"), *flags])
         assert code == 130 and "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------- kind 7
+COMMANDS = sorted(f"{p.parent.name}.{p.stem}" for package in ("ddpg_her", "analysis")
+                  for p in (Path(__file__).parents[1] / package).glob("*.py")
+                  if "= Parser(" in p.read_text())
+
+
+@pytest.mark.parametrize("module", COMMANDS)
+def test_a_usage_error_is_one_line(module):
+    """Every command's usage error is one line naming the bad flag (argparse's own parser, the
+    reference, prints the usage first: for ddpg_her.train about 35 lines)."""
+    import importlib
+
+    code, err = run_main(importlib.import_module(module).main, ["--no-such-flag-41"])
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1, err
+    assert "--help" in err and ("--no-such-flag-41" in err or "required" in err), err
+
+
+# ---------------------------------------------------------------------------- kind 5
+def test_the_program_records_a_subnormal_start_angle_as_typed(tmp_path):
+    """The program set the CPU's subnormal flush before writing spec.json, and the flush reaches
+    Python's floats: a start_q entry of 1e-320 was recorded as 0.0. The reference is the typed
+    value (the numpy trainer's record, tests/test_ddpg_train.py)."""
+    from ddpg_her.program import Program
+    from tests.test_program import FirstOrderArm
+
+    start = (1e-320, -0.785, 1.57, 0.0, 0.0, 0.0)
+    config = AgentConfig(hidden_sizes=(8, 8), warmup_episodes=1, eval_every=2, eval_episodes=2,
+                         updates_per_episode=2, batch_size=8, buffer_size=400, episodes=2)
+    try:
+        Program("UR5Reach-v0", [dict(region="farbox", n_joints=3, start_q=start)], config, [0],
+                [tmp_path / "r"], progress=False, dynamics=FirstOrderArm).close()
+    finally:
+        torch.set_flush_denormal(False)  # json.loads under the flush reads 1e-320 as 0.0 too
+    spec = json.loads((tmp_path / "r" / "spec.json").read_text())
+    assert tuple(spec["task"]["start_q"]) == start and spec["task"]["start_q"][0] > 0
+
+
+@pytest.mark.parametrize("name", ["farbox", "closebox", "zheight", "box:0.5,0.9,-0.4,0.4,0,0.4"])
+@pytest.mark.parametrize("height", [-1.0, float("nan"), float("inf"), "0.1"])
+def test_a_region_refuses_the_base_height_a_task_refuses(name, height):
+    """regions.get('farbox', base_height=-1) was accepted (a box does not use the height);
+    TaskSpec, the reference, refuses the same heights: both now through one description."""
+    import regions
+    from envs.spec import TaskSpec
+
+    for build in (lambda: regions.parse(name, height), lambda: TaskSpec(base_height=height),
+                  *([lambda: regions.get(name, base_height=height)] * (":" not in name))):
+        with pytest.raises(ValueError, match=r"base_height=.* \(expected a finite number >= 0"):
+            build()
+
+
+def test_success_maps_default_slice_outside_the_region_suggests_a_z_inside(tiny_ur5_run,
+                                                                           tmp_path):
+    """The default slice (0.7-0.8 m) misses the far box (z in [0, 0.4] m) and the refusal never
+    said --z; the suggested slice, the reference, then draws a map."""
+    import re
+
+    from analysis import success_map
+
+    out = ["--goals", "20", "--out", str(tmp_path / "map.png"), "--no-progress"]
+    code, err = run_main(success_map.main, [str(tiny_ur5_run), *out])
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    z = re.search(r"try --z (\S+) (\S+)", err)
+    assert z and "[0, 0.4] m" in err, err
+    assert 0.0 <= float(z[1]) < float(z[2]) <= 0.4
+    assert run_main(success_map.main, [str(tiny_ur5_run), *out, "--z", z[1], z[2]])[0] == 0
+    assert (tmp_path / "map.png").exists()
+
+
+@pytest.mark.parametrize(("field", "value"), [("n_joints", 9), ("base_height", -1),
+                                              ("region", "nowhere")])
+def test_readers_refuse_a_recorded_task_outside_its_description(tiny_ur5_run, tmp_path, field,
+                                                                value):
+    """analysis.curves drew a spec.json saying 9 joints; a reader now reads the recorded task
+    through TaskSpec, the same description the trainer wrote it from. The unedited copy, the
+    reference, is drawn."""
+    from analysis import curves
+
+    shutil.copytree(tiny_ur5_run, tmp_path / "runs" / "run")
+    draw = ["--out", str(tmp_path / "c.png")]
+    assert run_main(curves.main, [str(tmp_path / "runs"), *draw])[0] == 0
+    folder = RunFolder(tmp_path / "runs" / "run")
+    spec = folder.read_spec()
+    spec["task"][field] = value
+    folder.spec_path.write_text(json.dumps(spec))
+    code, err = run_main(curves.main, [str(tmp_path / "runs"), *draw])
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"{field}={value}" in err or repr(value) in err, err
+
+
+def test_make_of_the_stack_twin_refuses_in_one_line_and_make_vec_builds_it():
+    """gymnasium.make('UR5StackReach-v0') failed with Gymnasium's own 'entry_point is not
+    specified', naming no way out; make_vec, the reference, builds the stack."""
+    import gymnasium
+
+    import envs  # noqa: F401  (registers the ids)
+
+    with pytest.raises(ValueError, match=r"envs\.stackreach\.StackReach directly"):
+        gymnasium.make("UR5StackReach-v0")
+    stack = gymnasium.make_vec("UR5StackReach-v0", num_envs=2,
+                               vectorization_mode="vector_entry_point",
+                               tasks=[dict(region="farbox", n_joints=3)] * 2)
+    assert type(stack).__name__ == "StackReach"
+
+
+def test_optimality_reads_the_curves_runs_before_computing(tiny_ur5_run, tmp_path):
+    """optimality --curves over a truncated eval.csv ended in a traceback after the whole
+    study; it is now refused first, in one line naming the file, and nothing is written. The
+    intact run, the reference, is drawn."""
+    from analysis import optimality
+
+    shutil.copytree(tiny_ur5_run, tmp_path / "runs" / "run")
+    csv_in = Path(__file__).parents[1] / "results" / "optimality" / "optimality.csv"
+    argv = ["--from-csv", str(csv_in), "--curves", str(tmp_path / "runs"), "--out"]
+    assert run_main(optimality.main, [*argv, str(tmp_path / "ok")])[0] == 0
+    assert (tmp_path / "ok" / "optimality_curves.png").exists()
+    eval_csv = tmp_path / "runs" / "run" / "eval.csv"
+    eval_csv.write_bytes(eval_csv.read_bytes()[:60])
+    code, err = run_main(optimality.main, [*argv, str(tmp_path / "bad")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "eval.csv" in err, err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_load_names_a_checkpoint_of_another_joint_count(tiny_ur5_run, tmp_path):
+    """A run folder whose spec.json says 4 joints holding a 3-joint checkpoint: replay ended in
+    torch's size mismatch, naming no file. The unedited run, the reference, loads."""
+    import math
+
+    import ddpg_her
+    from analysis import replay
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_ur5_run, run)
+    assert ddpg_her.load(run).episode == 2
+    folder = RunFolder(run)
+    spec = folder.read_spec()
+    spec["task"]["n_joints"] = spec["env_kwargs"]["n_joints"] = 4
+    spec["dims"].update(obs_dim=12, act_dim=4, action_low=[-math.pi] * 4,
+                        action_high=[math.pi] * 4)
+    folder.spec_path.write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match=r"episode-000002\.pt does not fit spec\.json"):
+        ddpg_her.load(run)
+    code, err = run_main(replay.main, [str(run), "--out", str(tmp_path / "r.mp4")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "episode-000002.pt" in err
+
+
+def test_sweep_program_on_a_full_disk_ends_in_one_line(tmp_path, monkeypatch):
+    """sweep --program on a full disk ended in a traceback (its plan and log are written by the
+    sweep process itself); now one line, status 1, saying how to resume."""
+    import errno
+
+    from analysis import sweep
+    from ddpg_her import units
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(units, "write_plan", full)
+    code, err = run_main(sweep.main, ["--setting", "farbox:3", "--seeds", "1", "--episodes", "2",
+                                      "--out", str(tmp_path / "sw"), "--program", "--",
+                                      *TINY[2:]])
+    assert code == 1, err
+    assert "Traceback" not in err
+    assert any(line.startswith("error: [Errno 28] No space left") and "again" in line
+               for line in err.splitlines()), err

@@ -191,4 +191,4 @@ def test_a_negative_seed_is_refused_naming_it(capsys) -> None:
     with pytest.raises(SystemExit) as stop:
         region_volumes.main(["--regions", "farbox", "--samples", "1000", "--seed", "-1"])
     assert stop.value.code == 2
-    assert "--seed must be an integer >= 0" in capsys.readouterr().err
+    assert "--seed: -1 (expected an integer >= 0" in capsys.readouterr().err

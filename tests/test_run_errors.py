@@ -262,8 +262,8 @@ def test_help_names_each_checked_fields_range(capsys):
     parser = make_parser()
     helps = {a.dest: a.help for a in parser._actions}
     assert set(VALID) <= set(helps)
-    for name, (words, _) in VALID.items():
-        assert f"Valid: {words}." in " ".join(helps[name].split()), name
+    for name, kind in VALID.items():
+        assert f"Valid: {kind.words}" in " ".join(helps[name].split()), name
 
 
 # --- the README's claim on --seeds 0 1 vs --seed 0 --------------------------------------------

@@ -335,4 +335,4 @@ def test_browser_refuses_a_time_that_is_not_finite_before_starting_one(tmp_path,
     with pytest.raises(SystemExit) as stop:
         browser.main([str(page), "--at", at, "--out", str(tmp_path / "s.png")])
     assert stop.value.code == 2
-    assert f"--at must be a finite time >= 0 (s); got {float(at)}" in capsys.readouterr().err
+    assert f"argument --at: {at} (expected a finite number >= 0 (s))" in capsys.readouterr().err

@@ -35,7 +35,7 @@ import trimesh
 from scipy.optimize import minimize
 from scipy.spatial import ConvexHull
 
-from ur5kin.checks import joint_array
+from ur5kin.checks import joint_array, number
 from ur5kin.closed_form import chunked
 from ur5kin.meshes import geometry_model
 from ur5kin.model import (
@@ -495,12 +495,7 @@ def plane_clear(q: Any, base_height: float, margin: float = 0.0) -> np.ndarray:
     """
     q = joint_array(q)
     h = check_base_height(base_height)
-    try:
-        margin = float(margin)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"margin must be a number (m); got {margin!r}") from err
-    if not np.isfinite(margin):
-        raise ValueError(f"margin must be a finite clearance (m); got {margin!r}")
+    margin = number(note="m")("margin", margin)
     threshold = margin - h  # the margin as a height above base_link (ur5kin.world)
 
     def clear(flat: np.ndarray) -> np.ndarray:

@@ -14,29 +14,23 @@ array([0.5, 0. , 0.2])
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
+
+from ur5kin.checks import number
 
 DEFAULT_BASE_HEIGHT = 0.1
 """Height (m) of the robot base above the plane: where ROS's ur_gazebo spawns the UR5."""
 
 
+BASE_HEIGHT = number(0, note="m")
+"""A height of the robot base above the ground plane: every task's and every region's."""
+
+
 def check_base_height(base_height: Any) -> float:
     """Return ``base_height`` (m) as a float, or raise ``ValueError`` if not finite and >= 0."""
-    if isinstance(base_height, bool | np.bool_):
-        raise ValueError(f"base_height must be a number (m); got {base_height!r}")
-    try:
-        h = float(base_height)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"base_height must be a number (m); got {base_height!r}") from err
-    if not math.isfinite(h) or h < 0.0:
-        raise ValueError(
-            f"base_height must be a finite height (m) >= 0 of the robot base above the plane; "
-            f"got {base_height!r}"
-        )
-    return h
+    return BASE_HEIGHT("base_height", base_height)
 
 
 def height_to_world(z: Any, base_height: float) -> Any:

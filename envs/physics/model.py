@@ -71,14 +71,6 @@ def require_kernels(task: TaskSpec, who: str) -> None:
                          f"contact_model={task.contact_model!r}")
 
 
-def check_num_copies(num_copies: Any) -> int:
-    """``num_copies`` (B) as an int, or a ValueError when it is not an integer >= 1."""
-    if isinstance(num_copies, bool) or not isinstance(num_copies, int | np.integer) \
-            or num_copies < 1:
-        raise ValueError(f"num_copies must be an integer >= 1; got {num_copies!r}")
-    return int(num_copies)
-
-
 def check_aba_batch(q: Any, v: Any, tau: Any, free: int) -> None:
     """The checks of the batched ``aba`` function (numba's) on ``(B, 6)`` arrays or
     tensors: one shape, and zero velocity in the locked joints' columns ``free ..``."""
@@ -88,13 +80,6 @@ def check_aba_batch(q: Any, v: Any, tau: Any, free: int) -> None:
     if bool((v[:, free:] != 0).any()):
         raise ValueError(f"locked joints {free + 1}..{NJ} must have zero velocity; got "
                          f"{v[:, free:].tolist()}")
-
-
-def check_free(free: Any) -> int:
-    """``free``, the joints 1..free that move, as an int in 1..6, or a ValueError."""
-    if isinstance(free, bool) or not isinstance(free, int | np.integer) or not 1 <= free <= NJ:
-        raise ValueError(f"free must be an integer in 1..{NJ} (joints that move); got {free!r}")
-    return int(free)
 
 
 # ---------------------------------------------------------------------------- geometry

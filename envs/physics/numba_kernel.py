@@ -21,8 +21,6 @@ from envs.physics.model import (
     NJ,
     arm_model,
     check_aba_batch,
-    check_free,
-    check_num_copies,
     moving_link_heights,
     put_at_rest,
     require_kernels,
@@ -30,6 +28,7 @@ from envs.physics.model import (
     ur5_chain,
     ur5_plane,
 )
+from ur5kin.checks import COUNT, integer, joint_count
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -344,7 +343,7 @@ def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np
         For arrays of another shape, non-finite values, a ``free`` outside 1..6, or a nonzero
         velocity of a locked joint.
     """
-    free = check_free(free)
+    free = joint_count(free, "free")
     cast = DTYPES[dtype_name(dtype)]
     chain = ur5_chain().astype(cast)
     q, v, tau = _batch(q, "q", cast), _batch(v, "v", cast), _batch(tau, "tau", cast)
@@ -613,15 +612,13 @@ class NumbaDynamics:
             raise RuntimeError("NumbaDynamics needs numba (pip install numba); "
                                "envs.physics.pinocchio_loop.PinocchioDynamics is the path "
                                "without it")
-        B = self.num_copies = check_num_copies(num_copies)
+        B = self.num_copies = COUNT("num_copies", num_copies)
         require_kernels(task, "NumbaDynamics")
         pool = numba.config.NUMBA_NUM_THREADS
-        if not isinstance(threads, int | np.integer) or not 1 <= threads <= pool:
-            raise ValueError(f"threads must be an integer in [1, {pool}] (numba's pool on this "
-                             f"machine); got {threads!r}")
+        threads = integer(1, pool, note="numba's pool on this machine")("threads", threads)
         name = dtype_name(dtype)
         cast = DTYPES[name]
-        self.task, self.dtype, self.threads = validate(task), name, int(threads)
+        self.task, self.dtype, self.threads = validate(task), name, threads
         arm = self.arm = arm_model(task)
         self._chain, self._plane = arm.chain.astype(cast), ur5_plane(name)
         self._tool_pos = tool_offset().astype(cast)

@@ -29,13 +29,13 @@ import ur5kin
 from envs.checks import validate
 from envs.physics.model import (
     arm_model,
-    check_num_copies,
     clip,
     height_lipschitz,
     link_hulls,
     moving_link_heights,
     put_at_rest,
 )
+from ur5kin.checks import COUNT
 
 if TYPE_CHECKING:
     from envs.spec import TaskSpec
@@ -195,7 +195,7 @@ class PinocchioDynamics:
     """
 
     def __init__(self, task: TaskSpec, num_copies: int = 1) -> None:
-        B = self.num_copies = check_num_copies(num_copies)
+        B = self.num_copies = COUNT("num_copies", num_copies)
         self.task = validate(task)
         S, h, n = task.substeps, task.sim_dt, task.n_joints
         base = ur5kin.load_model()
