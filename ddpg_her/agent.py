@@ -394,9 +394,11 @@ class DDPG:
 
         k, n, h1 = self.k, x.shape[1], self.config.hidden_sizes[0]
         actor, critic, g = self.actor, self.critic, self._grads
-        xs = torch.cat([x, x2])
         if self.normalizer.enabled:
+            xs = x.new_empty(2 * k, n, x.shape[2])
             fuse.normalize(x, x2, self.normalizer, xs, self._gamma_clip[1:])
+        else:
+            xs = torch.cat([x, x2])
         a1s, a2s, mus = self._actor_pair.activations(xs)
         c1s, c1us, c2s, qs = self._critic_pair.activations(xs, torch.cat([u, mus[k:]]))
         x, a1, a2, mu, c1, c1u, c2 = (t[:k] for t in (xs, a1s, a2s, mus, c1s, c1us, c2s))

@@ -12,6 +12,7 @@ Float constants travel in a float64 tensor (a Python float argument would be flo
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import torch
@@ -196,31 +197,34 @@ def settle(env: Any, mask: torch.Tensor, active: torch.Tensor, ret: torch.Tensor
 # `ddpg_her.agent.DDPG.update`'s elementwise and reduction steps between its matrix products,
 # fused where the agent's ``fused`` is set (`DDPG._update_fused`; its torch path is their
 # definition and oracle). One program per (agent, tile of the hidden axis), the whole
-# minibatch in it: every reduction over the minibatch is a fixed tree, deterministic.
+# minibatch in it: every reduction over the minibatch is a fixed tree, deterministic. Indices
+# are int64 (the interpreter checks int32 arithmetic for overflow, op by op: slow).
 @triton.jit
-def _normalize(x, x2, sk, sn, mean, std, out, clip, K, N, D, BLOCK_N: tl.constexpr,
+def _normalize(x, x2, sk, sn, mean, std, out, clip, K, N, D, BLOCK_R: tl.constexpr,
                BLOCK_D: tl.constexpr):
-    c, n = tl.program_id(0), tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)[:, None]
-    a, d = c % K, tl.arange(0, BLOCK_D)[None, :]
-    ok = (n < N) & (d < D)
-    src = (c % K) * sk + n * sn + d
-    y = tl.where(c < K, tl.load(x + src, mask=ok, other=0.0), tl.load(x2 + src, mask=ok,
-                                                                          other=0.0))
-    y = y - tl.load(mean + a * D + d, mask=d < D, other=0.0)
-    s = tl.load(std + a * D + d, mask=d < D, other=1.0)
+    row = tl.program_id(0).to(tl.int64) * BLOCK_R + tl.arange(0, BLOCK_R)[:, None]  # 2K N rows
+    d = tl.arange(0, BLOCK_D).to(tl.int64)[None, :]
+    ok = (row < 2 * K * N) & (d < D)
+    c, n = row // N, row % N
+    a = c % K
+    src = a * sk + n * sn + d
+    y = tl.where(c < K, tl.load(x + src, mask=ok & (c < K), other=0.0),
+                 tl.load(x2 + src, mask=ok & (c >= K), other=0.0))
+    y = y - tl.load(mean + a * D + d, mask=ok, other=0.0)
+    s = tl.load(std + a * D + d, mask=ok, other=1.0)
     if y.dtype == tl.float32:
         y = tl.math.div_rn(y, s)
     else:
         y = y / s
     c_ = tl.load(clip).to(y.dtype)
-    tl.store(out + (c * N + n) * D + d, tl.minimum(tl.maximum(y, -c_), c_), mask=ok)
+    tl.store(out + row * D + d, tl.minimum(tl.maximum(y, -c_), c_), mask=ok)
 
 
 @triton.jit
 def _head(q, r, term, sk, sn, c2, w3, dc2, gw3, gb3, gb2, loss, acc, gamma, K, N, H,
           CRITIC: tl.constexpr, BLOCK_N: tl.constexpr, BLOCK_H: tl.constexpr):
-    k, tile = tl.program_id(0), tl.program_id(1)
-    n = tl.arange(0, BLOCK_N)
+    k, tile = tl.program_id(0).to(tl.int64), tl.program_id(1)
+    n = tl.arange(0, BLOCK_N).to(tl.int64)
     h = tile * BLOCK_H + tl.arange(0, BLOCK_H)
     okn, okh = n < N, h < H
     qk = tl.load(q + k * N + n, mask=okn, other=0.0)
@@ -252,7 +256,7 @@ def _head(q, r, term, sk, sn, c2, w3, dc2, gw3, gb3, gb2, loss, acc, gamma, K, N
 @triton.jit
 def _backward(grad, out, gb, N, H, TANH: tl.constexpr, BLOCK_N: tl.constexpr,
               BLOCK_H: tl.constexpr):
-    k, n = tl.program_id(0), tl.arange(0, BLOCK_N)[:, None]
+    k, n = tl.program_id(0).to(tl.int64), tl.arange(0, BLOCK_N).to(tl.int64)[:, None]
     h = tl.program_id(1) * BLOCK_H + tl.arange(0, BLOCK_H)
     ok = (n < N) & (h < H)[None, :]
     at = (k * N + n) * H + h[None, :]
@@ -266,7 +270,7 @@ def _backward(grad, out, gb, N, H, TANH: tl.constexpr, BLOCK_N: tl.constexpr,
 def _adam(params, grads, exp_avg, exp_avg_sq, starts, steps, hyper, n, READ: tl.constexpr,
           WRITE: tl.constexpr, INC: tl.constexpr, SEGMENTS: tl.constexpr,
           BLOCK: tl.constexpr):
-    i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    i = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     ok = i < n
     start, size = tl.zeros([BLOCK], tl.int64), tl.zeros([BLOCK], tl.int64)
     for s in tl.static_range(SEGMENTS):      # i's parameter: its block's start and size
@@ -297,15 +301,22 @@ def _pow2(n: int) -> int:
     return triton.next_power_of_2(max(int(n), 1))
 
 
+TILE = 1 << 20 if os.environ.get("TRITON_INTERPRET") == "1" else 4096
+"""Elements per program of the update's kernels: 4,096 on a GPU (no spills for sm_90, see
+`benchmarks.gpu_budget`); under the interpreter, which runs programs one after another at a
+fixed cost each, as many as memory allows (the tiling changes no result: each sum is over the
+minibatch, which a program holds whole)."""
+
+
 def normalize(x: torch.Tensor, x2: torch.Tensor, normalizer: Any, out: torch.Tensor,
               clip: torch.Tensor) -> None:
     """``out (2K, N, D)`` = [normalizer(x); normalizer(x2)] for the strided minibatch views
     ``x``, ``x2 (K, N, D)`` (the same strides), in one launch. clip : (1,) float64."""
     k, n, d = x.shape
-    block = max(1, 4096 // _pow2(d))
-    _normalize[(2 * k, triton.cdiv(n, block))](
+    block = min(max(1, TILE // _pow2(d)), _pow2(2 * k * n))
+    _normalize[(triton.cdiv(2 * k * n, block),)](
         x, x2, x.stride(0), x.stride(1), normalizer.mean, normalizer.std, out, clip, k, n, d,
-        BLOCK_N=min(block, _pow2(n)), BLOCK_D=_pow2(d))
+        BLOCK_R=block, BLOCK_D=_pow2(d))
 
 
 def head(q: torch.Tensor, c2: torch.Tensor, w3: torch.Tensor, dc2: torch.Tensor,
@@ -320,7 +331,7 @@ def head(q: torch.Tensor, c2: torch.Tensor, w3: torch.Tensor, dc2: torch.Tensor,
     k, n, h = c2.shape
     r, term, gamma, gw3, gb3, gb2 = critic if critic is not None else (q,) * 6
     block_n = _pow2(n)
-    block_h = max(1, min(_pow2(h), 4096 // block_n))
+    block_h = max(1, min(_pow2(h), TILE // block_n))
     _head[(k, triton.cdiv(h, block_h))](
         q, r, term, r.stride(0), r.stride(1), c2, w3, dc2, gw3, gb3, gb2, loss, acc,
         gamma if critic is not None else acc, k, n, h, CRITIC=critic is not None,
@@ -333,7 +344,7 @@ def backward(grad: torch.Tensor, out: torch.Tensor, gb: torch.Tensor, tanh: bool
     its sum over N. ``out`` the activation's output (K, N, H), contiguous as grad."""
     k, n, h = grad.shape
     block_n = _pow2(n)
-    block_h = max(1, min(_pow2(h), 4096 // block_n))
+    block_h = max(1, min(_pow2(h), TILE // block_n))
     _backward[(k, triton.cdiv(h, block_h))](grad, out, gb, n, h, TANH=tanh, BLOCK_N=block_n,
                                             BLOCK_H=block_h)
 
@@ -349,6 +360,7 @@ def adam(params: torch.Tensor, grads: torch.Tensor, exp_avg: torch.Tensor,
     is ``steps[read] + inc``; ``steps[write]`` gains 1 (read and write differ: no program
     reads what another writes)."""
     n = grads.numel()
-    _adam[(triton.cdiv(n, 1024),)](params, grads, exp_avg, exp_avg_sq, starts, steps, hyper, n,
-                                   READ=read, WRITE=write, INC=inc, SEGMENTS=len(starts) - 1,
-                                   BLOCK=1024)
+    block = min(TILE // 4, _pow2(n))
+    _adam[(triton.cdiv(n, block),)](params, grads, exp_avg, exp_avg_sq, starts, steps, hyper,
+                                    n, READ=read, WRITE=write, INC=inc,
+                                    SEGMENTS=len(starts) - 1, BLOCK=block)
