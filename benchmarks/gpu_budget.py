@@ -294,7 +294,7 @@ def fused_figures(arch: int) -> dict[str, Any]:
                          "exp_avg", "exp_avg_sq", "steps"), "*fp32") \
         | dict.fromkeys(("clip", "acc", "gamma", "hyper"), f64) | {"starts": "*i64"}
     tiles = dict(BLOCK_N=256, BLOCK_H=16)     # the paper's minibatch of 256
-    cases += [("update_normalize", pk._normalize, f32, dict(BLOCK_R=128, BLOCK_D=32)),
+    cases += [("update_normalize", pk._normalize, f32, dict(BLOCK_R=32, BLOCK_D=32)),
               ("update_head_critic", pk._head, f32, dict(CRITIC=True, **tiles)),
               ("update_head_actor", pk._head, f32, dict(CRITIC=False, **tiles)),
               ("update_backward_relu", pk._backward, f32, dict(TANH=False, **tiles)),

@@ -302,10 +302,11 @@ def _pow2(n: int) -> int:
 
 
 TILE = 1 << 20 if os.environ.get("TRITON_INTERPRET") == "1" else 4096
-"""Elements per program of the update's kernels: 4,096 on a GPU (no spills for sm_90, see
-`benchmarks.gpu_budget`); under the interpreter, which runs programs one after another at a
-fixed cost each, as many as memory allows (the tiling changes no result: each sum is over the
-minibatch, which a program holds whole)."""
+"""Elements per program of the update's kernels on a GPU: 4,096 (the normalisation's and
+Adam's a quarter: no spills for sm_90, `benchmarks.gpu_budget`'s figures); under the
+interpreter, which runs programs one after another at a fixed cost each, as many as memory
+allows (the tiling changes no result: each sum is over the minibatch, which a program holds
+whole)."""
 
 
 def normalize(x: torch.Tensor, x2: torch.Tensor, normalizer: Any, out: torch.Tensor,
@@ -313,7 +314,7 @@ def normalize(x: torch.Tensor, x2: torch.Tensor, normalizer: Any, out: torch.Ten
     """``out (2K, N, D)`` = [normalizer(x); normalizer(x2)] for the strided minibatch views
     ``x``, ``x2 (K, N, D)`` (the same strides), in one launch. clip : (1,) float64."""
     k, n, d = x.shape
-    block = min(max(1, TILE // _pow2(d)), _pow2(2 * k * n))
+    block = min(max(1, TILE // 4 // _pow2(d)), _pow2(2 * k * n))
     _normalize[(triton.cdiv(2 * k * n, block),)](
         x, x2, x.stride(0), x.stride(1), normalizer.mean, normalizer.std, out, clip, k, n, d,
         BLOCK_R=block, BLOCK_D=_pow2(d))
