@@ -331,6 +331,9 @@ def head(q: torch.Tensor, c2: torch.Tensor, w3: torch.Tensor, dc2: torch.Tensor,
     (Q - y)^2, and the gradients of W3, b3 and b2 written."""
     k, n, h = c2.shape
     r, term, gamma, gw3, gb3, gb2 = critic if critic is not None else (q,) * 6
+    if r.stride() != term.stride():
+        raise ValueError(f"the reward and terminated views need the same strides (one row "
+                         f"layout), got {r.stride()} and {term.stride()}")
     block_n = _pow2(n)
     block_h = max(1, min(_pow2(h), TILE // block_n))
     _head[(k, triton.cdiv(h, block_h))](
