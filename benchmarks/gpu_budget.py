@@ -134,7 +134,9 @@ def build(part: int | None, seeds: int, unit_args: Sequence[str], folder: Path, 
 
     budget = AgentConfig().eval_every
     spec = GridSpec(grid_settings(part), seeds, "cpu", folder, tuple(unit_args), budget)
-    return Program.of_settings(grid_units(spec), device="cpu", progress=False, fused=fused)
+    program = Program.of_settings(grid_units(spec), device="cpu", progress=False, fused=fused)
+    program.agent.fused = fused  # the update's kernels too, as on CUDA
+    return program
 
 
 def arm_state_bytes(env: Any) -> int:
@@ -155,6 +157,24 @@ def counted(body: Callable[[], None], arm_bytes: int) -> dict[str, Any]:
             "flops": c.flops, "syncs": c.syncs, "top_ops": dict(c.by_op.most_common(12))}
 
 
+UPDATE_KERNELS = ("normalize", "head", "backward", "adam")
+"""`ddpg_her.program_kernels`' kernels of the update, whose bytes `moving` counts."""
+
+
+def moving(name: str, launch: Callable[..., Any]) -> Callable[..., Any]:
+    """`LaunchCounter.wrap` that also adds to a `TrafficCounter` each tensor argument's bytes
+    twice (read and written once: an upper bound, the update's kernels write some of them)."""
+    counted = LaunchCounter.wrap(name, launch)
+
+    def run(*args: Any, **kwargs: Any) -> Any:
+        if isinstance(LaunchCounter.active, TrafficCounter):
+            LaunchCounter.active.bytes += 2 * sum(
+                _stored_bytes(t) for t in _leaves((args, kwargs)) if isinstance(t, torch.Tensor))
+        return counted(*args, **kwargs)
+
+    return run
+
+
 def count_bodies(program: Any) -> dict[str, Any]:
     """Each body of ``program`` (freshly built, at episode 0) run once, counted, in the order
     a run meets them: warm, act, learn, the finite check, test."""
@@ -163,9 +183,11 @@ def count_bodies(program: Any) -> dict[str, Any]:
 
     kernel = stack.control_step
     stack.control_step = LaunchCounter.wrap("arm", kernel)
-    fused = {name: getattr(program_kernels, name) for name in ("explore", "settle")}
+    fused = {name: getattr(program_kernels, name)
+             for name in ("explore", "settle", *UPDATE_KERNELS)}
     for name, launch in fused.items():
-        setattr(program_kernels, name, LaunchCounter.wrap(name, launch))
+        setattr(program_kernels, name, (moving if name in UPDATE_KERNELS else LaunchCounter.wrap)(
+            name, launch))
     try:
         train_bytes = arm_state_bytes(program.env)
         bodies = {"warm": counted(lambda: program._train_episode(warm=True), train_bytes),
@@ -268,6 +290,18 @@ def fused_figures(arch: int) -> dict[str, Any]:
               dict(KIND=value, STORE=True, BLOCK=pk.BLOCK)) for kind, value in pk.KINDS.items()]
     cases.append(("settle", pk._settle, settle,
                   dict(STORE=True, NORM=True, DENSE=True, BLOCK=pk.BLOCK)))
+    f32 = dict.fromkeys(("x", "x2", "mean", "std", "out", "q", "r", "term", "c2", "w3", "dc2",
+                         "gw3", "gb3", "gb2", "loss", "grad", "gb", "params", "grads",
+                         "exp_avg", "exp_avg_sq", "steps"), "*fp32") \
+        | dict.fromkeys(("clip", "acc", "gamma", "hyper"), f64) | {"starts": "*i64"}
+    tiles = dict(BLOCK_N=256, BLOCK_H=16)     # the paper's minibatch of 256
+    cases += [("update_normalize", pk._normalize, f32, dict(BLOCK_R=32, BLOCK_D=32)),
+              ("update_head_critic", pk._head, f32, dict(CRITIC=True, **tiles)),
+              ("update_head_actor", pk._head, f32, dict(CRITIC=False, **tiles)),
+              ("update_backward_relu", pk._backward, f32, dict(TANH=False, **tiles)),
+              ("update_backward_tanh", pk._backward, f32, dict(TANH=True, **tiles)),
+              ("update_adam", pk._adam, f32, dict(READ=1, WRITE=0, INC=1, SEGMENTS=6,
+                                                  BLOCK=1024))]
     knobs.nvidia.dump_ptxas_log = True
     try:
         for name, fn, pointers, constants in cases:
@@ -364,7 +398,8 @@ def count(args: argparse.Namespace) -> dict[str, Any]:
                        "kernel one per call",
                        "bytes": "per op: its tensor inputs and outputs, elements x size, "
                        "stride-0 axes once; the arm: its state read and written once; the "
-                       "fused kernels: not counted (their rows: about 0.5 kB per copy)",
+                       "update's kernels: each tensor argument twice; the rollout's fused "
+                       "kernels: not counted (their rows: about 0.5 kB per copy)",
                        "flops": "2 M N K per matrix product, one per output element "
                        "otherwise; the arm's and the fused kernels' not included"}}
 

@@ -21,8 +21,8 @@ from typing import Any
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
-NO_KERNEL = frozenset({"empty", "empty_strided", "empty_like", "detach", "alias", "lift_fresh",
-                       "lift_fresh_copy", "_local_scalar_dense"})
+NO_KERNEL = frozenset({"empty", "empty_strided", "empty_like", "new_empty", "detach", "alias",
+                       "lift_fresh", "lift_fresh_copy", "_local_scalar_dense"})
 """ATen ops (overload packet names) that launch no device kernel: allocation, aliasing. The
 host read ``_local_scalar_dense`` is not a launch but a sync; it is counted in ``syncs``."""
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import itertools
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -230,6 +231,14 @@ class DDPG:
         self.fast = FAST
         self._relu_backward = (_relu_backward if self.fast.threshold_backward
                                else _relu_backward_plain)
+        self.fused = self.device.type == "cuda" and not config.batch_norm
+        f64 = {"dtype": torch.float64, "device": self.device}  # `_update_fused`'s constants
+        self._hyper = torch.tensor([[lr, wd, config.tau, *ADAM_BETAS, ADAM_EPS] for lr, wd in
+                                    zip(self.lr, self.weight_decay, strict=True)], **f64)
+        self._flats = [slice(0, sizes[0]), slice(sizes[0], sum(sizes))]
+        self._starts = [torch.tensor([0, *itertools.accumulate(p.numel() for p in m.parameters())],
+                                     device=self.device) for m in (self.actor, self.critic)]
+        self._gamma_clip = torch.tensor([config.gamma, config.obs_clip], **f64)
 
     @torch.no_grad()
     def act(self, x: torch.Tensor, explore: bool = False) -> torch.Tensor:
@@ -283,15 +292,16 @@ class DDPG:
 
     @torch.no_grad()
     def update(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor, x2: torch.Tensor,
-               terminated: torch.Tensor, weight: torch.Tensor | None = None
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+               terminated: torch.Tensor, weight: torch.Tensor | None = None,
+               loss_sum: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """One DDPG step of every agent on its minibatch (K, N, ...) of transitions.
 
         x, x2 : raw inputs before and after the step, u : action in actor units, r : reward,
         terminated : 1 where the step ended the episode in success. Returns the critic and
         actor losses, (K,) each, before the step. ``weight`` (K, N, 1), prioritised replay's
         importance weights: the critic minimises mean w (Q - y)^2 instead, and ``td_error``
-        (K, N) keeps this minibatch's Q(s, a) - y.
+        (K, N) keeps this minibatch's Q(s, a) - y. ``loss_sum`` (2, K) float64, if given,
+        gains the two losses.
 
         Critic first: minimise mean (Q(s, a) - y)^2, y = r + gamma (1 - terminated)
         Q'(s', mu'(s')); then the actor ascends the updated critic's Q(s, mu(s)); then
@@ -302,15 +312,27 @@ class DDPG:
         would compute and throw away (the critic's weight gradients in the actor step, the
         gradient of the state half of the critic's second-layer input), fuses each ReLU's
         backward into one pass and writes into the flat gradient buffer.
-        `tests/test_ddpg_agent.py` checks it, on the fast and on the plain path
-        (`FastPaths`), against a plain autograd DDPG to 1e-10 in float64. With
+        `tests/test_ddpg_agent.py` checks it, on the fast, the plain and the fused path
+        (`FastPaths`, ``fused``), against a plain autograd DDPG to 1e-10 in float64. With
         ``config.batch_norm`` the two steps go through autograd instead (`_update_autograd`).
         """
+        if self.fused and weight is None:
+            return self._update_fused(x, u, r, x2, terminated, loss_sum)
         self._count_steps()
         if self.config.batch_norm:
             critic_loss, actor_loss = self._update_autograd(x, u, r, x2, terminated)
-            self._soft_update()
-            return critic_loss, actor_loss
+        else:
+            critic_loss, actor_loss = self._update_hand(x, u, r, x2, terminated, weight)
+        self._soft_update()
+        if loss_sum is not None:
+            loss_sum[0] += critic_loss
+            loss_sum[1] += actor_loss
+        return critic_loss, actor_loss
+
+    def _update_hand(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor, x2: torch.Tensor,
+                     terminated: torch.Tensor, weight: torch.Tensor | None
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+        """`update`'s critic and actor steps, the gradients written by hand."""
         k, n, h1 = self.k, x.shape[1], self.config.hidden_sizes[0]
         gamma = self.config.gamma
         actor, critic = self.actor, self.critic
@@ -357,8 +379,61 @@ class DDPG:
         torch.bmm(x.mT, da1, out=g[actor.l1.weight])
         torch.sum(da1, dim=1, keepdim=True, out=g[actor.l1.bias])
         self._adam(0)
-        self._soft_update()
         return critic_loss, actor_loss
+
+    def _update_fused(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor,
+                      x2: torch.Tensor, terminated: torch.Tensor, loss_sum: torch.Tensor | None
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+        """`update` with the steps between its matrix products in the Triton kernels of
+        `ddpg_her.program_kernels` (37 launches where the hand-written path takes 58; on CUDA,
+        or on the CPU under Triton's interpreter): the normalisation, each layer's activation
+        backward with its bias gradient, the critic's head with its loss and target, each
+        network's Adam step with its soft target update and the step counts. The same steps
+        as `_update_hand`; the sums in another order (a few ulps)."""
+        from ddpg_her import program_kernels as fuse
+
+        k, n, h1 = self.k, x.shape[1], self.config.hidden_sizes[0]
+        actor, critic, g = self.actor, self.critic, self._grads
+        if self.normalizer.enabled:
+            xs = x.new_empty(2 * k, n, x.shape[2])
+            fuse.normalize(x, x2, self.normalizer, xs, self._gamma_clip[1:])
+        else:
+            xs = torch.cat([x, x2])
+        a1s, a2s, mus = self._actor_pair.activations(xs)
+        c1s, c1us, c2s, qs = self._critic_pair.activations(xs, torch.cat([u, mus[k:]]))
+        x, a1, a2, mu, c1, c1u, c2 = (t[:k] for t in (xs, a1s, a2s, mus, c1s, c1us, c2s))
+        losses = x.new_empty(2, k)
+        acc = loss_sum if loss_sum is not None else losses.new_zeros(2, k, dtype=torch.float64)
+        dc2 = torch.empty_like(c2)
+        fuse.head(qs, c2, critic.l3.weight, dc2, losses[0], acc[0], (
+            r, terminated, self._gamma_clip, g[critic.l3.weight], g[critic.l3.bias],
+            g[critic.l2.bias]))
+        torch.bmm(c1u.mT, dc2, out=g[critic.l2.weight])
+        dc1 = torch.bmm(dc2, critic.l2.weight[:, :h1].mT)
+        fuse.backward(dc1, c1, g[critic.l1.bias], tanh=False)
+        torch.bmm(x.mT, dc1, out=g[critic.l1.weight])
+        self._adam_fused(1, read=1, write=0, inc=1)   # t = critic's count + 1; actor's += 1
+
+        _, _, c2, q = critic.activations(x, mu)
+        dc2 = torch.empty_like(c2)
+        fuse.head(q, c2, critic.l3.weight, dc2, losses[1], acc[1])
+        da = _bmm(dc2, critic.l2.weight[:, h1:].mT, -1.0 / n)       # (K, N, act_dim)
+        for layer, below, out in ((actor.l3, a2, mu), (actor.l2, a1, a2), (actor.l1, x, a1)):
+            fuse.backward(da, out, g[layer.bias], tanh=layer is actor.l3)
+            torch.bmm(below.mT, da, out=g[layer.weight])
+            if layer is not actor.l1:
+                da = torch.bmm(da, layer.weight.mT)
+        self._adam_fused(0, read=0, write=1, inc=0)   # t = actor's count; critic's += 1
+        return losses[0], losses[1]
+
+    def _adam_fused(self, j: int, read: int, write: int, inc: int) -> None:
+        """Network j's Adam step and soft target update, one launch (`program_kernels.adam`)."""
+        from ddpg_her import program_kernels as fuse
+
+        flat = self._flats[j]
+        fuse.adam(self.params[2 * flat.start:2 * flat.stop], self.grads[flat],
+                  self.exp_avg[flat], self.exp_avg_sq[flat], self._starts[j], self.steps,
+                  self._hyper[j], read, write, inc)
 
     def _update_autograd(self, x: torch.Tensor, u: torch.Tensor, r: torch.Tensor,
                          x2: torch.Tensor, terminated: torch.Tensor

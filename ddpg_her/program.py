@@ -606,9 +606,7 @@ class Program(Loop):
         self.loss_sum.zero_()
         for batch in self.sampler.samples(self.buffer, self.config.batch_size,
                                           self.config.updates_per_episode):
-            critic_loss, actor_loss = self.agent.update(*batch)
-            self.loss_sum[0] += critic_loss
-            self.loss_sum[1] += actor_loss
+            self.agent.update(*batch, loss_sum=self.loss_sum)
 
     def _test_session(self) -> None:
         """``eval_episodes`` deterministic episodes per agent; writes `logged` (success,

@@ -12,6 +12,7 @@ Float constants travel in a float64 tensor (a Python float argument would be flo
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import torch
@@ -190,3 +191,180 @@ def settle(env: Any, mask: torch.Tensor, active: torch.Tensor, ret: torch.Tensor
                       normalizer.mean, normalizer.std, norm_m, params, B, T,
                       STORE=rows is not None, NORM=bool(normalizer.enabled),
                       DENSE=env.task.reward_type != "sparse", BLOCK=BLOCK)
+
+
+# ---------------------------------------------------------------------------- the update
+# `ddpg_her.agent.DDPG.update`'s elementwise and reduction steps between its matrix products,
+# fused where the agent's ``fused`` is set (`DDPG._update_fused`; its torch path is their
+# definition and oracle). One program per (agent, tile of the hidden axis), the whole
+# minibatch in it: every reduction over the minibatch is a fixed tree, deterministic. Indices
+# are int64 (the interpreter checks int32 arithmetic for overflow, op by op: slow).
+@triton.jit
+def _normalize(x, x2, sk, sn, mean, std, out, clip, K, N, D, BLOCK_R: tl.constexpr,
+               BLOCK_D: tl.constexpr):
+    row = tl.program_id(0).to(tl.int64) * BLOCK_R + tl.arange(0, BLOCK_R)[:, None]  # 2K N rows
+    d = tl.arange(0, BLOCK_D).to(tl.int64)[None, :]
+    ok = (row < 2 * K * N) & (d < D)
+    c, n = row // N, row % N
+    a = c % K
+    src = a * sk + n * sn + d
+    y = tl.where(c < K, tl.load(x + src, mask=ok & (c < K), other=0.0),
+                 tl.load(x2 + src, mask=ok & (c >= K), other=0.0))
+    y = y - tl.load(mean + a * D + d, mask=ok, other=0.0)
+    s = tl.load(std + a * D + d, mask=ok, other=1.0)
+    if y.dtype == tl.float32:
+        y = tl.math.div_rn(y, s)
+    else:
+        y = y / s
+    c_ = tl.load(clip).to(y.dtype)
+    tl.store(out + row * D + d, tl.minimum(tl.maximum(y, -c_), c_), mask=ok)
+
+
+@triton.jit
+def _head(q, r, term, sk, sn, c2, w3, dc2, gw3, gb3, gb2, loss, acc, gamma, K, N, H,
+          CRITIC: tl.constexpr, BLOCK_N: tl.constexpr, BLOCK_H: tl.constexpr):
+    k, tile = tl.program_id(0).to(tl.int64), tl.program_id(1)
+    n = tl.arange(0, BLOCK_N).to(tl.int64)
+    h = tile * BLOCK_H + tl.arange(0, BLOCK_H)
+    okn, okh = n < N, h < H
+    qk = tl.load(q + k * N + n, mask=okn, other=0.0)
+    inv_n = (1.0 / N.to(tl.float64)).to(qk.dtype)
+    if CRITIC:      # y = r + gamma (1 - terminated) Q'(s', mu'(s')); d loss / dq = 2 (q - y) / N
+        done = tl.load(term + k * sk + n * sn, mask=okn, other=0.0)
+        q2 = tl.load(q + (K + k) * N + n, mask=okn, other=0.0)
+        y = tl.load(r + k * sk + n * sn, mask=okn, other=0.0) + tl.load(gamma).to(
+            qk.dtype) * (1.0 - done) * q2
+        err = tl.where(okn, qk - y, 0.0)
+        value = tl.sum(err * err, 0) * inv_n
+        dq = err * (2.0 * inv_n)
+    else:           # the actor's loss -mean Q(s, mu(s)); the head's gradient is W3 itself
+        value = -tl.sum(qk, 0) * inv_n
+        dq = tl.where(okn, 1.0, 0.0).to(qk.dtype)
+    ok = okn[:, None] & okh[None, :]
+    c = tl.load(c2 + (k * N + n[:, None]) * H + h[None, :], mask=ok, other=0.0)
+    d = tl.where(c > 0.0, dq[:, None] * tl.load(w3 + k * H + h, mask=okh, other=0.0)[None, :],
+                 0.0)
+    tl.store(dc2 + (k * N + n[:, None]) * H + h[None, :], d, mask=ok)
+    if CRITIC:
+        tl.store(gb2 + k * H + h, tl.sum(d, 0), mask=okh)
+        tl.store(gw3 + k * H + h, tl.sum(c * dq[:, None], 0), mask=okh)
+        tl.store(gb3 + k, tl.sum(dq, 0), mask=tile == 0)
+    tl.store(loss + k, value, mask=tile == 0)
+    tl.store(acc + k, tl.load(acc + k) + value.to(tl.float64), mask=tile == 0)
+
+
+@triton.jit
+def _backward(grad, out, gb, N, H, TANH: tl.constexpr, BLOCK_N: tl.constexpr,
+              BLOCK_H: tl.constexpr):
+    k, n = tl.program_id(0).to(tl.int64), tl.arange(0, BLOCK_N).to(tl.int64)[:, None]
+    h = tl.program_id(1) * BLOCK_H + tl.arange(0, BLOCK_H)
+    ok = (n < N) & (h < H)[None, :]
+    at = (k * N + n) * H + h[None, :]
+    g, o = tl.load(grad + at, mask=ok, other=0.0), tl.load(out + at, mask=ok, other=0.0)
+    d = g * (1.0 - o * o) if TANH else tl.where(o > 0.0, g, 0.0)
+    tl.store(grad + at, d, mask=ok)
+    tl.store(gb + k * H + h, tl.sum(d, 0), mask=h < H)
+
+
+@triton.jit
+def _adam(params, grads, exp_avg, exp_avg_sq, starts, steps, hyper, n, READ: tl.constexpr,
+          WRITE: tl.constexpr, INC: tl.constexpr, SEGMENTS: tl.constexpr,
+          BLOCK: tl.constexpr):
+    i = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
+    ok = i < n
+    start, size = tl.zeros([BLOCK], tl.int64), tl.zeros([BLOCK], tl.int64)
+    for s in tl.static_range(SEGMENTS):      # i's parameter: its block's start and size
+        lo, hi = tl.load(starts + s), tl.load(starts + s + 1)
+        start, size = tl.where(i >= lo, lo, start), tl.where(i >= lo, hi - lo, size)
+    online = i + start                       # each parameter's (K) online beside (K) target
+    lr, wd, tau = tl.load(hyper), tl.load(hyper + 1), tl.load(hyper + 2)
+    beta1, beta2, eps = tl.load(hyper + 3), tl.load(hyper + 4), tl.load(hyper + 5)
+    t = tl.load(steps + READ).to(tl.float64) + INC
+    p = tl.load(params + online, mask=ok, other=0.0)
+    g = tl.load(grads + i, mask=ok, other=0.0) + (wd * p.to(tl.float64)).to(p.dtype)
+    m = beta1.to(p.dtype) * tl.load(exp_avg + i, mask=ok, other=0.0) + (1.0 - beta1).to(
+        p.dtype) * g
+    v = beta2.to(p.dtype) * tl.load(exp_avg_sq + i, mask=ok, other=0.0) + (1.0 - beta2).to(
+        p.dtype) * g * g
+    step = (lr / (1.0 - tl.exp(t * tl.log(beta1)))).to(p.dtype)
+    root = tl.sqrt(1.0 - tl.exp(t * tl.log(beta2))).to(p.dtype)
+    p = p - step * m / (tl.sqrt(v) / root + eps.to(p.dtype))
+    tl.store(exp_avg + i, m, mask=ok)
+    tl.store(exp_avg_sq + i, v, mask=ok)
+    tl.store(params + online, p, mask=ok)
+    target = tl.load(params + online + size, mask=ok, other=0.0)
+    tl.store(params + online + size, target + tau.to(p.dtype) * (p - target), mask=ok)
+    tl.store(steps + WRITE, tl.load(steps + WRITE) + 1.0, mask=tl.program_id(0) == 0)
+
+
+def _pow2(n: int) -> int:
+    return triton.next_power_of_2(max(int(n), 1))
+
+
+TILE = 1 << 20 if os.environ.get("TRITON_INTERPRET") == "1" else 4096
+"""Elements per program of the update's kernels on a GPU: 4,096 (the normalisation's and
+Adam's a quarter: no spills for sm_90, `benchmarks.gpu_budget`'s figures); under the
+interpreter, which runs programs one after another at a fixed cost each, as many as memory
+allows (the tiling changes no result: each sum is over the minibatch, which a program holds
+whole)."""
+
+
+def normalize(x: torch.Tensor, x2: torch.Tensor, normalizer: Any, out: torch.Tensor,
+              clip: torch.Tensor) -> None:
+    """``out (2K, N, D)`` = [normalizer(x); normalizer(x2)] for the strided minibatch views
+    ``x``, ``x2 (K, N, D)`` (the same strides), in one launch. clip : (1,) float64."""
+    k, n, d = x.shape
+    block = min(max(1, TILE // 4 // _pow2(d)), _pow2(2 * k * n))
+    _normalize[(triton.cdiv(2 * k * n, block),)](
+        x, x2, x.stride(0), x.stride(1), normalizer.mean, normalizer.std, out, clip, k, n, d,
+        BLOCK_R=block, BLOCK_D=_pow2(d))
+
+
+def head(q: torch.Tensor, c2: torch.Tensor, w3: torch.Tensor, dc2: torch.Tensor,
+         loss: torch.Tensor, acc: torch.Tensor, critic: tuple | None = None) -> None:
+    """The critic's output layer backward in one launch. ``c2 (K, N, H)`` its last hidden
+    layer, ``w3 (K, H, 1)``; writes ``dc2 (K, N, H)`` the loss's gradient at its input
+    (before the ReLU, masked by it), ``loss (K,)`` and adds it to ``acc (K,)`` float64.
+    ``critic`` None: the actor step's, q (K, N, 1) = Q(s, mu(s)), loss -mean q, dc2 = W3
+    masked (unscaled, as `DDPG.update`'s); else (r, terminated, gamma (1,) float64, gw3,
+    gb3, gb2): the critic step's, q (2K, N, 1) = [Q(s, a); Q'(s', mu'(s'))], loss mean
+    (Q - y)^2, and the gradients of W3, b3 and b2 written."""
+    k, n, h = c2.shape
+    r, term, gamma, gw3, gb3, gb2 = critic if critic is not None else (q,) * 6
+    if r.stride() != term.stride():
+        raise ValueError(f"the reward and terminated views need the same strides (one row "
+                         f"layout), got {r.stride()} and {term.stride()}")
+    block_n = _pow2(n)
+    block_h = max(1, min(_pow2(h), TILE // block_n))
+    _head[(k, triton.cdiv(h, block_h))](
+        q, r, term, r.stride(0), r.stride(1), c2, w3, dc2, gw3, gb3, gb2, loss, acc,
+        gamma if critic is not None else acc, k, n, h, CRITIC=critic is not None,
+        BLOCK_N=block_n, BLOCK_H=block_h)
+
+
+def backward(grad: torch.Tensor, out: torch.Tensor, gb: torch.Tensor, tanh: bool) -> None:
+    """An activation's backward in place and its bias's gradient, one launch: ``grad (K, N,
+    H)`` becomes grad (1 - out^2) (``tanh``) or grad where out > 0 (a ReLU), ``gb (K, 1, H)``
+    its sum over N. ``out`` the activation's output (K, N, H), contiguous as grad."""
+    k, n, h = grad.shape
+    block_n = _pow2(n)
+    block_h = max(1, min(_pow2(h), TILE // block_n))
+    _backward[(k, triton.cdiv(h, block_h))](grad, out, gb, n, h, TANH=tanh, BLOCK_N=block_n,
+                                            BLOCK_H=block_h)
+
+
+def adam(params: torch.Tensor, grads: torch.Tensor, exp_avg: torch.Tensor,
+         exp_avg_sq: torch.Tensor, starts: torch.Tensor, steps: torch.Tensor,
+         hyper: torch.Tensor, read: int, write: int, inc: int) -> None:
+    """One network's Adam step (torch's fused kernel's arithmetic, L2 weight decay) and its
+    soft target update in one launch over its flat buffers: ``grads``, ``exp_avg``,
+    ``exp_avg_sq (n,)`` the online parameters', ``params (2n,)`` each parameter's online
+    block beside its target's, ``starts (S + 1,)`` int64 the parameters' starts in ``grads``
+    and n. hyper : (6,) float64 [lr, weight decay, tau, beta1, beta2, eps]. The step count t
+    is ``steps[read] + inc``; ``steps[write]`` gains 1 (read and write differ: no program
+    reads what another writes)."""
+    n = grads.numel()
+    block = min(TILE // 4, _pow2(n))
+    _adam[(triton.cdiv(n, block),)](params, grads, exp_avg, exp_avg_sq, starts, steps, hyper,
+                                    n, READ=read, WRITE=write, INC=inc,
+                                    SEGMENTS=len(starts) - 1, BLOCK=block)

@@ -1,5 +1,6 @@
 """ddpg_her's stacked K-agent DDPG against K separate, plainly written DDPG agents."""
 
+import importlib
 import warnings
 
 import numpy as np
@@ -79,13 +80,25 @@ def make_agent(k: int, config: AgentConfig, seed0: int = 0) -> DDPG:
     return DDPG(config, IN, ACT, init_generators=gens, dtype=torch.float64)
 
 
+@pytest.fixture
+def interpreted(monkeypatch):
+    """ddpg_her.program_kernels built under Triton's interpreter (the fused update's kernels
+    are decorated when the module is imported)."""
+    monkeypatch.setenv("TRITON_INTERPRET", "1")
+    import ddpg_her.program_kernels as kernels
+
+    return importlib.reload(kernels)
+
+
 @pytest.mark.parametrize(("critic_l2", "path", "batch_norm"), [
     (0.0, "fast", False), (1e-2, "fast", False), (1e-2, "plain", False),
-    (0.0, "fast", True), (1e-2, "plain", True)])
+    (0.0, "fast", True), (1e-2, "plain", True), (1e-2, "fused", False)])
 def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, path,
-                                                                    batch_norm, monkeypatch):
+                                                                    batch_norm, request,
+                                                                    monkeypatch):
     """Our hand-written gradients against autograd through nn.Linear, agent by agent, on the
-    private-torch fast path and on the public-torch path a torch without it takes; with batch
+    private-torch fast path, on the public-torch path a torch without it takes and on the
+    fused path (Triton kernels, `DDPG._update_fused`, under the interpreter); with batch
     normalisation, our stacked autograd path against nn.BatchNorm1d (train mode online, eval
     mode for the targets and the actions taken), running statistics included."""
     config = AgentConfig(hidden_sizes=HIDDEN, tau=0.01, critic_l2=critic_l2,
@@ -93,6 +106,9 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, p
     k, n = 3, 64
     monkeypatch.setattr(agent_module, "FAST", PLAIN if path == "plain" else FastPaths())
     agent = make_agent(k, config)
+    if path == "fused":
+        request.getfixturevalue("interpreted")
+        agent.fused = True
     assert agent.fast == (PLAIN if path == "plain" else FastPaths())
     rng = np.random.default_rng(0)
     # each agent's normaliser sees its own data, with a different scale per agent
@@ -102,7 +118,7 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, p
         agent.normalizer.update(i, data[i][200:])
     refs = [reference_agent(config, agent, i, data[i]) for i in range(k)]
 
-    for _ in range(200):
+    for _ in range(40 if path == "fused" else 200):   # the interpreter is slow
         batch = [torch.from_numpy(rng.normal(size=(k, n, d)) * 3) for d in (IN, ACT, 1, IN)]
         batch[1] = torch.tanh(batch[1])
         term = torch.from_numpy((rng.random((k, n, 1)) < 0.2).astype(float))
@@ -121,6 +137,35 @@ def test_k_stacked_agents_equal_k_separate_agents_after_200_updates(critic_l2, p
         torch.testing.assert_close(actions[i], ref.act(probe[i]), atol=1e-10, rtol=0)
     # and they did move: the agents are not trivially equal to their initial weights
     assert not torch.allclose(agent.actor.l1.weight, make_agent(k, config).actor.l1.weight)
+
+
+@pytest.mark.parametrize(("dtype", "tol"), [(torch.float64, 1e-12), (torch.float32, 2e-5)])
+def test_the_fused_update_is_the_hand_written_update(interpreted, dtype, tol):
+    """`DDPG._update_fused` (the Triton kernels under the interpreter) against the torch path
+    it replaces on CUDA, 20 updates of 3 agents with weight decay and a normaliser: weights,
+    targets, Adam's moments and counts, the returned losses and their running sums."""
+    config = AgentConfig(hidden_sizes=HIDDEN, tau=0.05, critic_l2=1e-2)
+    agents = [DDPG(config, IN, ACT, dtype=dtype, init_generators=[
+        torch.Generator().manual_seed(i) for i in range(3)]) for _ in range(2)]
+    agents[1].fused = True
+    rng = np.random.default_rng(1)
+    data = rng.normal(size=(100, IN)) * 3 + 1
+    sums = [torch.zeros(2, 3, dtype=torch.float64) for _ in agents]
+    for agent in agents:
+        agent.normalizer.update(0, data)
+    for _ in range(20):
+        rows = torch.from_numpy(rng.normal(size=(3, 32, 2 * IN + ACT + 2)) * 3).to(dtype)
+        rows[..., -1] = rows[..., -1] > 1.0              # terminated: 1 in about 1 row in 6
+        batch = (rows[..., :IN], torch.tanh(rows[..., IN:IN + ACT]),
+                 rows[..., IN + ACT:IN + ACT + 1], rows[..., IN + ACT + 1:-1], rows[..., -1:])
+        losses = [agent.update(*batch, loss_sum=s) for agent, s in zip(agents, sums, strict=True)]
+        for mine, theirs in zip(*losses, strict=True):
+            torch.testing.assert_close(theirs, mine, atol=tol, rtol=tol)
+    torch.testing.assert_close(sums[1], sums[0], atol=tol * 20, rtol=tol)
+    for name in ("params", "exp_avg", "exp_avg_sq", "steps"):
+        torch.testing.assert_close(getattr(agents[1], name), getattr(agents[0], name),
+                                   atol=tol, rtol=tol)
+    assert agents[1].steps.tolist() == [20.0, 20.0]
 
 
 def test_without_batch_norm_the_networks_and_update_are_the_hand_written_ones(monkeypatch):
