@@ -55,7 +55,11 @@ case "$job" in
       --out runs/demo/replay.html ;;
   test)
     browser_for_tests
-    exec "$venv/bin/python" -m pytest "$@" ;;
+    # One pytest worker per core (pytest-xdist; at most 8: each worker holds torch), tests
+    # handed out one at a time except each xdist_group (a module whose module fixtures train or
+    # simulate), which stays on one worker. Later arguments win: `bash dev.sh test -n 0` runs
+    # in this one process.
+    exec "$venv/bin/python" -m pytest -n auto --maxprocesses 8 --dist loadgroup "$@" ;;
   shell) echo "source $venv/bin/activate" ;;
   *) echo "usage: bash dev.sh demo|test|shell [args...]" >&2; exit 2 ;;
 esac

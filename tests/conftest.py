@@ -30,12 +30,29 @@ def one_torch_thread() -> Iterator[None]:
 @pytest.fixture(scope="session")
 def tiny_ur5_run(tmp_path_factory) -> Path:
     """A UR5 far-box run of 2 episodes with a checkpoint (an untrained policy: it still moves
-    the arm away from its start), trained once per session; tests that change it copy it."""
+    the arm away from its start), trained once per session; tests that change it copy it.
+
+    Under pytest-xdist the workers share one: the first to ask trains it in the session's
+    base folder (the parent of the workers' own) under a lock, the others wait for it."""
+    import fcntl
+    import os
+    import shutil
+
     from cli_tools import run_module
 
-    run = tmp_path_factory.mktemp("tiny-ur5") / "run"
-    run_module("ddpg_her.train", "--region", "farbox", "--joints", "3", "--episodes", "2",
-               "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "16", "16",
-               "--warmup-episodes", "1", "--out", str(run), "--no-progress", "--threads", "1",
-               "--no-tensorboard")
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        folder = tmp_path_factory.mktemp("tiny-ur5")
+    else:
+        folder = tmp_path_factory.getbasetemp().parent / "tiny-ur5"
+        folder.mkdir(exist_ok=True)
+    run, done = folder / "run", folder / "trained"
+    with open(folder / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(run, ignore_errors=True)  # a worker's attempt that failed
+            run_module("ddpg_her.train", "--region", "farbox", "--joints", "3", "--episodes",
+                       "2", "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "16",
+                       "16", "--warmup-episodes", "1", "--out", str(run), "--no-progress",
+                       "--threads", "1", "--no-tensorboard")
+            done.touch()
     return run

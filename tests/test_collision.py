@@ -12,6 +12,10 @@ import regions
 import ur5kin
 from ur5kin import collision
 
+pytestmark = pytest.mark.xdist_group("test_collision")
+"""Under pytest-xdist one worker runs this module, so that the brute-force reference (`reference`)
+is computed once."""
+
 CAPSULE_SLACK = 0.08
 """Largest allowed gap (m) between a capsule's lowest point and its mesh's: the capsules are
 conservative, but not absurdly so (the worst measured is 0.065 m, the base link's disc)."""

@@ -13,6 +13,9 @@ from benchmarks import gpu_collect
 from ddpg_her.config import AgentConfig
 from ddpg_her.trainer import Trainer
 
+pytestmark = pytest.mark.xdist_group("test_gpu_collect")
+"""Under pytest-xdist one worker runs this module, so that the toy grid (`grid`) is trained once."""
+
 TINY = AgentConfig(episodes=3, eval_every=3, eval_episodes=2, hidden_sizes=(8, 8),
                    updates_per_episode=2, buffer_size=100, batch_size=8, warmup_episodes=1)
 

@@ -19,6 +19,10 @@ from pathlib import Path
 import pytest
 from cli_tools import ROOT, TESTS, child_env
 
+pytestmark = pytest.mark.xdist_group("test_kills")
+"""Under pytest-xdist one worker runs this module, so that each kind's uninterrupted runs
+(`reference`) are trained once."""
+
 TOY = ["--env-id", "toy_goal_env:ToyReach-v0", "--region", "box", "--joints", "2",
        "--episodes", "6", "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes", "8",
        "8", "--updates-per-episode", "2", "--warmup-episodes", "1", "--batch-size", "8",

@@ -17,6 +17,10 @@ import ur5kin
 from analysis import optimality as opt
 from envs.spec import TaskSpec
 
+pytestmark = pytest.mark.xdist_group("test_optimality")
+"""Under pytest-xdist one worker runs this module, so that the two settings' simulations are run
+once."""
+
 GOALS = 12
 SEED = 3
 GAMMA = 0.98

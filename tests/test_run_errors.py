@@ -19,6 +19,10 @@ from ddpg_her.config import AgentConfig
 from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
 
+pytestmark = pytest.mark.xdist_group("test_run_errors")
+"""Under pytest-xdist one worker runs this module, so that the finished 12-episode run (`finished`)
+is trained once."""
+
 TASK = {"region": "box", "n_joints": 2}
 TINY = AgentConfig(episodes=12, eval_every=3, eval_episodes=4, hidden_sizes=(16, 16),
                    updates_per_episode=4, buffer_size=70, batch_size=8, exploration_rate=0.3,

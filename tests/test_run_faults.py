@@ -18,6 +18,10 @@ from ddpg_her.config import AgentConfig
 from ddpg_her.multi import MultiTrainer
 from ddpg_her.trainer import Trainer
 
+pytestmark = pytest.mark.xdist_group("test_run_faults")
+"""Under pytest-xdist one worker runs this module, so that its three runs (`short_run`,
+`two_episodes`, `uninterrupted`) are trained once."""
+
 SHORT = AgentConfig(**{**TINY.to_dict(), "episodes": 8, "eval_every": 1, "buffer_size": 60})
 """A checkpoint per episode and a buffer of about two episodes: each checkpoint's window starts
 inside an older chunk."""

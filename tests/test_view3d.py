@@ -20,6 +20,10 @@ import regions  # noqa: E402
 import ur5kin  # noqa: E402
 from analysis import replay, scene  # noqa: E402
 
+pytestmark = pytest.mark.xdist_group("test_view3d")
+"""Under pytest-xdist one worker runs this module, so that the replayed page (`replayed`) is made
+once."""
+
 
 @pytest.fixture(scope="module")
 def replayed(tiny_ur5_run):
