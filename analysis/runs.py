@@ -54,7 +54,8 @@ def find_runs(roots: Iterable[str | Path]) -> list[Run]:
     for root in roots:
         root = Path(root)
         if not root.is_dir():
-            raise FileNotFoundError(f"runs root {root} is not a folder (of runs)")
+            raise FileNotFoundError(f"runs root {root} " + ("is not a folder (of runs)"
+                                    if root.exists() else "does not exist"))
         for spec in sorted(root.rglob("spec.json")):
             try:
                 content = json.loads(spec.read_text())

@@ -390,7 +390,7 @@ class DDPG:
         backward with its bias gradient, the critic's head with its loss and target, each
         network's Adam step with its soft target update and the step counts. The same steps
         as `_update_hand`; the sums in another order (a few ulps)."""
-        from ddpg_her import program_kernels as fuse
+        import ddpg_her.program_kernels as fuse
 
         k, n, h1 = self.k, x.shape[1], self.config.hidden_sizes[0]
         actor, critic, g = self.actor, self.critic, self._grads
@@ -428,7 +428,7 @@ class DDPG:
 
     def _adam_fused(self, j: int, read: int, write: int, inc: int) -> None:
         """Network j's Adam step and soft target update, one launch (`program_kernels.adam`)."""
-        from ddpg_her import program_kernels as fuse
+        import ddpg_her.program_kernels as fuse
 
         flat = self._flats[j]
         fuse.adam(self.params[2 * flat.start:2 * flat.stop], self.grads[flat],

@@ -495,14 +495,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(req.note, file=sys.stderr)
     from ddpg_her.runfolder import run_status
 
-    if args.resume and all(run_status(d, req.config.episodes) == "done" for d in req.run_dirs):
-        print(f"--resume: finished already ({req.config.episodes} episodes in "
-              f"{', '.join(map(str, req.run_dirs))}); nothing to train (a larger --episodes "
-              "extends it)", file=sys.stderr)
+    done = args.resume and all(run_status(d, req.config.episodes) == "done"
+                               for d in req.run_dirs)
     start_process(parser, args)
     register_envs(parser, [args.env_id])
     trainer = build(parser, args, [req], ["python", "-m", "ddpg_her.train",
                                           *(argv or sys.argv[1:])])
+    if done:  # said once the record is compared: a run of another agent is refused instead
+        print(f"--resume: finished already ({req.config.episodes} episodes in "
+              f"{', '.join(map(str, req.run_dirs))}); nothing to train (a larger --episodes "
+              "extends it)", file=sys.stderr)
     return run_to_end(trainer)
 
 
