@@ -420,7 +420,9 @@ def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes
                         session(self.episode)
             return self.episode < episodes
 
-    steps = episodes * (env.spec.max_episode_steps or 1000) + 1
+    task = getattr(env.unwrapped, "task", None)  # a UR5 task's own length, else the id's
+    steps = episodes * (getattr(task, "max_episode_steps", None) or env.spec.max_episode_steps
+                        or 1000) + 1
     print(f"training {type(model).__name__} + HER into {folder.path}: {episodes} episodes, a "
           f"line per test session (every {eval_every})", file=sys.stderr, flush=True)
     model.learn(total_timesteps=steps, callback=Protocol())

@@ -137,7 +137,7 @@ class _SB3:
         from stable_baselines3 import DDPG, HerReplayBuffer
 
         self.env = gymnasium.make(env_id, **env_kwargs)
-        steps = fill_episodes * self.env.spec.max_episode_steps
+        steps = fill_episodes * self.env.unwrapped.task.max_episode_steps
         self.batch_size = config.batch_size
         self.model = DDPG(
             "MultiInputPolicy", self.env, buffer_size=config.buffer_size,

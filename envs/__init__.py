@@ -19,7 +19,7 @@ from typing import NoReturn
 import gymnasium
 
 from envs.checks import validate
-from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec
+from envs.spec import TaskSpec
 from ur5kin.lazy import lazy_attributes
 
 ENV_IDS: tuple[str, ...] = ("UR5Reach-v0",)
@@ -31,7 +31,8 @@ for _env_id in ENV_IDS:
             _env_id,
             entry_point="envs.reach:UR5ReachEnv",
             vector_entry_point="envs.batched:BatchedReach",
-            max_episode_steps=DEFAULT_EPISODE_STEPS,
+            # no outer TimeLimit: the task's own max_episode_steps truncates (a registered
+            # limit of 100 cut a task of 200 steps at 100 without a word)
         )
 
 

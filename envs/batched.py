@@ -14,7 +14,7 @@ from gymnasium.vector.utils import batch_space
 from envs.core import TaskCopies
 from envs.physics import make_dynamics
 from envs.render import RENDER_MODES, check_render_mode
-from envs.spec import DEFAULT_EPISODE_STEPS, TaskSpec, make_task
+from envs.spec import TaskSpec, make_task
 from envs.task import INFO_KEYS, as_autoreset_mode, real_actions
 from envs.vector import copy_seeds, reset_options
 from ur5kin.checks import COUNT
@@ -67,11 +67,6 @@ class BatchedReach(gymnasium.vector.VectorEnv):
                  threads: int = 1, **overrides: Any) -> None:
         num_envs = COUNT("num_envs", num_envs)
         mode = as_autoreset_mode(autoreset_mode)
-        given = task is not None or "spec" in overrides  # spec=: task='s deprecated name
-        if given and overrides.get("max_episode_steps") == DEFAULT_EPISODE_STEPS:
-            # make_vec passes the registration's max_episode_steps whenever its caller gave
-            # none; a task given whole keeps its own episode length
-            overrides.pop("max_episode_steps")
         self.task = make_task(task, overrides)
         self.num_envs = num_envs
         self.render_mode = check_render_mode(render_mode)

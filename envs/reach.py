@@ -100,8 +100,10 @@ class UR5ReachEnv(gymnasium.Env):
     | terminated   | d <= ``success_radius`` = 0.1 (if ``terminate_on_success``)   | m     |
     | truncated    | after ``max_episode_steps`` = 100 steps (2 s at 50 Hz)        | steps |
 
-    Set the episode length in the task (``task=TaskSpec(max_episode_steps=50)``): Gymnasium's
-    ``make(..., max_episode_steps=50)`` adds an outer time limit that the task does not see.
+    The task's ``max_episode_steps`` truncates (``make(..., task=TaskSpec(max_episode_steps=
+    200))``, or ``make_vec(..., max_episode_steps=50)``, which passes it to the task); the id is
+    registered without an outer time limit. Gymnasium's ``make(..., max_episode_steps=50)``
+    wraps its own ``TimeLimit`` around the env, which the task does not see: set it in the task.
 
     ## Info
 

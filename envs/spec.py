@@ -357,9 +357,6 @@ COMBINATIONS: tuple[gate.Combination, ...] = (
      lambda t: t.sim_hz % t.control_hz == 0))
 """What `TaskSpec`'s fields may be combined with."""
 
-DEFAULT_EPISODE_STEPS: int = TaskSpec.__dataclass_fields__["max_episode_steps"].default
-"""The TaskSpec default episode length, which is also the registered ``max_episode_steps``."""
-
 
 # ---------------------------------------------------------------------- field checks
 def _region_string(region: Any, base_height: float) -> str:

@@ -221,6 +221,29 @@ def test_success_terminates_with_the_bonus_and_time_truncates():
         assert truncated == (t == task.max_episode_steps - 1)
 
 
+@pytest.mark.parametrize("steps", [7, 130])
+def test_the_tasks_episode_length_is_the_one_that_truncates(steps):
+    """The reference is the task record: ``make`` and ``make_vec`` end episodes after the task's
+    ``max_episode_steps``, longer or shorter than the default 100 (a registered outer limit of
+    100 cut a 130-step task at 100 while its record said 130), and ``make_vec``'s
+    ``max_episode_steps`` goes into the task it records."""
+    def length(env):
+        env.reset(seed=0)
+        zero = np.zeros(env.action_space.shape)  # holds the start pose: never a success
+        for t in range(1, 1000):
+            _, _, terminated, truncated, _ = env.step(zero)
+            if np.any(terminated) or np.any(truncated):
+                return t
+        return None
+
+    task = TaskSpec(region="zheight", n_joints=2, max_episode_steps=steps)
+    single = make(task=task)
+    assert single.unwrapped.task.max_episode_steps == steps and length(single) == steps
+    vec = gymnasium.make_vec("UR5Reach-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                             region="zheight", n_joints=2, max_episode_steps=steps)
+    assert vec.unwrapped.task.max_episode_steps == steps and length(vec) == steps
+
+
 def test_make_accepts_overrides_a_spec_and_region_objects():
     spec = TaskSpec(region="farbox", n_joints=4, reward_type="sparse")
     assert make(task=spec).unwrapped.task == spec
@@ -229,7 +252,7 @@ def test_make_accepts_overrides_a_spec_and_region_objects():
     box = regions.parse("box:0.3,0.7,-0.2,0.2,0,0.5")
     assert make(region=box).unwrapped.task.goal_region == box
     env = make(region="zheight", n_joints=3)
-    assert env.unwrapped.task.region == "zheight" and env.spec.max_episode_steps == 100
+    assert env.unwrapped.task.region == "zheight"
     with pytest.raises(ValueError, match="n_joints"):
         make(n_joints=9)
     with pytest.raises(ValueError, match="unknown task field"):
