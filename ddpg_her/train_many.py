@@ -140,7 +140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import gymnasium
 
-    from ddpg_her.multi import group_settings
+    from ddpg_her.multi import group_settings, layout
     from ddpg_her.runfolder import run_status
 
     train.register_envs(parser, sorted({s.env_id for s in settings}))
@@ -162,7 +162,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as err:
         parser.error(str(err))
     if args.dry_run:
-        try:
+        try:  # each unit's task built as the real run builds it (one stack groups none)
+            for s in todo if args.env_backend != "program" else ():
+                layout(s.env_id, s.env_kwargs)
             groups = group_settings(todo, args.resume, args.env_backend)
         except (ValueError, TypeError, gymnasium.error.Error) as e:
             parser.error(f"{type(e).__name__}: {e}")

@@ -135,6 +135,18 @@ def test_dry_runs_refuse_what_the_program_refuses_with_its_cause(tmp_path, case)
     assert not (tmp_path / "u").exists() and not (tmp_path / "sweep").exists()
 
 
+@pytest.mark.parametrize("backend", ["numpy", "batched"])
+def test_a_dry_run_of_one_unit_refuses_its_task_as_the_real_run_does(tmp_path, backend):
+    """The reference is the real run's refusal: a single unit's dry run had listed a unit with
+    an unknown region (grouping one unit built no env)."""
+    unit = f"--region nowhere --out {tmp_path / 'u'}"
+    real_code, real_err = run_main(train_many.main, ["--unit", unit, "--env-backend", backend])
+    code, err = run_main(train_many.main, ["--unit", unit, "--env-backend", backend,
+                                           "--dry-run"])
+    assert real_code == code == 2 and "nowhere" in error_line(real_err), real_err
+    assert "nowhere" in error_line(err) and not (tmp_path / "u").exists(), err
+
+
 def test_tf32_on_the_cpu_and_cuda_without_a_device_refused_by_dry_runs(tmp_path, monkeypatch):
     from analysis import sweep
 

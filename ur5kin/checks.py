@@ -42,8 +42,8 @@ def real_array(x: Any, name: str, what: str) -> np.ndarray:
                 raise TypeError("complex")
             arr = np.asarray(x, dtype=float)
         except (TypeError, ValueError) as err:
-            raise ValueError(f"{name} must be real numbers ({what}); got {_describe(x)}"
-                             ) from err
+            raise ValueError(f"{name} must be real numbers ({what}); got "
+                             + "complex " * (arr.dtype.kind == "c") + _describe(x)) from err
     return arr.astype(float, copy=False)
 
 
