@@ -337,7 +337,7 @@ def test_a_report_does_not_replace_another_without_force(tmp_path):
 def test_an_epsilon_rate_is_a_probability():
     """With --exploration epsilon, nu is the probability of a random action (config's own
     docstring): 1.5 was accepted. As Gaussian noise's std it may exceed 1."""
-    with pytest.raises(ValueError, match="exploration_rate=1.5 .*probability"):
+    with pytest.raises(ValueError, match=r"exploration_rate=1.5 .*probability"):
         AgentConfig(exploration="epsilon", exploration_rate=1.5)
     AgentConfig(exploration="epsilon", exploration_rate=1.0)
     AgentConfig(exploration="gaussian", exploration_rate=1.5)
