@@ -9,9 +9,9 @@ import toy_goal_env
 from test_ddpg_agent import ACT, HIDDEN, IN, assert_slice_equal, copy_slice
 from test_ddpg_train import train
 
+from benchmarks.reference import ReferenceSAC, ReferenceTD3
 from ddpg_her.agents import make_agent
 from ddpg_her.config import AgentConfig
-from benchmarks.reference import ReferenceSAC, ReferenceTD3
 from ddpg_her.sac import SAC
 from ddpg_her.spaces import goal_input
 from ddpg_her.td3 import TD3

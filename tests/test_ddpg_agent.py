@@ -8,10 +8,10 @@ import pytest
 import torch
 from torch import nn
 
+from benchmarks.reference import ReferenceDDPG
 from ddpg_her import agent as agent_module
 from ddpg_her.agent import DDPG, PLAIN, FastPaths, probe_fast_paths
 from ddpg_her.config import AgentConfig
-from benchmarks.reference import ReferenceDDPG
 
 IN, ACT, HIDDEN = 7, 2, (32, 24)
 

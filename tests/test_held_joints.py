@@ -164,7 +164,8 @@ def test_a_reset_that_moves_a_locked_joint_is_refused():
 
 def test_held_joints_is_a_checked_recorded_field():
     assert TaskSpec().held_joints == "locked"
-    with pytest.raises(ValueError, match=r"held_joints='welded' \(expected one of \['locked', 'pd'\]"):
+    with pytest.raises(ValueError,
+                       match=r"held_joints='welded' \(expected one of \['locked', 'pd'\]"):
         TaskSpec(held_joints="welded")
     record = TaskSpec(region="farbox").to_dict()
     assert record["held_joints"] == "locked"

@@ -66,7 +66,7 @@ def test_the_band_bounds_the_change_extrapolated_to_the_budget() -> None:
         est, low, high = got.change(model)
         s = got.slopes[model]
         assert (est, low, high) == pytest.approx((2 * s.value, *(2 * b for b in s.interval(0.95))))
-        assert -pl.PLATEAU_BAND <= low and high <= pl.PLATEAU_BAND
+        assert low >= -pl.PLATEAU_BAND and high <= pl.PLATEAU_BAND
     # the same curve, carried to the paper's 20,000: 14,000 episodes left, the band is 0.36 per
     # 1,000, which these intervals do not bound
     far = pl.plateau(episode, percent)

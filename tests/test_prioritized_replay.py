@@ -49,7 +49,7 @@ def exact_p(td: np.ndarray, n: int, alpha: float, eps: float = 1e-6) -> np.ndarr
 def test_draws_follow_the_exact_proportional_distribution(alpha):
     buf, td = filled_buffer(alpha)
     gens = [torch.Generator().manual_seed(1), torch.Generator().manual_seed(2)]
-    x, *_, idx, w = buf.sample_prioritized(DRAWS, gens, beta=0.4)
+    x, *_, idx, _ = buf.sample_prioritized(DRAWS, gens, beta=0.4)
     # the row read is the row drawn: agent 1's row j holds transition 6 + j or j (ring)
     assert torch.equal(x[0, :, 0].long(), idx[0])
     assert torch.equal(x[1, :, 0].long() % 6, idx[1])
@@ -87,7 +87,7 @@ def test_alpha_0_and_beta_0_is_uniform_sampling():
 
 
 def test_new_rows_get_the_largest_stored_priority_and_beta_anneals_to_1():
-    buf, td = filled_buffer(alpha=0.6)
+    buf, _ = filled_buffer(alpha=0.6)
     buf.add(0, numbered(4, 1))  # row 4 of agent 0
     assert buf.priority[0, 4] == buf.priority[0, :4].max() == (2.0 + 1e-6) ** 0.6
     assert PrioritizedBuffer(1, 3, LAYOUT, alpha=0.6, eps=1e-6, dtype=torch.float32,
@@ -146,7 +146,7 @@ def test_a_prioritized_run_resumes_to_the_uninterrupted_one(tmp_path, monkeypatc
 
 
 def test_refused_where_it_is_not_implemented():
-    with pytest.raises(ValueError, match="DDPG \\+ HER only: not with --prioritized-replay$"):
+    with pytest.raises(ValueError, match=r"DDPG \+ HER only: not with --prioritized-replay$"):
         check("UR5Reach-v0", [{"region": "farbox"}], AgentConfig(prioritized_replay=True))
     for other in ({"algo": "td3"}, {"ensemble": 4}, {"batch_norm": True}):
         with pytest.raises(ValueError, match="prioritized_replay=True"):

@@ -361,7 +361,7 @@ def test_a_window_run_saves_eval_rows_and_policies_only_and_refuses_resume(tmp_p
                "desired_goal": np.array([0.4, -0.2, 0.6])}
         np.testing.assert_array_equal(ddpg_her.load(run)(obs),
                                       ddpg_her.load(tmp_path / f"normal{i}")(obs))
-    with pytest.raises(ValueError, match="holds a window run .* cannot be resumed"):
+    with pytest.raises(ValueError, match=r"holds a window run .* cannot be resumed"):
         make_program(tmp_path, name="window", window=True, resume=True)
     with pytest.raises(ValueError, match="a window run starts afresh"):
         make_program(tmp_path, name="normal", window=True, resume=True, episodes=9)

@@ -192,7 +192,7 @@ def test_a_projection_that_cannot_start_says_why(tmp_path, capsys, monkeypatch):
     if torch.cuda.is_available():
         pytest.skip("a CUDA device is here: the projection would run")
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    with pytest.raises(SystemExit, match="failed .each process's last line above"):
+    with pytest.raises(SystemExit, match=r"failed .each process's last line above"):
         sweep.main(["--setting", "farbox:3", "--episodes", "200", "--seeds", "1", "--out",
                     str(tmp_path / "runs"), "--device", "cuda", "--dry-run", "--project"])
     err = capsys.readouterr().err
