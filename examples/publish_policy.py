@@ -4,9 +4,10 @@ and observation normaliser alone, the part `ddpg_her.load` (and so ``analysis.re
 
     python examples/publish_policy.py runs/demo runs/published/demo
 
-``out`` may also be the committed copy of the same run (its spec.json identical, its eval.csv
-the run's up to a test session): then the checkpoint alone is added beside them, so that a
-reported run's folder under ``results/`` replays as it stands.
+``out`` may also be the committed copy of the same run (its spec.json identical but for the
+``created`` time of the process that wrote it, as when a lost stage is retrained on the same
+kind of CPU, and its eval.csv the run's up to a test session): then the checkpoint alone is
+added beside them, so that a reported run's folder under ``results/`` replays as it stands.
 
 The checkpoint keeps, per agent (an ensemble's members each), the actor's weights and the
 normaliser's count, sums and sums of squares (float32, unchanged); the critics, target
@@ -18,6 +19,7 @@ resume training (no critic, optimiser or buffer).
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 from pathlib import Path
@@ -43,6 +45,14 @@ def policy_state(state: dict) -> dict:
     return {"episode": state["episode"], "agent": kept}
 
 
+def same_spec(a: Path, b: Path) -> bool:
+    """Whether the spec.json files ``a`` and ``b`` record the same run: equal in every field
+    but ``created`` (when the process that wrote it started)."""
+    def record(path: Path) -> dict:
+        return {k: v for k, v in json.loads(path.read_text()).items() if k != "created"}
+    return record(a) == record(b)
+
+
 def publish(run: Path, out: Path) -> Path:
     """Write ``out``/spec.json, eval.csv and checkpoints/episode-N.pt (the latest checkpoint of
     ``run``, `policy_state` only); returns the checkpoint's path."""
@@ -54,7 +64,7 @@ def publish(run: Path, out: Path) -> Path:
     rows = (run / "eval.csv").read_text().splitlines(keepends=True)  # up to the checkpoint's
     rows = "".join(rows[:1] + [r for r in rows[1:] if int(r.split(",")[0]) <= episode])
     if RunFolder(out).exists():
-        same = ((out / "spec.json").read_bytes() == (run / "spec.json").read_bytes()
+        same = (same_spec(out / "spec.json", run / "spec.json")
                 and (out / "eval.csv").read_text() == rows)
         if not same or (out / "checkpoints").exists():
             raise FileExistsError(f"{out} holds another run, or a published checkpoint already "
@@ -62,8 +72,9 @@ def publish(run: Path, out: Path) -> Path:
                                   f"up to episode {episode} without checkpoints)")
     state = policy_state(source.load_checkpoint(episode))
     (out / "checkpoints").mkdir(parents=True)
-    shutil.copyfile(run / "spec.json", out / "spec.json")
-    (out / "eval.csv").write_text(rows)
+    if not (out / "spec.json").exists():  # a committed copy keeps its own
+        shutil.copyfile(run / "spec.json", out / "spec.json")
+        (out / "eval.csv").write_text(rows)
     path = out / "checkpoints" / f"episode-{episode:06d}.pt"
     torch.save(state, path)
     return path
@@ -74,7 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("run", type=Path, help="the trained run folder (spec.json, eval.csv, "
                                                 "checkpoints)")
     parser.add_argument("out", type=Path, help="the folder to publish into: a new one, or the "
-                        "committed copy of this same run (spec.json and eval.csv equal)")
+                        "committed copy of this same run (spec.json equal but for created, eval.csv "
+                        "equal)")
     args = parser.parse_args(argv)
     try:
         path = publish(args.run, args.out)

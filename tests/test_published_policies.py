@@ -57,3 +57,50 @@ def test_the_far_box_policy_replays_and_maps_from_results(tmp_path: Path):
     assert success_map.main([str(run), "--goals", "100", "--z", "0.1", "0.3", "--out",
                              str(tmp_path / "m.png"), "--no-progress"]) == 0
     assert (tmp_path / "m.png").stat().st_size > 10_000
+
+
+def test_publish_adds_a_policy_to_the_committed_copy_of_the_same_run_only(tiny_ur5_run: Path,
+                                                                        tmp_path: Path):
+    """examples/publish_policy.py: into a new folder it writes spec, eval.csv and the policy,
+    which `ddpg_her.load` reads as the run's own; into the committed copy of the same run (a
+    retrained stage: its spec.json differs in ``created`` alone) it adds the checkpoint and
+    keeps the committed files; another run's copy, or one published already, is refused."""
+    import json
+    import shutil
+    import sys
+
+    import torch
+
+    from ddpg_her import load
+
+    sys.path.insert(0, str(ROOT / "examples"))
+    from publish_policy import publish
+
+    fresh = publish(tiny_ur5_run, tmp_path / "new")
+    assert fresh.parent.parent == tmp_path / "new"
+    mine, theirs = load(tmp_path / "new"), load(tiny_ur5_run)
+    assert mine.episode == theirs.episode
+    obs = {"observation": np.linspace(-1, 1, 9), "achieved_goal": np.array([0.4, 0.1, 0.2]),
+           "desired_goal": np.array([0.5, 0.2, 0.3])}
+    assert np.array_equal(mine(obs), theirs(obs))
+
+    committed = tmp_path / "committed"
+    committed.mkdir()
+    spec = json.loads((tiny_ur5_run / "spec.json").read_text())
+    written = json.dumps({**spec, "created": "2020-01-01T00:00:00+00:00"})
+    (committed / "spec.json").write_text(written)
+    shutil.copyfile(tiny_ur5_run / "eval.csv", committed / "eval.csv")
+    added = publish(tiny_ur5_run, committed)
+    assert (committed / "spec.json").read_text() == written  # the committed record stays
+    a, b = (torch.load(f)["agent"]["actor"] for f in (added, fresh))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(FileExistsError, match="published checkpoint already"):
+        publish(tiny_ur5_run, committed)
+
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "spec.json").write_text(json.dumps({**spec, "seed": spec["seed"] + 1}))
+    shutil.copyfile(tiny_ur5_run / "eval.csv", other / "eval.csv")
+    with pytest.raises(FileExistsError, match="holds another run"):
+        publish(tiny_ur5_run, other)
+    assert not (other / "checkpoints").exists()
