@@ -85,8 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("run", type=Path, help="the trained run folder (spec.json, eval.csv, "
                                                 "checkpoints)")
     parser.add_argument("out", type=Path, help="the folder to publish into: a new one, or the "
-                        "committed copy of this same run (spec.json equal but for created, eval.csv "
-                        "equal)")
+                        "committed copy of this same run (spec.json equal but for created, "
+                        "eval.csv equal)")
     args = parser.parse_args(argv)
     try:
         path = publish(args.run, args.out)
