@@ -407,14 +407,15 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                         default=None,
                         help="with --dry-run: print the projected wall time (s and h) of the "
                              "run. 'quick' (the flag alone): each distinct process layout "
-                             "(joint count, seeds, own arguments) trains 2 episodes (a warm-up "
-                             "and a learning episode of 25 updates, each with a test session "
-                             "of 1 episode per agent) as the real command would run it, in a "
-                             "temporary folder deleted afterwards, scaled by a stated model "
-                             "(seconds to a minute); 'full': then also train the first two "
-                             "test intervals (2 x --eval-every episodes) of every unfinished "
-                             "unit, its cost by the quick model printed before it starts "
-                             "(about 1 %% of the paper's run)")
+                             "(joint count, seeds, own arguments), one at a time, trains 2 "
+                             "episodes (a warm-up and a learning episode of 25 updates, each "
+                             "with a test session of 1 episode per agent) as the real command "
+                             "would run it, in a temporary folder deleted afterwards, scaled by "
+                             "a stated model, its processes run --workers at a time without "
+                             "slowing each other (seconds to a minute); 'full': then also train "
+                             "the first two test intervals (2 x --eval-every episodes) of every "
+                             "unfinished unit, its cost by the quick model printed before it "
+                             "starts (about 1 %% of the paper's run)")
 
 
 RAY_CONNECT_S = 5.0
@@ -829,11 +830,13 @@ def projection_folder() -> Path:
 
 
 def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
-              extra: Sequence[str], what: str) -> tuple[float, list[list[float]]]:
+              extra: Sequence[str], what: str, workers: int | None = None
+              ) -> tuple[float, list[list[float]]]:
     """Train ``units`` (their roots in a `projection_folder`) as `execute` would, ``extra``
-    after every unit's own arguments; (wall seconds spent, each unit's first seed's eval
-    ``wall_s``). The folder is deleted afterwards, also on SIGTERM or Ctrl-C; a process that
-    failed is named with its log's last line before (not a path to a deleted log)."""
+    after every unit's own arguments, in ``workers`` processes at a time (default --workers);
+    (wall seconds spent, each unit's first seed's eval ``wall_s``). The folder is deleted
+    afterwards, also on SIGTERM or Ctrl-C; a process that failed is named with its log's last
+    line before (not a path to a deleted log)."""
     import dataclasses
     import shutil
 
@@ -847,8 +850,8 @@ def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
                 status = run_one_process(timed, argparse.Namespace(**{**vars(args), "out": tmp}),
                                          threads, extra)
             else:
-                status = run_local(timed, args.workers, threads, [*extra, *backend_args(args)],
-                                   args.device) and 1
+                status = run_local(timed, workers or args.workers, threads,
+                                   [*extra, *backend_args(args)], args.device) and 1
         spent = time.perf_counter() - start
         if status != 0:
             for log in sorted(tmp.rglob("*.log")):
@@ -877,9 +880,10 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
                      extra: Sequence[str]) -> float:
     """Print the projected wall time (s) of the real run of the unfinished units, and return
     it: by default ("quick") by `EpisodeCosts`, timed on 2 episodes of one process per
-    distinct `layout` (with ``--one-process``, of the one process), run as the real command
-    would run them; with ``--project full``, then by training the first two test intervals of
-    every unit (`projected_seconds`), its cost by the quick model printed first."""
+    distinct `layout` (with ``--one-process``, of the one process), run one at a time as the
+    real command would run them, then scheduled on --workers (`makespan`); with ``--project
+    full``, then by training the first two test intervals of every unit
+    (`projected_seconds`), its cost by the quick model printed first."""
     import dataclasses
 
     todo = [u for u in units if u.pending()]
@@ -892,14 +896,17 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     reps = list(dict.fromkeys(keys))
     timed = [dataclasses.replace(u, episodes=2) for u in
              (todo if args.one_process else [todo[keys.index(k)] for k in reps])]
+    # one at a time: 2 episodes run beside another layout's start-up (or alone, the last of
+    # --workers) would time that start-up (or none) as every episode's
     spent, walls = timed_run(timed, args, threads, [*extra, *QUICK_ARGS],
-                             f"the timed run of {len(reps)} process layout(s)")
+                             f"the timed run of {len(reps)} process layout(s)", workers=1)
     def span(times: Sequence[float]) -> float:  # the processes' wall time, run as planned
         # one process is one stack: each episode steps every unit at once
         return max(times) if args.one_process else makespan(times, args.workers)
 
-    waves = 1 if args.one_process else -(-len(timed) // args.workers)
-    start = max(0.0, spent - span([w[-1] for w in walls])) / waves
+    ends = [w[-1] for w in walls]
+    start = max(0.0, spent - max(ends)) if args.one_process else \
+        max(0.0, spent - sum(ends)) / len(timed)
     costs = {k: EpisodeCosts.of_rows(w, start) for k, w in zip(reps, walls, strict=True)}
     seconds = [costs[k].seconds(c, d) for k, c, d in zip(keys, configs, done, strict=True)]
     for unit, n, sec in zip(todo, done, seconds, strict=True):
