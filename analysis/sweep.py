@@ -37,6 +37,7 @@ from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.config import Parser
 from ddpg_her.runfolder import RunFolder, run_status
+from ddpg_her.train import add_window_flags, check_window_flags
 from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passthrough
 from ur5kin.checks import COUNT
 
@@ -380,19 +381,8 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                         help="the training program for every unfinished unit in one process: "
                              "--one-process --env-backend program (the whole grid, or --part, "
                              "as one stack of agents on --device)")
-    parser.add_argument("--tf32", action="store_true",
-                        help="with the program on cuda: TF32 matrix products "
-                             "(ddpg_her.train --tf32; recorded in spec.json)")
-    parser.add_argument("--window", action="store_true",
-                        help="with --program: runs for one GPU window (ddpg_her.train "
-                             "--window): eval.csv every session, actors and normalisers at "
-                             "the end, no replay-buffer chunks or mid-run checkpoints, so they "
-                             "CANNOT BE RESUMED")
-    parser.add_argument("--budget-seconds", type=float, default=None, metavar="S",
-                        help="with --window: the training process's wall seconds (> 0); it "
-                             "trains the largest of --episodes, its half, quarter and eighth "
-                             "that it projects to end within S (ddpg_her.train "
-                             "--budget-seconds)")
+    add_window_flags(parser, "the training program (--program)",
+                     "--episodes, its half, quarter and eighth")
     parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=False,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
@@ -456,12 +446,7 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
             parser.error(f"--program trains with --env-backend program; got --env-backend "
                          f"{args.env_backend}")
         args.one_process, args.env_backend = True, "program"
-    for flag, given in (("--tf32", args.tf32), ("--window", args.window)):
-        if given and args.env_backend != "program":
-            parser.error(f"{flag} is a setting of the training program (--program)")
-    if args.budget_seconds is not None and not (args.window and args.budget_seconds > 0):
-        parser.error(f"--budget-seconds {args.budget_seconds}: a time budget is a --window "
-                     "run's, in seconds > 0")
+    check_window_flags(parser, args, "the training program (--program)")
     if args.one_process and args.ray_address:
         parser.error("--one-process runs here, not on Ray; drop --ray-address or add "
                      "--no-one-process")
