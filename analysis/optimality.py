@@ -873,12 +873,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_files(args.out, ("optimality.csv", "optimality.png", "optimality_curves.png"),
                     "--out")
     settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
-    try:
+    with usage_errors(parser, ValueError):
         rows, skipped = (read_csvs(args.from_csv), []) if args.from_csv else study(
             settings, args.readings, overrides, args.goals, args.gamma, args.seed,
             grid=args.grid, progress=not args.no_progress)
-    except ValueError as err:
-        parser.error(str(err))
     for line in skipped:
         print(line, file=sys.stderr)
     if not rows:

@@ -860,14 +860,11 @@ def report_main(argv: Sequence[str]) -> int:
     with usage_errors(parser):  # before any computing
         check_files(out, ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
                           "worth_reaching.png", "report.md"), "--out" if args.out else "ROOT")
-    try:
-        with write_errors(parser), unless_replacing(args.force,
-                                                    f"report {args.root} --out {out}"):
-            result = report(args.root, out, args.episodes, args.seeds, args.confidence,
-                            args.reps, args.bootstrap_seed, args.worth_goals, args.readings,
-                            _user_readings(parser, args))
-    except (FileNotFoundError, ValueError) as err:
-        parser.error(str(err))
+    with usage_errors(parser, FileNotFoundError, ValueError), write_errors(parser), \
+            unless_replacing(args.force, f"report {args.root} --out {out}"):
+        result = report(args.root, out, args.episodes, args.seeds, args.confidence, args.reps,
+                        args.bootstrap_seed, args.worth_goals, args.readings,
+                        _user_readings(parser, args))
     print(result.text, end="")
     print("wrote " + ", ".join(map(str, result.files)), file=sys.stderr)
     return 0
@@ -908,22 +905,18 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
         return 0
     if args.collect is None:
         refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
-        try:
+        with usage_errors(parser, ValueError):
             for reading in readings:
                 write_reading(args.out, reading)
-        except ValueError as err:
-            parser.error(str(err))
         return execute(units, args, threads, extra, unit_word="units")
     root = args.collect / "runs"
-    try:  # a full disk, or runs it would replace: nothing half-written
-        with write_errors(parser), unless_replacing(args.force, f"--collect {args.collect}"):
-            copied, skipped = collect(units, args.collect)
-            done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
-            for reading in readings:  # units started by hand have no reading.json of their own
-                if reading.name in done or (root / reading.name).is_dir():
-                    write_reading(root, reading)
-    except ValueError as err:
-        parser.error(str(err))
+    with usage_errors(parser, ValueError), write_errors(parser), \
+            unless_replacing(args.force, f"--collect {args.collect}"):  # nothing half-written
+        copied, skipped = collect(units, args.collect)
+        done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
+        for reading in readings:  # units started by hand have no reading.json of their own
+            if reading.name in done or (root / reading.name).is_dir():
+                write_reading(root, reading)
     print(f"copied {copied} finished unit(s) to {root}; {len(skipped)} not finished"
           + (": " + ", ".join(skipped) if skipped else ""), file=sys.stderr)
     return 0

@@ -21,7 +21,7 @@ import typing
 from collections.abc import Sequence
 from typing import Any
 
-from ddpg_her.config import COMBINATIONS, VALID, AgentConfig, Parser, field_docs
+from ddpg_her.config import COMBINATIONS, VALID, AgentConfig, Parser, field_docs, usage_errors
 from ddpg_her.units import DEFAULT_JOINTS, Setting, check_device, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
@@ -369,10 +369,8 @@ def build(parser: argparse.ArgumentParser, args: argparse.Namespace,
 
     program: dict[str, Any] = {}
     if args.env_backend == "program":
-        try:
+        with usage_errors(parser, ValueError):
             check_stack(settings, args.device, args.tf32)
-        except ValueError as err:
-            parser.error(str(err))
         from ddpg_her.loop import Budget
 
         budget = None
@@ -457,10 +455,8 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     deterministic algorithms (runs bitwise repeatable on the CPU)."""
     import torch
 
-    try:
+    with usage_errors(parser, ValueError):
         check_device(args.device)
-    except ValueError as err:
-        parser.error(str(err))
     from ddpg_her.units import DEFAULT_THREADS
 
     torch.set_num_threads(args.threads or DEFAULT_THREADS)
@@ -499,10 +495,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(parser, argv)
     args.started = started
     check_process_flags(parser, args)
-    try:
+    with usage_errors(parser, ValueError):
         req = request(args)
-    except ValueError as e:
-        parser.error(str(e))
     if req.note:
         print(req.note, file=sys.stderr)
     from ddpg_her.runfolder import run_status
