@@ -904,7 +904,8 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
           f"--device {args.device}; model: per process {start:.0f} s of start-up + episodes x "
           "(a rollout of its agents + its updates) + test episodes x a rollout (sessions "
           "counted episode by episode), each term timed on 2 episodes of each of "
-          f"{len(reps)} process layout(s) in {spent:.0f} s", flush=True)
+          f"{len(reps)} process layout(s) in {spent:.0f} s, one at a time, at a load average "
+          f"of {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
     if args.project == "full":
         first = [dataclasses.replace(c, episodes=min(2 * c.eval_every, c.episodes))
                  for c in configs]
