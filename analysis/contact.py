@@ -27,7 +27,7 @@ import gymnasium
 import numpy as np
 
 import ur5kin
-from ddpg_her.config import Parser, field_docs
+from ddpg_her.config import Parser, field_docs, usage_errors
 from envs.checks import validate
 from envs.physics import make_dynamics
 from envs.spec import CONTACT_MODELS, TaskSpec
@@ -167,10 +167,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
-    try:
+    with usage_errors(parser, ValueError):
         TaskSpec(region=args.region, n_joints=args.n_joints)
-    except ValueError as err:
-        parser.error(str(err))
     config = ContactConfig(**vars(args))
     from regions.samplers import UnreachableRegionError
 

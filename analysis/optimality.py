@@ -676,7 +676,7 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
 
     Parameters
     ----------
-    rows : rows of :data:`CSV_COLUMNS`
+    rows : rows of :data:`CSV_COLUMNS`; share_reachable NaN draws no reachable marks
     ax : matplotlib Axes, optional
         Draw into it (e.g. beside learning curves); else a new figure.
     out : Path, optional
@@ -702,8 +702,9 @@ def plot(rows: Sequence[Mapping[str, Any]], ax: Any = None, out: Path | None = N
         ax.bar(pos, 100 * share, width, color=f"C{k}", label=f"{name}: worth reaching")
         ax.errorbar(pos, 100 * share, yerr=100 * np.abs(np.stack([share - low, high - share])),
                     fmt="none", ecolor="k", lw=0.8, capsize=2)
-        ax.scatter(pos, 100 * reach, marker="_", s=120, color="k", zorder=3,
-                   label="reachable by a constant command" if k == 0 else None)
+        if np.isfinite(reach).any():  # NaN: not computed (analysis.sensitivity's shares)
+            ax.scatter(pos, 100 * reach, marker="_", s=120, color="k", zorder=3,
+                       label="reachable by a constant command" if k == 0 else None)
         if np.isfinite(grid).any():
             ax.scatter(pos, 100 * grid, marker="x", s=25, color="0.3", zorder=3,
                        label="grid of constant commands (check)" if k == 0 else None)
@@ -872,12 +873,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_files(args.out, ("optimality.csv", "optimality.png", "optimality_curves.png"),
                     "--out")
     settings = args.settings or [(r, n) for r in args.regions for n in args.joints]
-    try:
+    with usage_errors(parser, ValueError):
         rows, skipped = (read_csvs(args.from_csv), []) if args.from_csv else study(
             settings, args.readings, overrides, args.goals, args.gamma, args.seed,
             grid=args.grid, progress=not args.no_progress)
-    except ValueError as err:
-        parser.error(str(err))
     for line in skipped:
         print(line, file=sys.stderr)
     if not rows:

@@ -18,6 +18,8 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ddpg_her import config
+
 DEFAULT_FIGURE_SUFFIX = ".png"
 """The suffix a figure path without one gets (matplotlib's own default format)."""
 
@@ -101,14 +103,11 @@ def check_files(folder: str | os.PathLike, names: Iterable[str], flag: str) -> N
         check_writable(Path(folder) / name, flag)
 
 
-@contextlib.contextmanager
-def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
-    """An OutputError of the block, an output checked before any work, is a usage error:
-    ``parser.error`` (status 2)."""
-    try:
-        yield
-    except OutputError as err:
-        parser.error(str(err))
+def usage_errors(parser: argparse.ArgumentParser, *kinds: type[Exception]
+                 ) -> contextlib.AbstractContextManager[None]:
+    """An exception of ``kinds`` (default: an OutputError, an output checked before any work)
+    raised in the block is a usage error: ``parser.error`` (status 2)."""
+    return config.usage_errors(parser, *(kinds or (OutputError,)))
 
 
 @contextlib.contextmanager

@@ -502,10 +502,8 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Sett
                      f"about {need / 2 ** 30:.3g} GiB, more than the {have / 2 ** 30:.3g} GiB "
                      "of memory available; use a coarser voxel edge")
     for spec in args.regions:
-        try:
+        with usage_errors(parser, ValueError):
             regions.parse(spec, args.base_height)
-        except ValueError as err:
-            parser.error(str(err))
     return Settings(regions=tuple(args.regions), joints=tuple(dict.fromkeys(args.joints)),
                     samples=args.samples, seed=args.seed, resolution=args.resolution,
                     base_height=args.base_height, start=args.start, sampler=args.sampler,
@@ -539,11 +537,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             for suffix in (".json", ".csv"):
                 check_writable(args.plot.with_suffix(suffix), "--plot")
     if args.view is not None:
-        try:
+        with usage_errors(parser, ImportError, OutputError):
             check_writable(pathlib.Path(args.view), "--view")
             size = view(settings, args.view)
-        except (ImportError, OutputError) as err:
-            parser.error(str(err))
         print(f"wrote {args.view} ({size / 1e6:.1f} MB)", file=sys.stderr)
     study = run_study(settings, progress)
     if args.json:

@@ -244,21 +244,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m analysis.replay``."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        check_run(args.run)
-    except ReplayError as err:
-        parser.error(str(err))
     from analysis.outputs import check_writable, usage_errors, write_errors
 
+    with usage_errors(parser, ReplayError):
+        check_run(args.run)
     if not args.serve:
         with usage_errors(parser):  # before the rollout, which takes minutes
             check_writable(args.out, "--out")
     from analysis import scene as scenes
 
-    try:
+    with usage_errors(parser, ImportError):
         scenes.meshcat_module()
-    except ImportError as err:
-        parser.error(str(err))
     import ddpg_her
 
     try:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ddpg_her.config import usage_errors
 from ddpg_her.runfolder import RUN_FORMAT_PREFIX, Run, RunFolderError, is_run_spec, read_run
 from ur5kin.checks import number
 
@@ -280,7 +281,7 @@ def groups_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) 
         parser.error("give RUNS_ROOT folders or --groups NAME=DIR ..., one of the two")
     if args.groups and (args.group_by or args.pool):
         parser.error("--groups names the groups itself: drop --group-by and --pool")
-    try:
+    with usage_errors(parser, FileNotFoundError, RunFolderError, ValueError):
         if args.groups:
             named = [g.partition("=") for g in args.groups]
             if any(not name or not sep or not folder for name, sep, folder in named):
@@ -293,8 +294,6 @@ def groups_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) 
         else:
             found = [r for r in find_runs(args.roots) if len(r.episode)]
             groups = group_runs(found, args.group_by, args.pool)
-    except (FileNotFoundError, RunFolderError, ValueError) as err:
-        parser.error(str(err))
     if not groups:
         parser.error("no run with evaluations below "
                      f"{', '.join(map(str, args.roots or args.groups))}")

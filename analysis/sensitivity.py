@@ -634,28 +634,14 @@ def plot_curves(rows: Sequence[dict], settings: Sequence[tuple[str, int]],
 
 def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
                readings: Sequence[str], out: Path) -> None:
-    """Grouped bars: per setting, each reading's share of goals worth reaching (%)."""
-    fig, ax = pyplot().subplots(figsize=(max(6.0, 1.4 * len(settings) + 1), 3.4))
-    width = 0.8 / max(1, len(readings))
-    labelled: set[str] = set()
-    for k, reading in enumerate(readings):
-        for i, setting in enumerate(settings):
-            cell = next((c for c in cells if c.reading == reading and c.setting == setting
-                         and c.worth is not None), None)
-            if cell is None:
-                continue
-            share, low, high = cell.worth
-            ax.bar(i + (k - (len(readings) - 1) / 2) * width, share, width, color=f"C{k}",
-                   yerr=[[share - low], [high - share]], capsize=2,
-                   label=None if reading in labelled else reading)
-            labelled.add(reading)
-    ax.set_xticks(range(len(settings)), [f"{r} {j}" for r, j in settings], fontsize=8)
-    ax.set_ylabel("goals worth reaching (%)")
-    ax.set_ylim(0, 105)
-    ax.legend(fontsize=7)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, out, dpi=120)
+    """Grouped bars: per setting, each reading's share of goals worth reaching (%) with its
+    interval, drawn as ``analysis.optimality.plot`` draws its shares."""
+    from analysis.optimality import plot
+
+    worth = {(c.reading, c.setting): c.worth for c in cells if c.worth is not None}
+    plot([{"region": s[0], "joints": s[1], "reading": r, "share_reachable": np.nan, **dict(zip(
+        ("share_worth", "ci_low", "ci_high"), np.divide(worth[(r, s)], 100.0), strict=True))}
+        for s in settings for r in readings if (r, s) in worth], out=out)
 
 
 def _fmt(stat: Interval | None) -> str:
@@ -874,14 +860,11 @@ def report_main(argv: Sequence[str]) -> int:
     with usage_errors(parser):  # before any computing
         check_files(out, ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
                           "worth_reaching.png", "report.md"), "--out" if args.out else "ROOT")
-    try:
-        with write_errors(parser), unless_replacing(args.force,
-                                                    f"report {args.root} --out {out}"):
-            result = report(args.root, out, args.episodes, args.seeds, args.confidence,
-                            args.reps, args.bootstrap_seed, args.worth_goals, args.readings,
-                            _user_readings(parser, args))
-    except (FileNotFoundError, ValueError) as err:
-        parser.error(str(err))
+    with usage_errors(parser, FileNotFoundError, ValueError), write_errors(parser), \
+            unless_replacing(args.force, f"report {args.root} --out {out}"):
+        result = report(args.root, out, args.episodes, args.seeds, args.confidence, args.reps,
+                        args.bootstrap_seed, args.worth_goals, args.readings,
+                        _user_readings(parser, args))
     print(result.text, end="")
     print("wrote " + ", ".join(map(str, result.files)), file=sys.stderr)
     return 0
@@ -922,22 +905,18 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
         return 0
     if args.collect is None:
         refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
-        try:
+        with usage_errors(parser, ValueError):
             for reading in readings:
                 write_reading(args.out, reading)
-        except ValueError as err:
-            parser.error(str(err))
         return execute(units, args, threads, extra, unit_word="units")
     root = args.collect / "runs"
-    try:  # a full disk, or runs it would replace: nothing half-written
-        with write_errors(parser), unless_replacing(args.force, f"--collect {args.collect}"):
-            copied, skipped = collect(units, args.collect)
-            done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
-            for reading in readings:  # units started by hand have no reading.json of their own
-                if reading.name in done or (root / reading.name).is_dir():
-                    write_reading(root, reading)
-    except ValueError as err:
-        parser.error(str(err))
+    with usage_errors(parser, ValueError), write_errors(parser), \
+            unless_replacing(args.force, f"--collect {args.collect}"):  # nothing half-written
+        copied, skipped = collect(units, args.collect)
+        done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
+        for reading in readings:  # units started by hand have no reading.json of their own
+            if reading.name in done or (root / reading.name).is_dir():
+                write_reading(root, reading)
     print(f"copied {copied} finished unit(s) to {root}; {len(skipped)} not finished"
           + (": " + ", ".join(skipped) if skipped else ""), file=sys.stderr)
     return 0

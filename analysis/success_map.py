@@ -206,19 +206,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ddpg_her.runfolder import RunFolder
 
     for run in args.runs:  # before loading: load makes the run's env, which may not be ours
-        try:
+        with usage_errors(parser, ValueError):
             env_id = RunFolder(run).read_spec().get("env_id")
-        except ValueError as err:
-            parser.error(str(err))
         if env_id not in MAPPED_ENV_IDS:
             parser.error(f"{run} is a run of env {env_id!r}; only runs of "
                          f"{', '.join(MAPPED_ENV_IDS)} can be mapped")
     policies = []
     for run in args.runs:
-        try:  # load checks that the run's env (its task, region included) can be made
+        with usage_errors(parser, FileNotFoundError, ValueError):  # load checks the run's env
             policies.append(ddpg_her.load(run, episode=args.episode))
-        except (FileNotFoundError, ValueError) as err:
-            parser.error(str(err))
     tasks = [p.task for p in policies]  # the task of the env the policy was trained on
     if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
         parser.error("the runs have different tasks (region, joints, start, sampler); maps of "

@@ -37,6 +37,7 @@ from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.config import Parser
 from ddpg_her.runfolder import RunFolder, run_status
+from ddpg_her.train import add_window_flags, check_window_flags
 from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passthrough
 from ur5kin.checks import COUNT
 
@@ -380,19 +381,8 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                         help="the training program for every unfinished unit in one process: "
                              "--one-process --env-backend program (the whole grid, or --part, "
                              "as one stack of agents on --device)")
-    parser.add_argument("--tf32", action="store_true",
-                        help="with the program on cuda: TF32 matrix products "
-                             "(ddpg_her.train --tf32; recorded in spec.json)")
-    parser.add_argument("--window", action="store_true",
-                        help="with --program: runs for one GPU window (ddpg_her.train "
-                             "--window): eval.csv every session, actors and normalisers at "
-                             "the end, no replay-buffer chunks or mid-run checkpoints, so they "
-                             "CANNOT BE RESUMED")
-    parser.add_argument("--budget-seconds", type=float, default=None, metavar="S",
-                        help="with --window: the training process's wall seconds (> 0); it "
-                             "trains the largest of --episodes, its half, quarter and eighth "
-                             "that it projects to end within S (ddpg_her.train "
-                             "--budget-seconds)")
+    add_window_flags(parser, "the training program (--program)",
+                     "--episodes, its half, quarter and eighth")
     parser.add_argument("--one-process", action=argparse.BooleanOptionalAction, default=False,
                         help="train every unfinished unit in one process (python -m "
                              "ddpg_her.train_many: units of one joint count and agent "
@@ -407,14 +397,15 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                         default=None,
                         help="with --dry-run: print the projected wall time (s and h) of the "
                              "run. 'quick' (the flag alone): each distinct process layout "
-                             "(joint count, seeds, own arguments) trains 2 episodes (a warm-up "
-                             "and a learning episode of 25 updates, each with a test session "
-                             "of 1 episode per agent) as the real command would run it, in a "
-                             "temporary folder deleted afterwards, scaled by a stated model "
-                             "(seconds to a minute); 'full': then also train the first two "
-                             "test intervals (2 x --eval-every episodes) of every unfinished "
-                             "unit, its cost by the quick model printed before it starts "
-                             "(about 1 %% of the paper's run)")
+                             "(joint count, seeds, own arguments), one at a time, trains 2 "
+                             "episodes (a warm-up and a learning episode of 25 updates, each "
+                             "with a test session of 1 episode per agent) as the real command "
+                             "would run it, in a temporary folder deleted afterwards, scaled by "
+                             "a stated model, its processes run --workers at a time without "
+                             "slowing each other (seconds to a minute); 'full': then also train "
+                             "the first two test intervals (2 x --eval-every episodes) of every "
+                             "unfinished unit, its cost by the quick model printed before it "
+                             "starts (about 1 %% of the paper's run)")
 
 
 RAY_CONNECT_S = 5.0
@@ -455,12 +446,7 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
             parser.error(f"--program trains with --env-backend program; got --env-backend "
                          f"{args.env_backend}")
         args.one_process, args.env_backend = True, "program"
-    for flag, given in (("--tf32", args.tf32), ("--window", args.window)):
-        if given and args.env_backend != "program":
-            parser.error(f"{flag} is a setting of the training program (--program)")
-    if args.budget_seconds is not None and not (args.window and args.budget_seconds > 0):
-        parser.error(f"--budget-seconds {args.budget_seconds}: a time budget is a --window "
-                     "run's, in seconds > 0")
+    check_window_flags(parser, args, "the training program (--program)")
     if args.one_process and args.ray_address:
         parser.error("--one-process runs here, not on Ray; drop --ray-address or add "
                      "--no-one-process")
@@ -829,11 +815,13 @@ def projection_folder() -> Path:
 
 
 def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
-              extra: Sequence[str], what: str) -> tuple[float, list[list[float]]]:
+              extra: Sequence[str], what: str, workers: int | None = None
+              ) -> tuple[float, list[list[float]]]:
     """Train ``units`` (their roots in a `projection_folder`) as `execute` would, ``extra``
-    after every unit's own arguments; (wall seconds spent, each unit's first seed's eval
-    ``wall_s``). The folder is deleted afterwards, also on SIGTERM or Ctrl-C; a process that
-    failed is named with its log's last line before (not a path to a deleted log)."""
+    after every unit's own arguments, in ``workers`` processes at a time (default --workers);
+    (wall seconds spent, each unit's first seed's eval ``wall_s``). The folder is deleted
+    afterwards, also on SIGTERM or Ctrl-C; a process that failed is named with its log's last
+    line before (not a path to a deleted log)."""
     import dataclasses
     import shutil
 
@@ -847,8 +835,8 @@ def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
                 status = run_one_process(timed, argparse.Namespace(**{**vars(args), "out": tmp}),
                                          threads, extra)
             else:
-                status = run_local(timed, args.workers, threads, [*extra, *backend_args(args)],
-                                   args.device) and 1
+                status = run_local(timed, workers or args.workers, threads,
+                                   [*extra, *backend_args(args)], args.device) and 1
         spent = time.perf_counter() - start
         if status != 0:
             for log in sorted(tmp.rglob("*.log")):
@@ -877,9 +865,10 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
                      extra: Sequence[str]) -> float:
     """Print the projected wall time (s) of the real run of the unfinished units, and return
     it: by default ("quick") by `EpisodeCosts`, timed on 2 episodes of one process per
-    distinct `layout` (with ``--one-process``, of the one process), run as the real command
-    would run them; with ``--project full``, then by training the first two test intervals of
-    every unit (`projected_seconds`), its cost by the quick model printed first."""
+    distinct `layout` (with ``--one-process``, of the one process), run one at a time as the
+    real command would run them, then scheduled on --workers (`makespan`); with ``--project
+    full``, then by training the first two test intervals of every unit
+    (`projected_seconds`), its cost by the quick model printed first."""
     import dataclasses
 
     todo = [u for u in units if u.pending()]
@@ -892,14 +881,17 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     reps = list(dict.fromkeys(keys))
     timed = [dataclasses.replace(u, episodes=2) for u in
              (todo if args.one_process else [todo[keys.index(k)] for k in reps])]
+    # one at a time: 2 episodes run beside another layout's start-up (or alone, the last of
+    # --workers) would time that start-up (or none) as every episode's
     spent, walls = timed_run(timed, args, threads, [*extra, *QUICK_ARGS],
-                             f"the timed run of {len(reps)} process layout(s)")
+                             f"the timed run of {len(reps)} process layout(s)", workers=1)
     def span(times: Sequence[float]) -> float:  # the processes' wall time, run as planned
         # one process is one stack: each episode steps every unit at once
         return max(times) if args.one_process else makespan(times, args.workers)
 
-    waves = 1 if args.one_process else -(-len(timed) // args.workers)
-    start = max(0.0, spent - span([w[-1] for w in walls])) / waves
+    ends = [w[-1] for w in walls]
+    start = max(0.0, spent - max(ends)) if args.one_process else \
+        max(0.0, spent - sum(ends)) / len(timed)
     costs = {k: EpisodeCosts.of_rows(w, start) for k, w in zip(reps, walls, strict=True)}
     seconds = [costs[k].seconds(c, d) for k, c, d in zip(keys, configs, done, strict=True)]
     for unit, n, sec in zip(todo, done, seconds, strict=True):
@@ -912,7 +904,8 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
           f"--device {args.device}; model: per process {start:.0f} s of start-up + episodes x "
           "(a rollout of its agents + its updates) + test episodes x a rollout (sessions "
           "counted episode by episode), each term timed on 2 episodes of each of "
-          f"{len(reps)} process layout(s) in {spent:.0f} s", flush=True)
+          f"{len(reps)} process layout(s) in {spent:.0f} s, one at a time, at a load average "
+          f"of {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
     if args.project == "full":
         first = [dataclasses.replace(c, episodes=min(2 * c.eval_every, c.episodes))
                  for c in configs]

@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import dataclasses
 import enum
 import inspect
 import itertools
 import textwrap
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cache
 from typing import Any, NoReturn
@@ -24,6 +26,16 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (--help for the usage)\n")
+
+
+@contextlib.contextmanager
+def usage_errors(parser: argparse.ArgumentParser, *kinds: type[Exception]) -> Iterator[None]:
+    """An exception of ``kinds`` raised in the block is a usage error: ``parser.error`` with its
+    message (status 2)."""
+    try:
+        yield
+    except kinds as err:
+        parser.error(str(err))
 
 
 class Exploration(str, enum.Enum):

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from ddpg_her.config import Parser
+from ddpg_her.config import Parser, usage_errors
 from ddpg_her.runfolder import RunFolder, RunFolderError
 from ur5kin.checks import COUNT
 
@@ -70,10 +70,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--project-to", type=COUNT.read, default=20_000, metavar="EPISODES",
                         help="episodes of the projected run (default: 20000, the paper's)")
     args = parser.parse_args(argv)
-    try:
+    with usage_errors(parser, OSError, ValueError):
         print(summarize(args.run_dirs, args.project_to))
-    except (OSError, ValueError) as e:
-        parser.error(str(e))
     return 0
 
 

@@ -21,7 +21,7 @@ import typing
 from collections.abc import Sequence
 from typing import Any
 
-from ddpg_her.config import COMBINATIONS, VALID, AgentConfig, Parser, field_docs
+from ddpg_her.config import COMBINATIONS, VALID, AgentConfig, Parser, field_docs, usage_errors
 from ddpg_her.units import DEFAULT_JOINTS, Setting, check_device, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
@@ -81,26 +81,7 @@ def add_process_flags(group: Any, what: str) -> None:
                             "counter-based streams (spec.json's 'program'), so a seed trains "
                             "otherwise than under the other backends, and alike alone or in "
                             "any stack")
-    group.add_argument("--tf32", action="store_true",
-                       help="with --env-backend program on cuda: let the matrix products "
-                            "round their operands to TF32 (10-bit mantissas; faster on "
-                            "Ampere and later, recorded in spec.json). Off by default until "
-                            "its effect on learning is measured")
-    group.add_argument("--window", action="store_true",
-                       help="with --env-backend program: a run for one GPU window, whose "
-                            "replay buffers cannot leave the machine: eval.csv at every test "
-                            "session and the actors and normalisers at the end (ddpg_her.load "
-                            "reads them), but no replay-buffer chunks and no checkpoints "
-                            "before the end, so the run CANNOT BE RESUMED (spec.json records "
-                            "program.window; --resume of it is refused)")
-    group.add_argument("--budget-seconds", type=float, default=None, metavar="S",
-                       help="with --window: wall seconds (> 0) from this command's start "
-                            "(imports, compiling and warm-up included) that the training may "
-                            "take; from the second test session on, each session measures "
-                            "the last interval's seconds per episode and trains the largest "
-                            "of --episodes-choices projected to end within S (or the smallest "
-                            "left when none is), says so on stderr and records it in "
-                            "spec.json (agent.episodes, program.budget)")
+    add_window_flags(group, "--env-backend program", "--episodes-choices")
     group.add_argument("--episodes-choices", type=int, nargs="+", default=None, metavar="N",
                        help="with --budget-seconds: the budgets (episodes, multiples of "
                             "--eval-every) to choose among; the largest must be --episodes "
@@ -113,6 +94,42 @@ def add_process_flags(group: Any, what: str) -> None:
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
     group.add_argument("--no-tensorboard", action="store_true",
                        help="no TensorBoard logs even when tensorboard is installed")
+
+
+def add_window_flags(group: Any, program: str, choices: str) -> None:
+    """--tf32, --window, --budget-seconds (also analysis.sweep's): ``program`` says how the
+    command selects the program, ``choices`` the budgets that --budget-seconds chooses among."""
+    group.add_argument("--tf32", action="store_true",
+                       help=f"with {program} on cuda: let the matrix products round their "
+                            "operands to TF32 (10-bit mantissas; faster on Ampere and later, "
+                            "recorded in spec.json). Off by default until its effect on "
+                            "learning is measured")
+    group.add_argument("--window", action="store_true",
+                       help=f"with {program}: a run for one GPU window, whose replay buffers "
+                            "cannot leave the machine: eval.csv at every test session and the "
+                            "actors and normalisers at the end (ddpg_her.load reads them), but "
+                            "no replay-buffer chunks and no checkpoints before the end, so the "
+                            "run CANNOT BE RESUMED (spec.json records program.window; --resume "
+                            "of it is refused)")
+    group.add_argument("--budget-seconds", type=float, default=None, metavar="S",
+                       help="with --window: wall seconds (> 0) from the training command's "
+                            "start (imports, compiling and warm-up included) that the training "
+                            "may take; from the second test session on, each session measures "
+                            "the last interval's seconds per episode and trains the largest of "
+                            f"{choices} projected to end within S (or the smallest left when "
+                            "none is), says so on stderr and records it in spec.json "
+                            "(agent.episodes, program.budget)")
+
+
+def check_window_flags(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                       program: str) -> None:
+    """Refuse the `add_window_flags` given without the program (``program``) or --window."""
+    for flag, given in (("--tf32", args.tf32), ("--window", args.window)):
+        if given and args.env_backend != "program":
+            parser.error(f"{flag} is a setting of {program}")
+    if args.budget_seconds is not None and not (args.window and args.budget_seconds > 0):
+        parser.error(f"--budget-seconds {args.budget_seconds}: a time budget is a --window "
+                     "run's, in seconds > 0")
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -352,10 +369,8 @@ def build(parser: argparse.ArgumentParser, args: argparse.Namespace,
 
     program: dict[str, Any] = {}
     if args.env_backend == "program":
-        try:
+        with usage_errors(parser, ValueError):
             check_stack(settings, args.device, args.tf32)
-        except ValueError as err:
-            parser.error(str(err))
         from ddpg_her.loop import Budget
 
         budget = None
@@ -430,12 +445,7 @@ def check_process_flags(parser: argparse.ArgumentParser, args: argparse.Namespac
     if args.threads is not None and not 1 <= args.threads <= cores:
         parser.error(f"--threads must be in 1..{cores} (this machine's cores), got "
                      f"{args.threads}")
-    for flag, given in (("--tf32", args.tf32), ("--window", args.window)):
-        if given and args.env_backend != "program":
-            parser.error(f"{flag} is a setting of --env-backend program")
-    if args.budget_seconds is not None and not (args.window and args.budget_seconds > 0):
-        parser.error(f"--budget-seconds {args.budget_seconds}: a time budget is a --window "
-                     "run's, in seconds > 0")
+    check_window_flags(parser, args, "--env-backend program")
     if args.episodes_choices is not None and args.budget_seconds is None:
         parser.error("--episodes-choices are the budgets --budget-seconds chooses among")
 
@@ -445,10 +455,8 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     deterministic algorithms (runs bitwise repeatable on the CPU)."""
     import torch
 
-    try:
+    with usage_errors(parser, ValueError):
         check_device(args.device)
-    except ValueError as err:
-        parser.error(str(err))
     from ddpg_her.units import DEFAULT_THREADS
 
     torch.set_num_threads(args.threads or DEFAULT_THREADS)
@@ -487,10 +495,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(parser, argv)
     args.started = started
     check_process_flags(parser, args)
-    try:
+    with usage_errors(parser, ValueError):
         req = request(args)
-    except ValueError as e:
-        parser.error(str(e))
     if req.note:
         print(req.note, file=sys.stderr)
     from ddpg_her.runfolder import run_status

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ddpg_her import train
-from ddpg_her.config import Parser
+from ddpg_her.config import Parser, usage_errors
 from ddpg_her.units import option_dests, overrides, read_plan, split_passthrough
 
 
@@ -119,16 +119,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     train.check_process_flags(parser, args)
     units = list(args.unit)
     for path in args.plan:
-        try:
+        with usage_errors(parser, ValueError):
             units += read_plan(path)
-        except ValueError as err:
-            parser.error(str(err))
     if not units:
         parser.error("give one or more --unit or --plan")
-    try:
+    with usage_errors(parser, ValueError):
         settings = settings_of(units, resume=args.resume, common=common)
-    except ValueError as err:
-        parser.error(str(err))
     writers: dict[Path, str] = {}  # a dry run refuses what the real one could not start
     for s in settings:
         for seed, folder in zip(s.seeds, s.run_dirs, strict=True):
@@ -156,11 +152,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"note: {err}: the real run here would refuse; listed as a machine with one "
               "would run it", file=sys.stderr)
         device, tf32 = "cpu", False
-    try:
+    with usage_errors(parser, ValueError):
         if args.env_backend == "program" and todo:
             train.check_stack(todo, device, tf32)
-    except ValueError as err:
-        parser.error(str(err))
     if args.dry_run:
         try:  # each unit's task built as the real run builds it (one stack groups none)
             for s in todo if args.env_backend != "program" else ():

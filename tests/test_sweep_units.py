@@ -137,6 +137,44 @@ def test_the_quick_model_is_exact_for_a_trainer_whose_clock_is_linear():
             wall(episodes, warmup, every, tests, updates, done))
 
 
+def test_the_quick_projection_times_its_layouts_one_at_a_time(tmp_path, capsys, monkeypatch):
+    """With --workers 2, the 2 timed episodes of a layout ran beside the next layout's start-up
+    and the last layout ran alone, so the quick model priced a 6-joint unit below a 3-joint one
+    (9,034 s against 15,996 s at 3,000 episodes): each layout is timed alone, and only the
+    projection of the real run is scheduled on the workers."""
+    import subprocess
+    import sys
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    started: list[subprocess.Popen] = []
+    overlaps: list[int] = []
+
+    def fake_start(command, log_path, threads, cwd=None):  # 2 eval rows, 1 s and 3 s of clock
+        out, seeds = command[command.index("--out") + 1], command[command.index("--seeds") + 1]
+        rows = "episode,successes,tests,mean_return,mean_final_distance_m,env_steps,wall_s\n" \
+               "1,0,1,-1.0,0.5,100,1.0\n2,0,1,-1.0,0.5,200,3.0\n"
+        script = (f"import pathlib, time; time.sleep(0.3); p = pathlib.Path({out!r}.format("
+                  f"seed={seeds})); p.mkdir(parents=True); (p / 'eval.csv').write_text({rows!r})")
+        overlaps.append(sum(p.poll() is None for p in started))
+        started.append(subprocess.Popen([sys.executable, "-c", script]))
+        Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+        return started[-1], open(log_path, "a")  # run_local closes it
+
+    monkeypatch.setattr(sweep, "start_unit", fake_start)
+    assert sweep.main(["--setting", "farbox:3", "--setting", "farbox:6", "--episodes", "200",
+                       "--seeds", "1", "--out", str(tmp_path / "runs"), "--workers", "2",
+                       "--dry-run", "--project"]) == 0
+    assert overlaps == [0, 0]
+    printed = capsys.readouterr()
+    # rollout 0.5 s, update (3 - 2) / 25 s: 200 + 2 x 100 rollouts + 100 x 100 updates per unit
+    seconds = 400 * 0.5 + 100 * 100 * 1.0 / sweep.QUICK_UPDATES
+    assert printed.err.count(f"{seconds:10.0f} s of training") == 2
+    total = float(next(s for s in printed.out.splitlines()
+                       if s.startswith("projected wall time:")).split()[3])
+    assert seconds <= total < 1.5 * seconds  # the two units side by side on the 2 workers
+
+
 def test_a_killed_projections_folder_is_deleted_by_the_next(tmp_path, monkeypatch):
     import subprocess
     import sys
