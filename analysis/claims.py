@@ -101,8 +101,8 @@ def load(results: Path) -> tuple[dict[tuple[str, int], Curves], dict[str, Curves
 def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curves]
                 ) -> list[Check]:
     """The three claims of `EXTRA`, each comparing variants with the default far box 3 cut to
-    the variant's budget; a variant short of `EXTRA_EPISODES` gives *not judgeable* (what it
-    shows so far is said, not judged)."""
+    the variant's budget (each Welch p named in the detail); a variant short of
+    `EXTRA_EPISODES` gives *not judgeable* (what it shows so far is said, not judged)."""
     interval, out = student_t(), []
     base = curves.get(("farbox", 3))
     for name, _, _, names in EXTRA:
@@ -111,15 +111,16 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
             lack = [n for n in names if n not in variants] + (["farbox 3"] if base is None else [])
             out.append(Check(name, Verdict.NOT_RUN, "runs missing: " + ", ".join(lack)))
             continue
-        each, parts, ps = [], [], []
-        for n in have:
+        each, parts = [], []
+        for n in have:  # each comparison's Welch p named in its part: a claim may have two
             end = min(base.end, variants[n].end)
             b_level, v_level = base.until(end).level(), variants[n].until(end).level()
             b, v = interval(b_level, PERCENT), interval(v_level, PERCENT)
+            against = {"sparse": "dense", "per": "uniform"}.get(n, "position")
             parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) "
                          f"{fmt_interval(b)}, {VARIANTS[n]} {fmt_interval(v)} "
-                         f"({len(v_level)} seeds)")
-            ps.append(welch_p(b_level, v_level))
+                         f"({len(v_level)} seeds; {n} vs {against}: Welch p "
+                         f"{welch_p(b_level, v_level):.2g})")
             each.append(apart(b, v) if name != EXTRA[0][0] else
                         Verdict.YES if v[2] < NEGLIGIBLE else Verdict.NO if v[1] >= NEGLIGIBLE
                         else Verdict.NOISE)
@@ -128,8 +129,7 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
         if short:
             parts.insert(0, f"runs short of {EXTRA_EPISODES:,} episodes; so far "
                          f"({WORDS[verdict]} so far, not a verdict)")
-        out.append(Check(name, Verdict.NOT_JUDGEABLE if short else verdict, "; ".join(parts),
-                         min(ps)))
+        out.append(Check(name, Verdict.NOT_JUDGEABLE if short else verdict, "; ".join(parts)))
     return out
 
 

@@ -246,7 +246,8 @@ class Check:
     verdict: Verdict
     detail: str
     p_value: float | None = None
-    """Two-sided Welch p-value over seeds of the claim's comparison (None: not a comparison)."""
+    """Two-sided Welch p over seeds of the claim's comparison (None: none, or several, each
+    named in the detail: `analysis.claims`)."""
     confounds: tuple[str, ...] = ()
     """What differs between the compared settings besides what the claim is about."""
     plateau_at: int | None = None

@@ -136,7 +136,7 @@ def sass_figures(cubin: bytes, rows: list[int]) -> dict[str, Any]:
         code.append((int(m.group(1), 16), m.group(3), m.group(4)))
     addr = [a for a, _, _ in code]
     fp64 = [op.startswith(("DADD", "DMUL", "DFMA", "DSETP", "DMNMX", "DSET", "F2F.F64", "DMMA"))
-            or op.startswith("MUFU") and ".64" in op for _, op, _ in code]
+            or (op.startswith("MUFU") and ".64" in op) for _, op, _ in code]
     branches = []  # (from index, to index)
     for i, (_, op, args) in enumerate(code):
         target = re.search(r"0x([0-9a-f]+)", args) if op.startswith("BRA") else None
@@ -170,7 +170,7 @@ def sass_figures(cubin: bytes, rows: list[int]) -> dict[str, Any]:
         looped = [n for n in rows if n > 1]
         if outer_inner and len(outer_inner) != len(looped):
             dynamic = dynamic_fp64 = None
-        for (a, b), n in zip(outer_inner, looped if dynamic is not None else []):
+        for (a, b), n in zip(outer_inner, looped if dynamic is not None else [], strict=False):
             # a loop over n rows, unrolled by ptxas: one minimum (a DSETP) per row
             extra, extra_fp64 = count(a, b)
             per_row = max(1, sum(op.startswith("DSETP") for _, op, _ in code[a:b]))

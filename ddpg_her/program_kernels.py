@@ -135,10 +135,7 @@ def _settle(q, w, dw, acceleration, v, tool, goal, elapsed, action, scale, mask,
         if NORM:
             y = y.to(x.dtype.element_ty) - tl.load(mean + a * 24 + j, mask=ok, other=0.0)
             s = tl.load(std + a * 24 + j, mask=ok, other=1.0)
-            if x.dtype.element_ty == tl.float32:
-                y = tl.math.div_rn(y, s)
-            else:
-                y = y / s
+            y = tl.math.div_rn(y, s) if x.dtype.element_ty == tl.float32 else y / s
             y = tl.minimum(tl.maximum(y, -clip.to(y.dtype)), clip.to(y.dtype))
         tl.store(x + b * 24 + j, y, mask=ok)
 
@@ -212,10 +209,7 @@ def _normalize(x, x2, sk, sn, mean, std, out, clip, K, N, D, BLOCK_R: tl.constex
                  tl.load(x2 + src, mask=ok & (c >= K), other=0.0))
     y = y - tl.load(mean + a * D + d, mask=ok, other=0.0)
     s = tl.load(std + a * D + d, mask=ok, other=1.0)
-    if y.dtype == tl.float32:
-        y = tl.math.div_rn(y, s)
-    else:
-        y = y / s
+    y = tl.math.div_rn(y, s) if y.dtype == tl.float32 else y / s
     c_ = tl.load(clip).to(y.dtype)
     tl.store(out + row * D + d, tl.minimum(tl.maximum(y, -c_), c_), mask=ok)
 

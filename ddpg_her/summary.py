@@ -27,9 +27,9 @@ def summarize(run_dirs: Sequence[str], project_to: int) -> str:
         cannot be read; the message names the file.
     """
     runs = []
-    for d in [str(s.parent) for d in run_dirs for s in (
-            [Path(d) / "spec.json"] if (Path(d) / "spec.json").exists() or not Path(d).is_dir()
-            else sorted(Path(d).glob("*/spec.json")) or [Path(d) / "spec.json"])]:
+    for d in [str(s.parent) for g in map(Path, run_dirs) for s in (
+            [g / "spec.json"] if (g / "spec.json").exists() or not g.is_dir()
+            else sorted(g.glob("*/spec.json")) or [g / "spec.json"])]:
         folder = RunFolder(d)
         spec = folder.read_spec()
         if "seed" not in spec:

@@ -460,7 +460,8 @@ def start_process(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     from ddpg_her.units import DEFAULT_THREADS
 
     torch.set_num_threads(args.threads or DEFAULT_THREADS)
-    torch.use_deterministic_algorithms(True, warn_only=args.device != "cpu")
+    # use_deterministic_algorithms but inductor's unused flag (1.5 CPU-s); test_ddpg_train guards
+    torch._C._set_deterministic_algorithms(True, warn_only=args.device != "cpu")
 
 
 def register_envs(parser: argparse.ArgumentParser, env_ids: Sequence[str]) -> None:

@@ -9,7 +9,8 @@ agent's deterministic policy.
 The K agents may pursue different tasks of one observation and action layout (``env_kwargs``
 per agent: regions, reward readings, contact models); they share the agent configuration.
 Agent k's randomness comes from its seed alone (env episodes, initial weights, exploration, HER
-goals, minibatches), so K = 1 and K > 1 train agent k alike, and a resumed run continues exactly.
+goals, minibatches), the same for K = 1 and K > 1; its rounding is not (K's batched products round
+otherwise: docs/design.md, "Evaluation and seeds"). A resumed run continues exactly.
 `ddpg_her.multi` runs several such trainers (other layouts or configurations) in turn."""
 
 from __future__ import annotations

@@ -66,6 +66,10 @@ def test_the_unrun_claims_are_judged_when_their_runs_land(tmp_path: Path) -> Non
     position = rows["only position control non-negligible"]
     assert position["verdict"] == "within noise" and position["budget run"] == "1,000"
     assert "velocity control 2.8" in position["our figure"]
+    # each comparison's Welch p (scipy's) named in the figure: this claim has two
+    welch = lambda v: stats.ttest_ind(base, v, equal_var=False).pvalue  # noqa: E731
+    for name, levels in (("velocity", [2, 3, 4, 2, 3]), ("torque", [8, 12, 10, 9, 11])):
+        assert f"{name} vs position: Welch p {welch(levels):.2g}" in position["our figure"]
     assert t([40, 50, 45, 55, 60])[1] < t(base)[0]
     assert rows["dense reward above sparse"]["verdict"] == "holds"
     assert t([100, 96, 97, 99, 98])[0] < t(base)[1]

@@ -1,6 +1,8 @@
 """ddpg_her's training protocol, run folders and command line, on the toy goal env."""
 
+import ast
 import csv
+import inspect
 import json
 import os
 import subprocess
@@ -12,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 import toy_goal_env
-from cli_tools import run_module
+from cli_tools import child_env, package_modules, run_module
 from toy_goal_env import ENV_ID
 
 import ddpg_her
@@ -363,6 +365,85 @@ def test_cli_tiny_run_and_its_errors(tmp_path):
     fails(*tiny[:3], "nowhere", "--out", str(tmp_path / "x"), message="unknown region 'nowhere'")
     fails(*tiny, "--gamma", "1.5", message="gamma=1.5")
     fails(*tiny, "--exploration", "boltzmann", message="invalid choice")
+
+
+# --- the process's deterministic flag, set without importing inductor --------------------------
+def test_torchs_public_deterministic_call_is_the_private_one_plus_inductors_flag():
+    """ddpg_her.train.start_process calls ``torch._C._set_deterministic_algorithms``: what
+    ``torch.use_deterministic_algorithms`` does but for inductor's own flag, whose import costs
+    about 1.5 CPU-s in every training process. A torch whose public function does more fails
+    here; so does a module of the five packages that compiles with inductor (whose flag would
+    then matter) or touches it."""
+    body = ast.parse(inspect.getsource(torch.use_deterministic_algorithms)).body[0].body[1:]
+    assert [ast.unparse(s) for s in body] == [
+        "import torch._inductor.config as inductor_config",
+        "inductor_config.deterministic = mode",
+        "_C._set_deterministic_algorithms(mode, warn_only=warn_only)"]
+    users = []
+    for name, path in package_modules().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Attribute) and node.attr in ("compile", "_inductor")
+                    and isinstance(node.value, ast.Name) and node.value.id == "torch"):
+                users.append(f"{name}:{node.lineno}")
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                modules = [a.name for a in node.names] if isinstance(node, ast.Import) else [
+                    node.module or "", *(f"{node.module}.{a.name}" for a in node.names)]
+                users += [f"{name}:{node.lineno}" for m in modules
+                          if m.startswith(("torch._inductor", "torch._dynamo"))
+                          or m == "torch.compile"]
+    assert not users, users
+
+
+def test_a_run_under_the_private_deterministic_call_equals_one_under_the_public_call(tmp_path):
+    """The same tiny command, once as it runs (the private call; inductor never imported) and
+    once after ``torch.use_deterministic_algorithms(True)`` (inductor imported): the same
+    deterministic flags, eval.csv and checkpoints (weights, optimiser, rng) to the bit, but
+    for the wall clock."""
+    argv = ["--env-id", "toy_goal_env:ToyReach-v0", "--region", "box", "--joints", "2",
+            "--episodes", "4", "--eval-every", "2", "--eval-episodes", "2", "--hidden-sizes",
+            "8", "8", "--updates-per-episode", "2", "--warmup-episodes", "1", "--batch-size",
+            "8", "--buffer-size", "200", "--no-progress", "--no-tensorboard", "--threads", "1"]
+    script = ("import runpy, sys, torch\n"
+              "if sys.argv[1] == 'public': torch.use_deterministic_algorithms(True)\n"
+              "sys.argv[1:2] = []\n"
+              "try: runpy.run_module('ddpg_her.train', run_name='__main__')\n"
+              "except SystemExit as e: assert not e.code, e.code\n"
+              "print(torch.are_deterministic_algorithms_enabled(),\n"
+              "      torch.is_deterministic_algorithms_warn_only_enabled(),\n"
+              "      'torch._inductor' in sys.modules)\n")
+    flags = {}
+    for how in ("public", "private"):
+        run = subprocess.run([sys.executable, "-c", script, how, *argv, "--out",
+                              str(tmp_path / how)], capture_output=True, text=True,
+                             env=child_env(), timeout=300)
+        assert run.returncode == 0, run.stderr
+        flags[how] = run.stdout.split()[-3:]
+    assert flags == {"public": ["True", "False", "True"], "private": ["True", "False", "False"]}
+
+    def equal(a, b, where):
+        if isinstance(a, dict):
+            assert a.keys() == b.keys(), where
+            for k in a:
+                if k != "wall_s":
+                    equal(a[k], b[k], f"{where}/{k}")
+        elif isinstance(a, list | tuple):
+            assert len(a) == len(b), where
+            for i, (x, y) in enumerate(zip(a, b, strict=True)):
+                equal(x, y, f"{where}[{i}]")
+        elif isinstance(a, torch.Tensor):
+            assert torch.equal(a, b), where
+        elif isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b, err_msg=where)
+        else:
+            assert a == b, where
+
+    assert eval_table(tmp_path / "public") == eval_table(tmp_path / "private")
+    names = sorted(p.name for p in (tmp_path / "public" / "checkpoints").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "private" / "checkpoints").iterdir())
+    assert names
+    for name in names:
+        equal(*(torch.load(tmp_path / how / "checkpoints" / name, weights_only=False)
+                for how in ("public", "private")), name)
 
 
 @pytest.mark.parametrize("flush", [True, False])

@@ -2,11 +2,12 @@
 
 The physics of :mod:`envs.physics.pinocchio_loop` (equations in ``results/dynamics/README.md``)
 written as scalar loops: per copy, every substep (PD + gravity compensation, effort clip,
-Featherstone's articulated-body algorithm, velocity clip, semi-implicit Euler) and the stop
-checks, stopping a copy at its first invalid substep. :func:`step_copy` is one copy's step
-(no allocation, no Python object); :func:`control_step` the CPU batch loop around it. The chain and plane tables are :mod:`envs.physics.model`'s; the tests
-compare :func:`aba` with ``pin.aba`` and :class:`NumbaDynamics` with the Pinocchio loop. The
-kernels are compiled on first use and cached on disk (``cache=True``).
+Featherstone's articulated-body algorithm, velocity clip, semi-implicit Euler) and the stop checks,
+stopping a copy at its first invalid substep. :func:`step_copy` is one copy's step (no allocation,
+no Python object); :func:`control_step` the CPU batch loop around it. The chain and plane tables are
+:mod:`envs.physics.model`'s; the tests compare :func:`aba` with ``pin.aba`` and
+:class:`NumbaDynamics` with the Pinocchio loop. The kernels are compiled on first use and cached on
+disk (``cache=True``).
 """
 
 from __future__ import annotations

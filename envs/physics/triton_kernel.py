@@ -265,8 +265,8 @@ def launch_arguments(model: TritonModel, q: torch.Tensor, w: torch.Tensor,
     accel, features, height, lower_bounds, tool_fn = m.functions
     args = (q, w, height_bound, bias, free, dw, contact, limit_stop, tool, q.shape[0])
     constexprs = dict(W_MAX=m.w_max, Q_MID=m.q_mid, Q_HALF=m.q_half, MARGIN=m.margin,
-                      SUBSTEPS=m.substeps, BLOCK=block, ACCEL=accel, FEATURES=features, HEIGHT=height,
-                      LOWER_BOUNDS=lower_bounds, TOOL=tool_fn)
+                      SUBSTEPS=m.substeps, BLOCK=block, ACCEL=accel, FEATURES=features,
+                      HEIGHT=height, LOWER_BOUNDS=lower_bounds, TOOL=tool_fn)
     return args, constexprs
 
 
@@ -664,7 +664,7 @@ def generate(tables: tuple[tuple[str, Any], ...], cast_name: str) -> tuple[str, 
     filename = f"<envs.physics.triton_kernel {hashlib.sha1(text.encode()).hexdigest()[:16]}>"
     linecache.cache[filename] = (len(text), None, text.splitlines(True), filename)
     namespace: dict[str, Any] = {"__name__": f"{__name__}.generated"}
-    exec(compile(text, filename, "exec"), namespace)  # noqa: S102 - our own generated code
+    exec(compile(text, filename, "exec"), namespace)  # our own generated code
     return text, tuple(namespace[name] for name in GENERATED)
 
 
