@@ -17,29 +17,20 @@ from envs.task import RESET_INFO_KEYS, real_actions
 from envs.vector import reset_options
 
 
-def outer_time_limit() -> int | None:
-    """The ``max_episode_steps`` of the ``gymnasium.make`` call making this env now, None when
-    none (or -1, no limit), or when no ``make`` is making it. ``make`` keeps that argument to
-    itself and wraps its ``TimeLimit`` outside the env (its ``env.unwrapped.spec`` says None),
-    so it is read from ``make``'s frame: ``tests/test_envs.py`` fails should Gymnasium rename
-    it."""
+def with_outer_limit(task: TaskSpec, given: bool) -> TaskSpec:
+    """``task`` at the ``max_episode_steps`` of the ``gymnasium.make`` making this env (its
+    ``TimeLimit`` wraps the env from outside, and ``make`` keeps the argument to itself: read
+    from its frame, which ``tests/test_envs.py`` checks), or a one-line ``ValueError`` when a
+    task record ``given`` has another length."""
     frame = inspect.currentframe()
     while frame is not None and frame.f_code is not gymnasium.make.__code__:
         frame = frame.f_back
     limit = None if frame is None else frame.f_locals.get("max_episode_steps")
-    return None if limit in (None, -1) else limit
-
-
-def with_outer_limit(task: TaskSpec, given: bool) -> TaskSpec:
-    """``task`` with the length of `outer_time_limit` (the record says where episodes end), or
-    a one-line ``ValueError`` when a task record given (``given``) has another length."""
-    limit = outer_time_limit()
-    if limit is None or limit == task.max_episode_steps:
+    if limit in (None, -1, task.max_episode_steps):
         return task
     if given:
         raise ValueError(f"gymnasium.make(..., max_episode_steps={limit!r}) and the task's "
-                         f"max_episode_steps={task.max_episode_steps} disagree; give the "
-                         "episode length once")
+                         f"max_episode_steps={task.max_episode_steps} disagree; give it once")
     return task.replace(max_episode_steps=limit)
 
 
@@ -131,7 +122,7 @@ class UR5ReachEnv(gymnasium.Env):
     200))``); the id is registered without an outer time limit. ``make(...,
     max_episode_steps=50)`` and ``make_vec(..., max_episode_steps=50)`` set the task's length
     to 50 (``make``'s own ``TimeLimit`` then ends the same step); ``make`` refuses a
-    ``task=`` of another length beside it (`outer_time_limit`).
+    ``task=`` of another length beside it (`with_outer_limit`).
 
     ## Info
 

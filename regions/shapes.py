@@ -556,10 +556,6 @@ def region_from_dict(data: Any) -> Region:
             mesh = trimesh.Trimesh(np.asarray(params.pop("vertices"), dtype=float),
                                    np.asarray(params.pop("faces"), dtype=np.int64), process=False)
             return MeshRegion(mesh, **params)
-        if kind == "ball":
-            params["center"] = tuple(params["center"])
-        if kind == "box":
-            params.update({a: tuple(params[a]) for a in "xyz"})
         return KINDS[kind](**params)
     except (KeyError, TypeError) as err:
         raise ValueError(f"bad parameters for a region of kind {kind!r}: {err}; "
