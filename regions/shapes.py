@@ -164,7 +164,7 @@ class Box(Region):
     @classmethod
     def from_limits(cls, limits: Any, name: str = "box") -> Box:
         """A box from six numbers ``xmin, xmax, ymin, ymax, zmin, zmax`` (m)."""
-        values = list(np.asarray(limits, dtype=float).ravel())
+        values = np.asarray(limits, dtype=float).ravel().tolist()  # floats the message shows
         if len(values) != 6:
             raise ValueError(f"a box needs six numbers xmin, xmax, ymin, ymax, zmin, zmax (m); "
                              f"got {len(values)}: {limits!r}")
