@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ddpg_her.config import Parser
-from ur5kin.checks import COUNT, SEED, Kind, choice, holds, integer, kinds, number
+from ur5kin.checks import COUNT, SEED, Combination, Kind, choice, holds, integer, kinds, number
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_HYPERPARAMS = ROOT / "examples" / "sb3_her.json"
@@ -111,7 +111,7 @@ RANGES = kinds(
 (`RECIPE_KEYS`), ``section.key`` inside a nested object: a value of the right type out of its
 range is refused in one line before SB3 sees it."""
 
-COMBINATIONS: tuple[tuple[str, str, Callable[[dict[str, Any]], bool]], ...] = (
+COMBINATIONS: tuple[Combination, ...] = (
     ("batch_size", "at most buffer_size", lambda p: p.get("batch_size", 1) <= p.get(
         "buffer_size", math.inf)),
     ("learning_starts", "below buffer_size (the warm-up rows must fit)",

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ur5kin.checks import Combination, check_fields, kinds, number, vector
+from ur5kin.checks import Combination, check_fields, kinds, number, real_array, vector
 
 if TYPE_CHECKING:
     import trimesh
@@ -49,10 +49,7 @@ WINDING_INSIDE = 0.5
 
 def as_points(points: Any, name: str = "points") -> np.ndarray:
     """Return ``points`` as a float ``(..., 3)`` array (m), or raise ``ValueError``."""
-    try:
-        arr = np.asarray(points, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be an array of positions (m); got {points!r}") from err
+    arr = real_array(points, name, "positions in m")
     if arr.ndim == 0 or arr.shape[-1] != 3:
         raise ValueError(f"{name} must have shape (n, 3) (x, y, z in m, world frame); "
                          f"got shape {arr.shape}")
