@@ -110,7 +110,8 @@ def test_under_vecnormalize_the_policy_sees_the_training_statistics():
         np.testing.assert_allclose(seen[k], want, rtol=1e-6, atol=1e-6)
     plain = sb3.make_model("ddpg", env, sb3.load_hyperparams_dict(TINY, "ddpg"), seed=0)
     assert sb3.policy_input(plain, batch) is batch
-    with pytest.raises(ValueError, match=r"vec_normalize = true \(true/false\): expected an object"):
+    with pytest.raises(ValueError,
+                       match=r"vec_normalize = true \(true/false\): expected an object"):
         sb3.make_model("ddpg", env, {**params, "vec_normalize": True}, seed=0)
 
 

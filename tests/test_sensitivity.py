@@ -169,7 +169,8 @@ def test_readings_from_the_command_line_and_a_file(tmp_path: Path) -> None:
     (loaded,) = sens.load_readings(path)
     assert loaded == sens.Reading("her_future", ("--her-strategy", "future"), "final", "future")
     for bad in ("noequals", "bad/name=--tau 1"):
-        with pytest.raises(Exception, match=r"NAME=ARGS|name='bad/name' \(expected a name matching"):
+        with pytest.raises(Exception,
+                           match=r"NAME=ARGS|name='bad/name' \(expected a name matching"):
             sens.parse_reading(bad)
     proc = run_module("analysis.sensitivity", "--dry-run", "--readings", "nope", check=False)
     assert proc.returncode == 2 and "unknown reading(s) ['nope']" in proc.stderr
