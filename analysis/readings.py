@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ddpg_her.units import task_option
+from ur5kin.checks import Kind, check_fields, kinds
 
 
 @dataclass(frozen=True)
@@ -26,13 +27,20 @@ class Reading:
     """The choice this reading makes."""
 
     def __post_init__(self) -> None:
-        if not READING_NAME.fullmatch(self.name):
-            raise ValueError(f"reading name {self.name!r} must match {READING_NAME.pattern} "
-                             "(it names a folder)")
+        check_fields(self, FIELDS, "reading")
 
 
 READING_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 """Allowed reading names."""
+
+TEXT = Kind("text (a string)", lambda v: isinstance(v, str))
+FIELDS = kinds(
+    (Kind(f"a name matching {READING_NAME.pattern} (it names a folder)",
+          lambda v: READING_NAME.fullmatch(v)), "name"),
+    (Kind("a list of ddpg_her.train arguments (strings)", lambda v: isinstance(v, list | tuple)
+          and all(isinstance(a, str) for a in v), tuple), "args"),
+    (TEXT, "paper", "ours"))
+"""The reading as a gate record (`ur5kin.checks.check_fields`)."""
 
 READINGS: dict[str, Reading] = {r.name: r for r in (
     Reading("ours", (),

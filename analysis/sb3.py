@@ -21,6 +21,7 @@ import contextlib
 import copy
 import datetime
 import json
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -30,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ddpg_her.config import Parser
-from ur5kin.checks import COUNT, SEED
+from ur5kin.checks import COUNT, SEED, Combination, Kind, choice, holds, integer, kinds, number
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_HYPERPARAMS = ROOT / "examples" / "sb3_her.json"
@@ -90,11 +91,34 @@ SET_BY_SB3 = {
 }
 """Of each nested object's keyword arguments, those SB3 (or this recipe) passes itself."""
 
-CHOICES = {"goal_selection_strategy": ("future", "final", "episode")}
-"""String values SB3 accepts for a keyword (HerReplayBuffer's GoalSelectionStrategy)."""
+RANGES = kinds(
+    (number(0, above=True), "learning_rate"), (number(0, 1), "gamma"),
+    (number(0, 1, above=True), "tau"),
+    (COUNT, "batch_size", "buffer_size", "policy_delay", "replay_buffer_kwargs.n_sampled_goal"),
+    (integer(0), "learning_starts"), (number(0), "target_policy_noise", "target_noise_clip"),
+    (Kind("an integer >= 1, or -1 (one per environment step)", lambda v: v == -1 or v >= 1),
+     "gradient_steps"),
+    (Kind("an integer >= 1 or a list [integer >= 1, 'step' or 'episode']",
+          lambda v: COUNT.test(v) or (COUNT.test(v[0]) and v[1] in ("step", "episode"))),
+     "train_freq"),
+    (Kind("null or a number >= 0 (the std of the Gaussian action noise; 0 or null: none)",
+          lambda v: v is None or v >= 0), "action_noise_std"),
+    (choice(("future", "final", "episode")), "replay_buffer_kwargs.goal_selection_strategy"),
+    (Kind("a list of integers >= 1 (units per layer), or an object of such lists",
+          lambda v: all(COUNT.test(n) for layer in (v.values() if isinstance(v, dict) else [v])
+                        for n in layer)), "policy_kwargs.net_arch"))
+"""The ranges of the keywords whose type SB3 declares (`sb3_keywords`) and the recipe's own
+(`RECIPE_KEYS`), ``section.key`` inside a nested object: a value of the right type out of its
+range is refused in one line before SB3 sees it."""
 
-TRAIN_FREQ_UNITS = ("step", "episode")
-"""The units of ``train_freq`` = [count, unit] (SB3's TrainFrequencyUnit)."""
+COMBINATIONS: tuple[Combination, ...] = (
+    ("batch_size", "at most buffer_size", lambda p: p.get("batch_size", 1) <= p.get(
+        "buffer_size", math.inf)),
+    ("learning_starts", "below buffer_size (the warm-up rows must fit)",
+     lambda p: p.get("learning_starts", 0) < p.get("buffer_size", math.inf)),
+)
+"""What a keyword may be combined with: (keyword, the rule in words, the test of the merged
+keywords)."""
 
 
 def load_hyperparams_dict(data: dict[str, Any], algo: str) -> dict[str, Any]:
@@ -155,8 +179,7 @@ def check_hyperparams(params: dict[str, Any], algo: str) -> None:
     ``vec_normalize``, those of the policy, HerReplayBuffer and VecNormalize), none the
     command sets itself (`OWN_KEYWORDS`, `SET_BY_SB3`), and every value of the type SB3
     declares for it, as JSON can give it (a number for ``float``, an integer for ``int``, a
-    list for a tuple), ``goal_selection_strategy`` and ``train_freq``'s unit among SB3's
-    choices.
+    list for a tuple), then the ranges of `RANGES` and the rules of `COMBINATIONS`.
 
     Raises
     ------
@@ -172,14 +195,14 @@ def check_hyperparams(params: dict[str, Any], algo: str) -> None:
             _check_keys(value, keywords[key], algo, f"{key}.")
             for sub, subvalue in value.items():
                 _check_value(f"{key}.{sub}", subvalue, keywords[key][sub], algo)
-    std = params.get("action_noise_std")
-    if std is not None and not std >= 0:
-        raise ValueError(f"{algo}: action_noise_std = {std!r}: expected a number >= 0 (the "
-                         "std of the Gaussian action noise; 0 or null: none)")
-    freq = params.get("train_freq")
-    if isinstance(freq, list | tuple) and freq[1] not in TRAIN_FREQ_UNITS:
-        raise ValueError(f"{algo}: train_freq = {freq!r}: its unit must be one of "
-                         f"{', '.join(TRAIN_FREQ_UNITS)}; got {freq[1]!r}")
+    flat = {**params, **{f"{key}.{sub}": v for key in SET_BY_SB3
+                         for sub, v in (params.get(key) or {}).items()}}
+    bad = [f"{name}={flat[name]!r:.80} (expected {kind.words})" for name, kind in RANGES.items()
+           if name in flat and not holds(kind.test, flat[name])]
+    bad = bad or [f"{name}={flat[name]!r} (expected {words})" for name, words, test
+                  in COMBINATIONS if not holds(test, flat)]
+    if bad:
+        raise ValueError(f"{algo}: invalid hyperparameters: " + ", ".join(bad))
 
 
 def _check_keys(params: dict[str, Any], allowed: dict[str, Any], algo: str, where: str
@@ -205,9 +228,6 @@ def _check_value(name: str, value: Any, hint: Any, algo: str) -> None:
     if not fits(value):
         raise ValueError(f"{algo}: {name} = {json.dumps(value)[:80]} ({_json_kind(value)}): "
                          f"expected {words}")
-    choices = CHOICES.get(name.rpartition(".")[2])
-    if choices and isinstance(value, str) and value not in choices:
-        raise ValueError(f"{algo}: {name} = {value!r}: expected one of {', '.join(choices)}")
 
 
 def _json_kind(value: Any) -> str:
@@ -278,6 +298,7 @@ def make_model(algo: str, env: Any, hyperparams: dict[str, Any], seed: int) -> A
     from stable_baselines3 import HerReplayBuffer
     from stable_baselines3.common.noise import NormalActionNoise
 
+    check_hyperparams(hyperparams, algo)  # the library's way in is checked as the command's
     kwargs = copy.deepcopy(hyperparams)  # SB3 writes into policy_kwargs (SAC: use_sde)
     norm = kwargs.pop("vec_normalize", None)
     if norm is not None:
@@ -286,9 +307,6 @@ def make_model(algo: str, env: Any, hyperparams: dict[str, Any], seed: int) -> A
         from stable_baselines3.common.monitor import Monitor
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-        if not isinstance(norm, dict):
-            raise ValueError(f"vec_normalize must be an object of VecNormalize's keyword "
-                             f"arguments, got {norm!r}")
         raw = env
         env = VecNormalize(DummyVecEnv([lambda: Monitor(raw)]), **norm)
     std = kwargs.pop("action_noise_std", None)

@@ -85,7 +85,7 @@ from analysis.sweep import (
 )
 from ddpg_her.config import Parser
 from ddpg_her.units import split_passthrough
-from ur5kin.checks import COUNT, integer
+from ur5kin.checks import COUNT, integer, known_fields
 
 # --- readings -----------------------------------------------------------------------------------
 
@@ -155,9 +155,12 @@ def load_readings(path: Path) -> list[Reading]:
     for name, entry in data.items():
         if not isinstance(entry, dict) or "args" not in entry:
             raise ValueError(f"{path}: reading {name!r} needs an 'args' list or string")
-        args = entry["args"]
-        args = tuple(shlex.split(args)) if isinstance(args, str) else tuple(map(str, args))
-        out.append(Reading(name, args, str(entry.get("paper", "")), str(entry.get("ours", ""))))
+        args = shlex.split(entry["args"]) if isinstance(entry["args"], str) else entry["args"]
+        try:
+            known_fields(Reading, {"name": name, **entry}, "reading")
+            out.append(Reading(**{**entry, "name": name, "args": args}))
+        except ValueError as err:
+            raise ValueError(f"{path}: reading {name!r}: {err}") from None
     return out
 
 
@@ -746,8 +749,7 @@ def known_readings(root: Path, extra: Sequence[Reading] = ()) -> dict[str, Readi
     for path in sorted(root.glob(f"*/{READING_FILE}")):
         try:
             data = json.loads(path.read_text())
-            known.setdefault(data["name"], Reading(data["name"], tuple(data["args"]),
-                                                   data.get("paper", ""), data.get("ours", "")))
+            known.setdefault(data["name"], Reading(**data))
         except (KeyError, ValueError, TypeError):
             continue
     known.update({r.name: r for r in extra})

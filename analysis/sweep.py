@@ -591,8 +591,8 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
                   device: str = "cpu", dry: bool = False) -> list[str]:
     """Why units could not start, one line each: an option the study sets itself given again
     after ``--`` or by a reading (`owned_flag_problems`), a command line ``ddpg_her.train``
-    refuses (an unknown flag, a bad value), a region that does not parse, or two units (or two
-    seeds) with one run folder (regions only of this project's envs, `envs.ENV_IDS`). Checks
+    refuses (an unknown flag, a bad value, a task its record refuses: `ddpg_her.units.Setting`),
+    or two units (or two seeds) with one run folder. Checks
     what needs neither the robot nor torch. ``process``: the study's own process arguments
     (`backend_args`), checked with ``extra`` by ``ddpg_her.train`` but not as passed-through.
     With ``one_process``, a flag of the training process (`ddpg_her.train.PROCESS_FLAGS`) after
@@ -604,8 +604,6 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
     import io
 
     from ddpg_her import train
-    from envs import ENV_IDS
-    from regions import parse as parse_region
 
     tf32 = "--tf32" in process
     try:
@@ -652,12 +650,6 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
             except ValueError as error:
                 problems.append(f"{unit.name}: {error}")
                 continue
-        if req.env_id.rpartition(":")[2] not in ENV_IDS:
-            continue  # another env's regions are its own
-        try:
-            parse_region(unit.region)
-        except (ValueError, OSError) as error:
-            problems.append(f"{unit.name}: region {unit.region!r}: {error}")
     owners: dict[Path, list[str]] = {}
     for unit in units:
         for seed in unit.seeds:

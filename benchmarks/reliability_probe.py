@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium
+import numpy as np
 
 from ddpg_her.config import Parser
 
@@ -1148,6 +1149,157 @@ def gate2_cases(fix: Path) -> list[Case]:
     return out
 
 
+def _gym_length(limit: int, **kwargs: Any) -> Callable[[Path], None]:
+    """``gymnasium.make(..., max_episode_steps=limit)``: the record says ``limit`` and the env
+    underneath truncates at it, as make's TimeLimit does (else WrongAnswer)."""
+    def call(_: Path) -> None:
+        env = gymnasium.make("UR5Reach-v0", region="zheight", n_joints=2,
+                             max_episode_steps=limit, **kwargs)
+        inner = env.unwrapped
+        _check(inner.task.max_episode_steps == limit, f"task says {inner.task.max_episode_steps}")
+        for wrapped in (env, inner):
+            wrapped.reset(seed=0)
+            ends = [wrapped.step(np.zeros(2))[3] for _ in range(limit)]
+            _check(ends == [False] * (limit - 1) + [True], f"{type(wrapped).__name__}: {ends}")
+    return call
+
+
+def gate3_cases(fix: Path) -> list[Case]:
+    """Issue 41, the records of the last pass (names ``gate: g3 ...``): SB3's hyperparameters,
+    a unit of training (`ddpg_her.units.Setting`), a reading, a region's Box and ZLimit, and
+    gymnasium.make's max_episode_steps against the task's record; each through the library
+    call and the command that reads it."""
+    import regions
+    from analysis import sb3
+    from analysis.readings import Reading
+    from ddpg_her.config import AgentConfig
+    from ddpg_her.units import Setting
+    from envs.spec import TaskSpec
+
+    nan, inf = float("nan"), float("inf")
+    out: list[Case] = []
+    base = sb3.load_hyperparams(sb3.DEFAULT_HYPERPARAMS, "ddpg")
+    bad_sb3 = [("gamma", 2), ("gamma", -0.1), ("tau", 0), ("tau", 1.5), ("learning_rate", 0),
+               ("learning_rate", -1e-3), ("batch_size", 0), ("buffer_size", 0),
+               ("learning_starts", -1), ("gradient_steps", 0), ("gradient_steps", -2),
+               ("train_freq", [0, "step"]), ("train_freq", [1, "epoch"]), ("train_freq", 0),
+               ("action_noise_std", -0.5), ("gamma", "high"), ("batch_size", 64.0),
+               ("learning_starts", 2_000_000)]
+    for key, value in bad_sb3:
+        params = {**base, key: value}
+        out.append(api(f"gate: g3 sb3 hyperparameter {key}={value!r}", "analysis.sb3", 5,
+                       lambda _, p=params: sb3.check_hyperparams(p, "ddpg"), "usage",
+                       [key, json.dumps(value) if isinstance(value, str) else str(value)]))
+    for sub, value in (("replay_buffer_kwargs", {"n_sampled_goal": 0}),
+                       ("replay_buffer_kwargs", {"goal_selection_strategy": "past"}),
+                       ("policy_kwargs", {"net_arch": [0]}),
+                       ("policy_kwargs", {"net_arch": [64, -1]})):
+        params = {**base, sub: {**base.get(sub, {}), **value}}
+        (key,) = value
+        out.append(api(f"gate: g3 sb3 hyperparameter {sub}.{key}={value[key]!r}",
+                       "analysis.sb3", 5, lambda _, p=params: sb3.check_hyperparams(p, "td3"),
+                       "usage", f"{sub}.{key}"))
+    out.append(api("gate: g3 sb3.make_model with gamma 2 (the library's way in)",
+                   "analysis.sb3.make_model", 5,
+                   lambda _: sb3.make_model("ddpg", gymnasium.make("UR5Reach-v0"),
+                                            {**base, "gamma": 2}, 0), "usage", "gamma=2"))
+    out.append(api("gate: g3 sb3.train with tau 0 (the library's way in), no folder",
+                   "analysis.sb3.train", 5,
+                   lambda d: sb3.train("td3", "UR5Reach-v0", {"region": "farbox", "n_joints": 3},
+                                       0, 2, 1, 1, {**base, "tau": 0}, d / "run"),
+                   "usage", "tau=0"))
+    for key, value in (("gamma", 2), ("batch_size", 0), ("train_freq", [1, "epoch"])):
+        data = {"common": {**base, key: value}, "ddpg": {}}
+        out.append(cli(f"gate: g3 analysis.sb3 --hyperparams with {key}={value!r}",
+                       "analysis.sb3", 5, ["--region", "farbox", "--hyperparams", "h.json",
+                                           "--out", "run"], "usage", [key, "h.json"],
+                       setup=write("h.json", json.dumps(data))))
+    config = AgentConfig(episodes=100)
+    for seeds, dirs, kwargs, cfg, words in (
+            ((0, 0), ("a", "b"), {}, {}, "seeds=(0, 0)"),
+            ((-1,), ("a",), {}, {}, "seeds=(-1,)"),
+            ((), (), {}, {}, "seeds=()"),
+            ((0, 1), ("a", "a"), {}, {}, "run_dirs=('a', 'a')"),
+            ((0, 1), ("a",), {}, {}, "one run folder per seed"),
+            ((0,), ("",), {}, {}, "run_dirs=('',)"),
+            ((0,), ("a",), {"n_joints": 9}, {}, "n_joints=9"),
+            ((0,), ("a",), {"region": "nowhere"}, {}, "nowhere"),
+            ((0,), ("a",), {"max_episode_steps": 0}, {}, "max_episode_steps=0"),
+            ((0,), ("a",), {}, {"her_k": 8}, "--her-k"),
+            ((0,), ("a",), {}, {"episodes": 150}, "--eval-every")):
+        out.append(api(f"gate: g3 Setting(seeds={seeds}, run_dirs={dirs}, {kwargs}, {cfg})",
+                       "ddpg_her.units.Setting", 5,
+                       lambda _, s=seeds, d=dirs, k=kwargs, c=cfg: Setting(
+                           "UR5Reach-v0", {"region": "farbox", "n_joints": 3, **k},
+                           AgentConfig(**{"episodes": 100, **c}), s, d), "usage", words))
+    out.append(api("gate: g3 Setting of a config that is not an AgentConfig",
+                   "ddpg_her.units.Setting", 5,
+                   lambda _: Setting("UR5Reach-v0", {"region": "farbox"}, config.to_dict(),
+                                     (0,), ("a",)), "usage", "expected an AgentConfig"))
+    for dry in (True, False):
+        out.append(cli(f"gate: g3 train_many{' --dry-run' if dry else ''} a unit of seeds 0 0",
+                       "ddpg_her.train_many", 5,
+                       ["--unit", "--region farbox --seeds 0 0 --out u/s{seed} "
+                        + " ".join(TINY_UNIT), *(["--dry-run"] if dry else [])],
+                       "usage", "seeds=(0, 0)"))
+        out.append(cli(f"gate: g3 sweep{' --dry-run' if dry else ''} a box of lo > hi",
+                       "analysis.sweep", 5,
+                       ["--setting", "box:0.9,0.5,-0.4,0.4,0,0.4:3", "--seeds", "1", "--out",
+                        "sw", *(["--dry-run"] if dry else [])], "usage", "lo < hi"))
+    for args, words in ((("a b", ()), "name='a b'"), (("x", ("--tau", 1)), "args="),
+                        (("x", "--tau 0.1"), "args='--tau 0.1'"),
+                        (("x", (), 5), "paper=5"), (("x", (), "", None), "ours=None")):
+        out.append(api(f"gate: g3 Reading{args!r}", "analysis.readings.Reading", 5,
+                       lambda _, a=args: Reading(*a), "usage", words))
+    for entry, words in (({"args": [1, None]}, "args=[1, None]"),
+                         ({"args": "--tau 0.1", "paper": 5}, "paper=5"),
+                         ({"args": "--tau 0.1", "paepr": "x"}, "paepr"),
+                         ({"args": {"--tau": 1}}, "args=")):
+        out.append(cli(f"gate: g3 sensitivity --readings-file {json.dumps(entry)}",
+                       "analysis.sensitivity", 5,
+                       [*STUDY, "--readings-file", "r.json"], "usage", words,
+                       setup=write("r.json", json.dumps({"mine": entry}))))
+    for x, words in (((1.0, 0.0), "lo < hi"), ((0.0, inf), "x=(0.0, inf)"),
+                     ((0.0, nan), "x=(0.0, nan)"), (("0", "1"), "x=('0', '1')"),
+                     ((True, 2), "x=(True, 2)"), ((0, 1, 2), "x=(0, 1, 2)"),
+                     (None, "x=None"), ("01", "x='01'")):
+        out.append(api(f"gate: g3 Box(x={x!r})", "regions.Box", 5,
+                       lambda _, v=x: regions.Box(v, (0, 1), (0, 1)), "usage", words))
+    for zmin, zmax, words in ((0.5, 0.1, "zmin < zmax"), (nan, 1.0, "zmin=nan"),
+                              ("0.1", None, "zmin='0.1'"), (0.0, False, "zmax=False"),
+                              (inf, inf, "zmin < zmax"), (0.0, [1.0], "zmax=[1.0]")):
+        out.append(api(f"gate: g3 ZLimit({zmin!r}, {zmax!r})", "regions.ZLimit", 5,
+                       lambda _, a=zmin, b=zmax: regions.ZLimit(a, b), "usage", words))
+    for data, words in (({"kind": "box", "x": ["0", "1"], "y": [0, 1], "z": [0, 1]}, "x="),
+                        ({"kind": "zlimit", "zmin": "low", "zmax": None}, "zmin='low'"),
+                        ({"kind": "ball", "center": [0, 0, "1"], "radius": 0.2}, "center=")):
+        out.append(api(f"gate: g3 region_from_dict({data})", "regions.region_from_dict", 5,
+                       lambda _, d=data: regions.region_from_dict(d), "usage", words))
+    for spec, words in (("box:1,0,0,1,0,1", "lo < hi"), ("z:0.5,0.1", "zmin < zmax"),
+                        ("box:0,1,0,1,0,inf", "z=(0.0, inf)")):
+        out.append(api(f"gate: g3 regions.parse({spec!r})", "regions.parse", 5,
+                       lambda _, t=spec: regions.parse(t), "usage", words))
+    for limit in (7, 50, 150):
+        out.append(api(f"gate: g3 gymnasium.make(max_episode_steps={limit}) records and "
+                       "truncates alike", "gymnasium.make", 5, _gym_length(limit), "ok"))
+    out.append(api("gate: g3 gymnasium.make(max_episode_steps=20) of a task of 20",
+                   "gymnasium.make", 5, _gym_length(
+                       20, task=TaskSpec(region="zheight", n_joints=2, max_episode_steps=20)),
+                   "ok"))
+    for length, limit in ((200, 50), (100, 50), (30, 31)):
+        out.append(api(f"gate: g3 gymnasium.make(task of {length}, max_episode_steps={limit})",
+                       "gymnasium.make", 5, lambda _, n=length, m=limit: gymnasium.make(
+                           "UR5Reach-v0", task=TaskSpec(region="zheight", max_episode_steps=n),
+                           max_episode_steps=m), "usage",
+                       [f"max_episode_steps={limit}", f"max_episode_steps={length}"]))
+    for limit, words in ((0, "max_episode_steps=0"), (2.5, "max_episode_steps=2.5"),
+                         ("50", "max_episode_steps='50'")):
+        out.append(api(f"gate: g3 gymnasium.make(max_episode_steps={limit!r})",
+                       "gymnasium.make", 5, lambda _, m=limit: gymnasium.make(
+                           "UR5Reach-v0", region="zheight", max_episode_steps=m), "usage", words))
+    return out
+
+
 def _check(ok: bool, what: str) -> None:
     if not ok:
         raise WrongAnswer(what)
@@ -1695,7 +1847,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         make_fixtures(fix)
         all_cases = [*old_cases(fix), *reader_cases(fix), *train_cases(fix),
                      *study_cases(fix), *api_cases(fix), *kill_cases(fix),
-                     *gate_cases(fix), *gate2_cases(fix)]
+                     *gate_cases(fix), *gate2_cases(fix), *gate3_cases(fix)]
         names = [c.name for c in all_cases]
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:

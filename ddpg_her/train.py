@@ -204,8 +204,6 @@ def run_dirs(out: str | None, region: str, joints: int, seeds: Sequence[int],
         raise ValueError(f"--out {template!r}: the only fields it may use are {{region}}, "
                          f"{{joints}} and {{seed}} (double a literal brace); got "
                          f"{type(err).__name__}: {err}") from None
-    if len(set(dirs)) != len(dirs):
-        raise ValueError(f"--out {template!r} gives several seeds the same folder")
     long = [part for d in dirs for part in d.split("/") if len(part.encode()) > NAME_MAX]
     if long:
         raise ValueError(f"--out: the folder name {long[0][:40]}... is {len(long[0].encode())} "
@@ -285,33 +283,6 @@ def recorded_budget(dirs: Sequence[str]) -> int | None:
     return next(iter(found), None)
 
 
-def contradictions(config: AgentConfig) -> None:
-    """Raise ValueError for agent flags that contradict each other: a value given to a flag
-    that the others make unused (``--her-k`` without ``--her-strategy future``, ``--ou-theta``
-    without ``--exploration ou``, ``--obs-clip`` or ``--norm-eps`` with
-    ``--no-normalize-obs``), or a budget whose last episodes no test session would score (the
-    run would never count as finished)."""
-    default = AgentConfig()
-    unused = [
-        ("--her-k", config.her_k != default.her_k and config.her_strategy.value != "future",
-         f"--her-strategy {config.her_strategy.value} (--her-k counts the copies of 'future')"),
-        ("--ou-theta", config.ou_theta != default.ou_theta and config.exploration.value != "ou",
-         f"--exploration {config.exploration.value} (--ou-theta is OU noise's)"),
-        ("--obs-clip", config.obs_clip != default.obs_clip and not config.normalize_obs,
-         "--no-normalize-obs"),
-        ("--norm-eps", config.norm_eps != default.norm_eps and not config.normalize_obs,
-         "--no-normalize-obs"),
-    ]
-    for flag, contradicted, other in unused:
-        if contradicted:
-            raise ValueError(f"{flag} has no effect with {other}; drop one of them")
-    if config.episodes % config.eval_every:
-        raise ValueError(
-            f"--episodes {config.episodes} is not a multiple of --eval-every "
-            f"{config.eval_every}: its last {config.episodes % config.eval_every} episode(s) "
-            "would have no test session and the run would never count as finished")
-
-
 def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
     """The runs a parsed command line asks for.
 
@@ -329,11 +300,8 @@ def request(args: argparse.Namespace, resume: bool | None = None) -> Setting:
     env_kwargs = task_fields(args.region, args.joints, args.task)
     joints = FIELDS["n_joints"]("n_joints", env_kwargs["n_joints"])
     seeds = args.seeds if args.seeds is not None else [args.seed]
-    if len(set(seeds)) != len(seeds):
-        raise ValueError(f"--seeds must be distinct, got {seeds}")
     config = AgentConfig(**{f.name: getattr(args, f.name)
                             for f in dataclasses.fields(AgentConfig)})
-    contradictions(config)
     differs = [f"{key}={value}" for key, value in args.task if key not in ("region", "n_joints")]
     if config.algo.value != AgentConfig.algo.value:
         differs.insert(0, f"algo={config.algo.value}")

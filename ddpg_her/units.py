@@ -12,6 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from ddpg_her.config import AgentConfig
+from envs import ENV_IDS
+from envs.spec import make_task
+from ur5kin.checks import SEED, Kind, check_fields, kinds
 
 DEFAULT_JOINTS = 3
 """Controlled joints when neither --joints nor --task n_joints is given."""
@@ -39,14 +42,55 @@ class Setting:
     """What the command should say about the setting (a budget kept on resume), or None."""
 
     def __post_init__(self) -> None:
-        if not self.seeds or len(self.seeds) != len(self.run_dirs):
-            raise ValueError(f"need one or more seeds and one run folder per seed, got seeds "
-                             f"{list(self.seeds)} and folders {list(self.run_dirs)}")
+        check_fields(self, SETTING, "unit of training", (
+            ("run_dirs", "one run folder per seed", lambda s: len(s.run_dirs) == len(s.seeds)),))
+        if self.env_id.rpartition(":")[2] in ENV_IDS:  # the task's own gate, in every path
+            make_task(None, self.env_kwargs)
+        contradictions(self.config)
 
     @property
     def name(self) -> str:
         """The task in a few words, for messages: its env kwargs."""
         return ", ".join(f"{k}={v}" for k, v in self.env_kwargs.items())
+
+
+SETTING = kinds(
+    (Kind("an env id (text)", lambda v: isinstance(v, str) and v), "env_id"),
+    (Kind("the env's keyword arguments (a dict)", lambda v: isinstance(v, dict)), "env_kwargs"),
+    (Kind("an AgentConfig", lambda v: isinstance(v, AgentConfig)), "config"),
+    (Kind("one or more distinct seeds, integers >= 0", lambda v: 0 < len(set(v)) == len(v)
+          and all(SEED.test(x) for x in v), tuple), "seeds"),
+    (Kind("distinct run folders (text)", lambda v: len(set(v)) == len(v) and all(
+        isinstance(d, str) and d for d in v), tuple), "run_dirs"))
+"""A unit of training as a gate record (`ur5kin.checks.check_fields`): every command that
+starts or lists one (train, train_many, sweep and the studies, their dry runs) builds it."""
+
+
+def contradictions(config: AgentConfig) -> None:
+    """Raise ValueError for agent flags that contradict each other: a value given to a flag
+    that the others make unused (``--her-k`` without ``--her-strategy future``, ``--ou-theta``
+    without ``--exploration ou``, ``--obs-clip`` or ``--norm-eps`` with
+    ``--no-normalize-obs``), or a budget whose last episodes no test session would score (the
+    run would never count as finished)."""
+    default = AgentConfig()
+    unused = [
+        ("--her-k", config.her_k != default.her_k and config.her_strategy.value != "future",
+         f"--her-strategy {config.her_strategy.value} (--her-k counts the copies of 'future')"),
+        ("--ou-theta", config.ou_theta != default.ou_theta and config.exploration.value != "ou",
+         f"--exploration {config.exploration.value} (--ou-theta is OU noise's)"),
+        ("--obs-clip", config.obs_clip != default.obs_clip and not config.normalize_obs,
+         "--no-normalize-obs"),
+        ("--norm-eps", config.norm_eps != default.norm_eps and not config.normalize_obs,
+         "--no-normalize-obs"),
+    ]
+    for flag, contradicted, other in unused:
+        if contradicted:
+            raise ValueError(f"{flag} has no effect with {other}; drop one of them")
+    if config.episodes % config.eval_every:
+        raise ValueError(
+            f"--episodes {config.episodes} is not a multiple of --eval-every "
+            f"{config.eval_every}: its last {config.episodes % config.eval_every} episode(s) "
+            "would have no test session and the run would never count as finished")
 
 
 def task_fields(region: str, joints: int | None, overrides: Sequence[tuple[str, Any]]

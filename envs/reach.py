@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Mapping
 from typing import Any
 
@@ -14,6 +15,23 @@ from envs.render import RENDER_MODES, check_render_mode
 from envs.spec import TaskSpec, make_task
 from envs.task import RESET_INFO_KEYS, real_actions
 from envs.vector import reset_options
+
+
+def with_outer_limit(task: TaskSpec, given: bool) -> TaskSpec:
+    """``task`` at the ``max_episode_steps`` of the ``gymnasium.make`` making this env (its
+    ``TimeLimit`` wraps the env from outside, and ``make`` keeps the argument to itself: read
+    from its frame, which ``tests/test_envs.py`` checks), or a one-line ``ValueError`` when a
+    task record ``given`` has another length."""
+    frame = inspect.currentframe()
+    while frame is not None and frame.f_code is not gymnasium.make.__code__:
+        frame = frame.f_back
+    limit = None if frame is None else frame.f_locals.get("max_episode_steps")
+    if limit in (None, -1, task.max_episode_steps):
+        return task
+    if given:
+        raise ValueError(f"gymnasium.make(..., max_episode_steps={limit!r}) and the task's "
+                         f"max_episode_steps={task.max_episode_steps} disagree; give it once")
+    return task.replace(max_episode_steps=limit)
 
 
 class UR5ReachEnv(gymnasium.Env):
@@ -101,9 +119,10 @@ class UR5ReachEnv(gymnasium.Env):
     | truncated    | after ``max_episode_steps`` = 100 steps (2 s at 50 Hz)        | steps |
 
     The task's ``max_episode_steps`` truncates (``make(..., task=TaskSpec(max_episode_steps=
-    200))``, or ``make_vec(..., max_episode_steps=50)``, which passes it to the task); the id is
-    registered without an outer time limit. Gymnasium's ``make(..., max_episode_steps=50)``
-    wraps its own ``TimeLimit`` around the env, which the task does not see: set it in the task.
+    200))``); the id is registered without an outer time limit. ``make(...,
+    max_episode_steps=50)`` and ``make_vec(..., max_episode_steps=50)`` set the task's length
+    to 50 (``make``'s own ``TimeLimit`` then ends the same step); ``make`` refuses a
+    ``task=`` of another length beside it (`with_outer_limit`).
 
     ## Info
 
@@ -137,7 +156,7 @@ class UR5ReachEnv(gymnasium.Env):
 
     def __init__(self, task: TaskSpec | Mapping[str, Any] | None = None,
                  render_mode: str | None = None, **overrides: Any) -> None:
-        self.task = make_task(task, overrides)
+        self.task = with_outer_limit(make_task(task, overrides), task is not None)
         task, n = self.task, self.task.n_joints
         self.render_mode = check_render_mode(render_mode)
         self.metadata = {**self.metadata, "render_fps": task.control_hz}

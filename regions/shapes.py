@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ur5kin.checks import check_fields, number, vector
+from ur5kin.checks import Combination, check_fields, kinds, number, real_array, vector
 
 if TYPE_CHECKING:
     import trimesh
@@ -49,10 +49,7 @@ WINDING_INSIDE = 0.5
 
 def as_points(points: Any, name: str = "points") -> np.ndarray:
     """Return ``points`` as a float ``(..., 3)`` array (m), or raise ``ValueError``."""
-    try:
-        arr = np.asarray(points, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be an array of positions (m); got {points!r}") from err
+    arr = real_array(points, name, "positions in m")
     if arr.ndim == 0 or arr.shape[-1] != 3:
         raise ValueError(f"{name} must have shape (n, 3) (x, y, z in m, world frame); "
                          f"got shape {arr.shape}")
@@ -61,18 +58,19 @@ def as_points(points: Any, name: str = "points") -> np.ndarray:
     return arr
 
 
-def _interval(values: Any, what: str, allow_infinite: bool = False) -> tuple[float, float]:
-    """Check a ``(lo, hi)`` pair of lengths (m) and return it as floats."""
-    try:
-        lo, hi = (float(v) for v in values)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{what} must be two numbers (lo, hi) in m; got {values!r}") from err
-    if np.isnan(lo) or np.isnan(hi) or (not allow_infinite and not (np.isfinite(lo)
-                                                                     and np.isfinite(hi))):
-        raise ValueError(f"{what} must be finite numbers (m); got {values!r}")
-    if not lo < hi:
-        raise ValueError(f"{what} must satisfy lo < hi (m); got lo={lo}, hi={hi}")
-    return lo, hi
+LIMITS = vector(2, "lo, hi in m, world frame")
+"""A box's limits along one axis."""
+
+Z_LIMIT = number(finite=False, note="m, world frame; null or inf: unbounded")
+"""A z-limit's zmin or zmax."""
+
+
+def ordered(*pairs: tuple[str, str]) -> list[Combination]:
+    """The rules ``lo < hi`` of a region's bounds, for :func:`check_fields`: each ``(field of
+    lo, field of hi)``, or an axis field holding both as ``(axis, "")``."""
+    return [(lo, f"{lo} < {hi} (m)" if hi else "lo < hi (m)", lambda r, lo=lo, hi=hi: (
+        getattr(r, lo)[0] < getattr(r, lo)[1] if not hi else getattr(r, lo) < getattr(r, hi)))
+        for lo, hi in pairs]
 
 
 class Region(abc.ABC):
@@ -157,13 +155,13 @@ class Box(Region):
     kind: ClassVar[str] = "box"
 
     def __post_init__(self) -> None:
-        for axis in "xyz":
-            object.__setattr__(self, axis, _interval(getattr(self, axis), f"Box {axis} limits"))
+        check_fields(self, kinds((LIMITS, "x", "y", "z")), "Box",
+                     ordered(("x", ""), ("y", ""), ("z", "")))
 
     @classmethod
     def from_limits(cls, limits: Any, name: str = "box") -> Box:
         """A box from six numbers ``xmin, xmax, ymin, ymax, zmin, zmax`` (m)."""
-        values = list(np.asarray(limits, dtype=float).ravel())
+        values = np.asarray(limits, dtype=float).ravel().tolist()  # floats the message shows
         if len(values) != 6:
             raise ValueError(f"a box needs six numbers xmin, xmax, ymin, ymax, zmin, zmax (m); "
                              f"got {len(values)}: {limits!r}")
@@ -217,11 +215,10 @@ class ZLimit(Region):
     kind: ClassVar[str] = "zlimit"
 
     def __post_init__(self) -> None:
-        zmin = -math.inf if self.zmin is None else self.zmin
-        zmax = math.inf if self.zmax is None else self.zmax
-        lo, hi = _interval((zmin, zmax), "ZLimit (zmin, zmax)", allow_infinite=True)
-        object.__setattr__(self, "zmin", lo)
-        object.__setattr__(self, "zmax", hi)
+        for name, unbounded in (("zmin", -math.inf), ("zmax", math.inf)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, unbounded)
+        check_fields(self, kinds((Z_LIMIT, "zmin", "zmax")), "ZLimit", ordered(("zmin", "zmax")))
 
     def contains(self, points: Any) -> np.ndarray:
         z = as_points(points)[..., 2]
@@ -556,10 +553,6 @@ def region_from_dict(data: Any) -> Region:
             mesh = trimesh.Trimesh(np.asarray(params.pop("vertices"), dtype=float),
                                    np.asarray(params.pop("faces"), dtype=np.int64), process=False)
             return MeshRegion(mesh, **params)
-        if kind == "ball":
-            params["center"] = tuple(params["center"])
-        if kind == "box":
-            params.update({a: tuple(params[a]) for a in "xyz"})
         return KINDS[kind](**params)
     except (KeyError, TypeError) as err:
         raise ValueError(f"bad parameters for a region of kind {kind!r}: {err}; "

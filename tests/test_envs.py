@@ -244,6 +244,35 @@ def test_the_tasks_episode_length_is_the_one_that_truncates(steps):
     assert vec.unwrapped.task.max_episode_steps == steps and length(vec) == steps
 
 
+@pytest.mark.parametrize("mode", ["make", "sync"])
+def test_gymnasiums_max_episode_steps_is_the_length_the_task_records(mode):
+    """The reference is Gymnasium's own TimeLimit: where ``make(..., max_episode_steps=7)``
+    (and ``make_vec``'s sync copies, made by ``make``) cut the episode, the env underneath
+    truncates too, and its record says 7 (it said 100: the env cannot see the outer limit; a
+    Gymnasium that renames ``make``'s argument fails here)."""
+    if mode == "make":
+        env = gymnasium.make("UR5Reach-v0", region="zheight", n_joints=2, max_episode_steps=7)
+    else:
+        env = gymnasium.make_vec("UR5Reach-v0", num_envs=1, vectorization_mode="sync",
+                                 region="zheight", n_joints=2, max_episode_steps=7).envs[0]
+    inner = env.unwrapped
+    assert inner.task.max_episode_steps == 7
+    for wrapped in (env, inner):
+        wrapped.reset(seed=0)
+        ends = [wrapped.step(np.zeros(2))[3] for _ in range(7)]
+        assert ends == [False] * 6 + [True]
+
+
+def test_make_refuses_a_task_whose_length_gymnasiums_limit_contradicts():
+    task = TaskSpec(region="zheight", n_joints=2, max_episode_steps=200)
+    with pytest.raises(ValueError, match=r"max_episode_steps=50\) and the task's "
+                                         r"max_episode_steps=200 disagree; give it once"):
+        gymnasium.make("UR5Reach-v0", task=task, max_episode_steps=50)
+    same = gymnasium.make("UR5Reach-v0", task=task.replace(max_episode_steps=50),
+                          max_episode_steps=50)
+    assert same.unwrapped.task.max_episode_steps == 50
+
+
 def test_make_accepts_overrides_a_spec_and_region_objects():
     spec = TaskSpec(region="farbox", n_joints=4, reward_type="sparse")
     assert make(task=spec).unwrapped.task == spec

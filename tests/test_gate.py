@@ -562,3 +562,26 @@ def test_sweep_program_on_a_full_disk_ends_in_one_line(tmp_path, monkeypatch):
     assert "Traceback" not in err
     assert any(line.startswith("error: [Errno 28] No space left") and "again" in line
                for line in err.splitlines()), err
+
+
+@pytest.mark.parametrize(("seeds", "dirs", "kwargs", "config", "match"), [
+    ((0, 0), ("a", "b"), {}, {}, r"seeds=\(0, 0\) \(expected one or more distinct seeds"),
+    ((-1,), ("a",), {}, {}, r"seeds=\(-1,\) \(expected one or more distinct seeds, integers >= 0"),
+    ((0, 1), ("a", "a"), {}, {}, r"run_dirs=\('a', 'a'\) \(expected distinct run folders"),
+    ((0,), ("a",), {"n_joints": 9}, {}, r"invalid task: n_joints=9 \(expected an integer in 2..6"),
+    ((0,), ("a",), {"region": "nowhere"}, {}, "cannot read region 'nowhere'"),
+    ((0,), ("a",), {}, {"her_k": 8}, "--her-k has no effect with --her-strategy final"),
+])
+def test_a_unit_of_training_is_one_record_whoever_builds_it(seeds, dirs, kwargs, config, match):
+    """The reference is the command line: what ``train.request`` refuses, a Setting built in
+    Python refuses with the same words (it took repeated seeds, one folder for two seeds, a
+    task no env could make, and contradicting flags, which only the command checked)."""
+    from ddpg_her.units import Setting
+
+    env_kwargs = {"region": "farbox", "n_joints": 3, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        Setting("UR5Reach-v0", env_kwargs, AgentConfig(**config), seeds, dirs)
+    if seeds == (0, 0):
+        code, err = run_main(train.main, ["--region", "farbox", "--seeds", "0", "0", "--out",
+                                          "/nonexistent/s{seed}"])
+        assert code == 2 and "seeds=(0, 0) (expected one or more distinct" in error_line(err)

@@ -117,11 +117,28 @@ def test_region_from_dict_names_the_problem() -> None:
 @pytest.mark.parametrize(("args", "match"), [
     (((1.0, 0.0), (0, 1), (0, 1)), "lo < hi"),
     (((0.0, math.inf), (0, 1), (0, 1)), "finite"),
-    (((0.0, "a"), (0, 1), (0, 1)), "two numbers"),
+    (((0.0, "a"), (0, 1), (0, 1)), "2 finite numbers"),
+    # text and flags that float() would take: refused, the field and value named (the hand
+    # check cast them and went on)
+    ((("0", "1"), (0, 1), (0, 1)), r"invalid Box: x=\('0', '1'\) \(expected 2 finite numbers "
+                                   r"\(lo, hi in m"),
+    (((0, 1), (True, 2), (0, 1)), r"y=\(True, 2\) \(expected 2 finite numbers"),
 ])
 def test_bad_boxes_are_refused(args: tuple, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         Box(*args)
+
+
+@pytest.mark.parametrize(("args", "match"), [
+    ((0.5, 0.1), r"invalid ZLimit: zmin=0.5 \(expected zmin < zmax \(m\)\)"),
+    (("0.1", None), r"zmin='0.1' \(expected a number \(m"),
+    ((0.0, False), r"zmax=False \(expected a number \(m"),
+    ((math.nan, 1.0), "zmin=nan"),
+])
+def test_bad_z_limits_are_refused_naming_the_field(args: tuple, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        ZLimit(*args)
+    assert ZLimit(None, None).bounds[:, 2].tolist() == [-math.inf, math.inf]
 
 
 def test_box_from_limits_wants_six_numbers() -> None:
@@ -216,7 +233,7 @@ def test_parse_every_form(tmp_path) -> None:
     ("box:0,1,a,1,0,1", "comma-separated numbers"),
     ("box:1,0,0,1,0,1", "lo < hi"),
     ("zmax:", "comma-separated numbers"),
-    ("z:0.5,0.1", "lo < hi"),
+    ("z:0.5,0.1", "zmin < zmax"),
     ("mesh:/no/such/file.stl", "does not exist"),
     ("json:/no/such.json", "does not exist"),
     ("{not json", "not valid JSON"),

@@ -110,7 +110,8 @@ def test_under_vecnormalize_the_policy_sees_the_training_statistics():
         np.testing.assert_allclose(seen[k], want, rtol=1e-6, atol=1e-6)
     plain = sb3.make_model("ddpg", env, sb3.load_hyperparams_dict(TINY, "ddpg"), seed=0)
     assert sb3.policy_input(plain, batch) is batch
-    with pytest.raises(ValueError, match="vec_normalize must be an object"):
+    with pytest.raises(ValueError,
+                       match=r"vec_normalize = true \(true/false\): expected an object"):
         sb3.make_model("ddpg", env, {**params, "vec_normalize": True}, seed=0)
 
 
@@ -159,7 +160,7 @@ BAD_HYPERPARAMS = [
     ("ddpg", {"batch_size": 64.0}, ["batch_size", "64.0", "expected an integer"]),
     ("td3", {"batch_size": True}, ["batch_size", "true", "expected an integer"]),
     ("ddpg", {"train_freq": "1"}, ["train_freq", '"1"', "an integer or a list"]),
-    ("td3", {"train_freq": [1, "epoch"]}, ["train_freq", "'epoch'", "step, episode"]),
+    ("td3", {"train_freq": [1, "epoch"]}, ["train_freq", "'epoch'", "'step' or 'episode'"]),
     ("sac", {"ent_coef": [1]}, ["ent_coef", "a list", "a string or a number"]),
     ("ddpg", {"action_noise_std": "0.1"}, ["action_noise_std", '"0.1"', "a number"]),
     ("ddpg", {"action_noise_std": -0.1}, ["action_noise_std", "-0.1", ">= 0"]),
@@ -172,13 +173,30 @@ BAD_HYPERPARAMS = [
      ["policy_kwargs.activation_fn", "JSON file cannot give"]),
     ("ddpg", {"policy_kwargs": {"hidden": [8]}}, ["'policy_kwargs.hidden'", "net_arch"]),
     ("ddpg", {"replay_buffer_kwargs": {"goal_selection_strategy": "past"}},
-     ["goal_selection_strategy", "'past'", "future, final, episode"]),
+     ["goal_selection_strategy", "'past'", "one of ['future', 'final', 'episode']"]),
     ("ddpg", {"replay_buffer_kwargs": {"n_sampled_goal": "4"}},
      ["replay_buffer_kwargs.n_sampled_goal", '"4"', "an integer"]),
     ("ddpg", {"replay_buffer_kwargs": {"env": None}}, ["replay_buffer_kwargs.env", "SB3 itself"]),
     ("ddpg", {"vec_normalize": {"clipobs": 5}}, ["'vec_normalize.clipobs'",
                                                  "vec_normalize.clip_obs"]),
     ("ddpg", {"vec_normalize": {"clip_obs": "5"}}, ["vec_normalize.clip_obs", "a number"]),
+    # of the right type but out of range (SB3 took each, and trained on nonsense or failed late)
+    ("ddpg", {"gamma": 2}, ["gamma=2 (expected a number in [0, 1])"]),
+    ("td3", {"tau": 0}, ["tau=0 (expected a number in (0, 1])"]),
+    ("sac", {"learning_rate": -0.001}, ["learning_rate=-0.001 (expected a finite number > 0)"]),
+    ("ddpg", {"batch_size": 0}, ["batch_size=0 (expected an integer >= 1)"]),
+    ("ddpg", {"learning_starts": -5}, ["learning_starts=-5 (expected an integer >= 0)"]),
+    ("ddpg", {"gradient_steps": 0}, ["gradient_steps=0", "or -1"]),
+    ("td3", {"train_freq": [0, "step"]}, ["train_freq=[0, 'step']", "integer >= 1"]),
+    ("td3", {"policy_delay": 0}, ["policy_delay=0"]),
+    ("ddpg", {"replay_buffer_kwargs": {"n_sampled_goal": 0}},
+     ["replay_buffer_kwargs.n_sampled_goal=0 (expected an integer >= 1)"]),
+    ("ddpg", {"policy_kwargs": {"net_arch": [16, 0]}},
+     ["policy_kwargs.net_arch=[16, 0]", "integers >= 1"]),
+    ("ddpg", {"batch_size": 64, "buffer_size": 32, "learning_starts": 0},
+     ["batch_size=64 (expected at most buffer_size)"]),
+    ("ddpg", {"buffer_size": 100, "learning_starts": 100, "batch_size": 8},
+     ["learning_starts=100 (expected below buffer_size"]),
 ]
 """(algorithm, keys merged into TINY's section, what the message must name)."""
 
@@ -199,6 +217,20 @@ def test_hyperparameters_sb3_would_not_take_are_refused_in_our_words(algo, extra
     assert "\n" not in message
     for word in words:
         assert word in message, (word, message)
+
+
+def test_the_library_calls_go_through_the_same_check(tmp_path: Path):
+    """``train`` and ``make_model`` called from Python (no file) refuse what the file would,
+    before any folder: SB3 took gamma 2 and trained on it."""
+    bad = {**TINY_DDPG, "gamma": 2}
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match=r"ddpg: invalid hyperparameters: gamma=2 \(expected"):
+        sb3.train("ddpg", "toy_goal_env:ToyReach-v0", {"region": "box", "n_joints": 2}, 0, 2,
+                  1, 1, bad, out)
+    assert not out.exists()
+    with pytest.raises(ValueError, match="unknown hyperparameter 'gama'"):
+        sb3.make_model("ddpg", gymnasium.make(toy_goal_env.ENV_ID, n_joints=2),
+                       {**TINY_DDPG, "gama": 0.9}, seed=0)
 
 
 def test_an_unknown_section_of_the_file_is_refused():

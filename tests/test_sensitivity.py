@@ -169,7 +169,8 @@ def test_readings_from_the_command_line_and_a_file(tmp_path: Path) -> None:
     (loaded,) = sens.load_readings(path)
     assert loaded == sens.Reading("her_future", ("--her-strategy", "future"), "final", "future")
     for bad in ("noequals", "bad/name=--tau 1"):
-        with pytest.raises(Exception, match=r"NAME=ARGS|must match"):
+        with pytest.raises(Exception,
+                           match=r"NAME=ARGS|name='bad/name' \(expected a name matching"):
             sens.parse_reading(bad)
     proc = run_module("analysis.sensitivity", "--dry-run", "--readings", "nope", check=False)
     assert proc.returncode == 2 and "unknown reading(s) ['nope']" in proc.stderr
@@ -178,6 +179,23 @@ def test_readings_from_the_command_line_and_a_file(tmp_path: Path) -> None:
     sens.write_reading(tmp_path, loaded)
     with pytest.raises(ValueError, match="records reading 'her_future'"):
         sens.write_reading(tmp_path, sens.Reading("her_future", ("--her-k", "8")))
+
+
+@pytest.mark.parametrize(("entry", "match"), [
+    # each was read by str(): arguments [1, null] became '1' 'None', a misspelt key vanished
+    ({"args": [1, None]}, r"reading 'x': invalid reading: args=\[1, None\] \(expected a list "
+                          r"of ddpg_her.train arguments \(strings\)\)"),
+    ({"args": "--tau 0.1", "paper": 5}, r"paper=5 \(expected text"),
+    ({"args": "--tau 0.1", "paepr": "eq. 2"}, r"unknown reading field\(s\) \['paepr'\]"),
+])
+def test_a_readings_file_is_checked_as_the_reading_record(tmp_path: Path, entry: dict,
+                                                          match: str) -> None:
+    path = tmp_path / "readings.json"
+    path.write_text(json.dumps({"x": entry}))
+    with pytest.raises(ValueError, match=match):
+        sens.load_readings(path)
+    with pytest.raises(ValueError, match="invalid reading: args="):
+        sens.Reading("x", "--tau 0.1")  # a string is not a list of arguments, in the library too
 
 
 # --- collect --------------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ from analysis import sweep
 
 
 @pytest.mark.parametrize("settings, extra, message", [
-    (["nosuch:3"], [], "nosuch-j3: region 'nosuch': cannot read region 'nosuch'"),
+    (["nosuch:3"], [], "nosuch-j3: cannot read region 'nosuch'"),
     (["farbox:3"], ["--bogus"], "farbox-j3: ddpg_her.train refuses its command line: "
                                 "python -m ddpg_her.train: error: unrecognized arguments: "
                                 "--bogus"),

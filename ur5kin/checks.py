@@ -185,10 +185,11 @@ def choice(options: Sequence[Any], cast: Callable[[Any], Any] = lambda v: v) -> 
 
 def vector(n: int, unit: str, positive: bool = False) -> Kind:
     """``n`` finite numbers (> 0 when ``positive``), stored as a tuple of floats."""
+    each = number(0, above=positive) if positive else number()  # not text numpy would cast
+
     def test(v: Any) -> bool:
-        arr = np.asarray(v, dtype=float) if not isinstance(v, str | bytes) else None
-        return arr is not None and arr.shape == (n,) and bool(np.isfinite(arr).all()) and (
-            not positive or bool((arr > 0).all()))
+        arr = np.asarray(v, dtype=object)
+        return arr.shape == (n,) and all(holds(each.test, x) for x in arr)
     return Kind(f"{n} finite numbers{' > 0' * positive} ({unit})", test,
                 lambda v: tuple(float(x) for x in v))
 
