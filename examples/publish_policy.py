@@ -6,8 +6,9 @@ and observation normaliser alone, the part `ddpg_her.load` (and so ``analysis.re
 
 ``out`` may also be the committed copy of the same run (its spec.json identical but for the
 ``created`` time of the process that wrote it, as when a lost stage is retrained on the same
-kind of CPU, and its eval.csv the run's up to a test session): then the checkpoint alone is
-added beside them, so that a reported run's folder under ``results/`` replays as it stands.
+kind of CPU, and its eval.csv the run's up to a test session but for the ``wall_s`` column):
+then the checkpoint alone is added beside them, so that a reported run's folder under
+``results/`` replays as it stands.
 
 The checkpoint keeps, per agent (an ensemble's members each), the actor's weights and the
 normaliser's count, sums and sums of squares (float32, unchanged); the critics, target
@@ -53,6 +54,14 @@ def same_spec(a: Path, b: Path) -> bool:
     return record(a) == record(b)
 
 
+def without_wall(csv_text: str) -> list[list[str]]:
+    """The rows of an eval.csv's text without its ``wall_s`` column (seconds of the machine's
+    clock: a retrained run's differ, its test sessions do not)."""
+    rows = [line.split(",") for line in csv_text.splitlines()]
+    keep = [i for i, name in enumerate(rows[0]) if name != "wall_s"] if rows else []
+    return [[row[i] for i in keep] for row in rows]
+
+
 def publish(run: Path, out: Path) -> Path:
     """Write ``out``/spec.json, eval.csv and checkpoints/episode-N.pt (the latest checkpoint of
     ``run``, `policy_state` only); returns the checkpoint's path."""
@@ -65,7 +74,7 @@ def publish(run: Path, out: Path) -> Path:
     rows = "".join(rows[:1] + [r for r in rows[1:] if int(r.split(",")[0]) <= episode])
     if RunFolder(out).exists():
         same = (same_spec(out / "spec.json", run / "spec.json")
-                and (out / "eval.csv").read_text() == rows)
+                and without_wall((out / "eval.csv").read_text()) == without_wall(rows))
         if not same or (out / "checkpoints").exists():
             raise FileExistsError(f"{out} holds another run, or a published checkpoint already "
                                   "(expected a new folder, or the committed copy of this run "
@@ -86,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
                                                 "checkpoints)")
     parser.add_argument("out", type=Path, help="the folder to publish into: a new one, or the "
                         "committed copy of this same run (spec.json equal but for created, "
-                        "eval.csv equal)")
+                        "eval.csv but for wall_s)")
     args = parser.parse_args(argv)
     try:
         path = publish(args.run, args.out)

@@ -63,8 +63,9 @@ def test_publish_adds_a_policy_to_the_committed_copy_of_the_same_run_only(tiny_u
                                                                         tmp_path: Path):
     """examples/publish_policy.py: into a new folder it writes spec, eval.csv and the policy,
     which `ddpg_her.load` reads as the run's own; into the committed copy of the same run (a
-    retrained stage: its spec.json differs in ``created`` alone) it adds the checkpoint and
-    keeps the committed files; another run's copy, or one published already, is refused."""
+    retrained stage: its spec.json differs in ``created`` alone, its eval.csv in ``wall_s``)
+    it adds the checkpoint and keeps the committed files; another run's copy (another seed,
+    another test session), or one published already, is refused."""
     import json
     import shutil
     import sys
@@ -89,9 +90,13 @@ def test_publish_adds_a_policy_to_the_committed_copy_of_the_same_run_only(tiny_u
     spec = json.loads((tiny_ur5_run / "spec.json").read_text())
     written = json.dumps({**spec, "created": "2020-01-01T00:00:00+00:00"})
     (committed / "spec.json").write_text(written)
-    shutil.copyfile(tiny_ur5_run / "eval.csv", committed / "eval.csv")
+    lines = (tiny_ur5_run / "eval.csv").read_text().splitlines()
+    assert lines[0].endswith(",wall_s")
+    timed = "\n".join([lines[0]] + [row.rsplit(",", 1)[0] + ",1234.5" for row in lines[1:]])
+    (committed / "eval.csv").write_text(timed + "\n")
     added = publish(tiny_ur5_run, committed)
     assert (committed / "spec.json").read_text() == written  # the committed record stays
+    assert (committed / "eval.csv").read_text() == timed + "\n"
     a, b = (torch.load(f)["agent"]["actor"] for f in (added, fresh))
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     with pytest.raises(FileExistsError, match="published checkpoint already"):
@@ -104,3 +109,7 @@ def test_publish_adds_a_policy_to_the_committed_copy_of_the_same_run_only(tiny_u
     with pytest.raises(FileExistsError, match="holds another run"):
         publish(tiny_ur5_run, other)
     assert not (other / "checkpoints").exists()
+    (other / "spec.json").write_text(written)  # the same run's spec, another test session
+    (other / "eval.csv").write_text(timed.replace(",0,", ",1,", 1) + "\n")
+    with pytest.raises(FileExistsError, match="holds another run"):
+        publish(tiny_ur5_run, other)
