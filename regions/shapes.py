@@ -68,7 +68,8 @@ Z_LIMIT = number(finite=False, note="m, world frame; null or inf: unbounded")
 def ordered(*pairs: tuple[str, str]) -> list[Combination]:
     """The rules ``lo < hi`` of a region's bounds, for :func:`check_fields`: each ``(field of
     lo, field of hi)``, or an axis field holding both as ``(axis, "")``."""
-    return [(lo, f"{lo} < {hi} (m)" if hi else "lo < hi (m)", lambda r, lo=lo, hi=hi: (
+    return [(f"{lo}, {hi}" if hi else lo, f"{lo} < {hi} (m)" if hi else "lo < hi (m)",
+             lambda r, lo=lo, hi=hi: (
         getattr(r, lo)[0] < getattr(r, lo)[1] if not hi else getattr(r, lo) < getattr(r, hi)))
         for lo, hi in pairs]
 

@@ -130,7 +130,7 @@ def test_bad_boxes_are_refused(args: tuple, match: str) -> None:
 
 
 @pytest.mark.parametrize(("args", "match"), [
-    ((0.5, 0.1), r"invalid ZLimit: zmin=0.5 \(expected zmin < zmax \(m\)\)"),
+    ((0.5, 0.1), r"invalid ZLimit: zmin=0.5, zmax=0.1 \(expected zmin < zmax \(m\)\)"),
     (("0.1", None), r"zmin='0.1' \(expected a number \(m"),
     ((0.0, False), r"zmax=False \(expected a number \(m"),
     ((math.nan, 1.0), "zmin=nan"),
@@ -234,6 +234,7 @@ def test_parse_every_form(tmp_path) -> None:
     ("box:1,0,0,1,0,1", "lo < hi"),
     ("zmax:", "comma-separated numbers"),
     ("z:0.5,0.1", "zmin < zmax"),
+    ("zmax:-1", r"zmin=0.0, zmax=-1.0 \(expected zmin < zmax"),  # the value typed, named
     ("mesh:/no/such/file.stl", "does not exist"),
     ("json:/no/such.json", "does not exist"),
     ("{not json", "not valid JSON"),

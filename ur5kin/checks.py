@@ -207,7 +207,8 @@ def known_fields(cls: type, data: Mapping[str, Any], what: str) -> None:
 
 
 Combination = tuple[str, str, Callable[[Any], bool]]
-"""What a field may be combined with: (the field, the rule in words, the test of the record)."""
+"""What a field may be combined with: (the fields the rule joins, ``", "``-separated, each
+named with its value in a refusal; the rule in words; the test of the record)."""
 
 
 def check_fields(record: Any, fields: Mapping[str, Kind], what: str,
@@ -222,7 +223,8 @@ def check_fields(record: Any, fields: Mapping[str, Kind], what: str,
             object.__setattr__(record, name, kind.cast(value))
         else:
             bad.append(f"{name}={value!r:.200} (expected {kind.words})")
-    bad += [] if bad else [f"{name}={getattr(record, name)!r:.200} (expected {words})"
-                           for name, words, test in combinations if not holds(test, record)]
+    bad += [] if bad else [", ".join(f"{n}={getattr(record, n)!r:.200}" for n in names.split(", "))
+                           + f" (expected {words})"
+                           for names, words, test in combinations if not holds(test, record)]
     if bad:
         raise ValueError(f"invalid {what}: " + ", ".join(bad))
