@@ -1,6 +1,7 @@
-"""The policies committed under results/ (issue 43): results/policies and the reported claims
-runs' own folders (results/claims/UNIT/runs/sSEED); small, read by ``ddpg_her.load``, replayed
-and mapped straight from results/, and as good as their own eval.csv says."""
+"""The policies committed under results/ (issue 43): results/policies and the reported runs'
+own folders (results/claims/UNIT/runs/sSEED, results/paper_long/runs/SETTING/sSEED); small,
+read by ``ddpg_her.load``, replayed and mapped straight from results/, and as good as their own
+eval.csv says."""
 
 from __future__ import annotations
 
@@ -10,14 +11,16 @@ import numpy as np
 import pytest
 from cli_tools import ROOT
 
-POLICIES = sorted(p.parent.parent for pattern in ("policies/*", "claims/*/runs/s*")
+POLICIES = sorted(p.parent.parent
+                  for pattern in ("policies/*", "claims/*/runs/s*", "paper_long/runs/*/s*")
                   for p in (ROOT / "results").glob(f"{pattern}/checkpoints/episode-*.pt"))
 
 
 def test_the_published_policies_are_there():
     names = {str(p.relative_to(ROOT / "results")) for p in POLICIES}
     assert {"policies/farbox-j3-s0", "policies/program-farbox-j3-s0", "claims/per/runs/s0",
-            "claims/sparse/runs/s0"} <= names, names
+            "claims/sparse/runs/s0", "paper_long/runs/unconstrained-j3/s0",
+            "paper_long/runs/zheight-j3/s0", "paper_long/runs/closebox-j3/s0"} <= names, names
 
 
 @pytest.mark.parametrize("run", POLICIES, ids=[str(p.relative_to(ROOT)) for p in POLICIES])
