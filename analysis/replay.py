@@ -189,10 +189,11 @@ def summary(run_dir: pathlib.Path, policy: Any, task: Any, episodes: Sequence[Ep
             f"{task.control_hz} Hz, real time")
 
 
-def serve_until_stopped() -> None:
-    """Wait until Ctrl-C or SIGTERM, then return. MeshCat ends its server subprocess at a normal
-    exit of this process only (an exit hook), so SIGTERM is turned into one: a terminated
-    ``--serve`` would otherwise leave the server listening."""
+def serve_until_stopped(announce: str) -> None:
+    """Print ``announce``, then wait until Ctrl-C or SIGTERM and return. MeshCat ends its server
+    subprocess at a normal exit of this process only (an exit hook), so SIGTERM is turned into
+    one: a terminated ``--serve`` would otherwise leave the server listening. The handler is in
+    place before the address is printed: a SIGTERM sent as soon as it is read also ends cleanly."""
     import signal
 
     def stop(signum: int, frame: Any) -> None:
@@ -200,6 +201,7 @@ def serve_until_stopped() -> None:
 
     previous = signal.signal(signal.SIGTERM, stop)
     try:
+        print(announce, flush=True)
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
@@ -269,8 +271,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     draw(scene, task, episodes, args.meshes)
     print(text)
     if args.serve:
-        print(f"serving at {vis.url()} (Ctrl-C ends it)", flush=True)
-        serve_until_stopped()
+        serve_until_stopped(f"serving at {vis.url()} (Ctrl-C ends it)")
         return 0
     with write_errors(parser):
         size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)

@@ -340,3 +340,24 @@ def test_browser_refuses_a_time_that_is_not_finite_before_starting_one(tmp_path,
         browser.main([str(page), "--at", at, "--out", str(tmp_path / "s.png")])
     assert stop.value.code == 2
     assert f"argument --at: {at} (expected a finite number >= 0 (s))" in capsys.readouterr().err
+
+
+def test_serve_holds_sigterm_before_it_prints_the_address(monkeypatch):
+    """A SIGTERM sent as soon as the address is read ends --serve cleanly: the handler is in
+    place when the address is printed (under load the CI run's SIGTERM once came first, exit
+    -15), and the default comes back after."""
+    import builtins
+    import signal
+
+    from analysis import replay
+
+    before, seen = signal.getsignal(signal.SIGTERM), []
+
+    def announce(*args, **kwargs):
+        seen.append(signal.getsignal(signal.SIGTERM))
+        raise KeyboardInterrupt  # what the handler raises on SIGTERM
+
+    monkeypatch.setattr(builtins, "print", announce)
+    replay.serve_until_stopped("serving at http://127.0.0.1:7000/static/")
+    assert len(seen) == 1 and callable(seen[0]) and seen[0] is not before
+    assert signal.getsignal(signal.SIGTERM) is before
