@@ -608,7 +608,7 @@ def train_cases(fix: Path) -> list[Case]:
             (["--env-id", "NoSuchEnv-v0"], "NoSuchEnv"),
             (["--env-id", "nosuchmodule:X-v0"], "nosuchmodule"),
             (["--out", str(fix / "blocker" / "r")], "blocker"),
-            (["--seeds", "0", "-1"], "[0, -1]"), (["--seeds"], "--seeds"),
+            (["--seeds", "0", "-1"], "seeds=(0, -1)"), (["--seeds"], "--seeds"),
             (["--seed", "1", "--seeds", "0", "1"], "--seed")):
         words_t = words
         argv = [*base, *args]
@@ -1489,7 +1489,7 @@ def api_cases(fix: Path) -> list[Case]:
         api("regions.parse zmax:-1", "regions.parse", 8, reg("parse", "zmax:-1"), "usage",
             "zmax=-1.0"),
         api("regions.parse z:0.5,0.2", "regions.parse", 8, reg("parse", "z:0.5,0.2"),
-            "usage", "lo=0.5, hi=0.2"),
+            "usage", "zmin=0.5, zmax=0.2"),
         api("regions.parse bad inline JSON", "regions.parse", 8, reg("parse", "{bad"),
             "usage", "{bad"),
         api("regions.parse JSON of an unknown kind", "regions.parse", 8,
