@@ -272,33 +272,14 @@ def _aba_scratch(dt):  # pragma: no cover - compiled
 
 
 @_njit
-def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torque, out, free
+def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, out, free
                ):  # pragma: no cover - compiled
-    """``out[b] = aba(q[b], qd[b], tau[b])`` (plus ``g(q[b])`` in tau when gravity_torque),
-    joints ``free ..`` locked (:func:`_aba`)."""
-    R, vel, acc, cb, pA, U, IA, X, Y, D, u, force = _aba_scratch(q.dtype)
-    t, g = np.empty(6, q.dtype), np.empty(6, q.dtype)
+    """``out[b] = aba(q[b], qd[b], tau[b])``, joints ``free ..`` locked (:func:`_aba`)."""
+    R, vel, acc, cb, pA, U, IA, X, Y, D, u, _ = _aba_scratch(q.dtype)
     for b in range(q.shape[0]):
         placements(q[b], rot0, axis, R)
-        for k in range(6):
-            t[k] = tau[b, k]
-        if gravity_torque:
-            _gravity_torque(R, p, axis, inertia, grav, acc, force, g)
-            for k in range(6):
-                t[k] += g[k]
-        _aba(R, p, axis, inertia, armature, grav, qd[b], t, vel, cb, IA, pA, U, D, u, X, Y,
+        _aba(R, p, axis, inertia, armature, grav, qd[b], tau[b], vel, cb, IA, pA, U, D, u, X, Y,
              acc, out[b], free)
-
-
-@_njit
-def _gravity_batch(q, rot0, p, axis, inertia, grav, out):  # pragma: no cover - compiled
-    """``out[b] = g(q[b])``: the generalized gravity torque."""
-    dt = q.dtype
-    R = np.empty((6, 3, 3), dt)
-    acc, force = np.empty((7, 6), dt), np.empty((6, 6), dt)
-    for b in range(q.shape[0]):
-        placements(q[b], rot0, axis, R)
-        _gravity_torque(R, p, axis, inertia, grav, acc, force, out[b])
 
 
 def _batch(x: Any, name: str, dtype: Any) -> np.ndarray:
@@ -351,19 +332,7 @@ def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np
     check_aba_batch(q, v, tau, free)
     out = np.empty_like(q)
     _aba_batch(q, v, tau, chain.rotation, chain.translation, chain.axis, chain.inertia,
-               chain.armature, chain.gravity, False, out, free)
-    return out
-
-
-def generalized_gravity(q: Any, dtype: Any = np.float64) -> np.ndarray:
-    """Gravity torques ``g(q) (B, 6)`` N m of B copies (Pinocchio's
-    ``computeGeneralizedGravity`` for each row ``q (B, 6)`` rad), batched."""
-    name = dtype_name(dtype)
-    chain = ur5_chain().astype(DTYPES[name])
-    q = _batch(q, "q", DTYPES[name])
-    out = np.empty_like(q)
-    _gravity_batch(q, chain.rotation, chain.translation, chain.axis, chain.inertia,
-                   chain.gravity, out)
+               chain.armature, chain.gravity, out, free)
     return out
 
 
