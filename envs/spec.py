@@ -84,7 +84,6 @@ GOAL_SAMPLERS = ("joint", "cartesian")
 (:class:`regions.CartesianSampler`, needs n_joints >= 3)."""
 
 
-
 @dataclass(frozen=True)
 class TaskSpec:
     """Everything that defines one UR5 Reacher task (docs/design.md), checked at construction.

@@ -657,7 +657,6 @@ class NumbaDynamics:
         return out
 
 
-
 @_njit
 def _heights_batch(q, vh, bounds, lift, wrist, base_height, out):  # pragma: no cover
     feat = np.empty(13, q.dtype)
