@@ -36,7 +36,6 @@ for _env_id in ENV_IDS:
         )
 
 
-
 def _no_single_stack_env(**_: object) -> NoReturn:
     raise ValueError("UR5StackReach-v0 is a stack of copies with no single env (no reset()): "
                      "build envs.stackreach.StackReach directly, or gymnasium.make_vec("

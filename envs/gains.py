@@ -42,31 +42,6 @@ def joint_inertia_bounds() -> tuple[np.ndarray, np.ndarray]:
     return diag.min(axis=0), diag.max(axis=0)
 
 
-def pd_gains(bandwidth: float, damping_ratio: float, inertia: Any
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """PD gains that give each joint, taken alone, a pole pair at ``bandwidth``.
-
-    Parameters
-    ----------
-    bandwidth : float, rad/s
-        Natural frequency w of each joint's closed loop.
-    damping_ratio : float
-        zeta (1 = critically damped).
-    inertia : (6,) float, kg m^2
-        The inertia each joint is designed for (the defaults use the largest diagonal entry of
-        the mass matrix, :func:`joint_inertia_bounds`, so lighter poses are better damped).
-
-    Returns
-    -------
-    kp : (6,) float, N m/rad
-        ``inertia * w^2``.
-    kd : (6,) float, N m s/rad
-        ``2 zeta inertia w``.
-    """
-    inertia = np.asarray(inertia, dtype=float)
-    return inertia * bandwidth**2, 2.0 * damping_ratio * inertia * bandwidth
-
-
 def pd_stability_violations(kp: Any, kd: Any, h: float) -> list[str]:
     """Joints whose PD loop is unstable under semi-implicit Euler with step ``h``.
 

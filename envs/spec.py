@@ -54,8 +54,7 @@ ACTION_PENALTY_UNITS = ("command", "actor")
 mode), so ``|a|^2 <= n``."""
 
 DEFAULT_KP = (3920.0, 3600.0, 781.0, 232.0, 228.0, 15.4)
-"""Default proportional gains (N m/rad) of joints 1-6 (:func:`envs.gains.pd_gains`, rounded);
-see :attr:`TaskSpec.kp`."""
+"""Default proportional gains (N m/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
 
 DEFAULT_KD = (261.0, 240.0, 52.0, 15.5, 15.2, 1.03)
 """Default derivative gains (N m s/rad) of joints 1-6; see :attr:`TaskSpec.kp`."""
@@ -83,7 +82,6 @@ GOAL_SAMPLERS = ("joint", "cartesian")
 """``joint``: the paper's sampler (uniform in joint space, kept in the region;
 :class:`regions.JointSpaceSampler`); ``cartesian``: uniform in the reachable part of the region
 (:class:`regions.CartesianSampler`, needs n_joints >= 3)."""
-
 
 
 @dataclass(frozen=True)
@@ -186,11 +184,11 @@ class TaskSpec:
     The defaults place a critically damped pair of poles at 30 rad/s for each joint taken alone
     at its largest diagonal inertia over the joint space, ``I_max = (4.35, 4.01, 0.867, 0.258,
     0.253, 0.0171) kg m^2``: ``kp = I_max w^2``, ``kd = 2 zeta I_max w`` with ``w = 30 rad/s``,
-    ``zeta = 1`` (:func:`envs.gains.pd_gains`, rounded). Lighter poses see a faster, more
-    damped loop. With them a commanded pose is reached and held to < 1e-4 rad within the 2 s of
-    an episode (the arm moves at its 3.15 rad/s limit most of the way), and the coupled
-    closed loop linearised at 2000 sampled configurations is stable under 1 kHz semi-implicit
-    Euler with margin (largest spectral radius of the substep map 0.986; tested)."""
+    ``zeta = 1``, rounded. Lighter poses see a faster, more damped loop. With them a commanded
+    pose is reached and held to < 1e-4 rad within the 2 s of an episode (the arm moves at its
+    3.15 rad/s limit most of the way), and the coupled closed loop linearised at 2000 sampled
+    configurations is stable under 1 kHz semi-implicit Euler with margin (largest spectral
+    radius of the substep map 0.986; tested)."""
 
     kd: tuple[float, ...] = DEFAULT_KD
     """Derivative gains (N m s/rad) of the joint PD controller, joints 1-6 (see :attr:`kp`). In

@@ -29,10 +29,6 @@ from envs.spec import TaskSpec, make_task
 from envs.task import action_bounds, action_penalty_scale, task_sampler
 from ur5kin.checks import number
 
-OBS_DIM = 3 * NJ
-"""Observation length of every copy: theta, theta_dot, theta_ddot of six joints (rad, rad/s,
-rad/s^2), zeros past the copy's joint count."""
-
 PER_COPY_FIELDS = ("region", "n_joints", "start_q", "action_penalty_unit")
 """The task fields in which the copies of one stack may differ; all others must be equal."""
 

@@ -298,20 +298,12 @@ def coverage_row(region: Region, samples: WorkspaceSamples, voxels: VoxelWorkspa
     workspace, workspace_err = voxels.volume, voxels.error
     covered, covered_err = voxels.covered(region)
     return CoverageRow(
-        region=region.name,
-        joints=n,
-        start_q=tuple(float(x) for x in start_q),
-        region_volume_m3=region.volume,
-        region_volume_exact=region.volume_is_exact,
-        workspace_volume_m3=workspace,
-        workspace_volume_error_m3=workspace_err,
-        covered_volume_m3=covered,
-        covered_volume_error_m3=covered_err,
+        region=region.name, joints=n, start_q=tuple(float(x) for x in start_q),
+        region_volume_m3=region.volume, region_volume_exact=region.volume_is_exact,
+        workspace_volume_m3=workspace, workspace_volume_error_m3=workspace_err,
+        covered_volume_m3=covered, covered_volume_error_m3=covered_err,
         workspace_fraction=covered / workspace if workspace > 0 else 0.0,
         goal_acceptance=float(np.count_nonzero(accepted)) / samples.count,
         mean_goal_distance_m=float(distances.mean()) if len(distances) else math.nan,
-        start_inside=bool(region.contains(start_tool)),
-        resolution_m=voxels.resolution,
-        samples=samples.count,
-        workspace_is_surface=n <= SURFACE_JOINTS,
-    )
+        start_inside=bool(region.contains(start_tool)), resolution_m=voxels.resolution,
+        samples=samples.count, workspace_is_surface=n <= SURFACE_JOINTS)

@@ -17,7 +17,7 @@ from arm_geometry import brute_force_heights, pinocchio_rows, random_states
 import envs
 import ur5kin
 from envs.physics import make_dynamics, numba_kernel
-from envs.physics.model import ChainModel
+from envs.physics.model import ChainModel, ur5_chain
 from envs.physics.pinocchio_loop import PinocchioDynamics
 from envs.spec import TaskSpec
 from envs.task import action_bounds
@@ -51,7 +51,13 @@ def test_aba_in_float32_within_the_stated_bound():
 def test_gravity_torque_is_pinocchios():
     q, _, _ = random_states(200, seed=2)
     reference = pinocchio_rows(pin.computeGeneralizedGravity, q)
-    np.testing.assert_allclose(numba_kernel.generalized_gravity(q), reference, rtol=1e-9, atol=1e-9)
+    chain = ur5_chain()
+    R, acc, force, g = np.empty((6, 3, 3)), np.empty((7, 6)), np.empty((6, 6)), np.empty_like(q)
+    for qb, gb in zip(q, g, strict=True):  # the kernel's g(q), one row at a time
+        numba_kernel.placements(qb, chain.rotation, chain.axis, R)
+        numba_kernel._gravity_torque(R, chain.translation, chain.axis, chain.inertia,
+                                     chain.gravity, acc, force, gb)
+    np.testing.assert_allclose(g, reference, rtol=1e-9, atol=1e-9)
 
 
 def test_the_chain_is_read_from_pinocchio():

@@ -19,8 +19,7 @@ from ur5kin.lazy import lazy_attributes
 
 _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("ik", "ik_position", "wrap"), "ur5kin.analytic_ik"),
-    **dict.fromkeys(("fk", "fk_pose", "fk_torch", "fk_world", "jacobian", "link_poses"),
-                    "ur5kin.kinematics"),
+    **dict.fromkeys(("fk", "fk_pose", "fk_world", "jacobian", "link_poses"), "ur5kin.kinematics"),
     **dict.fromkeys(("BASE_FRAME", "JOINT_LIMIT", "JOINT_NAMES", "LINK_NAMES", "TOOL_FRAME",
                      "UR5Geometry", "effort_limits", "geometry", "load_model",
                      "resolve_package_uri", "urdf_path", "velocity_limits"), "ur5kin.model"),

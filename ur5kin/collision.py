@@ -225,7 +225,8 @@ forearm and the wrist (``a = q2 + lift_offset``, ``b = a + q3``, ``c = b + q4 + 
 
 
 def _row_coefficients(g: UR5Geometry) -> np.ndarray:
-    """Constant ``A (13, 7, 4)`` with ``rows = features @ A`` (rows as in :func:`link_z_rows`).
+    """Constant ``A (13, 7, 4)`` with ``rows = features @ A``: the third row of each link's pose in
+    ``base_link`` (``z = row . [p, 1]`` for a point ``p`` of the link, m, in its frame).
 
     Written out for the chain of :class:`ur5kin.UR5Geometry`: the shoulder pan turns about z, so
     no height depends on joint 1; the third rows of ``Ry(a)``, ``Ry(c) Rz(q5)`` and
@@ -360,28 +361,6 @@ def height_table() -> tuple[np.ndarray, np.ndarray, float, float]:
     kernels = _kernels()
     lift, wrist = _angle_offsets()
     return kernels.vertex_heights, kernels.bounds, float(lift), float(wrist)
-
-
-def link_z_rows(q: Any) -> np.ndarray:
-    """Third row of each link's pose in ``base_link``: what a link point's height depends on.
-
-    ``z = row . [p_x, p_y, p_z, 1]`` for a point ``p`` (m) of the link, in its frame. Equal to
-    ``ur5kin.link_poses(q)[..., :7, 2, :]`` (tested), at a fraction of the cost.
-
-    Parameters
-    ----------
-    q : (..., 6) float array_like, rad
-
-    Returns
-    -------
-    rows : (..., 7, 4) float
-        Rows of base_link .. wrist_3_link; the last entry (m) is the link origin's height above
-        ``base_link``.
-    """
-    q = joint_array(q)
-    A = _row_coefficients(geometry()).reshape(len(FEATURES), 4 * N_LINKS)
-    rows = _features(q.reshape(-1, 6)).T @ A
-    return rows.reshape(*q.shape[:-1], N_LINKS, 4)
 
 
 def _link_minima(heights: np.ndarray, bounds: np.ndarray) -> np.ndarray:

@@ -58,14 +58,16 @@ def _dispatch(q: Any, batched: Any, tail: tuple[int, ...], single: Any = None) -
     return closed_form.chunked(batched, q, tail)
 
 
-def _single_position(model: pin.Model, data: pin.Data, frame: int, q: np.ndarray) -> np.ndarray:
-    pin.forwardKinematics(model, data, q)
-    return pin.updateFramePlacement(model, data, frame).translation.copy()
+def _single_placement(part: str) -> Any:
+    """``single(model, data, frame, q)``: Pinocchio's ``part`` (``translation``, ``homogeneous``)
+    of the frame's placement at ``q``."""
+    def single(model: pin.Model, data: pin.Data, frame: int, q: np.ndarray) -> np.ndarray:
+        pin.forwardKinematics(model, data, q)
+        return getattr(pin.updateFramePlacement(model, data, frame), part).copy()
+    return single
 
 
-def _single_pose(model: pin.Model, data: pin.Data, frame: int, q: np.ndarray) -> np.ndarray:
-    pin.forwardKinematics(model, data, q)
-    return pin.updateFramePlacement(model, data, frame).homogeneous.copy()
+_single_position, _single_pose = _single_placement("translation"), _single_placement("homogeneous")
 
 
 def _single_jacobian(model: pin.Model, data: pin.Data, frame: int, q: np.ndarray) -> np.ndarray:
@@ -161,16 +163,4 @@ def jacobian(q: Any) -> Any:
 
 def _batched_jacobian(q: Any) -> Any:
     return closed_form.jacobian_from_poses(closed_form.link_poses(q))
-
-
-def fk_torch(q: Any) -> Any:
-    """tool0 position for a torch tensor ``q (..., 6)`` (rad), any device, float32/float64.
-
-    Same as :func:`fk` on a tensor; named for code that wants to say it works on tensors.
-    """
-    import torch
-
-    if not isinstance(q, torch.Tensor):
-        raise ValueError(f"fk_torch expects a torch.Tensor; got {type(q).__name__}")
-    return fk(q)
 

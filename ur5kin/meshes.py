@@ -33,12 +33,6 @@ KINDS: dict[str, pin.GeometryType] = {
 """The URDF's two geometry kinds, by the names the command lines use."""
 
 
-def _check_kind(kind: str) -> str:
-    if kind not in KINDS:
-        raise ValueError(f"mesh kind must be one of {sorted(KINDS)}; got {kind!r}")
-    return kind
-
-
 @functools.cache
 def geometry_model(kind: str) -> pin.GeometryModel:
     """The URDF's ``visual`` or ``collision`` geometry as a Pinocchio ``GeometryModel`` (cached).
@@ -46,8 +40,10 @@ def geometry_model(kind: str) -> pin.GeometryModel:
     Shared: treat it as read-only; make a ``GeometryData`` of your own
     (``pin.GeometryData(geometry_model(kind))``).
     """
+    if kind not in KINDS:
+        raise ValueError(f"mesh kind must be one of {sorted(KINDS)}; got {kind!r}")
     package_root = resolve_package_uri("package://example-robot-data/").parent
-    return pin.buildGeomFromUrdf(load_model(), str(urdf_path()), KINDS[_check_kind(kind)],
+    return pin.buildGeomFromUrdf(load_model(), str(urdf_path()), KINDS[kind],
                                  package_dirs=[str(package_root)])
 
 
@@ -106,8 +102,7 @@ class MeshPart:
 
 def _part(obj: Any) -> MeshPart:
     kind = type(obj.geometry).__name__
-    half = None
-    path = None
+    half = path = None
     if kind == "Box":
         half = tuple(float(h) for h in obj.geometry.halfSide)
     elif obj.meshPath:

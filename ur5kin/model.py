@@ -83,18 +83,13 @@ def urdf_path() -> pathlib.Path:
     )
 
 
-def data_dir() -> pathlib.Path:
-    """The example-robot-data folder that ``package://example-robot-data/`` URIs point into."""
-    # .../example-robot-data/robots/ur_description/urdf/ur5_robot.urdf
-    return urdf_path().parents[3]
-
-
 def resolve_package_uri(uri: str) -> pathlib.Path:
     """Turn a URDF mesh URI such as ``package://example-robot-data/robots/...stl`` into a path."""
     prefix = "package://example-robot-data/"
     if not uri.startswith(prefix):
         raise ValueError(f"expected a URI starting with {prefix!r}; got {uri!r}")
-    return data_dir() / uri[len(prefix) :]
+    # the package folder: .../example-robot-data/robots/ur_description/urdf/ur5_robot.urdf
+    return urdf_path().parents[3] / uri[len(prefix) :]
 
 
 @functools.cache
@@ -192,19 +187,11 @@ class UR5Geometry:
         tool_t = np.asarray(tool.placement.translation)
         if abs(tool_t[0]) > tol or abs(tool_t[2]) > tol:
             raise RuntimeError(f"{TOOL_FRAME} offset {tool_t} is not along wrist_3's y axis")
-        return cls(
-            d1=float(t[0][2]),
-            shoulder_offset=float(t[1][1]),
-            elbow_offset=float(t[2][1]),
-            upper_arm=float(t[2][2]),
-            forearm=float(t[3][2]),
-            wrist_1=float(t[4][1]),
-            wrist_2=float(t[5][2]),
-            wrist_3=float(tool_t[1]),
-            lift_offset=lift,
-            wrist_offset=wrist,
-            tool_rotation=tuple(tuple(float(x) for x in row) for row in tool.placement.rotation),
-        )
+        return cls(d1=float(t[0][2]), shoulder_offset=float(t[1][1]), elbow_offset=float(t[2][1]),
+                   upper_arm=float(t[2][2]), forearm=float(t[3][2]), wrist_1=float(t[4][1]),
+                   wrist_2=float(t[5][2]), wrist_3=float(tool_t[1]), lift_offset=lift,
+                   wrist_offset=wrist, tool_rotation=tuple(tuple(float(x) for x in row)
+                                                           for row in tool.placement.rotation))
 
 
 @functools.cache

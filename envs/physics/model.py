@@ -2,12 +2,11 @@
 
 One job: turn a :class:`envs.spec.TaskSpec` into the numbers a control step needs, so that the
 Pinocchio loop (:mod:`envs.physics.pinocchio_loop`), the numba kernels
-(:mod:`envs.physics.numba_kernel`) and the stack's
-(:mod:`envs.physics.stack`) cannot drift apart: the controller in time-scaled units (scaled PD
-gains per control mode, the command's gain, effort and velocity limits, joint-limit box, held
-joints), the serial chain
-(:class:`ChainModel`, read from Pinocchio) and the plane check's tables (:class:`PlaneModel`,
-read from :mod:`ur5kin.collision`), and the checks of a reset configuration.
+(:mod:`envs.physics.numba_kernel`) and the stack's (:mod:`envs.physics.stack`) cannot drift
+apart: the controller in time-scaled units (scaled PD gains per control mode, the command's gain,
+effort and velocity limits, joint-limit box, held joints), the serial chain (:class:`ChainModel`,
+read from Pinocchio) and the plane check's tables (:class:`PlaneModel`, read from
+:mod:`ur5kin.collision`), and the checks of a reset configuration.
 
 Time-scaled units: with ``h = 1 / sim_hz`` the integrator's velocity is ``w = h v`` (rad per
 substep), torques and gravity are scaled by ``h^2``; the equations of motion are quadratic in
@@ -18,7 +17,7 @@ substep is ``w' = w + aba(q, w, tau)``, ``q' = q + w'``.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -185,9 +184,8 @@ class ChainModel:
 
     def astype(self, dtype: Any) -> ChainModel:
         """The same arrays as ``dtype`` (contiguous, for the kernels)."""
-        return ChainModel(*(np.ascontiguousarray(getattr(self, f), dtype=dtype)
-                            for f in ("rotation", "translation", "axis", "inertia", "armature",
-                                      "gravity")))
+        return ChainModel(*(np.ascontiguousarray(getattr(self, f.name), dtype=dtype)
+                            for f in fields(self)))
 
 
 @functools.cache
@@ -318,9 +316,7 @@ def arm_model(task: TaskSpec) -> ArmModel:
     model = ur5kin.load_model()
     lo, hi = np.asarray(model.lowerPositionLimit), np.asarray(model.upperPositionLimit)
     start_q = np.asarray(task.start_q, dtype=float)
-    chain = ur5_chain()
-    chain = ChainModel(chain.rotation, chain.translation, chain.axis, chain.inertia,
-                       chain.armature, chain.gravity * h * h)
+    chain = replace(ur5_chain(), gravity=ur5_chain().gravity * h * h)
     arrays = dict(kp=kp, kd=kd, kp_eff=kp_eff, kd_eff=kd_eff, command_gain=command_gain,
                   held_bias=kp[n:] * start_q[n:], effort=ur5kin.effort_limits() * h * h,
                   w_max=ur5kin.velocity_limits() * h, q_mid=0.5 * (lo + hi),

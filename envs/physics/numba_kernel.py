@@ -272,33 +272,14 @@ def _aba_scratch(dt):  # pragma: no cover - compiled
 
 
 @_njit
-def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, gravity_torque, out, free
+def _aba_batch(q, qd, tau, rot0, p, axis, inertia, armature, grav, out, free
                ):  # pragma: no cover - compiled
-    """``out[b] = aba(q[b], qd[b], tau[b])`` (plus ``g(q[b])`` in tau when gravity_torque),
-    joints ``free ..`` locked (:func:`_aba`)."""
-    R, vel, acc, cb, pA, U, IA, X, Y, D, u, force = _aba_scratch(q.dtype)
-    t, g = np.empty(6, q.dtype), np.empty(6, q.dtype)
+    """``out[b] = aba(q[b], qd[b], tau[b])``, joints ``free ..`` locked (:func:`_aba`)."""
+    R, vel, acc, cb, pA, U, IA, X, Y, D, u, _ = _aba_scratch(q.dtype)
     for b in range(q.shape[0]):
         placements(q[b], rot0, axis, R)
-        for k in range(6):
-            t[k] = tau[b, k]
-        if gravity_torque:
-            _gravity_torque(R, p, axis, inertia, grav, acc, force, g)
-            for k in range(6):
-                t[k] += g[k]
-        _aba(R, p, axis, inertia, armature, grav, qd[b], t, vel, cb, IA, pA, U, D, u, X, Y,
+        _aba(R, p, axis, inertia, armature, grav, qd[b], tau[b], vel, cb, IA, pA, U, D, u, X, Y,
              acc, out[b], free)
-
-
-@_njit
-def _gravity_batch(q, rot0, p, axis, inertia, grav, out):  # pragma: no cover - compiled
-    """``out[b] = g(q[b])``: the generalized gravity torque."""
-    dt = q.dtype
-    R = np.empty((6, 3, 3), dt)
-    acc, force = np.empty((7, 6), dt), np.empty((6, 6), dt)
-    for b in range(q.shape[0]):
-        placements(q[b], rot0, axis, R)
-        _gravity_torque(R, p, axis, inertia, grav, acc, force, out[b])
 
 
 def _batch(x: Any, name: str, dtype: Any) -> np.ndarray:
@@ -351,19 +332,7 @@ def aba(q: Any, v: Any, tau: Any, dtype: Any = np.float64, free: int = NJ) -> np
     check_aba_batch(q, v, tau, free)
     out = np.empty_like(q)
     _aba_batch(q, v, tau, chain.rotation, chain.translation, chain.axis, chain.inertia,
-               chain.armature, chain.gravity, False, out, free)
-    return out
-
-
-def generalized_gravity(q: Any, dtype: Any = np.float64) -> np.ndarray:
-    """Gravity torques ``g(q) (B, 6)`` N m of B copies (Pinocchio's
-    ``computeGeneralizedGravity`` for each row ``q (B, 6)`` rad), batched."""
-    name = dtype_name(dtype)
-    chain = ur5_chain().astype(DTYPES[name])
-    q = _batch(q, "q", DTYPES[name])
-    out = np.empty_like(q)
-    _gravity_batch(q, chain.rotation, chain.translation, chain.axis, chain.inertia,
-                   chain.gravity, out)
+               chain.armature, chain.gravity, out, free)
     return out
 
 
@@ -582,6 +551,22 @@ def tool_batch(Q, rows, rot0, p, axis, tool_pos, base_height, tool):  # pragma: 
         tool_position(R, p, tool_pos, base_height, tool[b])
 
 
+def kernel_arguments(task: TaskSpec, arm: Any, chain: Any, plane: Any, tool_pos: np.ndarray,
+                     cast: Any, state: tuple[np.ndarray, ...]) -> tuple[Any, ...]:
+    """The arguments of :func:`control_step` before ``first, stop``, in the order
+    :func:`step_copy` reads them per copy: ``state``'s arrays ``q, w, bias, height_bound, dw,
+    contact, limit_stop, tool, free`` (row b of each ``(B, ...)`` array, written in place), and
+    ``task``'s, ``arm``'s (the controller, as ``cast``), the chain's, the plane's, the tool's."""
+    q, w, bias, height_bound, *outputs = state
+    return (q, w, bias, *(x.astype(cast) for x in (arm.kp_eff, arm.kd_eff, arm.effort,
+                                                     arm.w_max)),
+            bool(task.gravity_compensation), task.substeps, arm.q_mid.astype(cast),
+            arm.q_half.astype(cast), plane.vertex_heights, plane.bounds, plane.lift_offset,
+            plane.wrist_offset, plane.lipschitz, float(task.base_height),
+            float(task.plane_margin), height_bound, chain.rotation, chain.translation,
+            chain.axis, chain.inertia, chain.armature, chain.gravity, tool_pos, *outputs)
+
+
 # ---------------------------------------------------------------------------- the class
 class NumbaDynamics:
     """B copies of the UR5 under the task's controller, one compiled call per control step: an
@@ -621,14 +606,9 @@ class NumbaDynamics:
         cast = DTYPES[name]
         self.task, self.dtype, self.threads = validate(task), name, threads
         arm = self.arm = arm_model(task)
-        self._chain, self._plane = arm.chain.astype(cast), ur5_plane(name)
+        self._chain = arm.chain.astype(cast)
         self._tool_pos = tool_offset().astype(cast)
-        # the controller's arrays in the kernel's type, in its argument order
-        self._controller = tuple(x.astype(cast) for x in (arm.kp_eff, arm.kd_eff, arm.effort,
-                                                          arm.w_max))
-        self._limits = arm.q_mid.astype(cast), arm.q_half.astype(cast)
         self.bias = arm.initial_bias(B, cast)
-        self._free = np.full(B, arm.free, dtype=np.int64)  # one task: the same for every copy
 
         self.q = np.tile(arm.start_q, (B, 1)).astype(cast)
         self.w = np.zeros((B, NJ), dtype=cast)
@@ -641,6 +621,10 @@ class NumbaDynamics:
                                     (B, 1)).astype(cast)
         self.tool = np.zeros((B, 3), dtype=cast)
         self._update_tools(np.arange(B))
+        self._args = kernel_arguments(task, arm, self._chain, ur5_plane(name), self._tool_pos,
+                                      cast, (self.q, self.w, self.bias, self.height_bound,
+                                             self._dw, self.contact, self.limit_stop, self.tool,
+                                             np.full(B, arm.free, dtype=np.int64)))
 
     def _update_tools(self, rows: np.ndarray) -> None:
         c = self._chain
@@ -657,7 +641,7 @@ class NumbaDynamics:
         """:meth:`envs.physics.Dynamics.step`."""
         arm = self.arm
         np.multiply(arm.command_gain, command, out=self.bias[:, : self.task.n_joints])
-        args = self.kernel_arguments()
+        args = self._args
         if self.threads == 1:
             control_step(*args, 0, self.num_copies)
         else:
@@ -667,23 +651,10 @@ class NumbaDynamics:
         np.multiply(self._dw, arm.w_to_accel, out=self.acceleration)
         np.multiply(self.w, arm.w_to_v, out=self.v)
 
-    def kernel_arguments(self) -> tuple[Any, ...]:
-        """The arguments of :func:`control_step` before ``first, stop``: the state arrays
-        (written in place) and the model's, in the order :func:`step_copy` reads them per
-        copy (row b of each ``(B, ...)`` array), for a kernel that runs the body elsewhere."""
-        task, c, pl = self.task, self._chain, self._plane
-        return (self.q, self.w, self.bias, *self._controller,
-                bool(task.gravity_compensation), task.substeps, *self._limits,
-                pl.vertex_heights, pl.bounds, pl.lift_offset, pl.wrist_offset, pl.lipschitz,
-                float(task.base_height), float(task.plane_margin), self.height_bound,
-                c.rotation, c.translation, c.axis, c.inertia, c.armature, c.gravity,
-                self._tool_pos, self._dw, self.contact, self.limit_stop, self.tool, self._free)
-
     def tool_positions(self, out: np.ndarray) -> np.ndarray:
         """Write tool0's world position ``(B, 3)`` m (base at (0, 0, base_height)) into ``out``."""
         out[:] = self.tool
         return out
-
 
 
 @_njit

@@ -21,7 +21,7 @@ import torch
 
 from envs.checks import validate
 from envs.physics.model import NJ, arm_model, rest_heights, tool_offset, ur5_plane
-from envs.physics.numba_kernel import DTYPES, control_step, dtype_name, tool_batch
+from envs.physics.numba_kernel import DTYPES, control_step, dtype_name, kernel_arguments, tool_batch
 from envs.spec import TaskSpec
 
 KERNELS = ("numba", "triton")
@@ -211,17 +211,9 @@ class StackDynamics:
         controller = dict(kp=arm.kp_eff, kd=arm.kd_eff, effort=arm.effort, w_max=arm.w_max,
                           q_mid=arm.q_mid, q_half=arm.q_half)
         if self.kernel == "numba":
-            self._args = (host["q"], host["w"], host["bias"],
-                          *(controller[k].astype(cast) for k in ("kp", "kd", "effort",
-                                                                 "w_max")),
-                          bool(first.gravity_compensation), first.substeps,
-                          controller["q_mid"].astype(cast), controller["q_half"].astype(cast),
-                          plane.vertex_heights, plane.bounds, plane.lift_offset,
-                          plane.wrist_offset, plane.lipschitz, float(first.base_height),
-                          float(first.plane_margin), host["height_bound"], chain.rotation,
-                          chain.translation, chain.axis, chain.inertia, chain.armature,
-                          chain.gravity, tool_pos, host["dw"], host["contact"],
-                          host["limit_stop"], host["tool"], host["n_joints"], 0, B)
+            self._args = (*kernel_arguments(first, arm, chain, plane, tool_pos, cast, tuple(
+                host[k] for k in ("q", "w", "bias", "height_bound", "dw", "contact",
+                                  "limit_stop", "tool", "n_joints"))), 0, B)
         else:
             import envs.physics.triton_kernel as triton_kernel
 

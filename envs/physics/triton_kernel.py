@@ -349,8 +349,6 @@ def store_lanes(ptr, offs, valid, x, N: tl.constexpr):
              mask=valid[:, None] & (cols < N)[None, :])
 
 
-
-
 # ------------------------------------------------------------------------- the traced algebra
 # Plain Python over Values, mirroring the numba functions named in each docstring operation by
 # operation (their order of sums and products), so that the generated code rounds as they do.
