@@ -25,7 +25,7 @@ from pathlib import Path
 
 from ddpg_her import train
 from ddpg_her.config import Parser, usage_errors
-from ddpg_her.units import option_dests, overrides, read_plan, split_passthrough
+from ddpg_her.units import option_dests, overrides, read_plan, shared_folders, split_passthrough
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -125,14 +125,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("give one or more --unit or --plan")
     with usage_errors(parser, ValueError):
         settings = settings_of(units, resume=args.resume, common=common)
-    writers: dict[Path, str] = {}  # a dry run refuses what the real one could not start
-    for s in settings:
-        for seed, folder in zip(s.seeds, s.run_dirs, strict=True):
-            key = Path(folder).resolve()
-            if key in writers:
-                parser.error(f"two runs would write one run folder {folder}: {writers[key]} and "
-                             f"{s.name} seed={seed}; give each unit its own --out")
-            writers[key] = f"{s.name} seed={seed}"
+    for line in shared_folders((d, f"{s.name} seed={seed}") for s in settings  # dry run too
+                               for seed, d in zip(s.seeds, s.run_dirs, strict=True)):
+        parser.error(f"{line}; give each unit its own --out")
 
     import gymnasium
 
