@@ -24,7 +24,7 @@ import torch
 from ddpg_her.loop import Loop, run
 from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
-from ddpg_her.units import Setting
+from ddpg_her.units import Setting, shared_folders
 from ddpg_her.vecenv import GoalVecEnv
 
 
@@ -105,10 +105,10 @@ class MultiTrainer:
                  **program: Any):
         if not settings:
             raise ValueError("need one or more settings")
-        dirs = [Path(d).resolve() for s in settings for d in s.run_dirs]
-        if len(set(dirs)) != len(dirs):
-            raise ValueError("two settings share a run folder: "
-                             f"{sorted({str(d) for d in dirs if dirs.count(d) > 1})}")
+        shared = shared_folders((d, f"{s.name} seed={seed}") for s in settings
+                                for seed, d in zip(s.seeds, s.run_dirs, strict=True))
+        if shared:
+            raise ValueError("; ".join(shared))
         self.groups = group_settings(settings, resume, env_backend)
         self.progress = progress
         self.trainers: list[Loop] = []

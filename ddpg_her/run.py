@@ -1,7 +1,7 @@
 """A trained agent's policy from its run folder (`load`); the folder itself is `ddpg_her.runfolder`.
 
 This module needs torch; reading a run folder's spec and evaluations does not (see
-`ddpg_her.runfolder`, whose names this module re-exports for older imports).
+`ddpg_her.runfolder`).
 """
 
 from __future__ import annotations
@@ -16,15 +16,7 @@ import torch
 from ddpg_her.config import AgentConfig
 from ddpg_her.networks import Actor, load_agent_slices
 from ddpg_her.normalizer import RunningNormalizer
-from ddpg_her.runfolder import (  # noqa: F401  (re-exported)
-    EVAL_COLUMNS,
-    FORMAT,
-    RunFolder,
-    RunFolderError,
-    atomic_write,
-    git_revision,
-    versions,
-)
+from ddpg_her.runfolder import RunFolder, RunFolderError
 from ddpg_her.spaces import ActionScale, goal_input
 
 
