@@ -52,9 +52,6 @@ class FastPaths:
     """``torch._foreach_lerp_`` for the soft target update; else ``Tensor.lerp_`` per tensor."""
 
 
-PLAIN = FastPaths(fused_adam=False, threshold_backward=False, foreach_lerp=False)
-"""Public torch only: the path a torch without the private functions takes."""
-
 PROBE_TOL = 1e-12
 """Largest difference accepted between a private function and its public twin on the probe's
 float64 values (the same arithmetic: they agree to rounding)."""
@@ -143,7 +140,7 @@ def _bmm(a: torch.Tensor, b: torch.Tensor, alpha: float) -> torch.Tensor:
 
 FAST = probe_fast_paths()
 """The private functions this torch offers and that pass their check; `DDPG` reads it when
-built (a test sets it to `PLAIN` to exercise the fallback)."""
+built (a test sets it to all False to exercise the fallback)."""
 
 
 def make_adam(params, lr: float, weight_decay: float) -> torch.optim.Adam:

@@ -316,22 +316,22 @@ def check_recorded(env_id: str, given: dict[str, Any], task: dict[str, Any]) -> 
     the value the env's task holds, which ``spec.json`` records and every tool rebuilds the
     task from. A given None asks the task for its derived value (e.g. ``start_q``)."""
     wrong = [f"{key}={value!r} (the task holds {task[key]!r})" for key, value in given.items()
-             if key in task and value is not None and _plain(value) != _plain(task[key])]
+             if key in task and value is not None and plain(value) != plain(task[key])]
     if wrong:
         raise ValueError(f"{env_id} did not take the task field(s) given: {', '.join(wrong)}; "
                          "the run would train one task and record another")
 
 
-def _plain(x: Any) -> Any:
+def plain(x: Any) -> Any:
     """``x`` as JSON holds it, numbers as floats: 1 and 1.0 are one value, (1, 2) and [1, 2]."""
     if isinstance(x, bool) or x is None or isinstance(x, str):
         return x
     if isinstance(x, (int, float, np.integer, np.floating)):
         return float(x)
     if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple, np.ndarray)):
-        return [_plain(v) for v in x]
+        return [plain(v) for v in x]
     return json.loads(json.dumps(x, default=str))
 
 
