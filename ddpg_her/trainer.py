@@ -25,7 +25,7 @@ import torch
 from ddpg_her.agents import check_memory, make_agent
 from ddpg_her.buffer import PrioritizedBuffer, ReplayBuffer, anneal_beta
 from ddpg_her.checkpoints import check_recorded, run_spec
-from ddpg_her.collect import ENV_BACKENDS, Collector, make_envs
+from ddpg_her.collect import Collector, make_envs
 from ddpg_her.config import AgentConfig
 from ddpg_her.ensemble import make_buffer, spec_entry, task_partitions
 from ddpg_her.logs import Interval, eval_rows
@@ -50,8 +50,8 @@ class Trainer(Loop):
     seeds : (K,) ints, distinct among agents of one task; run_dirs : K distinct folders;
     resume : continue the runs in ``run_dirs`` from their last common checkpoint (runs absent
     there start afresh) instead of refusing existing folders; env_backend : one of
-    `ENV_BACKENDS` (``ddpg_her.train``'s flag, whose ``--help`` says how each changes a seed's
-    run).
+    `ddpg_her.collect.ENV_BACKENDS` (``ddpg_her.train``'s flag, whose ``--help`` says how each
+    changes a seed's run).
     """
 
     def __init__(self, env_id: str, env_kwargs: dict[str, Any] | Sequence[dict[str, Any]],
@@ -59,9 +59,6 @@ class Trainer(Loop):
                  resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
                  command: Sequence[str] | None = None, env_backend: str = "numpy"):
-        if env_backend not in ENV_BACKENDS:
-            raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
-                             f"{env_backend!r}")
         self.env_backend = env_backend
         per_agent, seeds = agents_of(env_kwargs, seeds, run_dirs)
         self.config, self.seeds, self.k = config, seeds, len(seeds)
