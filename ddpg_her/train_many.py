@@ -92,10 +92,9 @@ def settings_of(units: Sequence[Sequence[str]], resume: bool = False,
             raise ValueError(f"{where} is not a ddpg_her.train command line (see above)"
                              ) from None
         try:
-            req = train.request(args, resume=resume)
+            out.append(train.request(args, resume=resume))
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from None
-        out.append(req)
     return out
 
 

@@ -1,10 +1,8 @@
 """The host engine of the training loop (`ddpg_her.loop.Loop`: sessions, eval rows,
 checkpoints, resume) for K independent agents in one process.
 
-Every training episode each agent runs one episode in its own env copy (all K in lockstep,
-`ddpg_her.collect`), stores it and its HER copies in its own buffer, then all agents make
-``updates_per_episode`` batched updates; a test session runs ``eval_episodes`` episodes of each
-agent's deterministic policy.
+Each agent runs its episodes in its own env copies (all K in lockstep, `ddpg_her.collect`) and
+stores them with their HER copies in its own buffer; the K make their updates batched.
 
 The K agents may pursue different tasks of one observation and action layout (``env_kwargs``
 per agent: regions, reward readings, contact models); they share the agent configuration.
@@ -63,10 +61,9 @@ class Trainer(Loop):
         per_agent, seeds = agents_of(env_kwargs, seeds, run_dirs)
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.device = torch.device(device)
-        # Set-up in exact arithmetic: the flush is process-wide and reaches Python's own floats
-        # (under it 1e-310 > 0 is False and json.dumps(1e-320) is '0.0'), so a subnormal task
-        # field or flag was refused or recorded as 0.0 (issue 37, kind 5); the flush starts
-        # once the set-up (checks, spec.json) is done, and `step` sets it again each episode.
+        # Set-up in exact arithmetic: the flush is process-wide and reaches Python's floats
+        # (1e-310 > 0 would be False, json.dumps(1e-320) '0.0'; issue 37, kind 5); it starts
+        # once the set-up (checks, spec.json) is done, and `_train` sets it again each episode.
         torch.set_flush_denormal(False)
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
