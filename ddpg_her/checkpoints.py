@@ -125,8 +125,7 @@ class RunFolders:
     def __init__(self, run_dirs: Sequence[str | Path], specs: list[dict[str, Any]],
                  config: AgentConfig):
         self.folders = [RunFolder(d) for d in run_dirs]
-        self.specs, self.buffer_size = specs, config.buffer_size
-        self.eval_every = config.eval_every
+        self.specs, self.buffer_size, self.eval_every = specs, config.buffer_size, config.eval_every
         self._locked: list[RunFolder] = []
         self._saved_total = np.zeros(len(specs), dtype=np.int64)
         self._kept_totals: list[np.ndarray] = []

@@ -62,9 +62,8 @@ def one_stack(group: Sequence[Setting]) -> bool:
         return True
     common = set.intersection(*have)
     base = max(common) if common else 0
-    every = group[0].config.eval_every
     return all(f.spec_path.exists() for f in folders) and \
-        all(n in (base, base + every) for n in latest)
+        all(n in (base, base + group[0].config.eval_every) for n in latest)
 
 
 def group_settings(settings: Sequence[Setting], resume: bool, env_backend: str = "numpy"

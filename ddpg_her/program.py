@@ -380,8 +380,7 @@ class Program(Loop):
             enabled=config.normalize_obs, dtype=dtype, device=self.device)
         self._embed_initial_weights()
         self.hidden = config.hidden_sizes[0]
-        capacity = config.buffer_size
-        self.buffer = ReplayBuffer(k, capacity, PADDED, dtype=dtype, device=self.device)
+        self.buffer = ReplayBuffer(k, config.buffer_size, PADDED, dtype=dtype, device=self.device)
         self.chunks = PaddedBuffer(self.buffer, self.joints)
         self.sampler = CounterSampler([stream_seed(s, SAMPLE_STREAM) for s in seeds], self.device)
         self.agent.capturable()
@@ -663,9 +662,8 @@ class Program(Loop):
     def _load(self, episode: int, states: list[dict[str, Any]],
               chunks: list[list[tuple[int, Any]]]) -> None:
         padded = [self.agent.agent_state(i) for i in range(self.k)]
-        self.agent.load_agent_states([pad_state(s["agent"], p, n, self.config.hidden_sizes[0])
-                                      for s, p, n in zip(states, padded, self.joints,
-                                                         strict=True)])
+        self.agent.load_agent_states([pad_state(s["agent"], p, n, self.hidden)
+                                      for s, p, n in zip(states, padded, self.joints, strict=True)])
         self.sampler.load_state(states[0]["rng"]["sample_counter"])
         self.folders.restore_buffer(episode, states, chunks, self.chunks)
         self.total.copy_(torch.from_numpy(self.buffer.total))

@@ -36,9 +36,7 @@ def make_parser() -> argparse.ArgumentParser:
                     "stacked agent, the others form further stacks trained in turn. Each run "
                     "folder is the one the unit's own ddpg_her.train command writes.",
         epilog="Arguments after -- are appended to every unit (e.g. -- --episodes 1000). A "
-               "unit's own --device, --env-backend, "
-               "--threads, --resume, "
-               "--no-progress or "
+               "unit's own --device, --env-backend, --threads, --resume, --no-progress or "
                "--no-tensorboard is an error: give them once, to this command.")
     parser.add_argument("--unit", type=unit_arguments, action="append", default=[],
                         metavar="ARGS",

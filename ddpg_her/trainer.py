@@ -67,9 +67,8 @@ class Trainer(Loop):
         torch.set_flush_denormal(False)
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
-        self.envs = make_envs(env_backend, env_id, per_agent, 1)
+        self.envs = envs = make_envs(env_backend, env_id, per_agent, 1)
         self.eval_envs = make_envs(env_backend, env_id, per_agent, config.eval_episodes)
-        envs = self.envs
         for k, kwargs in enumerate(per_agent):
             check_recorded(env_id, kwargs, envs.task_of(k))
         self.rngs = [np.random.default_rng(stream_seed(s, EXPLORE_STREAM)) for s in seeds]
