@@ -88,8 +88,6 @@ def _probe_foreach_lerp() -> None:
         raise ValueError(f"gave {a.tolist()}, expected {expected.tolist()}")
 
 
-
-
 _PROBES: dict[str, tuple[str, Callable[[], None]]] = {
     "fused_adam": ("torch._fused_adam_", _probe_fused_adam),
     "threshold_backward": ("torch.ops.aten.threshold_backward", _probe_threshold_backward),
@@ -466,7 +464,6 @@ class DDPG:
         params = list(net.parameters())
         for p, g in zip(params, torch.autograd.grad(loss.sum(), params), strict=True):
             self._grads[p].copy_(g)
-
 
     # --- per-agent state, for one checkpoint per agent ----------------------------------------
     def _modules(self) -> dict[str, torch.nn.Module]:

@@ -35,6 +35,7 @@ INIT_STREAM, EXPLORE_STREAM, SAMPLE_STREAM, TRAIN_ENV_STREAM, EVAL_ENV_STREAM = 
 EVAL_ENV_STREAM, session, i)`` for test episode i of a session (public: other trainers, such
 as ``analysis.sb3``, test on the same goals)."""
 
+
 def stream_seed(seed: int, *key: int) -> int:
     """A 32-bit seed for the random stream ``key`` of the run with ``seed``."""
     return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1)[0])
