@@ -166,7 +166,7 @@ class RunFolders:
             olds.append(old)
         have = [set(f.checkpoints()) for f in self.folders]
         first = interrupted_first_save(have, self.eval_every) and None not in olds
-        episode, states, chunks = (None, [], []) if first else self._readable_checkpoint()
+        episode, states, chunks = (None, [], []) if first else self._readable_checkpoint(have)
         if episode is None:
             for f, old, h in zip(self.folders, olds, have, strict=True):
                 if old is not None and not h:
@@ -191,15 +191,14 @@ class RunFolders:
             return
         restore(episode, states, chunks)
 
-    def _readable_checkpoint(self) -> tuple[int | None, list[dict[str, Any]],
-                                            list[list[tuple[int, Any]]]]:
-        """The latest common checkpoint that every folder can read, with its buffer chunks.
+    def _readable_checkpoint(self, have: list[set[int]]) -> tuple[
+            int | None, list[dict[str, Any]], list[list[tuple[int, Any]]]]:
+        """The latest common checkpoint of ``have`` that every folder can read, and its chunks.
 
         A checkpoint or chunk that cannot be read (truncated, empty) makes the run fall back to
         the older kept checkpoint, with a warning naming the file; a checkpoint trained with
         another configuration is an error.
         """
-        have = [set(f.checkpoints()) for f in self.folders]
         if not any(have):
             return None, [], []
         common = set.intersection(*have)

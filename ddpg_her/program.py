@@ -378,8 +378,8 @@ class Program(Loop):
         self.agent.normalizer = DeviceNormalizer(
             k, PADDED.in_dim, eps=config.norm_eps, clip=config.obs_clip,
             enabled=config.normalize_obs, dtype=dtype, device=self.device)
-        self._embed_initial_weights()
         self.hidden = config.hidden_sizes[0]
+        self._embed_initial_weights()
         self.buffer = ReplayBuffer(k, config.buffer_size, PADDED, dtype=dtype, device=self.device)
         self.chunks = PaddedBuffer(self.buffer, self.joints)
         self.sampler = CounterSampler([stream_seed(s, SAMPLE_STREAM) for s in seeds], self.device)
@@ -432,8 +432,7 @@ class Program(Loop):
             init = torch.Generator().manual_seed(stream_seed(seed, INIT_STREAM))
             alone = DDPG(self.config, 3 * n + 2 * GOAL_DIM, n, dtype=self.dtype,
                          init_generators=[init])
-            states.append(pad_state(alone.agent_state(0), padded[i], n,
-                                    self.config.hidden_sizes[0]))
+            states.append(pad_state(alone.agent_state(0), padded[i], n, self.hidden))
         self.agent.load_agent_states(states)
 
     def _allocate(self) -> None:
