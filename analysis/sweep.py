@@ -650,12 +650,9 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
             except ValueError as error:
                 problems.append(f"{unit.name}: {error}")
                 continue
-    owners: dict[Path, list[str]] = {}
-    for unit in units:
-        for seed in unit.seeds:
-            owners.setdefault(unit.run_dir(seed).resolve(), []).append(f"{unit.name} s{seed}")
-    problems += [f"{', '.join(names)} would all train in {folder}"
-                 for folder, names in owners.items() if len(names) > 1]
+    from ddpg_her.units import shared_folders
+
+    problems += shared_folders((u.run_dir(s), f"{u.name} s{s}") for u in units for s in u.seeds)
     if program and one_process and reqs and not problems:
         try:
             train.check_stack(reqs, device, tf32)

@@ -52,9 +52,6 @@ class FastPaths:
     """``torch._foreach_lerp_`` for the soft target update; else ``Tensor.lerp_`` per tensor."""
 
 
-PLAIN = FastPaths(fused_adam=False, threshold_backward=False, foreach_lerp=False)
-"""Public torch only: the path a torch without the private functions takes."""
-
 PROBE_TOL = 1e-12
 """Largest difference accepted between a private function and its public twin on the probe's
 float64 values (the same arithmetic: they agree to rounding)."""
@@ -89,8 +86,6 @@ def _probe_foreach_lerp() -> None:
     torch._foreach_lerp_([a], [b], 0.25)
     if not torch.allclose(a, expected, rtol=0.0, atol=PROBE_TOL):
         raise ValueError(f"gave {a.tolist()}, expected {expected.tolist()}")
-
-
 
 
 _PROBES: dict[str, tuple[str, Callable[[], None]]] = {
@@ -143,7 +138,7 @@ def _bmm(a: torch.Tensor, b: torch.Tensor, alpha: float) -> torch.Tensor:
 
 FAST = probe_fast_paths()
 """The private functions this torch offers and that pass their check; `DDPG` reads it when
-built (a test sets it to `PLAIN` to exercise the fallback)."""
+built (a test sets it to all False to exercise the fallback)."""
 
 
 def make_adam(params, lr: float, weight_decay: float) -> torch.optim.Adam:
@@ -469,7 +464,6 @@ class DDPG:
         params = list(net.parameters())
         for p, g in zip(params, torch.autograd.grad(loss.sum(), params), strict=True):
             self._grads[p].copy_(g)
-
 
     # --- per-agent state, for one checkpoint per agent ----------------------------------------
     def _modules(self) -> dict[str, torch.nn.Module]:

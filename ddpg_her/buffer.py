@@ -23,34 +23,15 @@ the env's reward or its termination test for L transitions, the action in env un
 
 
 @dataclass
-class Episode:
-    """One agent's episode of L steps, everything in env units.
-
-    observation : (L + 1, obs_dim), achieved_goal : (L + 1, goal_dim) (row t is the state before
-    action t, row L the final state), desired_goal : (goal_dim,), action : (L, act_dim),
-    reward : (L,), terminated : (L,) bool (True only on a last step that ended in success; a
-    time-limit truncation is not termination, so it keeps bootstrapping).
-    """
-
-    observation: np.ndarray
-    achieved_goal: np.ndarray
-    desired_goal: np.ndarray
-    action: np.ndarray
-    reward: np.ndarray
-    terminated: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.action)
-
-
-@dataclass
 class TensorEpisodes:
     """N episodes of at most T steps as float64 tensors on one device, padded to T.
 
     observation : (N, T + 1, obs_dim), achieved_goal : (N, T + 1, goal_dim),
     desired_goal : (N, goal_dim), action : (N, T, act_dim), reward : (N, T), terminated :
-    (N, T) bool, length : (N,) long (episode i is the first ``length[i]`` steps; the rest is
-    padding), success : (N,) bool. Everything in env units, as `Episode`.
+    (N, T) bool (True only on a last step that ended in success; a time-limit truncation is not
+    termination, so it keeps bootstrapping), length : (N,) long (episode i is the first
+    ``length[i]`` steps; the rest is padding), success : (N,) bool. Everything in env units;
+    row t of observation and achieved_goal is the state before action t.
     """
 
     observation: torch.Tensor
@@ -77,35 +58,6 @@ def her_goal_steps(strategy: HERStrategy, length: int, her_k: int,
     return np.zeros(0, dtype=int)
 
 
-def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, terminated_fn: GoalFn) -> Episode:
-    """A copy of ``ep`` that pursues ``ep.achieved_goal[goal_step]``, cut where it terminates
-    (`her_tensors` of the one episode; ``reward_fn`` and ``terminated_fn`` take arrays).
-
-    The copy's transition t keeps (s_t, a_t, s_t+1) and gets the reward and the termination
-    (``terminated_fn``, the env's ``compute_terminated``: a success, in the paper's task) of
-    reaching s_t+1's achieved goal. The achieved goal at ``goal_step`` is hit exactly by
-    transition ``goal_step - 1``, so with termination at success the copy ends there or
-    earlier, terminated.
-    """
-    if not 1 <= goal_step <= len(ep):
-        raise ValueError(f"goal_step must be in 1..{len(ep)}, got {goal_step}")
-    one = TensorEpisodes(**{f: torch.as_tensor(np.asarray(getattr(ep, f)))[None] for f in (
-        "observation", "achieved_goal", "desired_goal", "action", "reward", "terminated")},
-        length=torch.tensor([len(ep)]), success=torch.zeros(1, dtype=torch.bool))
-
-    def on_arrays(fn: GoalFn) -> GoalFn:
-        return lambda *x: torch.as_tensor(np.asarray(fn(*(v.numpy() for v in x))))
-
-    goal, reward, terminated, length = her_tensors(one, np.zeros(1, dtype=int),
-                                                   np.array([goal_step]), on_arrays(reward_fn),
-                                                   on_arrays(terminated_fn))
-    n = int(length[0])
-    return Episode(observation=ep.observation[:n + 1], achieved_goal=ep.achieved_goal[:n + 1],
-                   desired_goal=goal[0].numpy(), action=ep.action[:n],
-                   reward=reward[0, :n].numpy().astype(np.float64),
-                   terminated=terminated[0, :n].numpy())
-
-
 @dataclass(frozen=True)
 class Layout:
     """Columns of one packed transition row: ``[x, u, r, x2, terminated]``.
@@ -129,14 +81,6 @@ class Layout:
                 rows[..., i + a + 1:2 * i + a + 1], rows[..., 2 * i + a + 1:])
 
 
-def pack(ep: Episode, scale: ActionScale) -> np.ndarray:
-    """The episode's transitions as packed rows, ``(L, layout.width)`` float32 (`pack_tensors`
-    of its arrays)."""
-    arrays = (ep.observation, ep.achieved_goal, ep.desired_goal, ep.action, ep.reward,
-              ep.terminated)
-    return pack_tensors(*(torch.as_tensor(np.asarray(x)) for x in arrays), scale).numpy()
-
-
 def pack_tensors(observation: torch.Tensor, achieved_goal: torch.Tensor,
                  desired_goal: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
                  terminated: torch.Tensor, scale: ActionScale) -> torch.Tensor:
@@ -156,8 +100,11 @@ def pack_tensors(observation: torch.Tensor, achieved_goal: torch.Tensor,
 def her_tensors(eps: TensorEpisodes, copies: np.ndarray, goal_steps: np.ndarray,
                 reward_fn: GoalFn, terminated_fn: GoalFn
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """`relabel` of many episodes at once, on their device: copy c of episode ``copies[c]``
-    pursues its achieved goal at ``goal_steps[c]`` (1..length).
+    """HER copies of many episodes at once, on their device: copy c of episode ``copies[c]``
+    pursues its achieved goal at ``goal_steps[c]`` (1..length), with the reward and the
+    termination (a success) of reaching each step's achieved goal; the achieved goal at
+    ``goal_steps[c]`` is hit exactly by step ``goal_steps[c] - 1``, so with termination at
+    success the copy ends there or earlier.
 
     ``reward_fn`` and ``terminated_fn`` take tensors (..., goal_dim), (..., goal_dim),
     (..., act_dim) -> (...). Returns the copies' goals (C, goal_dim), rewards (C, T) and

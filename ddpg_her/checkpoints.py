@@ -125,8 +125,7 @@ class RunFolders:
     def __init__(self, run_dirs: Sequence[str | Path], specs: list[dict[str, Any]],
                  config: AgentConfig):
         self.folders = [RunFolder(d) for d in run_dirs]
-        self.specs, self.buffer_size = specs, config.buffer_size
-        self.eval_every = config.eval_every
+        self.specs, self.buffer_size, self.eval_every = specs, config.buffer_size, config.eval_every
         self._locked: list[RunFolder] = []
         self._saved_total = np.zeros(len(specs), dtype=np.int64)
         self._kept_totals: list[np.ndarray] = []
@@ -167,7 +166,7 @@ class RunFolders:
             olds.append(old)
         have = [set(f.checkpoints()) for f in self.folders]
         first = interrupted_first_save(have, self.eval_every) and None not in olds
-        episode, states, chunks = (None, [], []) if first else self._readable_checkpoint()
+        episode, states, chunks = (None, [], []) if first else self._readable_checkpoint(have)
         if episode is None:
             for f, old, h in zip(self.folders, olds, have, strict=True):
                 if old is not None and not h:
@@ -192,15 +191,14 @@ class RunFolders:
             return
         restore(episode, states, chunks)
 
-    def _readable_checkpoint(self) -> tuple[int | None, list[dict[str, Any]],
-                                            list[list[tuple[int, Any]]]]:
-        """The latest common checkpoint that every folder can read, with its buffer chunks.
+    def _readable_checkpoint(self, have: list[set[int]]) -> tuple[
+            int | None, list[dict[str, Any]], list[list[tuple[int, Any]]]]:
+        """The latest common checkpoint of ``have`` that every folder can read, and its chunks.
 
         A checkpoint or chunk that cannot be read (truncated, empty) makes the run fall back to
         the older kept checkpoint, with a warning naming the file; a checkpoint trained with
         another configuration is an error.
         """
-        have = [set(f.checkpoints()) for f in self.folders]
         if not any(have):
             return None, [], []
         common = set.intersection(*have)
@@ -316,22 +314,22 @@ def check_recorded(env_id: str, given: dict[str, Any], task: dict[str, Any]) -> 
     the value the env's task holds, which ``spec.json`` records and every tool rebuilds the
     task from. A given None asks the task for its derived value (e.g. ``start_q``)."""
     wrong = [f"{key}={value!r} (the task holds {task[key]!r})" for key, value in given.items()
-             if key in task and value is not None and _plain(value) != _plain(task[key])]
+             if key in task and value is not None and plain(value) != plain(task[key])]
     if wrong:
         raise ValueError(f"{env_id} did not take the task field(s) given: {', '.join(wrong)}; "
                          "the run would train one task and record another")
 
 
-def _plain(x: Any) -> Any:
+def plain(x: Any) -> Any:
     """``x`` as JSON holds it, numbers as floats: 1 and 1.0 are one value, (1, 2) and [1, 2]."""
     if isinstance(x, bool) or x is None or isinstance(x, str):
         return x
     if isinstance(x, (int, float, np.integer, np.floating)):
         return float(x)
     if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple, np.ndarray)):
-        return [_plain(v) for v in x]
+        return [plain(v) for v in x]
     return json.loads(json.dumps(x, default=str))
 
 

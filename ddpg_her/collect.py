@@ -34,15 +34,13 @@ per agent; ``batched``, the same envs merged where the tasks differ only in thei
 (``GoalVecEnv(merge=True)``). What each keeps equal: ``python -m ddpg_her.train --help``.
 (``program``, the training program, is not a `Trainer`'s: ``ddpg_her.program``.)"""
 
-Envs = HostEnvs
-
 Policy = Callable[[dict[str, torch.Tensor], torch.Tensor], torch.Tensor]
 """``policy(obs, active) -> action``: obs tensors (N, ...), active (N,) bool -> (N, act_dim)
 float64 action in env units on the envs' device (rows of copies not active are ignored)."""
 
 
 def make_envs(env_backend: str, env_id: str, per_agent: Sequence[dict[str, Any]],
-              copies: int) -> Envs:
+              copies: int) -> HostEnvs:
     """``copies`` copies per agent of ``env_id`` in the env backend ``env_backend`` (one of
     `ENV_BACKENDS`; ValueError for another)."""
     if env_backend not in ENV_BACKENDS:
@@ -51,7 +49,7 @@ def make_envs(env_backend: str, env_id: str, per_agent: Sequence[dict[str, Any]]
     return HostEnvs(env_id, per_agent, copies, merge=env_backend == "batched")
 
 
-def rollout(envs: Envs, policy: Policy, seeds: Sequence[int]) -> TensorEpisodes:
+def rollout(envs: HostEnvs, policy: Policy, seeds: Sequence[int]) -> TensorEpisodes:
     """One episode in each of the N copies, in lockstep, on the host; the rollout stops once
     every episode has ended."""
     n, t_max, dev = envs.num_envs, envs.max_steps, envs.device
@@ -92,7 +90,7 @@ class Collector:
     noise); device, dtype : the agents' (their networks' inputs).
     """
 
-    def __init__(self, envs: Envs, eval_envs: Envs, config: AgentConfig,
+    def __init__(self, envs: HostEnvs, eval_envs: HostEnvs, config: AgentConfig,
                  rngs: Sequence[np.random.Generator], *, device: torch.device, dtype: torch.dtype):
         self.envs, self.eval_envs, self.config, self.rngs = envs, eval_envs, config, rngs
         self.device, self.dtype = device, dtype

@@ -222,12 +222,8 @@ class AgentConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (enums as strings, tuples as lists)."""
-        out = {}
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            out[f.name] = v.value if isinstance(v, enum.Enum) else list(v) if isinstance(
-                v, tuple) else v
-        return out
+        return {f.name: v.value if isinstance(v := getattr(self, f.name), enum.Enum)
+                else list(v) if isinstance(v, tuple) else v for f in dataclasses.fields(self)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> AgentConfig:

@@ -48,9 +48,8 @@ class NumpyDraws:
         return self._each(rows, dim, lambda rng: rng.standard_normal(dim))
 
     def coin(self, rows: torch.Tensor, p: float, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
-        hit = np.zeros(len(self.rngs), dtype=bool)
-        for k in np.flatnonzero(rows.numpy()):
-            hit[k] = self.rngs[k].random() < p
+        hit = np.array([bool(r) and g.random() < p for r, g in zip(rows.numpy(), self.rngs,
+                                                                   strict=True)], dtype=bool)
         return torch.from_numpy(hit), self.uniform(torch.from_numpy(hit), dim)
 
 

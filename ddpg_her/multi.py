@@ -24,7 +24,7 @@ import torch
 from ddpg_her.loop import Loop, run
 from ddpg_her.runfolder import RunFolder
 from ddpg_her.trainer import Trainer
-from ddpg_her.units import Setting
+from ddpg_her.units import Setting, shared_folders
 from ddpg_her.vecenv import GoalVecEnv
 
 
@@ -62,9 +62,8 @@ def one_stack(group: Sequence[Setting]) -> bool:
         return True
     common = set.intersection(*have)
     base = max(common) if common else 0
-    every = group[0].config.eval_every
     return all(f.spec_path.exists() for f in folders) and \
-        all(n in (base, base + every) for n in latest)
+        all(n in (base, base + group[0].config.eval_every) for n in latest)
 
 
 def group_settings(settings: Sequence[Setting], resume: bool, env_backend: str = "numpy"
@@ -105,10 +104,10 @@ class MultiTrainer:
                  **program: Any):
         if not settings:
             raise ValueError("need one or more settings")
-        dirs = [Path(d).resolve() for s in settings for d in s.run_dirs]
-        if len(set(dirs)) != len(dirs):
-            raise ValueError("two settings share a run folder: "
-                             f"{sorted({str(d) for d in dirs if dirs.count(d) > 1})}")
+        shared = shared_folders((d, f"{s.name} seed={seed}") for s in settings
+                                for seed, d in zip(s.seeds, s.run_dirs, strict=True))
+        if shared:
+            raise ValueError("; ".join(shared))
         self.groups = group_settings(settings, resume, env_backend)
         self.progress = progress
         self.trainers: list[Loop] = []

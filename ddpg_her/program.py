@@ -167,21 +167,24 @@ def _network(name: str) -> str:
     return "actor" if name.startswith("actor") else "critic"
 
 
-def unpad_state(state: dict[str, Any], n: int, hidden: int) -> dict[str, Any]:
-    """An agent's state (`DDPG.agent_state` of the padded stack) at its own dims: what a run
-    of ``n`` joints trained alone holds (so ``ddpg_her.load`` reads it)."""
-    out = dict(state)
+def _remapped(state: dict[str, Any], base: dict[str, Any], move: Callable[..., torch.Tensor],
+              keep: Callable[[torch.Tensor], torch.Tensor]) -> dict[str, Any]:
+    """A copy of ``base`` whose networks, optimisers and normaliser are ``state``'s, each tensor
+    with a padded axis as ``move(v, axis, which, (network, parameter) or None for the
+    normaliser)`` (`PARAMETER_AXES`), every other one as ``keep(v)``."""
+    out = dict(base)
     for name in ("actor", "critic", "actor_target", "critic_target"):
-        axes = PARAMETER_AXES[_network(name)]
-        out[name] = {p: (v.index_select(axes[p][0], torch.tensor(_index(axes[p][1], n, hidden)))
-                         if p in axes else v) for p, v in state[name].items()}
+        net = _network(name)
+        out[name] = {p: move(v, *PARAMETER_AXES[net][p], (name, p))
+                     if p in PARAMETER_AXES[net] else keep(v) for p, v in state[name].items()}
     for name in ("actor_opt", "critic_opt"):
-        axes = list(PARAMETER_AXES[_network(name)].get(p) for p in _PARAMS)
-        out[name] = {i: {key: (v.index_select(axes[i][0], torch.tensor(
-            _index(axes[i][1], n, hidden))) if axes[i] is not None and v.ndim > 0 else v)
-            for key, v in entry.items()} for i, entry in state[name].items()}
-    keep = torch.tensor(input_index(n))
-    out["normalizer"] = {key: (v.index_select(0, keep) if v.ndim > 0 else v)
+        net = _network(name)
+        axes = [PARAMETER_AXES[net].get(p) for p in _PARAMS]
+        # Adam's moments are shaped as their parameters (a fresh optimiser has none yet)
+        out[name] = {i: {key: move(v, *axes[i], (net, _PARAMS[i]))
+                         if axes[i] is not None and v.ndim > 0 else keep(v)
+                         for key, v in entry.items()} for i, entry in state[name].items()}
+    out["normalizer"] = {key: move(v, 0, "in", None) if v.ndim > 0 else keep(v)
                          for key, v in state["normalizer"].items()}
     return out
 
@@ -190,33 +193,23 @@ _PARAMS = ("l1.weight", "l1.bias", "l2.weight", "l2.bias", "l3.weight", "l3.bias
 """The parameters of a network in the order of its optimiser's state entries."""
 
 
+def unpad_state(state: dict[str, Any], n: int, hidden: int) -> dict[str, Any]:
+    """An agent's state (`DDPG.agent_state` of the padded stack) at its own dims: what a run
+    of ``n`` joints trained alone holds (so ``ddpg_her.load`` reads it)."""
+    return _remapped(state, state, lambda v, axis, which, _: v.index_select(
+        axis, torch.tensor(_index(which, n, hidden))), lambda v: v)
+
+
 def pad_state(state: dict[str, Any], padded: dict[str, Any], n: int, hidden: int
               ) -> dict[str, Any]:
     """Inverse of `unpad_state`: ``state`` (an agent's own dims) written into a copy of
     ``padded`` (an agent state of the padded stack, its zeros where the agent has no joint)."""
-    out = {key: value for key, value in padded.items()}
+    def put(v: torch.Tensor, axis: int, which: str, key: tuple[str, str] | None) -> torch.Tensor:
+        target = torch.zeros(PADDED.in_dim, dtype=v.dtype) if key is None else \
+            torch.zeros_like(padded[key[0]][key[1]])
+        return target.index_copy_(axis, torch.tensor(_index(which, n, hidden)), v.to(target))
 
-    def put(target: torch.Tensor, value: torch.Tensor, axis: int, which: str) -> torch.Tensor:
-        target = torch.zeros_like(target)
-        target.index_copy_(axis, torch.tensor(_index(which, n, hidden)), value.to(target))
-        return target
-
-    for name in ("actor", "critic", "actor_target", "critic_target"):
-        axes = PARAMETER_AXES[_network(name)]
-        out[name] = {p: (put(padded[name][p], v, *axes[p]) if p in axes else v.clone())
-                     for p, v in state[name].items()}
-    for name in ("actor_opt", "critic_opt"):
-        net = _network(name)
-        axes = list(PARAMETER_AXES[net].get(p) for p in _PARAMS)
-        # Adam's moments are shaped as their parameters (a fresh optimiser has none yet)
-        out[name] = {i: {key: (put(padded[net][_PARAMS[i]], v, *axes[i])
-                               if axes[i] is not None and v.ndim > 0 else v.clone())
-                         for key, v in entry.items()} for i, entry in state[name].items()}
-    keep = torch.tensor(input_index(n))
-    out["normalizer"] = {key: (torch.zeros(PADDED.in_dim, dtype=v.dtype).index_copy_(0, keep, v)
-                               if v.ndim > 0 else v.clone())
-                         for key, v in state["normalizer"].items()}
-    return out
+    return _remapped(state, padded, put, torch.Tensor.clone)
 
 
 class DeviceNormalizer(RunningNormalizer):
@@ -385,10 +378,9 @@ class Program(Loop):
         self.agent.normalizer = DeviceNormalizer(
             k, PADDED.in_dim, eps=config.norm_eps, clip=config.obs_clip,
             enabled=config.normalize_obs, dtype=dtype, device=self.device)
-        self._embed_initial_weights()
         self.hidden = config.hidden_sizes[0]
-        capacity = config.buffer_size
-        self.buffer = ReplayBuffer(k, capacity, PADDED, dtype=dtype, device=self.device)
+        self._embed_initial_weights()
+        self.buffer = ReplayBuffer(k, config.buffer_size, PADDED, dtype=dtype, device=self.device)
         self.chunks = PaddedBuffer(self.buffer, self.joints)
         self.sampler = CounterSampler([stream_seed(s, SAMPLE_STREAM) for s in seeds], self.device)
         self.agent.capturable()
@@ -440,8 +432,7 @@ class Program(Loop):
             init = torch.Generator().manual_seed(stream_seed(seed, INIT_STREAM))
             alone = DDPG(self.config, 3 * n + 2 * GOAL_DIM, n, dtype=self.dtype,
                          init_generators=[init])
-            states.append(pad_state(alone.agent_state(0), padded[i], n,
-                                    self.config.hidden_sizes[0]))
+            states.append(pad_state(alone.agent_state(0), padded[i], n, self.hidden))
         self.agent.load_agent_states(states)
 
     def _allocate(self) -> None:
@@ -670,9 +661,8 @@ class Program(Loop):
     def _load(self, episode: int, states: list[dict[str, Any]],
               chunks: list[list[tuple[int, Any]]]) -> None:
         padded = [self.agent.agent_state(i) for i in range(self.k)]
-        self.agent.load_agent_states([pad_state(s["agent"], p, n, self.config.hidden_sizes[0])
-                                      for s, p, n in zip(states, padded, self.joints,
-                                                         strict=True)])
+        self.agent.load_agent_states([pad_state(s["agent"], p, n, self.hidden)
+                                      for s, p, n in zip(states, padded, self.joints, strict=True)])
         self.sampler.load_state(states[0]["rng"]["sample_counter"])
         self.folders.restore_buffer(episode, states, chunks, self.chunks)
         self.total.copy_(torch.from_numpy(self.buffer.total))

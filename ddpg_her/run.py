@@ -1,7 +1,7 @@
 """A trained agent's policy from its run folder (`load`); the folder itself is `ddpg_her.runfolder`.
 
 This module needs torch; reading a run folder's spec and evaluations does not (see
-`ddpg_her.runfolder`, whose names this module re-exports for older imports).
+`ddpg_her.runfolder`).
 """
 
 from __future__ import annotations
@@ -13,18 +13,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from ddpg_her.checkpoints import plain
 from ddpg_her.config import AgentConfig
 from ddpg_her.networks import Actor, load_agent_slices
 from ddpg_her.normalizer import RunningNormalizer
-from ddpg_her.runfolder import (  # noqa: F401  (re-exported)
-    EVAL_COLUMNS,
-    FORMAT,
-    RunFolder,
-    RunFolderError,
-    atomic_write,
-    git_revision,
-    versions,
-)
+from ddpg_her.runfolder import RunFolder, RunFolderError
 from ddpg_her.spaces import ActionScale, goal_input
 
 
@@ -154,21 +147,12 @@ def run_task(folder: RunFolder, spec: Mapping[str, Any]) -> Any:
     if task is not None and recorded and hasattr(task, "to_dict"):
         made = task.to_dict()
         differ = [f"{key} (task: {recorded[key]!r}, env: {made[key]!r})" for key in recorded
-                  if key in made and _plain(made[key]) != _plain(recorded[key])]
+                  if key in made and plain(made[key]) != plain(recorded[key])]
         if differ:
             raise RunFolderError(f"{folder.spec_path}: its task and its env_kwargs disagree on "
                                  f"{', '.join(differ)}; a run's spec records one task (issue 37, "
                                  "kind 6): was the file edited?")
     return task
-
-
-def _plain(value: Any) -> Any:
-    """``value`` as JSON reads it back (tuples as lists), for comparing a record with a task."""
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in value.items()}
-    return value
 
 
 def load(run_dir: str | os.PathLike, *, episode: int | None = None,

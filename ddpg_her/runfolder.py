@@ -105,6 +105,8 @@ def _check_eval_row(path: Path, line: int, row: dict[str, str], last: int | None
         raise bad(f"episode is {episode}, expected more than the row before"
                   + (f" ({last})" if last is not None else " and >= 0"))
     return episode
+
+
 LOCK = "lock.json"
 """The run folder's lock file, held by the one process that trains the run: its pid, host and
 start time (JSON)."""

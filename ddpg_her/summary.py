@@ -38,13 +38,10 @@ def summarize(run_dirs: Sequence[str], project_to: int) -> str:
     lines = ["| episode | " + " | ".join(f"{d} (seed {spec['seed']})" for d, spec, _ in runs)
              + " |",
              "|---:|" + "---:|" * len(runs)]
-    episodes = sorted({int(r["episode"]) for _, _, rows in runs for r in rows})
-    for e in episodes:
-        cells = []
-        for _, _, rows in runs:
-            row = next((r for r in rows if int(r["episode"]) == e), None)
-            cells.append(f"{row['successes']}/{row['tests']}" if row else "")
-        lines.append(f"| {e} | " + " | ".join(cells) + " |")
+    by_episode = [{int(r["episode"]): r for r in rows} for _, _, rows in runs]
+    for e in sorted(set().union(*by_episode)):
+        lines.append(f"| {e} | " + " | ".join(f"{r[e]['successes']}/{r[e]['tests']}" if e in r
+                                               else "" for r in by_episode) + " |")
     lines += ["", "| run | last session | successes | mean final distance (m) | env steps "
               f"| wall (h) | projected wall for {project_to} episodes (h) |",
               "|---|---:|---:|---:|---:|---:|---:|"]

@@ -25,6 +25,8 @@ from ddpg_her.config import COMBINATIONS, VALID, AgentConfig, Parser, field_docs
 from ddpg_her.units import DEFAULT_JOINTS, Setting, check_device, task_fields, task_option
 
 DEFAULT_OUT = "runs/{region}-j{joints}-s{seed}"
+
+
 def _add_config_flags(group: argparse._ArgumentGroup) -> None:
     """One flag per AgentConfig field, its docstring as help."""
     docs = field_docs(AgentConfig)

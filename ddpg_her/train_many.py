@@ -25,7 +25,7 @@ from pathlib import Path
 
 from ddpg_her import train
 from ddpg_her.config import Parser, usage_errors
-from ddpg_her.units import option_dests, overrides, read_plan, split_passthrough
+from ddpg_her.units import option_dests, overrides, read_plan, shared_folders, split_passthrough
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -36,9 +36,7 @@ def make_parser() -> argparse.ArgumentParser:
                     "stacked agent, the others form further stacks trained in turn. Each run "
                     "folder is the one the unit's own ddpg_her.train command writes.",
         epilog="Arguments after -- are appended to every unit (e.g. -- --episodes 1000). A "
-               "unit's own --device, --env-backend, "
-               "--threads, --resume, "
-               "--no-progress or "
+               "unit's own --device, --env-backend, --threads, --resume, --no-progress or "
                "--no-tensorboard is an error: give them once, to this command.")
     parser.add_argument("--unit", type=unit_arguments, action="append", default=[],
                         metavar="ARGS",
@@ -92,10 +90,9 @@ def settings_of(units: Sequence[Sequence[str]], resume: bool = False,
             raise ValueError(f"{where} is not a ddpg_her.train command line (see above)"
                              ) from None
         try:
-            req = train.request(args, resume=resume)
+            out.append(train.request(args, resume=resume))
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from None
-        out.append(req)
     return out
 
 
@@ -125,14 +122,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("give one or more --unit or --plan")
     with usage_errors(parser, ValueError):
         settings = settings_of(units, resume=args.resume, common=common)
-    writers: dict[Path, str] = {}  # a dry run refuses what the real one could not start
-    for s in settings:
-        for seed, folder in zip(s.seeds, s.run_dirs, strict=True):
-            key = Path(folder).resolve()
-            if key in writers:
-                parser.error(f"two runs would write one run folder {folder}: {writers[key]} and "
-                             f"{s.name} seed={seed}; give each unit its own --out")
-            writers[key] = f"{s.name} seed={seed}"
+    for line in shared_folders((d, f"{s.name} seed={seed}") for s in settings  # dry run too
+                               for seed, d in zip(s.seeds, s.run_dirs, strict=True)):
+        parser.error(f"{line}; give each unit its own --out")
 
     import gymnasium
 

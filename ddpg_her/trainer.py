@@ -1,10 +1,8 @@
 """The host engine of the training loop (`ddpg_her.loop.Loop`: sessions, eval rows,
 checkpoints, resume) for K independent agents in one process.
 
-Every training episode each agent runs one episode in its own env copy (all K in lockstep,
-`ddpg_her.collect`), stores it and its HER copies in its own buffer, then all agents make
-``updates_per_episode`` batched updates; a test session runs ``eval_episodes`` episodes of each
-agent's deterministic policy.
+Each agent runs its episodes in its own env copies (all K in lockstep, `ddpg_her.collect`) and
+stores them with their HER copies in its own buffer; the K make their updates batched.
 
 The K agents may pursue different tasks of one observation and action layout (``env_kwargs``
 per agent: regions, reward readings, contact models); they share the agent configuration.
@@ -25,7 +23,7 @@ import torch
 from ddpg_her.agents import check_memory, make_agent
 from ddpg_her.buffer import PrioritizedBuffer, ReplayBuffer, anneal_beta
 from ddpg_her.checkpoints import check_recorded, run_spec
-from ddpg_her.collect import ENV_BACKENDS, Collector, make_envs
+from ddpg_her.collect import Collector, make_envs
 from ddpg_her.config import AgentConfig
 from ddpg_her.ensemble import make_buffer, spec_entry, task_partitions
 from ddpg_her.logs import Interval, eval_rows
@@ -36,6 +34,7 @@ INIT_STREAM, EXPLORE_STREAM, SAMPLE_STREAM, TRAIN_ENV_STREAM, EVAL_ENV_STREAM = 
 """``EVAL_ENV_STREAM``: the key of the test sessions' goals, ``stream_seed(seed,
 EVAL_ENV_STREAM, session, i)`` for test episode i of a session (public: other trainers, such
 as ``analysis.sb3``, test on the same goals)."""
+
 
 def stream_seed(seed: int, *key: int) -> int:
     """A 32-bit seed for the random stream ``key`` of the run with ``seed``."""
@@ -50,8 +49,8 @@ class Trainer(Loop):
     seeds : (K,) ints, distinct among agents of one task; run_dirs : K distinct folders;
     resume : continue the runs in ``run_dirs`` from their last common checkpoint (runs absent
     there start afresh) instead of refusing existing folders; env_backend : one of
-    `ENV_BACKENDS` (``ddpg_her.train``'s flag, whose ``--help`` says how each changes a seed's
-    run).
+    `ddpg_her.collect.ENV_BACKENDS` (``ddpg_her.train``'s flag, whose ``--help`` says how each
+    changes a seed's run).
     """
 
     def __init__(self, env_id: str, env_kwargs: dict[str, Any] | Sequence[dict[str, Any]],
@@ -59,23 +58,18 @@ class Trainer(Loop):
                  resume: bool = False, device: str = "cpu", dtype: torch.dtype = torch.float32,
                  progress: bool = True, tensorboard: bool = True,
                  command: Sequence[str] | None = None, env_backend: str = "numpy"):
-        if env_backend not in ENV_BACKENDS:
-            raise ValueError(f"env_backend must be one of {list(ENV_BACKENDS)}, got "
-                             f"{env_backend!r}")
         self.env_backend = env_backend
         per_agent, seeds = agents_of(env_kwargs, seeds, run_dirs)
         self.config, self.seeds, self.k = config, seeds, len(seeds)
         self.device = torch.device(device)
-        # Set-up in exact arithmetic: the flush is process-wide and reaches Python's own floats
-        # (under it 1e-310 > 0 is False and json.dumps(1e-320) is '0.0'), so a subnormal task
-        # field or flag was refused or recorded as 0.0 (issue 37, kind 5); the flush starts
-        # once the set-up (checks, spec.json) is done, and `step` sets it again each episode.
+        # Set-up in exact arithmetic: the flush is process-wide and reaches Python's floats
+        # (1e-310 > 0 would be False, json.dumps(1e-320) '0.0'; issue 37, kind 5); it starts
+        # once the set-up (checks, spec.json) is done, and `_train` sets it again each episode.
         torch.set_flush_denormal(False)
         self.progress, self.tensorboard = progress, tensorboard
         self.env_id, self.env_kwargs = env_id, per_agent
-        self.envs = make_envs(env_backend, env_id, per_agent, 1)
+        self.envs = envs = make_envs(env_backend, env_id, per_agent, 1)
         self.eval_envs = make_envs(env_backend, env_id, per_agent, config.eval_episodes)
-        envs = self.envs
         for k, kwargs in enumerate(per_agent):
             check_recorded(env_id, kwargs, envs.task_of(k))
         self.rngs = [np.random.default_rng(stream_seed(s, EXPLORE_STREAM)) for s in seeds]

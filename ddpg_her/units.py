@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -199,6 +199,16 @@ def overrides(parser: argparse.ArgumentParser, own: Sequence[str], added: Sequen
     own_dests = {alias.get(d, d) for _, d in option_dests(parser, own)} - {"task"}
     return [flag for flag, dest in option_dests(parser, added)
             if alias.get(dest, dest) in own_dests]
+
+
+def shared_folders(runs: Iterable[tuple[str | Path, str]]) -> list[str]:
+    """One line for each run folder that two or more of ``runs`` ((folder, the run in a few
+    words)) would train in, the folders compared resolved: ``A and B would all train in F``."""
+    owners: dict[Path, list[str]] = {}
+    for folder, name in runs:
+        owners.setdefault(Path(folder).resolve(), []).append(name)
+    return [f"{' and '.join(names)} would all train in {folder}"
+            for folder, names in owners.items() if len(names) > 1]
 
 
 def write_plan(path: Path, units: Sequence[Sequence[str]]) -> None:

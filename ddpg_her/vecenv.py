@@ -137,16 +137,6 @@ def _task_dict(goal_env: Any) -> dict[str, Any]:
     return task.to_dict() if task is not None and hasattr(task, "to_dict") else {}
 
 
-def _per_group(groups: int | Sequence[dict[str, Any]], copies: int,
-               kwargs: dict[str, Any]) -> list[dict[str, Any]]:
-    """Each group's make kwargs: ``kwargs``, overridden per group when ``groups`` is a list."""
-    per_group = [dict(kwargs)] * groups if isinstance(groups, int) else \
-        [{**kwargs, **g} for g in groups]
-    if not per_group or copies < 1:
-        raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
-    return per_group
-
-
 class _Batch(_Vector):
     """One vector env stepping the copies ``index`` (flat indices) of several groups."""
 
@@ -176,7 +166,10 @@ class GoalVecEnv:
 
     def __init__(self, env_id: str, groups: int | Sequence[dict[str, Any]], copies: int = 1,
                  *, merge: bool = False, **kwargs: Any):
-        per_group = _per_group(groups, copies, kwargs)
+        per_group = [dict(kwargs)] * groups if isinstance(groups, int) else \
+            [{**kwargs, **g} for g in groups]
+        if not per_group or copies < 1:
+            raise ValueError(f"need groups >= 1 and copies >= 1, got {groups}, {copies}")
         env_id = register_env(env_id)
         vector = copies > 1 and gymnasium.spec(env_id).vector_entry_point is not None
         make = _Vector if vector else _Singles
@@ -215,11 +208,13 @@ class GoalVecEnv:
         """Group ``group``'s task specification (``task.to_dict()`` of its env), or {}."""
         return _task_dict(self.groups[group].goal_env)
 
-    def _merge_sets(self) -> list[tuple[list[int], np.ndarray]]:
-        """The groups that may step in one batch: those whose tasks (`task_of`) are equal but
-        for `GOAL_FIELDS`, each set as its groups (ascending, sets in order of their first
-        group) and their copies' flat indices (n,), group by group; [] when a group's env has
-        no task specification (nothing merges)."""
+    def _merged(self, env_id: str) -> list[_Batch]:
+        """One `_Batch` per set of groups that may step in one batch, those whose tasks
+        (`task_of`) are equal but for `GOAL_FIELDS` (sets in order of their first group), of
+        their copies' flat indices group by group; none when the env has no vector entry point
+        or a group's env no task specification."""
+        if gymnasium.spec(env_id).vector_entry_point is None:
+            return []
         members: dict[str, list[int]] = {}
         for k in range(len(self.groups)):
             task = self.task_of(k)
@@ -229,44 +224,30 @@ class GoalVecEnv:
                              sort_keys=True, default=str)
             members.setdefault(key, []).append(k)
         c = self.copies
-        return [(ks, np.concatenate([np.arange(k * c, (k + 1) * c) for k in ks]))
+        return [_Batch(env_id, len(ks) * c, self.kwargs[ks[0]],
+                       np.concatenate([np.arange(k * c, (k + 1) * c) for k in ks]))
                 for ks in members.values()]
-
-    def _reset_groups(self, seeds: Sequence[int]) -> list[Any]:
-        """Each group's reset with its copies' seeds (``seeds[n]`` for copy n)."""
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
-        c = self.copies
-        return [g.reset(seeds[i * c:(i + 1) * c]) for i, g in enumerate(self.groups)]
 
     def reward_fn(self, achieved_goal: Any, desired_goal: Any, action: Any,
                   group: int = 0) -> Any:
         """Group ``group``'s ``compute_reward`` of transitions (..., goal_dim), (..., goal_dim),
         (..., act_dim) env units -> (...), arrays or tensors as the env takes them."""
-        return self._rules(group).compute_reward(achieved_goal, desired_goal, {"action": action})
+        return self.groups[group].goal_env.compute_reward(achieved_goal, desired_goal,
+                                                          {"action": action})
 
     def terminated_fn(self, achieved_goal: Any, desired_goal: Any, action: Any,
                       group: int = 0) -> Any:
         """Group ``group``'s ``compute_terminated`` of such transitions, (...) bool: whether each
         ends the episode (a success, when the task ends episodes at success)."""
-        return self._rules(group).compute_terminated(achieved_goal, desired_goal,
-                                                     {"action": action})
-
-    def _rules(self, group: int) -> Any:
-        """The env whose ``compute_reward`` and ``compute_terminated`` are group ``group``'s."""
-        return self.groups[group].goal_env
-
-    def _merged(self, env_id: str) -> list[_Batch]:
-        """One `_Batch` per set of groups whose tasks differ only in `GOAL_FIELDS`; none when
-        the env has no vector entry point or no task specification."""
-        if gymnasium.spec(env_id).vector_entry_point is None:
-            return []
-        return [_Batch(env_id, len(rows), self.kwargs[ks[0]], rows)
-                for ks, rows in self._merge_sets()]
+        return self.groups[group].goal_env.compute_terminated(achieved_goal, desired_goal,
+                                                              {"action": action})
 
     def reset(self, seeds: Sequence[int]) -> dict[str, np.ndarray]:
         """Reset every copy n with ``seeds[n]``; the observation arrays are (N, ...)."""
-        parts = self._reset_groups(seeds)
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        c = self.copies
+        parts = [g.reset(seeds[i * c:(i + 1) * c]) for i, g in enumerate(self.groups)]
         obs = {key: np.concatenate([p[key] for p in parts]).astype(np.float64) for key in KEYS}
         for b in self.batches:  # the groups drew the goals; the batch starts the episodes
             o = b.env.reset(seed=[int(seeds[i]) for i in b.index],

@@ -10,8 +10,11 @@ from torch import nn
 
 from benchmarks.reference import ReferenceDDPG
 from ddpg_her import agent as agent_module
-from ddpg_her.agent import DDPG, PLAIN, FastPaths, probe_fast_paths
+from ddpg_her.agent import DDPG, FastPaths, probe_fast_paths
 from ddpg_her.config import AgentConfig
+
+PLAIN = FastPaths(fused_adam=False, threshold_backward=False, foreach_lerp=False)
+"""Public torch only: the path a torch without the private functions takes."""
 
 IN, ACT, HIDDEN = 7, 2, (32, 24)
 

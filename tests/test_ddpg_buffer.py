@@ -1,15 +1,83 @@
 """ddpg_her's replay buffer and HER relabelling against hand-computed expectations."""
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 import torch
 from toy_goal_env import ToyReach
 
-from ddpg_her.buffer import Episode, Layout, ReplayBuffer, her_goal_steps, pack, relabel
+from ddpg_her.buffer import (
+    GoalFn,
+    Layout,
+    ReplayBuffer,
+    TensorEpisodes,
+    her_goal_steps,
+    her_tensors,
+    pack_tensors,
+)
 from ddpg_her.config import HERStrategy
 from ddpg_her.spaces import ActionScale, goal_input
 
 LAYOUT = Layout(in_dim=1, act_dim=1)  # rows of width 5
+
+
+@dataclass
+class Episode:
+    """One agent's episode of L steps, everything in env units.
+
+    observation : (L + 1, obs_dim), achieved_goal : (L + 1, goal_dim) (row t is the state before
+    action t, row L the final state), desired_goal : (goal_dim,), action : (L, act_dim),
+    reward : (L,), terminated : (L,) bool (True only on a last step that ended in success; a
+    time-limit truncation is not termination, so it keeps bootstrapping).
+    """
+
+    observation: np.ndarray
+    achieved_goal: np.ndarray
+    desired_goal: np.ndarray
+    action: np.ndarray
+    reward: np.ndarray
+    terminated: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.action)
+
+
+def relabel(ep: Episode, goal_step: int, reward_fn: GoalFn, terminated_fn: GoalFn) -> Episode:
+    """A copy of ``ep`` that pursues ``ep.achieved_goal[goal_step]``, cut where it terminates
+    (`her_tensors` of the one episode; ``reward_fn`` and ``terminated_fn`` take arrays).
+
+    The copy's transition t keeps (s_t, a_t, s_t+1) and gets the reward and the termination
+    (``terminated_fn``, the env's ``compute_terminated``: a success, in the paper's task) of
+    reaching s_t+1's achieved goal. The achieved goal at ``goal_step`` is hit exactly by
+    transition ``goal_step - 1``, so with termination at success the copy ends there or
+    earlier, terminated.
+    """
+    if not 1 <= goal_step <= len(ep):
+        raise ValueError(f"goal_step must be in 1..{len(ep)}, got {goal_step}")
+    one = TensorEpisodes(**{f: torch.as_tensor(np.asarray(getattr(ep, f)))[None] for f in (
+        "observation", "achieved_goal", "desired_goal", "action", "reward", "terminated")},
+        length=torch.tensor([len(ep)]), success=torch.zeros(1, dtype=torch.bool))
+
+    def on_arrays(fn: GoalFn) -> GoalFn:
+        return lambda *x: torch.as_tensor(np.asarray(fn(*(v.numpy() for v in x))))
+
+    goal, reward, terminated, length = her_tensors(one, np.zeros(1, dtype=int),
+                                                   np.array([goal_step]), on_arrays(reward_fn),
+                                                   on_arrays(terminated_fn))
+    n = int(length[0])
+    return Episode(observation=ep.observation[:n + 1], achieved_goal=ep.achieved_goal[:n + 1],
+                   desired_goal=goal[0].numpy(), action=ep.action[:n],
+                   reward=reward[0, :n].numpy().astype(np.float64),
+                   terminated=terminated[0, :n].numpy())
+
+
+def pack(ep: Episode, scale: ActionScale) -> np.ndarray:
+    """The episode's transitions as packed rows, ``(L, layout.width)`` float32 (`pack_tensors`
+    of its arrays)."""
+    arrays = (ep.observation, ep.achieved_goal, ep.desired_goal, ep.action, ep.reward,
+              ep.terminated)
+    return pack_tensors(*(torch.as_tensor(np.asarray(x)) for x in arrays), scale).numpy()
 
 
 def numbered(first: int, n: int) -> np.ndarray:

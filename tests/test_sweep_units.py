@@ -17,7 +17,7 @@ from analysis import sweep
                                 "python -m ddpg_her.train: error: unrecognized arguments: "
                                 "--bogus"),
     (["farbox:3"], ["--gamma", "nan"], "farbox-j3: invalid agent configuration: gamma=nan"),
-    (["farbox:3", "farbox:3"], [], "farbox-j3 s0, farbox-j3 s0 would all train in"),
+    (["farbox:3", "farbox:3"], [], "farbox-j3 s0 and farbox-j3 s0 would all train in"),
 ])
 def test_a_dry_run_refuses_units_that_could_not_start(tmp_path, capsys, settings, extra,
                                                       message):
@@ -79,7 +79,8 @@ def test_train_many_refuses_two_runs_on_one_folder_before_anything_starts(tmp_pa
                           f"--unit=--region zheight --seeds 0 --episodes 100 --out {folder}",
                           *extra, check=False, timeout=120)
         assert proc.returncode == 2, proc.stderr
-        assert f"two runs would write one run folder {folder}" in proc.stderr
+        assert ("region=farbox, n_joints=3 seed=0 and region=zheight, n_joints=3 seed=0 would "
+                f"all train in {folder.resolve()}; give each unit its own --out") in proc.stderr
         assert not folder.exists()
 
 

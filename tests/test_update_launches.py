@@ -7,9 +7,12 @@ import torch
 
 from benchmarks.launches import LaunchCounter
 from ddpg_her import agent as agent_module
-from ddpg_her.agent import DDPG, PLAIN, FastPaths
+from ddpg_her.agent import DDPG, FastPaths
 from ddpg_her.config import AgentConfig
 from ddpg_her.program import PADDED
+
+PLAIN = FastPaths(fused_adam=False, threshold_backward=False, foreach_lerp=False)
+"""Public torch only: the path a torch without the private functions takes."""
 
 UPDATE_LAUNCH_BUDGET = 58
 """Launches of one `DDPG.update` of a stack as the training program calls it (after
