@@ -182,9 +182,9 @@ class Trainer(Loop):
                     anneal_beta(self.config.per_beta, self.episode, self.config.episodes))
                 critic_loss, actor_loss = self.agent.update(*batch, weight=w)
                 self.buffer.update_priorities(idx, self.agent.td_error)
-                continue
-            batch = self.buffer.sample(self.config.batch_size, self.sample_generators)
-            critic_loss, actor_loss = self.agent.update(*batch)
+            else:
+                batch = self.buffer.sample(self.config.batch_size, self.sample_generators)
+                critic_loss, actor_loss = self.agent.update(*batch)
             losses[0] += critic_loss
             losses[1] += actor_loss
         return losses / max(updates, 1)

@@ -504,16 +504,18 @@ def test_sizes_that_cannot_fit_are_refused_up_front_naming_the_flag(tmp_path, ca
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.parametrize("replay", [[], ["--prioritized-replay"]])
 def test_a_diverging_run_says_it_diverged_and_keeps_its_last_finite_checkpoint(tmp_path,
-                                                                               capsys):
+                                                                               capsys, replay):
     """With learning rates of 1e38 the networks turn NaN in the first updates; the run wrote
-    NaN eval rows to the end and exited 0."""
+    NaN eval rows to the end and exited 0 (with prioritized replay, whose losses were never
+    added up, until 2026-11-29)."""
     from ddpg_her.train import main
 
     out = tmp_path / "run"
     with pytest.raises(SystemExit) as exit_:
         main([*CLI, "--episodes", "6", "--out", str(out), "--critic-lr", "1e38",
-              "--actor-lr", "1e38"])
+              "--actor-lr", "1e38", *replay])
     err = capsys.readouterr().err
     assert exit_.value.code == 1
     assert f"the networks diverged (a loss is not finite) in training episode 2: seed 0 " \
