@@ -106,7 +106,7 @@ class RecordingWindow:
 
     The server keeps one node per path with its object, transform, properties and animation
     (a new object drops the node's properties; ``delete`` removes the subtree), and writes the
-    tree as drawing commands into its viewer page; :meth:`static_html` does the same here.
+    tree as drawing commands into its viewer page; ``meshcat_page(commands())`` does that here.
     """
 
     def __init__(self) -> None:
@@ -157,11 +157,6 @@ class RecordingWindow:
             if node.animation is not None:
                 out.append(node.animation)
         return out
-
-    def static_html(self) -> str:
-        """The scene as MeshCat's ``static_html()`` writes it: the viewer's script and every
-        command inline."""
-        return meshcat_page(self.commands())
 
 
 def meshcat_page(commands: Sequence[bytes], title: str = "MeshCat", caption: str = "") -> str:
