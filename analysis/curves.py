@@ -18,15 +18,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis.outputs import (
-    check_writable,
-    figure_path,
-    pyplot,
-    save_figure,
-    usage_errors,
-    write_csv,
-    write_errors,
-)
+from analysis.outputs import figure_outputs, pyplot, save_figure, write_csv, write_errors
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
     PERCENT,
@@ -136,9 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("curves.png"),
                         help="figure file (.png, .pdf, .svg); the CSV goes beside it")
     args = parser.parse_args(argv)
-    with usage_errors(parser):  # before any reading or computing
-        out = figure_path(args.out, "--out")
-        csv_path = check_writable(out.with_suffix(".csv"), "--out")
+    out, csv_path = figure_outputs(parser, args.out, "--out", ".csv")  # before any reading
     groups = groups_from_args(parser, args)
     for line in pooled_lines(groups):
         print(f"note: {line}", file=sys.stderr)

@@ -58,6 +58,15 @@ def figure_path(path: str | os.PathLike, flag: str) -> Path:
     return path
 
 
+def figure_outputs(parser: argparse.ArgumentParser, path: str | os.PathLike, flag: str,
+                   *beside: str) -> list[Path]:
+    """The figure file ``path`` names (`figure_path`), then the file beside it of each suffix
+    ``beside`` (e.g. ``.csv``), each checked for writing; a bad one is ``parser.error``."""
+    with usage_errors(parser):
+        figure = figure_path(path, flag)
+        return [figure, *(check_writable(figure.with_suffix(s), flag) for s in beside)]
+
+
 def check_writable(path: str | os.PathLike, flag: str) -> Path:
     """Check that the file ``path`` (named by ``flag``) can be created or replaced: its
     nearest existing ancestor is a writable folder, and it is not itself a folder.

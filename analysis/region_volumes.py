@@ -30,7 +30,7 @@ from analysis.outputs import (
     OutputError,
     available_bytes,
     check_writable,
-    figure_path,
+    figure_outputs,
     pyplot,
     save_figure,
     usage_errors,
@@ -55,9 +55,6 @@ from ur5kin.checks import COUNT, SEED, integer, number
 
 START_CHOICES = ("paper", "zero", "constrained")
 """``--start`` values: the paper's per-region choice, or one start for every region."""
-
-SAMPLER_CHOICES = GOAL_SAMPLERS
-"""``--sampler`` values: which sampler fills the acceptance and distance columns."""
 
 CONVERGENCE_RESOLUTIONS = (0.1, 0.07, 0.05, 0.035, 0.025)
 """Voxel edges (m) of ``--convergence``; the samples grow like edge^-3 from ``--samples`` at
@@ -142,14 +139,7 @@ class Study:
 
 
 def run_study(settings: Settings, progress: bool = True) -> Study:
-    """Compute every row of the table.
-
-    Parameters
-    ----------
-    settings : Settings
-    progress : bool
-        Show a tqdm bar on stderr.
-    """
+    """Compute every row of the table (``progress``: a tqdm bar on stderr)."""
     t0 = time.perf_counter()
     objs = {spec: regions.parse(spec, settings.base_height) for spec in settings.regions}
     keys: dict[tuple[int, tuple[float, ...]], tuple[float, ...]] = {}
@@ -335,9 +325,8 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
             ax.set_xlabel("x (m)")
             ax.set_ylabel("z (m)" if j == 2 else "y (m)")
             ax.set_title(f"{region.name}, {n_joints} joints, {label}", fontsize=9)
-        for r in study.rows:
-            if r.region == region.name and r.joints == n_joints:
-                table_rows.append(r.full_row())
+        table_rows += [r.full_row() for r in study.rows
+                       if r.region == region.name and r.joints == n_joints]
     handles = [Line2D([], [], ls="", marker="o", ms=4, c="0.75", label="workspace samples"),
                Line2D([], [], ls="", marker="o", ms=4, c="tab:blue", label="accepted goals"),
                Line2D([], [], c="tab:red", label="region outline"),
@@ -448,7 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="start pose of the rows: paper = zero start [0,0,0,0,0,0] rad for "
                         "'unconstrained' and the constrained start [0,-pi/4,pi/2,0,0,0] rad for "
                         "every other region (docs/design.md); zero or constrained for all")
-    parser.add_argument("--sampler", choices=SAMPLER_CHOICES, default=d.sampler,
+    parser.add_argument("--sampler", choices=GOAL_SAMPLERS, default=d.sampler,
                         help="sampler of the acceptance and distance columns: joint = the "
                         "paper's (accepted / uniform joint samples); cartesian = uniform in the "
                         "region, kept where IK reaches it (acceptance = reachable fraction of the "
@@ -531,11 +520,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     n_plot = args.plot_joints or (3 if 3 in settings.joints else max(settings.joints))
     if args.plot is not None and n_plot not in settings.joints:
         parser.error(f"--plot-joints {n_plot} must be one of --joints {list(settings.joints)}")
-    if args.plot is not None:
-        with usage_errors(parser):  # before the study
-            args.plot = figure_path(args.plot, "--plot")
-            for suffix in (".json", ".csv"):
-                check_writable(args.plot.with_suffix(suffix), "--plot")
+    if args.plot is not None:  # before the study
+        args.plot = figure_outputs(parser, args.plot, "--plot", ".json", ".csv")[0]
     if args.view is not None:
         with usage_errors(parser, ImportError, OutputError):
             check_writable(pathlib.Path(args.view), "--view")

@@ -24,8 +24,7 @@ import numpy as np
 
 from analysis.outputs import (
     available_bytes,
-    check_writable,
-    figure_path,
+    figure_outputs,
     pyplot,
     save_figure,
     usage_errors,
@@ -195,9 +194,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--goals {args.goals} and --cell {args.cell} m would need about "
                      f"{need / 2 ** 30:.3g} GiB ({args.goals} goals and {cells:.3g} grid cells "
                      f"per run), more than the {have / 2 ** 30:.3g} GiB of memory available")
-    with usage_errors(parser):  # before loading any policy or rolling out
-        out = figure_path(args.out, "--out")
-        csv_path = check_writable(out.with_suffix(".csv"), "--out")
+    out, csv_path = figure_outputs(parser, args.out, "--out", ".csv")  # before any rollout
     z = (min(args.z), max(args.z))
     if z[0] == z[1]:
         parser.error(f"--z needs two different heights; got {args.z}")
