@@ -47,12 +47,11 @@ def curve_rows(groups: list[Group], level: float) -> list[dict]:
         episode, successes = aligned_successes(runs)
         if len(episode) == 0:
             continue
-        mean, low, high = mean_ci(successes, level, PERCENT)
-        for i, e in enumerate(episode):
-            rows.append({"group": group.label, "region": region, "joints": joints,
-                         "episode": int(e),
-                         "seeds": len(runs), "mean_successes": round(float(mean[i]), 4),
-                         "ci_low": round(float(low[i]), 4), "ci_high": round(float(high[i]), 4)})
+        stats = zip(episode, *mean_ci(successes, level, PERCENT), strict=True)
+        rows += [{"group": group.label, "region": region, "joints": joints, "episode": int(e),
+                  "seeds": len(runs), "mean_successes": round(float(mean), 4),
+                  "ci_low": round(float(low), 4), "ci_high": round(float(high), 4)}
+                 for e, mean, low, high in stats]
     return rows
 
 

@@ -148,9 +148,8 @@ _STAGED: list[dict[Path, bytes]] = []
 def unless_replacing(force: bool, what: str) -> Iterator[None]:
     """Hold back every `write_bytes` of the block, then write them all, unless one would
     replace a file that holds other bytes and ``force`` is false: then write nothing and raise
-    OutputError naming the files (issue 41: ``sensitivity --collect`` replaced committed
-    1,000-episode runs with 100-episode ones, ``report --out`` rewrote a committed report).
-    ``what`` names the command's outputs and its override flag for the message."""
+    `WouldReplace` naming the files. ``what`` names the command's outputs and its override flag
+    for the message."""
     _STAGED.append({})
     try:
         yield

@@ -273,8 +273,7 @@ def convergence(settings: Settings, progress: bool = True) -> list[dict[str, flo
 
 def _outline(points: np.ndarray) -> np.ndarray:
     """Closed convex outline ``(k + 1, 2)`` of 2-D points (a region's projected mesh)."""
-    hull = ConvexHull(points)
-    loop = points[hull.vertices]
+    loop = points[ConvexHull(points).vertices]
     return np.vstack([loop, loop[:1]])
 
 

@@ -161,7 +161,7 @@ def draw(scene: Any, task: Any, episodes: Sequence[Episode], meshes: str) -> Any
         scene.path(path, ep.tool, colour)
         timeline.poses(scene.vis, arm, frame, ep.q)
         end = frame + ep.steps
-        timeline.pose(scene.vis, arm, end + hold, ep.q[-1])  # hold the last pose
+        timeline.poses(scene.vis, arm, end + hold, ep.q[-1:])  # hold the last pose
         for name, shown_from in ((goal, frame), (path, end)):
             if shown_from > 0:
                 timeline.visible(scene.vis, name, 0, False)

@@ -13,10 +13,8 @@ With ``--group-by FIELD`` or ``--groups NAME=DIR ...`` it compares groups instea
 (`comparison`): each group's statistics, and every pair judged by the same rule.
 
 The verdict rule is `rule_lines`, printed with every report and stated in docs/design.md ("What
-the paper reports"); `judge_claims` applies it. A claim about where training ends is judged on
-runs shorter than the paper's (it can fail there, never hold) when every setting it
-compares has plateaued by the plateau rule (`analysis.plateau`); the report applies that rule to
-every setting at every stage of `analysis.plateau.PLATEAU_STAGES` its runs reached.
+the paper reports"), with the plateau rule (`analysis.plateau`) for runs shorter than the
+paper's; `judge_claims` applies it.
 """
 
 from __future__ import annotations
@@ -117,8 +115,7 @@ def reading_lines(summaries: dict[tuple[str, int], SettingSummary]) -> list[str]
     section warns that the claims then compare settings trained under different readings.
     """
     rows, mixed = [], False
-    names = [n for s in summaries.values() for c in s.choices for n in c]
-    for name in dict.fromkeys(names):
+    for name in dict.fromkeys(n for s in summaries.values() for c in s.choices for n in c):
         where: dict[str, list[str]] = {}
         for key in sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1])):
             for value in dict.fromkeys(c[name] for c in summaries[key].choices):
@@ -712,8 +709,8 @@ def comparison(groups: Sequence[Group], level: float) -> str:
              f"first >= {HIGH_SUCCESS:g} | runs |", "|---|---|---|---|---|---|---|"]
     for g in groups:
         c = curves[g.label]
-        high = c.percent >= HIGH_SUCCESS
-        first = tuple(int(c.episode[h.argmax()]) if h.any() else None for h in high)
+        first = tuple(int(c.episode[h.argmax()]) if h.any() else None
+                      for h in c.percent >= HIGH_SUCCESS)
         runs = ", ".join(str(r.path) for r in g.runs)
         settings = ", ".join(dict.fromkeys(f"{r.region} {r.joints}" for r in g.runs))
         lines.append(f"| {g.label} | {settings} | {len(g.runs)} | "

@@ -398,9 +398,8 @@ class Scene:
             raise TypeError("write_html needs a scene of offline_visualizer()")
         from analysis.outputs import write_text
 
-        page = meshcat_page(window.commands(), title, caption)
         out = pathlib.Path(out)
-        write_text(out, page)  # whole or not at all; raises OutputError
+        write_text(out, meshcat_page(window.commands(), title, caption))  # whole or not at all
         return out.stat().st_size
 
 
@@ -438,10 +437,6 @@ class Timeline:
 
         self.fps = float(fps)
         self.animation = meshcat.animation.Animation(default_framerate=self.fps)
-
-    def pose(self, vis: meshcat.Visualizer, arm: Arm, frame: int, q: Any) -> None:
-        """Key the arm's configuration ``q (6,)`` (rad) at ``frame``."""
-        self.poses(vis, arm, frame, np.asarray(q, dtype=float)[None])
 
     def poses(self, vis: meshcat.Visualizer, arm: Arm, first: int, q: Any) -> None:
         """Key configurations ``q (T, 6)`` (rad) at frames ``first .. first + T - 1``."""

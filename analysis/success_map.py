@@ -155,12 +155,11 @@ def csv_rows(maps: Sequence[SuccessMap]) -> list[list[Any]]:
     rows = []
     for m in maps:
         rate = m.rate
-        for i in range(len(m.x_edges) - 1):
-            for j in range(len(m.y_edges) - 1):
-                rows.append([m.run, round(m.x_edges[i], 6), round(m.x_edges[i + 1], 6),
-                             round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
-                             int(m.goals[i, j]), int(m.successes[i, j]),
-                             "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
+        for i, j in np.ndindex(m.goals.shape):  # (nx, ny): x_edges and y_edges less one each
+            rows.append([m.run, round(m.x_edges[i], 6), round(m.x_edges[i + 1], 6),
+                         round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
+                         int(m.goals[i, j]), int(m.successes[i, j]),
+                         "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
     return rows
 
 
@@ -208,10 +207,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if env_id not in MAPPED_ENV_IDS:
             parser.error(f"{run} is a run of env {env_id!r}; only runs of "
                          f"{', '.join(MAPPED_ENV_IDS)} can be mapped")
-    policies = []
-    for run in args.runs:
-        with usage_errors(parser, FileNotFoundError, ValueError):  # load checks the run's env
-            policies.append(ddpg_her.load(run, episode=args.episode))
+    with usage_errors(parser, FileNotFoundError, ValueError):  # load checks the run's env
+        policies = [ddpg_her.load(run, episode=args.episode) for run in args.runs]
     tasks = [p.task for p in policies]  # the task of the env the policy was trained on
     if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
         parser.error("the runs have different tasks (region, joints, start, sampler); maps of "
