@@ -213,9 +213,8 @@ def format_table(study: Study, settings: Settings) -> str:
                       _fmt(r.workspace_fraction), _fmt(r.goal_acceptance, 4),
                       _fmt(r.mean_goal_distance_m), "yes" if r.start_inside else "no"))
     widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
-    out = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True))]
-    out.append("  ".join("-" * w for w in widths))
-    out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) for line in lines]
+    out = ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True))
+           for line in (header, ["-" * w for w in widths], *lines)]
     sampler = ("joint-space sampler (paper): accepted / uniform joint samples"
                if settings.sampler == "joint" else
                f"Cartesian sampler: reachable fraction of uniform region points "

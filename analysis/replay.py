@@ -118,26 +118,23 @@ def rollout(policy: Any, seeds: Sequence[int], progress: bool = True
 
     env = policy.make_env()
     base = env.unwrapped
-    task = base.task
     out = []
     try:
         for seed in tqdm(seeds, desc="episodes", unit="episode", disable=not progress,
                          file=sys.stderr):
             obs, info = env.reset(seed=seed)
             qs, tools = [base.joint_angles.copy()], [obs["achieved_goal"].copy()]
-            reached = bool(info["is_success"])
             done = False
             while not done:
                 obs, _, terminated, truncated, info = env.step(policy(obs))
                 qs.append(base.joint_angles.copy())
                 tools.append(obs["achieved_goal"].copy())
-                reached = bool(info["is_success"])
                 done = terminated or truncated
             out.append(Episode(obs["desired_goal"].copy(), np.array(qs), np.array(tools),
-                               reached))
+                               bool(info["is_success"])))  # of the last step
     finally:
         env.close()
-    return task, out
+    return base.task, out
 
 
 def draw(scene: Any, task: Any, episodes: Sequence[Episode], meshes: str) -> Any:

@@ -665,8 +665,7 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
              f"{HIGH_SUCCESS:g} | paper |",
              "|---|---|---|---|---|---|---|---|"]
     for key in sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1])):
-        s = summaries[key]
-        paper = PAPER_RESULTS.get(key)
+        s, paper = summaries[key], PAPER_RESULTS.get(key)
         lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | "
                      f"{fmt_interval(s.final)} | {fmt_interval(s.best)} | "
                      f"{_first_high(s.first_high)} | "
