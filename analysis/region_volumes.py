@@ -18,7 +18,7 @@ import pathlib
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -26,18 +26,7 @@ from tqdm import tqdm
 
 import regions
 import ur5kin
-from analysis.outputs import (
-    OutputError,
-    available_bytes,
-    check_writable,
-    figure_outputs,
-    pyplot,
-    save_figure,
-    usage_errors,
-    write_csv,
-    write_errors,
-    write_text,
-)
+from analysis import outputs
 from ddpg_her.config import Parser
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
 from regions.coverage import (
@@ -286,7 +275,8 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     from matplotlib.lines import Line2D
 
     names = list(study.region_objects)
-    fig, axes = pyplot().subplots(2, len(names), figsize=(3.6 * len(names), 6.4), squeeze=False)
+    fig, axes = outputs.pyplot().subplots(2, len(names), figsize=(3.6 * len(names), 6.4),
+                                          squeeze=False)
     rng = _rng(settings.seed, "plot")
     table_rows: list[dict[str, object]] = []
     outlines: dict[str, dict[str, list[list[float]]]] = {}
@@ -337,10 +327,10 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     fig.suptitle(f"Goal regions over the reachable workspace ({n_joints} joints, base at "
                  f"{settings.base_height} m; start: {settings.start})", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
-    save_figure(fig, path, dpi=130)
+    outputs.save_figure(fig, path, dpi=130)
 
     data_json = path.with_suffix(".json")
-    write_text(data_json, json.dumps({
+    outputs.write_text(data_json, json.dumps({
         "settings": asdict(settings), "plot_joints": n_joints, "rows": table_rows,
         "outlines": outlines, "start_tool0_m": starts,
         "regions": {r.name: r.to_dict() for r in study.region_objects.values()
@@ -356,8 +346,9 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
         samples += [[" ".join(f"{x:.6g}" for x in key[1]), *(f"{v:.6f}" for v in ws.goals[k]),
                      int(ws.clear[k]), *(int(col[m]) for col in inside)]
                     for m, k in enumerate(idx)]
-    write_csv(data_csv, ["held_joints_rad", "x_m", "y_m", "z_m", "clear",
-                         *[f"in_{r.name}" for r in study.region_objects.values()]], samples)
+    outputs.write_csv(data_csv, ["held_joints_rad", "x_m", "y_m", "z_m", "clear",
+                                 *[f"in_{r.name}" for r in study.region_objects.values()]],
+                      samples)
     return [path, data_json, data_csv]
 
 
@@ -483,18 +474,17 @@ JOINTS = integer(1, 6, note="joints 1..n move")
 
 
 def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Settings:
-    need, have = voxel_bytes(args.resolution, args.base_height), available_bytes()
+    need, have = voxel_bytes(args.resolution, args.base_height), outputs.available_bytes()
     if have is not None and need > have:
         parser.error(f"--resolution {args.resolution} m: the workspace's voxel grids would need "
                      f"about {need / 2 ** 30:.3g} GiB, more than the {have / 2 ** 30:.3g} GiB "
                      "of memory available; use a coarser voxel edge")
     for spec in args.regions:
-        with usage_errors(parser, ValueError):
+        with outputs.usage_errors(parser, ValueError):
             regions.parse(spec, args.base_height)
-    return Settings(regions=tuple(args.regions), joints=tuple(dict.fromkeys(args.joints)),
-                    samples=args.samples, seed=args.seed, resolution=args.resolution,
-                    base_height=args.base_height, start=args.start, sampler=args.sampler,
-                    goals=args.goals)
+    flags = {f.name: getattr(args, f.name) for f in fields(Settings)}  # one flag per field
+    return Settings(**{**flags, "regions": tuple(args.regions),
+                       "joints": tuple(dict.fromkeys(args.joints))})
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -519,10 +509,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.plot is not None and n_plot not in settings.joints:
         parser.error(f"--plot-joints {n_plot} must be one of --joints {list(settings.joints)}")
     if args.plot is not None:  # before the study
-        args.plot = figure_outputs(parser, args.plot, "--plot", ".json", ".csv")[0]
+        args.plot = outputs.figure_outputs(parser, args.plot, "--plot", ".json", ".csv")[0]
     if args.view is not None:
-        with usage_errors(parser, ImportError, OutputError):
-            check_writable(pathlib.Path(args.view), "--view")
+        with outputs.usage_errors(parser, ImportError, outputs.OutputError):
+            outputs.check_writable(pathlib.Path(args.view), "--view")
             size = view(settings, args.view)
         print(f"wrote {args.view} ({size / 1e6:.1f} MB)", file=sys.stderr)
     study = run_study(settings, progress)
@@ -531,7 +521,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         print(format_table(study, settings))
     if args.plot is not None:
-        with write_errors(parser):
+        with outputs.write_errors(parser):
             written = plot(study, settings, args.plot, n_plot)
         print("wrote " + ", ".join(map(str, written)), file=sys.stderr)
     return 0

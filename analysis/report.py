@@ -466,12 +466,10 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             return not_run(claim, [k for k in asked if k not in curves])
         each, parts, ps, conf = [], [], [], []
         for g in groups:
-            lows = [stat[k][1] for k in g]
-            highs = [stat[k][2] for k in g]
+            _, lows, highs = zip(*(stat[k] for k in g), strict=True)
             each.append(_verdict(max(highs) - min(lows) <= ALIKE_TOLERANCE,
                                  max(lows) > min(highs)))
-            weak = min(g, key=lambda k: stat[k][0])
-            strong = max(g, key=lambda k: stat[k][0])
+            weak, strong = min(g, key=lambda k: stat[k][0]), max(g, key=lambda k: stat[k][0])
             ps.append(welch_p(level[weak], level[strong]))
             conf += [c for c in confounds(weak, strong) if c not in conf]
             parts.append(", ".join(_stat(k, stat[k]) for k in g))
