@@ -135,9 +135,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     with write_errors(parser):
         plot(groups, out, args.confidence, overlay=bool(args.group_by or args.groups))
         write_csv(csv_path, CSV_COLUMNS, rows)
-    runs = sum(len(g.runs) for g in groups)
-    print(f"{runs} runs in {len(groups)} groups -> {out} and {csv_path}",
-          file=sys.stderr)
+    print(f"{sum(len(g.runs) for g in groups)} runs in {len(groups)} groups -> {out} and "
+          f"{csv_path}", file=sys.stderr)
     return 0
 
 

@@ -389,8 +389,7 @@ def view(settings: Settings, path: pathlib.Path, meshes: str = "collision") -> i
         scene.arm(f"starts/{label}", start_q, meshes, START_OPACITY[min(k, 1)])
         scene.marker(f"starts/{label}_tool0", ur5kin.fk_world(start_q, settings.base_height),
                      scenes.START_COLOUR)
-        labels.append(f"{label} start ({', '.join(owners)})"
-                      + (", translucent" if k else ""))
+        labels.append(f"{label} start ({', '.join(owners)})" + (", translucent" if k else ""))
     caption = ("goal regions: " + ", ".join(names) + "\narm: " + "; ".join(labels)
                + "; black dot: its tool0\n"
                + f"world frame: plane z = 0, base at (0, 0, {settings.base_height}) m")
@@ -418,8 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "ball's 6.9 m^3 box (see --convergence)")
     parser.add_argument("--seed", type=SEED.read, default=d.seed, help="seed of every generator")
     parser.add_argument("--resolution", type=number(0, above=True, note="m").read,
-                        default=d.resolution,
-                        help="voxel edge of the workspace estimate (m)")
+                        default=d.resolution, help="voxel edge of the workspace estimate (m)")
     parser.add_argument("--base-height", type=BASE_HEIGHT.read, default=d.base_height,
                         help="height of the robot base above the plane (m)")
     parser.add_argument("--start", choices=START_CHOICES, default=d.start,

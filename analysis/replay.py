@@ -234,8 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the arm's meshes: the URDF's collision meshes (5,300 triangles, "
                         "about 100 kB in the page) or its COLLADA visual meshes (96,000 "
                         "triangles, about 9 MB; MeshCat 0.3.2 leaves part of the shoulder out)")
-    parser.add_argument("--no-progress", action="store_true",
-                        help="no progress bar on stderr")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     return parser
 
 

@@ -362,9 +362,8 @@ def test_session(model: Any, make_env: Any, seeds: Sequence[int]) -> dict[str, A
 def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episodes: int,
           eval_every: int, eval_episodes: int, hyperparams: dict[str, Any], out: Path,
           command: Sequence[str] = ()) -> list[dict[str, Any]]:
-    """Train SB3's ``algo`` for ``episodes`` training episodes into the run folder ``out``, a
-    test session every ``eval_every`` episodes; returns the eval rows (also in
-    ``out/eval.csv``)."""
+    """Train SB3's ``algo`` for ``episodes`` training episodes into the run folder ``out``, a test
+    session every ``eval_every``; returns the eval rows (also in ``out/eval.csv``)."""
     import gymnasium
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -439,8 +438,7 @@ def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episode
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = Parser(
-        prog="python -m analysis.sb3", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m analysis.sb3", description=__doc__.split("\n\n")[0])
     parser.add_argument("--algo", choices=ALGOS, default="ddpg",
                         help="Stable-Baselines3 algorithm (default: ddpg)")
     parser.add_argument("--region", required=True,
@@ -473,8 +471,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = make_parser()
     args = parser.parse_args(argv)
     try:
-        overrides = [task_option(t) for t in args.task]
-        env_kwargs = task_fields(args.region, args.joints, overrides)
+        env_kwargs = task_fields(args.region, args.joints, [task_option(t) for t in args.task])
         hyperparams = load_hyperparams(args.hyperparams, args.algo)
     except (ValueError, argparse.ArgumentTypeError) as err:
         parser.error(str(err))
