@@ -98,11 +98,8 @@ def start_for(region_name: str, choice: str) -> tuple[float, ...]:
 
 def start_label(start_q: Sequence[float]) -> str:
     """Short name of a start configuration for the table."""
-    if tuple(start_q) == regions.UNCONSTRAINED_START:
-        return "zero"
-    if tuple(start_q) == regions.CONSTRAINED_START:
-        return "constrained"
-    return "[" + ", ".join(f"{x:.3g}" for x in start_q) + "]"
+    names = {regions.UNCONSTRAINED_START: "zero", regions.CONSTRAINED_START: "constrained"}
+    return names.get(tuple(start_q), "[" + ", ".join(f"{x:.3g}" for x in start_q) + "]")
 
 
 def _rng(seed: int, *key: object) -> np.random.Generator:
