@@ -123,23 +123,17 @@ def random_steps(task: TaskSpec, steps: int, seed: int) -> tuple[float, float, f
 def measure(config: ContactConfig) -> list[ContactRow]:
     """One :class:`ContactRow` per contact model."""
     base = TaskSpec(region=config.region, n_joints=config.n_joints)
-    tasks = {}
-    for model in CONTACT_MODELS:
-        overrides: dict = {"contact_model": model}
-        if model == "compliant" and config.friction >= 0.0:
-            overrides["contact_friction"] = config.friction
-        tasks[model] = base.replace(**overrides)
+    friction = {"contact_friction": config.friction} if config.friction >= 0.0 else {}
+    tasks = {m: base.replace(contact_model=m, **(friction if m == "compliant" else {}))
+             for m in CONTACT_MODELS}
     reached = {m: reach_share(t, config.goals, config.seed) for m, t in tasks.items()}
     runs: dict[str, list[tuple[float, float, float, float]]] = {m: [] for m in tasks}
     for _ in range(config.rounds):
         for model, task in tasks.items():
             runs[model].append(random_steps(task, config.steps, config.seed))
-    rows = []
-    for model in tasks:
-        contact, stops, deepest, _ = runs[model][0]
-        rate = statistics.median(r[3] for r in runs[model])
-        rows.append(ContactRow(model, reached[model], contact, stops, deepest, rate))
-    return rows
+    # shares and depth: the first round's (each round replays the seed); speed: the median
+    return [ContactRow(m, reached[m], *runs[m][0][:3], statistics.median(r[3] for r in runs[m]))
+            for m in tasks]
 
 
 KINDS = kinds((integer(1), "goals", "steps", "rounds"), (SEED, "seed"),

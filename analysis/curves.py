@@ -18,15 +18,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis.outputs import (
-    check_writable,
-    figure_path,
-    pyplot,
-    save_figure,
-    usage_errors,
-    write_csv,
-    write_errors,
-)
+from analysis.outputs import figure_outputs, pyplot, save_figure, write_csv, write_errors
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
     PERCENT,
@@ -55,12 +47,11 @@ def curve_rows(groups: list[Group], level: float) -> list[dict]:
         episode, successes = aligned_successes(runs)
         if len(episode) == 0:
             continue
-        mean, low, high = mean_ci(successes, level, PERCENT)
-        for i, e in enumerate(episode):
-            rows.append({"group": group.label, "region": region, "joints": joints,
-                         "episode": int(e),
-                         "seeds": len(runs), "mean_successes": round(float(mean[i]), 4),
-                         "ci_low": round(float(low[i]), 4), "ci_high": round(float(high[i]), 4)})
+        stats = zip(episode, *mean_ci(successes, level, PERCENT), strict=True)
+        rows += [{"group": group.label, "region": region, "joints": joints, "episode": int(e),
+                  "seeds": len(runs), "mean_successes": round(float(mean), 4),
+                  "ci_low": round(float(low), 4), "ci_high": round(float(high), 4)}
+                 for e, mean, low, high in stats]
     return rows
 
 
@@ -136,9 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("curves.png"),
                         help="figure file (.png, .pdf, .svg); the CSV goes beside it")
     args = parser.parse_args(argv)
-    with usage_errors(parser):  # before any reading or computing
-        out = figure_path(args.out, "--out")
-        csv_path = check_writable(out.with_suffix(".csv"), "--out")
+    out, csv_path = figure_outputs(parser, args.out, "--out", ".csv")  # before any reading
     groups = groups_from_args(parser, args)
     for line in pooled_lines(groups):
         print(f"note: {line}", file=sys.stderr)
@@ -146,9 +135,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     with write_errors(parser):
         plot(groups, out, args.confidence, overlay=bool(args.group_by or args.groups))
         write_csv(csv_path, CSV_COLUMNS, rows)
-    runs = sum(len(g.runs) for g in groups)
-    print(f"{runs} runs in {len(groups)} groups -> {out} and {csv_path}",
-          file=sys.stderr)
+    print(f"{sum(len(g.runs) for g in groups)} runs in {len(groups)} groups -> {out} and "
+          f"{csv_path}", file=sys.stderr)
     return 0
 
 

@@ -58,6 +58,15 @@ def figure_path(path: str | os.PathLike, flag: str) -> Path:
     return path
 
 
+def figure_outputs(parser: argparse.ArgumentParser, path: str | os.PathLike, flag: str,
+                   *beside: str) -> list[Path]:
+    """The figure file ``path`` names (`figure_path`), then the file beside it of each suffix
+    ``beside`` (e.g. ``.csv``), each checked for writing; a bad one is ``parser.error``."""
+    with usage_errors(parser):
+        figure = figure_path(path, flag)
+        return [figure, *(check_writable(figure.with_suffix(s), flag) for s in beside)]
+
+
 def check_writable(path: str | os.PathLike, flag: str) -> Path:
     """Check that the file ``path`` (named by ``flag``) can be created or replaced: its
     nearest existing ancestor is a writable folder, and it is not itself a folder.
@@ -139,9 +148,8 @@ _STAGED: list[dict[Path, bytes]] = []
 def unless_replacing(force: bool, what: str) -> Iterator[None]:
     """Hold back every `write_bytes` of the block, then write them all, unless one would
     replace a file that holds other bytes and ``force`` is false: then write nothing and raise
-    OutputError naming the files (issue 41: ``sensitivity --collect`` replaced committed
-    1,000-episode runs with 100-episode ones, ``report --out`` rewrote a committed report).
-    ``what`` names the command's outputs and its override flag for the message."""
+    `WouldReplace` naming the files. ``what`` names the command's outputs and its override flag
+    for the message."""
     _STAGED.append({})
     try:
         yield
@@ -226,11 +234,8 @@ def save_figure(fig: Any, path: Path, **kwargs: Any) -> None:
 
 def available_bytes() -> int | None:
     """The host's available memory (``MemAvailable``), or None where it cannot be read."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
+    with contextlib.suppress(OSError, ValueError, IndexError), open("/proc/meminfo") as f:
+        for line in f:
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
     return None

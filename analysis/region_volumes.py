@@ -18,7 +18,7 @@ import pathlib
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -26,18 +26,7 @@ from tqdm import tqdm
 
 import regions
 import ur5kin
-from analysis.outputs import (
-    OutputError,
-    available_bytes,
-    check_writable,
-    figure_path,
-    pyplot,
-    save_figure,
-    usage_errors,
-    write_csv,
-    write_errors,
-    write_text,
-)
+from analysis import outputs
 from ddpg_her.config import Parser
 from envs.spec import GOAL_SAMPLERS, N_JOINTS_RANGE
 from regions.coverage import (
@@ -55,9 +44,6 @@ from ur5kin.checks import COUNT, SEED, integer, number
 
 START_CHOICES = ("paper", "zero", "constrained")
 """``--start`` values: the paper's per-region choice, or one start for every region."""
-
-SAMPLER_CHOICES = GOAL_SAMPLERS
-"""``--sampler`` values: which sampler fills the acceptance and distance columns."""
 
 CONVERGENCE_RESOLUTIONS = (0.1, 0.07, 0.05, 0.035, 0.025)
 """Voxel edges (m) of ``--convergence``; the samples grow like edge^-3 from ``--samples`` at
@@ -112,11 +98,8 @@ def start_for(region_name: str, choice: str) -> tuple[float, ...]:
 
 def start_label(start_q: Sequence[float]) -> str:
     """Short name of a start configuration for the table."""
-    if tuple(start_q) == regions.UNCONSTRAINED_START:
-        return "zero"
-    if tuple(start_q) == regions.CONSTRAINED_START:
-        return "constrained"
-    return "[" + ", ".join(f"{x:.3g}" for x in start_q) + "]"
+    names = {regions.UNCONSTRAINED_START: "zero", regions.CONSTRAINED_START: "constrained"}
+    return names.get(tuple(start_q), "[" + ", ".join(f"{x:.3g}" for x in start_q) + "]")
 
 
 def _rng(seed: int, *key: object) -> np.random.Generator:
@@ -142,14 +125,7 @@ class Study:
 
 
 def run_study(settings: Settings, progress: bool = True) -> Study:
-    """Compute every row of the table.
-
-    Parameters
-    ----------
-    settings : Settings
-    progress : bool
-        Show a tqdm bar on stderr.
-    """
+    """Compute every row of the table (``progress``: a tqdm bar on stderr)."""
     t0 = time.perf_counter()
     objs = {spec: regions.parse(spec, settings.base_height) for spec in settings.regions}
     keys: dict[tuple[int, tuple[float, ...]], tuple[float, ...]] = {}
@@ -223,9 +199,8 @@ def format_table(study: Study, settings: Settings) -> str:
                       _fmt(r.workspace_fraction), _fmt(r.goal_acceptance, 4),
                       _fmt(r.mean_goal_distance_m), "yes" if r.start_inside else "no"))
     widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
-    out = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True))]
-    out.append("  ".join("-" * w for w in widths))
-    out += ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True)) for line in lines]
+    out = ["  ".join(c.ljust(w) for c, w in zip(line, widths, strict=True))
+           for line in (header, ["-" * w for w in widths], *lines)]
     sampler = ("joint-space sampler (paper): accepted / uniform joint samples"
                if settings.sampler == "joint" else
                f"Cartesian sampler: reachable fraction of uniform region points "
@@ -283,8 +258,7 @@ def convergence(settings: Settings, progress: bool = True) -> list[dict[str, flo
 
 def _outline(points: np.ndarray) -> np.ndarray:
     """Closed convex outline ``(k + 1, 2)`` of 2-D points (a region's projected mesh)."""
-    hull = ConvexHull(points)
-    loop = points[hull.vertices]
+    loop = points[ConvexHull(points).vertices]
     return np.vstack([loop, loop[:1]])
 
 
@@ -298,7 +272,8 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     from matplotlib.lines import Line2D
 
     names = list(study.region_objects)
-    fig, axes = pyplot().subplots(2, len(names), figsize=(3.6 * len(names), 6.4), squeeze=False)
+    fig, axes = outputs.pyplot().subplots(2, len(names), figsize=(3.6 * len(names), 6.4),
+                                          squeeze=False)
     rng = _rng(settings.seed, "plot")
     table_rows: list[dict[str, object]] = []
     outlines: dict[str, dict[str, list[list[float]]]] = {}
@@ -335,9 +310,8 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
             ax.set_xlabel("x (m)")
             ax.set_ylabel("z (m)" if j == 2 else "y (m)")
             ax.set_title(f"{region.name}, {n_joints} joints, {label}", fontsize=9)
-        for r in study.rows:
-            if r.region == region.name and r.joints == n_joints:
-                table_rows.append(r.full_row())
+        table_rows += [r.full_row() for r in study.rows
+                       if r.region == region.name and r.joints == n_joints]
     handles = [Line2D([], [], ls="", marker="o", ms=4, c="0.75", label="workspace samples"),
                Line2D([], [], ls="", marker="o", ms=4, c="tab:blue", label="accepted goals"),
                Line2D([], [], c="tab:red", label="region outline"),
@@ -350,10 +324,10 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
     fig.suptitle(f"Goal regions over the reachable workspace ({n_joints} joints, base at "
                  f"{settings.base_height} m; start: {settings.start})", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
-    save_figure(fig, path, dpi=130)
+    outputs.save_figure(fig, path, dpi=130)
 
     data_json = path.with_suffix(".json")
-    write_text(data_json, json.dumps({
+    outputs.write_text(data_json, json.dumps({
         "settings": asdict(settings), "plot_joints": n_joints, "rows": table_rows,
         "outlines": outlines, "start_tool0_m": starts,
         "regions": {r.name: r.to_dict() for r in study.region_objects.values()
@@ -369,8 +343,9 @@ def plot(study: Study, settings: Settings, path: pathlib.Path, n_joints: int) ->
         samples += [[" ".join(f"{x:.6g}" for x in key[1]), *(f"{v:.6f}" for v in ws.goals[k]),
                      int(ws.clear[k]), *(int(col[m]) for col in inside)]
                     for m, k in enumerate(idx)]
-    write_csv(data_csv, ["held_joints_rad", "x_m", "y_m", "z_m", "clear",
-                         *[f"in_{r.name}" for r in study.region_objects.values()]], samples)
+    outputs.write_csv(data_csv, ["held_joints_rad", "x_m", "y_m", "z_m", "clear",
+                                 *[f"in_{r.name}" for r in study.region_objects.values()]],
+                      samples)
     return [path, data_json, data_csv]
 
 
@@ -411,8 +386,7 @@ def view(settings: Settings, path: pathlib.Path, meshes: str = "collision") -> i
         scene.arm(f"starts/{label}", start_q, meshes, START_OPACITY[min(k, 1)])
         scene.marker(f"starts/{label}_tool0", ur5kin.fk_world(start_q, settings.base_height),
                      scenes.START_COLOUR)
-        labels.append(f"{label} start ({', '.join(owners)})"
-                      + (", translucent" if k else ""))
+        labels.append(f"{label} start ({', '.join(owners)})" + (", translucent" if k else ""))
     caption = ("goal regions: " + ", ".join(names) + "\narm: " + "; ".join(labels)
                + "; black dot: its tool0\n"
                + f"world frame: plane z = 0, base at (0, 0, {settings.base_height}) m")
@@ -440,15 +414,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "ball's 6.9 m^3 box (see --convergence)")
     parser.add_argument("--seed", type=SEED.read, default=d.seed, help="seed of every generator")
     parser.add_argument("--resolution", type=number(0, above=True, note="m").read,
-                        default=d.resolution,
-                        help="voxel edge of the workspace estimate (m)")
+                        default=d.resolution, help="voxel edge of the workspace estimate (m)")
     parser.add_argument("--base-height", type=BASE_HEIGHT.read, default=d.base_height,
                         help="height of the robot base above the plane (m)")
     parser.add_argument("--start", choices=START_CHOICES, default=d.start,
                         help="start pose of the rows: paper = zero start [0,0,0,0,0,0] rad for "
                         "'unconstrained' and the constrained start [0,-pi/4,pi/2,0,0,0] rad for "
                         "every other region (docs/design.md); zero or constrained for all")
-    parser.add_argument("--sampler", choices=SAMPLER_CHOICES, default=d.sampler,
+    parser.add_argument("--sampler", choices=GOAL_SAMPLERS, default=d.sampler,
                         help="sampler of the acceptance and distance columns: joint = the "
                         "paper's (accepted / uniform joint samples); cartesian = uniform in the "
                         "region, kept where IK reaches it (acceptance = reachable fraction of the "
@@ -496,18 +469,17 @@ JOINTS = integer(1, 6, note="joints 1..n move")
 
 
 def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Settings:
-    need, have = voxel_bytes(args.resolution, args.base_height), available_bytes()
+    need, have = voxel_bytes(args.resolution, args.base_height), outputs.available_bytes()
     if have is not None and need > have:
         parser.error(f"--resolution {args.resolution} m: the workspace's voxel grids would need "
                      f"about {need / 2 ** 30:.3g} GiB, more than the {have / 2 ** 30:.3g} GiB "
                      "of memory available; use a coarser voxel edge")
     for spec in args.regions:
-        with usage_errors(parser, ValueError):
+        with outputs.usage_errors(parser, ValueError):
             regions.parse(spec, args.base_height)
-    return Settings(regions=tuple(args.regions), joints=tuple(dict.fromkeys(args.joints)),
-                    samples=args.samples, seed=args.seed, resolution=args.resolution,
-                    base_height=args.base_height, start=args.start, sampler=args.sampler,
-                    goals=args.goals)
+    flags = {f.name: getattr(args, f.name) for f in fields(Settings)}  # one flag per field
+    return Settings(**{**flags, "regions": tuple(args.regions),
+                       "joints": tuple(dict.fromkeys(args.joints))})
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -531,14 +503,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     n_plot = args.plot_joints or (3 if 3 in settings.joints else max(settings.joints))
     if args.plot is not None and n_plot not in settings.joints:
         parser.error(f"--plot-joints {n_plot} must be one of --joints {list(settings.joints)}")
-    if args.plot is not None:
-        with usage_errors(parser):  # before the study
-            args.plot = figure_path(args.plot, "--plot")
-            for suffix in (".json", ".csv"):
-                check_writable(args.plot.with_suffix(suffix), "--plot")
+    if args.plot is not None:  # before the study
+        args.plot = outputs.figure_outputs(parser, args.plot, "--plot", ".json", ".csv")[0]
     if args.view is not None:
-        with usage_errors(parser, ImportError, OutputError):
-            check_writable(pathlib.Path(args.view), "--view")
+        with outputs.usage_errors(parser, ImportError, outputs.OutputError):
+            outputs.check_writable(pathlib.Path(args.view), "--view")
             size = view(settings, args.view)
         print(f"wrote {args.view} ({size / 1e6:.1f} MB)", file=sys.stderr)
     study = run_study(settings, progress)
@@ -547,7 +516,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         print(format_table(study, settings))
     if args.plot is not None:
-        with write_errors(parser):
+        with outputs.write_errors(parser):
             written = plot(study, settings, args.plot, n_plot)
         print("wrote " + ", ".join(map(str, written)), file=sys.stderr)
     return 0

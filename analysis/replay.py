@@ -118,26 +118,23 @@ def rollout(policy: Any, seeds: Sequence[int], progress: bool = True
 
     env = policy.make_env()
     base = env.unwrapped
-    task = base.task
     out = []
     try:
         for seed in tqdm(seeds, desc="episodes", unit="episode", disable=not progress,
                          file=sys.stderr):
             obs, info = env.reset(seed=seed)
             qs, tools = [base.joint_angles.copy()], [obs["achieved_goal"].copy()]
-            reached = bool(info["is_success"])
             done = False
             while not done:
                 obs, _, terminated, truncated, info = env.step(policy(obs))
                 qs.append(base.joint_angles.copy())
                 tools.append(obs["achieved_goal"].copy())
-                reached = bool(info["is_success"])
                 done = terminated or truncated
             out.append(Episode(obs["desired_goal"].copy(), np.array(qs), np.array(tools),
-                               reached))
+                               bool(info["is_success"])))  # of the last step
     finally:
         env.close()
-    return task, out
+    return base.task, out
 
 
 def draw(scene: Any, task: Any, episodes: Sequence[Episode], meshes: str) -> Any:
@@ -161,7 +158,7 @@ def draw(scene: Any, task: Any, episodes: Sequence[Episode], meshes: str) -> Any
         scene.path(path, ep.tool, colour)
         timeline.poses(scene.vis, arm, frame, ep.q)
         end = frame + ep.steps
-        timeline.pose(scene.vis, arm, end + hold, ep.q[-1])  # hold the last pose
+        timeline.poses(scene.vis, arm, end + hold, ep.q[-1:])  # hold the last pose
         for name, shown_from in ((goal, frame), (path, end)):
             if shown_from > 0:
                 timeline.visible(scene.vis, name, 0, False)
@@ -237,8 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the arm's meshes: the URDF's collision meshes (5,300 triangles, "
                         "about 100 kB in the page) or its COLLADA visual meshes (96,000 "
                         "triangles, about 9 MB; MeshCat 0.3.2 leaves part of the shoulder out)")
-    parser.add_argument("--no-progress", action="store_true",
-                        help="no progress bar on stderr")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     return parser
 
 

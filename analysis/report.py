@@ -13,10 +13,8 @@ With ``--group-by FIELD`` or ``--groups NAME=DIR ...`` it compares groups instea
 (`comparison`): each group's statistics, and every pair judged by the same rule.
 
 The verdict rule is `rule_lines`, printed with every report and stated in docs/design.md ("What
-the paper reports"); `judge_claims` applies it. A claim about where training ends is judged on
-runs shorter than the paper's (it can fail there, never hold) when every setting it
-compares has plateaued by the plateau rule (`analysis.plateau`); the report applies that rule to
-every setting at every stage of `analysis.plateau.PLATEAU_STAGES` its runs reached.
+the paper reports"), with the plateau rule (`analysis.plateau`) for runs shorter than the
+paper's; `judge_claims` applies it.
 """
 
 from __future__ import annotations
@@ -102,13 +100,11 @@ def summarise(runs: Sequence[Run], level: float = CONFIDENCE) -> SettingSummary:
     """One setting's statistics over its seeds (see `SettingSummary`)."""
     curves = Curves.of(runs)
     interval = student_t(level)
-    first = []
-    for run in runs:
-        hit = np.nonzero(run.successes >= HIGH_SUCCESS * run.tests / 100.0)[0]
-        first.append(int(run.episode[hit[0]]) if len(hit) else None)
+    first = tuple(int(run.episode[hit[0]]) if len(hit) else None for run in runs
+                  for hit in [np.nonzero(run.successes >= HIGH_SUCCESS * run.tests / 100.0)[0]])
     return SettingSummary(runs[0].region, runs[0].joints, len(runs), curves.end,
                           interval(curves.level(), PERCENT),
-                          interval(curves.percent.max(axis=1), PERCENT), tuple(first),
+                          interval(curves.percent.max(axis=1), PERCENT), first,
                           tuple(run_choices(r.spec) for r in runs), curves)
 
 
@@ -119,8 +115,7 @@ def reading_lines(summaries: dict[tuple[str, int], SettingSummary]) -> list[str]
     section warns that the claims then compare settings trained under different readings.
     """
     rows, mixed = [], False
-    names = [n for s in summaries.values() for c in s.choices for n in c]
-    for name in dict.fromkeys(names):
+    for name in dict.fromkeys(n for s in summaries.values() for c in s.choices for n in c):
         where: dict[str, list[str]] = {}
         for key in sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1])):
             for value in dict.fromkeys(c[name] for c in summaries[key].choices):
@@ -312,15 +307,19 @@ def _stat(key: tuple[str, int], stat: Interval) -> str:
     return f"{_name(key)} {fmt_interval(stat)}"
 
 
+def _verdict(yes: bool, no: bool) -> Verdict:
+    """YES when ``yes``, else NO when ``no``, else NOISE."""
+    return Verdict.YES if yes else Verdict.NO if no else Verdict.NOISE
+
+
 def apart(a: Interval, b: Interval) -> Verdict:
     """YES when interval ``a`` lies above ``b``, NO when below, NOISE when they overlap."""
-    return Verdict.YES if a[1] > b[2] else Verdict.NO if b[1] > a[2] else Verdict.NOISE
+    return _verdict(a[1] > b[2], b[1] > a[2])
 
 
 def overall(each: Sequence[Verdict]) -> Verdict:
     """A claim's verdict from its parts': fails when one fails, holds when all hold."""
-    return (Verdict.NO if Verdict.NO in each else
-            Verdict.YES if all(v is Verdict.YES for v in each) else Verdict.NOISE)
+    return _verdict(all(v is Verdict.YES for v in each), Verdict.NO in each)
 
 
 def _least(ps: Sequence[float]) -> float:
@@ -371,6 +370,7 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             return Check(claim.name, verdict, what, p, conf)
         ends = sorted({curves[k].end for k in short})
         at = ", ".join(f"{e:,}" for e in ends)
+        so_far = f". So far ({VERDICT_WORDS_SO_FAR[verdict]}): {what}"
         if plateaus is not None and all(plateaus[k].plateaued for k in short):
             if verdict is Verdict.NO:
                 return Check(claim.name, verdict,
@@ -378,18 +378,15 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
                              f"episodes, the plateau rule; intervals widened by the change "
                              f"extrapolated to {PAPER_EPISODES:,}): {what}", p, conf,
                              plateau_at=max(ends))
-            return Check(claim.name, Verdict.NOT_JUDGEABLE,
-                         f"every setting it compares has plateaued at {at} episodes, but a "
-                         f"claim about where training ends never holds before the paper's "
-                         f"{PAPER_EPISODES:,}. So far ({VERDICT_WORDS_SO_FAR[verdict]}): "
-                         f"{what}", p, conf)
-        rising = ("" if plateaus is None else
-                  "; not plateaued by the plateau rule: "
-                  + ", ".join(_name(k) for k in short if not plateaus[k].plateaued))
-        return Check(claim.name, Verdict.NOT_JUDGEABLE,
-                     f"a claim about where training ends; these runs end at {at} episodes, "
-                     f"below the paper's {PAPER_EPISODES:,}{rising}. So far "
-                     f"({VERDICT_WORDS_SO_FAR[verdict]}): {what}", p, conf)
+            why = (f"every setting it compares has plateaued at {at} episodes, but a claim "
+                   f"about where training ends never holds before the paper's {PAPER_EPISODES:,}")
+        else:
+            why = (f"a claim about where training ends; these runs end at {at} episodes, below "
+                   f"the paper's {PAPER_EPISODES:,}")
+            if plateaus is not None:
+                why += "; not plateaued by the plateau rule: " + ", ".join(
+                    _name(k) for k in short if not plateaus[k].plateaued)
+        return Check(claim.name, Verdict.NOT_JUDGEABLE, why + so_far, p, conf)
 
     def missing(keys: Sequence[tuple[str, int]]) -> str:
         lack = [_name(k) for k in keys if k in PAPER_GRID and k not in curves]
@@ -447,13 +444,8 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         if not have:
             return not_run(claim, keys)
         k = (min if above else max)(have, key=lambda k: stat[k][0])
-        _, low, high = stat[k]
-        if above:
-            verdict = (Verdict.YES if low >= bound else Verdict.NO if high < bound
-                       else Verdict.NOISE)
-        else:
-            verdict = (Verdict.YES if high < bound else Verdict.NO if low >= bound
-                       else Verdict.NOISE)
+        over, under = stat[k][1] >= bound, stat[k][2] < bound
+        verdict = _verdict(over, under) if above else _verdict(under, over)
         return judged(claim, have, verdict, f"{'weakest' if above else 'strongest'}: "
                       f"{_stat(k, stat[k])} against {bound:g}" + missing(keys))
 
@@ -462,11 +454,8 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
         if not have:
             return not_run(claim, keys)
         lo_b, hi_b = target - ABOUT_TOLERANCE, target + ABOUT_TOLERANCE
-        each = []
-        for k in have:
-            _, low, high = stat[k]
-            each.append(Verdict.YES if lo_b <= low and high <= hi_b else
-                        Verdict.NO if high < lo_b or low > hi_b else Verdict.NOISE)
+        each = [_verdict(lo_b <= stat[k][1] and stat[k][2] <= hi_b,
+                         stat[k][2] < lo_b or stat[k][1] > hi_b) for k in have]
         return judged(claim, have, overall(each), ", ".join(_stat(k, stat[k]) for k in have)
                       + f" against {lo_b:g}-{hi_b:g}" + missing(keys))
 
@@ -477,12 +466,10 @@ def judge_claims(curves: Mapping[tuple[str, int], Curves],
             return not_run(claim, [k for k in asked if k not in curves])
         each, parts, ps, conf = [], [], [], []
         for g in groups:
-            lows = [stat[k][1] for k in g]
-            highs = [stat[k][2] for k in g]
-            each.append(Verdict.YES if max(highs) - min(lows) <= ALIKE_TOLERANCE else
-                        Verdict.NO if max(lows) > min(highs) else Verdict.NOISE)
-            weak = min(g, key=lambda k: stat[k][0])
-            strong = max(g, key=lambda k: stat[k][0])
+            _, lows, highs = zip(*(stat[k] for k in g), strict=True)
+            each.append(_verdict(max(highs) - min(lows) <= ALIKE_TOLERANCE,
+                                 max(lows) > min(highs)))
+            weak, strong = min(g, key=lambda k: stat[k][0]), max(g, key=lambda k: stat[k][0])
             ps.append(welch_p(level[weak], level[strong]))
             conf += [c for c in confounds(weak, strong) if c not in conf]
             parts.append(", ".join(_stat(k, stat[k]) for k in g))
@@ -545,15 +532,6 @@ VERDICT_WORDS_SO_FAR = {Verdict.YES: "as claimed so far, not a verdict",
                         Verdict.NO: "not as claimed so far, not a verdict",
                         Verdict.NOISE: "within noise so far"}
 """How a judgement of runs too short to judge is shown: information, not a verdict."""
-
-
-def ordering_checks(summaries: dict[tuple[str, int], SettingSummary],
-                    level: float = CONFIDENCE,
-                    plateaus: Mapping[tuple[str, int], Plateau] | None = None) -> list[Check]:
-    """The paper's claims judged on the summaries' curves with the Student-t interval at
-    ``level`` (see `judge_claims`; ``plateaus``: the plateau rule's verdicts, as there)."""
-    return judge_claims({k: s.curves for k, s in summaries.items()}, student_t(level),
-                        plateaus)
 
 
 def _ci(low: float, high: float) -> str:
@@ -684,15 +662,13 @@ def render(summaries: dict[tuple[str, int], SettingSummary], level: float) -> st
              f"| region | joints | seeds | episodes | last {LAST_SESSIONS} | best | first >= "
              f"{HIGH_SUCCESS:g} | paper |",
              "|---|---|---|---|---|---|---|---|"]
-    order = sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1]))
-    for key in order:
-        s = summaries[key]
-        paper = PAPER_RESULTS.get(key)
+    for key in sorted(summaries, key=lambda k: (*paper_order(k[0]), k[1])):
+        s, paper = summaries[key], PAPER_RESULTS.get(key)
         lines.append(f"| {s.region} | {s.joints} | {s.seeds} | {s.episodes} | "
                      f"{fmt_interval(s.final)} | {fmt_interval(s.best)} | "
                      f"{_first_high(s.first_high)} | "
                      f"{paper.text if paper else 'not in the paper'} |")
-    checks = ordering_checks(summaries, level, {  # the plateau rule at each setting's end
+    checks = judge_claims({k: s.curves for k, s in summaries.items()}, student_t(level), {
         k: plateau(s.curves.episode, s.curves.percent) for k, s in summaries.items()})
     lines += ["", *reading_lines(summaries), *rule_lines(level, plateaus=True),
               *plateau_lines(summaries, level), "## The paper's claims", "",
@@ -730,8 +706,8 @@ def comparison(groups: Sequence[Group], level: float) -> str:
              f"first >= {HIGH_SUCCESS:g} | runs |", "|---|---|---|---|---|---|---|"]
     for g in groups:
         c = curves[g.label]
-        high = c.percent >= HIGH_SUCCESS
-        first = tuple(int(c.episode[h.argmax()]) if h.any() else None for h in high)
+        first = tuple(int(c.episode[h.argmax()]) if h.any() else None
+                      for h in c.percent >= HIGH_SUCCESS)
         runs = ", ".join(str(r.path) for r in g.runs)
         settings = ", ".join(dict.fromkeys(f"{r.region} {r.joints}" for r in g.runs))
         lines.append(f"| {g.label} | {settings} | {len(g.runs)} | "

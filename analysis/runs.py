@@ -19,13 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from ddpg_her.config import usage_errors
-from ddpg_her.runfolder import RUN_FORMAT_PREFIX, Run, RunFolderError, is_run_spec, read_run
+from ddpg_her.runfolder import Run, RunFolderError, is_run_spec, read_run
 from ur5kin.checks import number
 
-__all__ = ["CONFIDENCE", "PERCENT", "RUN_FORMAT_PREFIX", "Group", "Run", "RunFolderError",
-           "add_runs_arguments", "aligned_successes", "configuration", "differences",
-           "find_runs", "group_by_setting", "group_runs", "groups_from_args", "mean_ci",
-           "read_run", "settings_from_args"]
+__all__ = ["CONFIDENCE", "PERCENT", "Group", "Run", "RunFolderError", "add_runs_arguments",
+           "aligned_successes", "configuration", "differences", "find_runs", "group_by_setting",
+           "group_runs", "groups_from_args", "mean_ci", "read_run", "settings_from_args"]
 
 PERCENT = (0.0, 100.0)
 """Feasible range of a success percentage; confidence intervals are clipped to it."""
@@ -118,9 +117,7 @@ def aligned_successes(runs: Sequence[Run]) -> tuple[np.ndarray, np.ndarray]:
         Goals hit per 100 test episodes (the paper's "successes out of 100", whatever the
         number of test episodes of the run).
     """
-    common = set(runs[0].episode.tolist())
-    for run in runs[1:]:
-        common &= set(run.episode.tolist())
+    common = set.intersection(*(set(r.episode.tolist()) for r in runs))
     episode = np.array(sorted(common), dtype=int)
     table = np.array([[100.0 * r.success_rate[np.searchsorted(r.episode, e)] for e in episode]
                       for r in runs], dtype=float).reshape(len(runs), len(episode))

@@ -362,11 +362,13 @@ def test_session(model: Any, make_env: Any, seeds: Sequence[int]) -> dict[str, A
 def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episodes: int,
           eval_every: int, eval_episodes: int, hyperparams: dict[str, Any], out: Path,
           command: Sequence[str] = ()) -> list[dict[str, Any]]:
-    """Train SB3's ``algo`` for ``episodes`` training episodes into the run folder ``out``;
-    returns the eval rows (also in ``out/eval.csv``)."""
+    """Train SB3's ``algo`` for ``episodes`` training episodes into the run folder ``out``, a test
+    session every ``eval_every``; returns the eval rows (also in ``out/eval.csv``)."""
     import gymnasium
+    from stable_baselines3.common.callbacks import BaseCallback
 
     from ddpg_her.runfolder import FORMAT, RunFolder, git_revision, versions
+    from ddpg_her.trainer import EVAL_ENV_STREAM, stream_seed
     from ddpg_her.vecenv import register_env
 
     folder = RunFolder(out)
@@ -388,30 +390,7 @@ def train(algo: str, env_id: str, env_kwargs: dict[str, Any], seed: int, episode
         "versions": versions(), "git": git_revision(), "command": list(command),
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }
-    created = not folder.path.exists()
-    folder.write_spec(spec)
-    try:
-        return _learn(model, env, make_env, folder, seed, episodes, eval_every,
-                      eval_episodes)
-    except BaseException:
-        # nothing learnt is kept: leave no folder behind
-        if not (folder.path / "eval.csv").exists():
-            with contextlib.suppress(OSError):
-                folder.spec_path.unlink()
-                if created:
-                    folder.path.rmdir()
-        raise
-
-
-def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes: int,
-           eval_every: int, eval_episodes: int) -> list[dict[str, Any]]:
-    """`train`'s loop: learn with a test session every ``eval_every`` episodes."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    from ddpg_her.trainer import EVAL_ENV_STREAM, stream_seed
-
     rows: list[dict[str, Any]] = []
-    start = time.perf_counter()
 
     def session(episode: int) -> None:
         s = episode // eval_every
@@ -438,18 +417,28 @@ def _learn(model: Any, env: Any, make_env: Any, folder: Any, seed: int, episodes
                         session(self.episode)
             return self.episode < episodes
 
-    task = getattr(env.unwrapped, "task", None)  # a UR5 task's own length, else the id's
-    steps = episodes * (getattr(task, "max_episode_steps", None) or env.spec.max_episode_steps
-                        or 1000) + 1
-    print(f"training {type(model).__name__} + HER into {folder.path}: {episodes} episodes, a "
-          f"line per test session (every {eval_every})", file=sys.stderr, flush=True)
-    model.learn(total_timesteps=steps, callback=Protocol())
-    return rows
+    created = not folder.path.exists()
+    folder.write_spec(spec)
+    try:
+        start = time.perf_counter()
+        steps = episodes * (getattr(task, "max_episode_steps", None)  # a UR5 task's, else the id's
+                            or env.spec.max_episode_steps or 1000) + 1
+        print(f"training {type(model).__name__} + HER into {folder.path}: {episodes} episodes, "
+              f"a line per test session (every {eval_every})", file=sys.stderr, flush=True)
+        model.learn(total_timesteps=steps, callback=Protocol())
+        return rows
+    except BaseException:
+        # nothing learnt is kept: leave no folder behind
+        if not (folder.path / "eval.csv").exists():
+            with contextlib.suppress(OSError):
+                folder.spec_path.unlink()
+                if created:
+                    folder.path.rmdir()
+        raise
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = Parser(
-        prog="python -m analysis.sb3", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m analysis.sb3", description=__doc__.split("\n\n")[0])
     parser.add_argument("--algo", choices=ALGOS, default="ddpg",
                         help="Stable-Baselines3 algorithm (default: ddpg)")
     parser.add_argument("--region", required=True,
@@ -482,8 +471,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = make_parser()
     args = parser.parse_args(argv)
     try:
-        overrides = [task_option(t) for t in args.task]
-        env_kwargs = task_fields(args.region, args.joints, overrides)
+        env_kwargs = task_fields(args.region, args.joints, [task_option(t) for t in args.task])
         hyperparams = load_hyperparams(args.hyperparams, args.algo)
     except (ValueError, argparse.ArgumentTypeError) as err:
         parser.error(str(err))

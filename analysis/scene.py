@@ -106,7 +106,7 @@ class RecordingWindow:
 
     The server keeps one node per path with its object, transform, properties and animation
     (a new object drops the node's properties; ``delete`` removes the subtree), and writes the
-    tree as drawing commands into its viewer page; :meth:`static_html` does the same here.
+    tree as drawing commands into its viewer page; ``meshcat_page(commands())`` does that here.
     """
 
     def __init__(self) -> None:
@@ -147,35 +147,19 @@ class RecordingWindow:
         properties, its transform, its animation."""
         from meshcat.servers.tree import walk
 
-        out: list[bytes] = []
-        for node in walk(self.tree):
-            if node.object is not None:
-                out.append(node.object)
-            out.extend(node.properties)
-            if node.transform is not None:
-                out.append(node.transform)
-            if node.animation is not None:
-                out.append(node.animation)
-        return out
-
-    def static_html(self) -> str:
-        """The scene as MeshCat's ``static_html()`` writes it: the viewer's script and every
-        command inline."""
-        return meshcat_page(self.commands())
+        return [c for node in walk(self.tree)
+                for c in (node.object, *node.properties, node.transform, node.animation)
+                if c is not None]
 
 
 def meshcat_page(commands: Sequence[bytes], title: str = "MeshCat", caption: str = "") -> str:
     """A self-contained viewer page: MeshCat's viewer script, then ``commands`` (msgpack bytes,
     each embedded as base64). With the default title and no caption it is, byte for byte, the
     page MeshCat's server writes for ``static_html()``."""
-    import os
-
     from meshcat.servers.zmqserver import VIEWER_ROOT, create_command
 
-    with open(os.path.join(VIEWER_ROOT, "main.min.js")) as f:
-        script = f.read()
-    drawing = "".join(create_command(c) for c in commands)
-    page = _PAGE.format(mainminjs=script, commands=drawing)
+    script = pathlib.Path(VIEWER_ROOT, "main.min.js").read_text()
+    page = _PAGE.format(mainminjs=script, commands="".join(create_command(c) for c in commands))
     if title != "MeshCat":
         page = page.replace("<title>MeshCat</title>", f"<title>{html.escape(title)}</title>", 1)
     if caption:
@@ -288,9 +272,8 @@ class Scene:
         """
         import meshcat.geometry as g
 
-        top, bottom = BACKGROUND
-        self.vis["/Background"].set_property("top_color", list(top))
-        self.vis["/Background"].set_property("bottom_color", list(bottom))
+        for name, colour in zip(("top_color", "bottom_color"), BACKGROUND, strict=True):
+            self.vis["/Background"].set_property(name, list(colour))
         self.vis["/Axes"].set_property("visible", False)
         self.vis["/Grid"].set_property("visible", False)  # the ground plane is drawn instead
         self.vis.set_transform(_translation(-np.asarray(target, dtype=float)))
@@ -403,9 +386,8 @@ class Scene:
             raise TypeError("write_html needs a scene of offline_visualizer()")
         from analysis.outputs import write_text
 
-        page = meshcat_page(window.commands(), title, caption)
         out = pathlib.Path(out)
-        write_text(out, page)  # whole or not at all; raises OutputError
+        write_text(out, meshcat_page(window.commands(), title, caption))  # whole or not at all
         return out.stat().st_size
 
 
@@ -443,10 +425,6 @@ class Timeline:
 
         self.fps = float(fps)
         self.animation = meshcat.animation.Animation(default_framerate=self.fps)
-
-    def pose(self, vis: meshcat.Visualizer, arm: Arm, frame: int, q: Any) -> None:
-        """Key the arm's configuration ``q (6,)`` (rad) at ``frame``."""
-        self.poses(vis, arm, frame, np.asarray(q, dtype=float)[None])
 
     def poses(self, vis: meshcat.Visualizer, arm: Arm, first: int, q: Any) -> None:
         """Key configurations ``q (T, 6)`` (rad) at frames ``first .. first + T - 1``."""

@@ -22,16 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import (
-    available_bytes,
-    check_writable,
-    figure_path,
-    pyplot,
-    save_figure,
-    usage_errors,
-    write_csv,
-    write_errors,
-)
+from analysis import outputs
 from ddpg_her.config import Parser
 from ur5kin.checks import COUNT, SEED, number
 
@@ -134,8 +125,8 @@ def bin_successes(run: str, goals: np.ndarray, reached: np.ndarray, cell: float)
 
 
 def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
-    fig, axes = pyplot().subplots(1, len(maps), squeeze=False, sharey=True,
-                                  figsize=(4.6 * len(maps) + 0.8, 4.4))
+    fig, axes = outputs.pyplot().subplots(1, len(maps), squeeze=False, sharey=True,
+                                          figsize=(4.6 * len(maps) + 0.8, 4.4))
     image = None
     for ax, m in zip(axes[0], maps, strict=True):
         image = ax.pcolormesh(m.x_edges, m.y_edges, 100.0 * m.rate.T, cmap="viridis", vmin=0.0,
@@ -148,7 +139,7 @@ def plot(maps: Sequence[SuccessMap], z: tuple[float, float], out: Path) -> None:
     axes[0, 0].set_ylabel("y (m)")  # one label: the maps share their y axis
     fig.colorbar(image, ax=axes[0].tolist(), label="goals reached (%)", shrink=0.85)
     fig.suptitle(f"Success by goal position, {z[0]} <= z <= {z[1]} m (world frame)", fontsize=10)
-    save_figure(fig, out, dpi=120, bbox_inches="tight")
+    outputs.save_figure(fig, out, dpi=120, bbox_inches="tight")
 
 
 def csv_rows(maps: Sequence[SuccessMap]) -> list[list[Any]]:
@@ -156,12 +147,11 @@ def csv_rows(maps: Sequence[SuccessMap]) -> list[list[Any]]:
     rows = []
     for m in maps:
         rate = m.rate
-        for i in range(len(m.x_edges) - 1):
-            for j in range(len(m.y_edges) - 1):
-                rows.append([m.run, round(m.x_edges[i], 6), round(m.x_edges[i + 1], 6),
-                             round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
-                             int(m.goals[i, j]), int(m.successes[i, j]),
-                             "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
+        for i, j in np.ndindex(m.goals.shape):  # (nx, ny): x_edges and y_edges less one each
+            rows.append([m.run, round(m.x_edges[i], 6), round(m.x_edges[i + 1], 6),
+                         round(m.y_edges[j], 6), round(m.y_edges[j + 1], 6),
+                         int(m.goals[i, j]), int(m.successes[i, j]),
+                         "" if np.isnan(rate[i, j]) else round(float(rate[i, j]), 6)])
     return rows
 
 
@@ -190,14 +180,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     # rate per cell over the slice, at most the reach ball's diameter wide)
     cells = math.ceil(2 * WORKSPACE_REACH_M / args.cell) ** 2
     need = len(args.runs) * args.goals * GOAL_BYTES + len(args.runs) * cells * CELL_BYTES
-    have = available_bytes()
+    have = outputs.available_bytes()
     if have is not None and need > have:
         parser.error(f"--goals {args.goals} and --cell {args.cell} m would need about "
                      f"{need / 2 ** 30:.3g} GiB ({args.goals} goals and {cells:.3g} grid cells "
                      f"per run), more than the {have / 2 ** 30:.3g} GiB of memory available")
-    with usage_errors(parser):  # before loading any policy or rolling out
-        out = figure_path(args.out, "--out")
-        csv_path = check_writable(out.with_suffix(".csv"), "--out")
+    out, csv_path = outputs.figure_outputs(parser, args.out, "--out", ".csv")  # before any rollout
     z = (min(args.z), max(args.z))
     if z[0] == z[1]:
         parser.error(f"--z needs two different heights; got {args.z}")
@@ -206,15 +194,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ddpg_her.runfolder import RunFolder
 
     for run in args.runs:  # before loading: load makes the run's env, which may not be ours
-        with usage_errors(parser, ValueError):
+        with outputs.usage_errors(parser, ValueError):
             env_id = RunFolder(run).read_spec().get("env_id")
         if env_id not in MAPPED_ENV_IDS:
             parser.error(f"{run} is a run of env {env_id!r}; only runs of "
                          f"{', '.join(MAPPED_ENV_IDS)} can be mapped")
-    policies = []
-    for run in args.runs:
-        with usage_errors(parser, FileNotFoundError, ValueError):  # load checks the run's env
-            policies.append(ddpg_her.load(run, episode=args.episode))
+    with outputs.usage_errors(parser, FileNotFoundError, ValueError):  # load checks the run's env
+        policies = [ddpg_her.load(run, episode=args.episode) for run in args.runs]
     tasks = [p.task for p in policies]  # the task of the env the policy was trained on
     if len({(t.region, t.n_joints, t.start_q, t.base_height, t.goal_sampler) for t in tasks}) > 1:
         parser.error("the runs have different tasks (region, joints, start, sampler); maps of "
@@ -230,9 +216,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         label = f"{Path(run).as_posix()} (episode {policy.episode})"  # the run, not "s0"
         reached = evaluate(policy, task, goals, args.batch, label, not args.no_progress)
         maps.append(bin_successes(label, goals, reached, args.cell))
-    with write_errors(parser):
+    with outputs.write_errors(parser):
         plot(maps, z, out)
-        write_csv(csv_path, CSV_COLUMNS, csv_rows(maps))
+        outputs.write_csv(csv_path, CSV_COLUMNS, csv_rows(maps))
     for m in maps:
         print(f"{m.run}: {m.successes.sum()} of {m.goals.sum()} goals reached "
               f"({100.0 * m.successes.sum() / m.goals.sum():.1f} %)")

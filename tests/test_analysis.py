@@ -95,7 +95,7 @@ def test_mean_ci_matches_student_t() -> None:
 def _checks(root: Path) -> dict[str, report.Check]:
     summaries = {k: report.summarise(v)
                  for k, v in runs.group_by_setting(runs.find_runs([root])).items()}
-    return {c.claim: c for c in report.ordering_checks(summaries)}
+    return {c.claim: c for c in report.judge_claims({k: s.curves for k, s in summaries.items()})}
 
 
 def test_report_summarises_and_checks_the_papers_claims(tmp_path: Path) -> None:
@@ -112,7 +112,7 @@ def test_report_summarises_and_checks_the_papers_claims(tmp_path: Path) -> None:
     # the level is each seed's mean over its last 5 (here: all 3) sessions, not the last one
     assert far.final[0] == pytest.approx(np.mean([60, 95, 97]) + 0.5)
     assert far.first_high == (200, 200)
-    checks = {c.claim: c for c in report.ordering_checks(summaries)}
+    checks = {c.claim: c for c in report.judge_claims({k: s.curves for k, s in summaries.items()})}
     assert [c.claim for c in checks.values()] == [c.name for c in CLAIMS]
     easier = checks["far box easier than the other regions"]
     assert easier.verdict is report.Verdict.YES
@@ -272,7 +272,7 @@ def test_report_verdicts_follow_the_confidence_intervals(tmp_path: Path, high, l
         stats.t.interval(0.65, 2, loc=np.mean(v), scale=stats.sem(v)) for v in (high, low))
     assert summaries[("farbox", 6)].final[1:] == pytest.approx((h_low, h_high))
     assert summaries[("unconstrained", 5)].final[1:] == pytest.approx((l_low, l_high))
-    got = {c.claim: c for c in report.ordering_checks(summaries)}[
+    got = {c.claim: c for c in report.judge_claims({k: s.curves for k, s in summaries.items()})}[
         "far box easier than the other regions"]
     assert got.verdict is report.Verdict[verdict]
     assert "missing: farbox 3, unconstrained 3" in got.detail
