@@ -195,8 +195,7 @@ def block(rows: Sequence[dict[str, str]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = Parser(prog="python -m analysis.claims",
-                                     description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m analysis.claims", description=__doc__.split("\n\n")[0])
     parser.add_argument("--results", type=Path, default=Path("results"),
                         help="the committed results folder to read (default: results)")
     parser.add_argument("--out", type=Path, default=None,

@@ -67,8 +67,6 @@ EVALUATION_FIELDS = ("reward_type", "distance_weight", "action_weight", "action_
 """TaskSpec fields that change the reward or the episode end but not the motion: rollouts of two
 tasks that differ only here are the same, and one :class:`Simulation` serves both."""
 
-KIND_BRANCH, KIND_STAY, KIND_ZERO = "branch", "stay", "zero"
-
 DUPLICATE_TOL = 1e-6
 """Commands closer than this (rad, every joint, after wrapping) count as one IK branch."""
 
@@ -586,12 +584,11 @@ def check_overrides(overrides: Sequence[tuple[str, Any]], readings: Sequence[str
     ValueError
         Naming the key and what was expected.
     """
-    from ddpg_her.units import json_equal
+    from ddpg_her import units
     from envs.spec import TaskSpec
 
     known = [f.name for f in dataclasses.fields(TaskSpec)]
-    fields: dict[str, Any] = {}
-    for key, value in overrides:
+    for key, _ in overrides:
         if key not in known:
             raise ValueError(f"--task {key}: TaskSpec has no field {key!r}; its fields are "
                              f"{', '.join(known)}")
@@ -602,10 +599,8 @@ def check_overrides(overrides: Sequence[tuple[str, Any]], readings: Sequence[str
         if owners:
             raise ValueError(f"--task {key}: the reading(s) {', '.join(owners)} set it "
                              "themselves; drop it or choose other --readings")
-        if key in fields and not json_equal(fields[key], value):
-            raise ValueError(f"--task {key} given two values ({fields[key]!r}, {value!r}); "
-                             "give it once")
-        fields[key] = value
+    fields = units.task_fields("", None, overrides)  # refuses a key given two values
+    del fields["region"], fields["n_joints"]
     try:
         TaskSpec(**fields)
     except (TypeError, ValueError) as err:
@@ -628,14 +623,10 @@ def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
 
     from envs.spec import TaskSpec
 
-    skipped, usable = [], []
-    for name in readings:
-        missing = sorted(missing_fields(reading_fields(name)))
-        if missing:
-            skipped.append(f"reading {name!r} skipped: TaskSpec has no field(s) {missing} in "
-                           "this version")
-        else:
-            usable.append(name)
+    missing = [(name, sorted(missing_fields(reading_fields(name)))) for name in readings]
+    skipped = [f"reading {name!r} skipped: TaskSpec has no field(s) {m} in this version"
+               for name, m in missing if m]
+    usable = [name for name, m in missing if not m]
     rows = []
     units = [(r, j, name) for r, j in settings for name in usable]
     cache: dict[Any, Simulation] = {}
@@ -768,15 +759,6 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
     save_figure(fig, out, dpi=120, bbox_inches="tight")
 
 
-def write_outputs(rows: Sequence[Mapping[str, Any]], out: Path, curves: Any) -> None:
-    """optimality.csv and optimality.png in ``out``, and optimality_curves.png when
-    ``curves`` names the runs to draw beside them."""
-    write_csv(out / "optimality.csv", CSV_COLUMNS, rows)
-    plot(rows, out=out / "optimality.png")
-    if curves:
-        plot_beside_curves(rows, curves, out / "optimality_curves.png")
-
-
 def read_csvs(paths: Sequence[Path]) -> list[dict[str, str]]:
     """The rows of optimality.csv files written by earlier runs (``--from-csv``).
 
@@ -883,7 +865,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("nothing to do: every reading was skipped", file=sys.stderr)
         return 1
     with write_errors(parser):
-        write_outputs(rows, args.out, args.curves)
+        write_csv(args.out / "optimality.csv", CSV_COLUMNS, rows)
+        plot(rows, out=args.out / "optimality.png")
+        if args.curves:
+            plot_beside_curves(rows, args.curves, args.out / "optimality_curves.png")
     if args.from_csv:
         print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
         return 0

@@ -123,8 +123,5 @@ def run_choices(spec: dict[str, Any]) -> dict[str, str]:
     spec : a run's ``spec.json`` content (its ``task`` and ``agent`` sections); a field missing
     from an older run reads as the behaviour it had then (`CHOICES`).
     """
-    out = {}
-    for name, section, field, before in CHOICES:
-        value = spec.get(section, {}).get(field)
-        out[name] = before if value is None else str(value)
-    return out
+    return {name: before if (value := spec.get(section, {}).get(field)) is None else str(value)
+            for name, section, field, before in CHOICES}

@@ -304,11 +304,9 @@ def bootstrap_intervals(values: np.ndarray, level: float, reps: int,
     cut = int(0.25 * n)
     stats_ = (draws.mean(axis=1), draws[:, cut:n - cut].mean(axis=1))
     q = 100.0 * np.array([(1.0 - level) / 2.0, (1.0 + level) / 2.0])
-    out = []
-    for point, drawn in zip((values.mean(), iqm(values)), stats_, strict=True):
-        low, high = np.percentile(drawn, q)
-        out.append((float(point), float(low), float(high)))
-    return out[0], out[1]
+    mean, iqm_ = ((float(point), *map(float, np.percentile(drawn, q)))
+                  for point, drawn in zip((values.mean(), iqm(values)), stats_, strict=True))
+    return mean, iqm_
 
 
 def reading_settings(reading: Reading) -> dict[tuple[str, str], str | list[str]]:
@@ -327,15 +325,12 @@ def reading_settings(reading: Reading) -> dict[tuple[str, str], str | list[str]]
             values.append(args[i])
             i += 1
         if flag == "--task":
-            for pair in values:
-                key, _, text = pair.partition("=")
-                out[("task", key)] = text
-        elif values:
-            out[("agent", flag[2:].replace("-", "_"))] = values[0] if len(values) == 1 else values
-        elif flag.startswith("--no-"):  # a switch turned off (argparse.BooleanOptionalAction)
-            out[("agent", flag[5:].replace("-", "_"))] = "False"
-        else:  # a switch turned on, e.g. --batch-norm
-            out[("agent", flag[2:].replace("-", "_"))] = "True"
+            out.update((("task", key), text) for key, _, text in (v.partition("=") for v in values))
+            continue
+        # a switch: --flag-name on (e.g. --batch-norm), --no-flag-name off (BooleanOptionalAction)
+        off = not values and flag.startswith("--no-")
+        out[("agent", flag[5 if off else 2:].replace("-", "_"))] = (
+            (values[0] if len(values) == 1 else values) if values else str(not off))
     return out
 
 
@@ -357,13 +352,9 @@ def _defaults() -> dict[tuple[str, str], Any]:
     from ddpg_her.config import AgentConfig
     from envs.spec import TaskSpec
 
-    out = {}
-    for section, cls in (("task", TaskSpec), ("agent", AgentConfig)):
-        for f in dataclasses.fields(cls):
-            if f.default is not dataclasses.MISSING:
-                value = f.default
-                out[(section, f.name)] = value.value if isinstance(value, enum.Enum) else value
-    return out
+    return {(section, f.name): f.default.value if isinstance(f.default, enum.Enum) else f.default
+            for section, cls in (("task", TaskSpec), ("agent", AgentConfig))
+            for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}
 
 
 def reading_mismatches(reading: Reading, spec: dict[str, Any]) -> list[str]:
@@ -648,10 +639,7 @@ def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
 
 
 def _fmt(stat: Interval | None) -> str:
-    if stat is None:
-        return "-"
-    m, lo, hi = stat
-    return f"{m:.1f} [{lo:.1f}, {hi:.1f}]"
+    return "-" if stat is None else "{:.1f} [{:.1f}, {:.1f}]".format(*stat)
 
 
 def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence[str],
@@ -701,11 +689,8 @@ def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence
               "The comparisons whose settings differ in more than the goal region (per reading: "
               "the settings each compares depend on which were run).", "",
               "| claim | reading | confounds |", "|---|---|---|"]
-    confounded = [r for r in rows if r.confounds]
-    for r in confounded:
-        lines.append(f"| {r.claim} | {r.reading} | {'; '.join(r.confounds)} |")
-    if not confounded:
-        lines.append("| (none) | | |")
+    lines += [f"| {r.claim} | {r.reading} | {'; '.join(r.confounds)} |" for r in rows
+              if r.confounds] or ["| (none) | | |"]
     lines += ["", f"## Levels at {budget:,} episodes", "",
               f"Each seed's mean over its last {LAST_SESSIONS} test sessions at or below the "
               "budget, then over seeds.", "",
@@ -719,13 +704,11 @@ def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence
     lines += ["", worth_note + ".", "", "## Verdict details", "",
               "| claim | reading | Student-t | bootstrap mean | bootstrap IQM |",
               "|---|---|---|---|---|"]
-    for r in rows:
-        if r.t is Verdict.NOT_RUN:
-            lines.append(f"| {r.claim} | {r.reading} | not run: {r.detail_t} | - | - |")
-            continue
-        lines.append(f"| {r.claim} | {r.reading} | {word(r.t, r.partial)}: {r.detail_t} | "
-                     f"{word(r.boot_mean)}: {r.detail_boot_mean} | "
-                     f"{word(r.boot_iqm)}: {r.detail_boot_iqm} |")
+    lines += [f"| {r.claim} | {r.reading} | not run: {r.detail_t} | - | - |"
+              if r.t is Verdict.NOT_RUN else
+              f"| {r.claim} | {r.reading} | {word(r.t, r.partial)}: {r.detail_t} | "
+              f"{word(r.boot_mean)}: {r.detail_boot_mean} | "
+              f"{word(r.boot_iqm)}: {r.detail_boot_iqm} |" for r in rows]
     lines += ["", "Figures: `curves.png` (numbers in `curves.csv`)"
               + (", `worth_reaching.png`" if any(c.worth for c in cells) else "")
               + "; tables: `verdicts.csv`, `finals.csv`."]

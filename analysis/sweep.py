@@ -134,20 +134,12 @@ def parse_setting(text: str) -> tuple[str, int]:
     return region, int(joints)
 
 
-def units_for(settings: Sequence[tuple[str, int]], seeds: int, root: Path,
-              episodes: int) -> list[Unit]:
-    return [Unit(region, joints, tuple(range(seeds)), root, episodes)
-            for region, joints in settings]
-
-
 def child_env(threads: int) -> dict[str, str]:
     """This process's environment with every BLAS and OpenMP pool of a child capped at
     ``threads``: concurrent trainers that each start one pool per core oversubscribe the
     machine (numpy's OpenBLAS in the env's clearance check ran 20x slower so on 2 cores)."""
-    env = dict(os.environ)
-    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        env[name] = str(threads)
-    return env
+    return {**os.environ, **dict.fromkeys(
+        ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"), str(threads))}
 
 
 PR_SET_PDEATHSIG = 1
@@ -541,7 +533,6 @@ def run_one_process(units: Sequence[Unit], args: argparse.Namespace, threads: in
 def busy(unit: Unit) -> bool:
     """Whether another live process trains one of ``unit``'s run folders: it holds the
     folder's lock (`ddpg_her.runfolder.RunFolder.lock`), whatever its command line or cwd."""
-
     return any(RunFolder(unit.run_dir(seed)).holder() is not None for seed in unit.seeds)
 
 
@@ -570,20 +561,17 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
     problems = []
     for where, args in (("its reading's arguments", unit.train_args),
                         ("the arguments after --", extra)):
-        for flag, dest in option_dests(parser, args):
-            if dest in STUDY_FLAGS:
-                problems.append(f"{unit.name}: {flag} in {where}: the study sets it for every "
-                                "unit (use the study's own option, or drop it)")
+        problems += [f"{unit.name}: {flag} in {where}: the study sets it for every unit (use "
+                     "the study's own option, or drop it)"
+                     for flag, dest in option_dests(parser, args) if dest in STUDY_FLAGS]
         problems += [f"{unit.name}: --task {key}=... in {where}: the study sets it for every "
                      "unit (its setting)" for key in task_keys(args)
                      if key in ("region", "n_joints")]
-    problems += [f"{unit.name}: {flag} after --: the unit's reading sets it "
-                 f"({' '.join(unit.train_args)})"
-                 for flag in overrides(parser, unit.train_args, extra)]
     own_task = task_keys(unit.train_args)
-    problems += [f"{unit.name}: --task {key}=... after --: the unit's reading sets it "
-                 f"({' '.join(unit.train_args)})" for key in task_keys(extra) if key in own_task]
-    return problems
+    return problems + [
+        f"{unit.name}: {flag} after --: the unit's reading sets it ({' '.join(unit.train_args)})"
+        for flag in [*overrides(parser, unit.train_args, extra),
+                     *(f"--task {key}=..." for key in task_keys(extra) if key in own_task)]]
 
 
 def unit_problems(units: Sequence[Unit], extra: Sequence[str],
@@ -695,24 +683,12 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
                 else unit.status(seed)
             print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
                   f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
-    runs = f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
-    if args.one_process:
-        command = one_process_command("ROOT/logs/one-process-TIME.json", threads, args)
-        print(f"{runs}, the unfinished ones in one process: python "
-              f"{' '.join(command[1:])}", file=sys.stderr)
-    else:
-        print(f"{runs} (one process each)", file=sys.stderr)
+    command = one_process_command("ROOT/logs/one-process-TIME.json", threads, args)
+    print(f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
+          + (f", the unfinished ones in one process: python {' '.join(command[1:])}"
+             if args.one_process else " (one process each)"), file=sys.stderr)
     if args.project:
         print_projection(units, args, threads, extra)
-
-
-def unit_config(unit: Unit, extra: Sequence[str]) -> Any:
-    """``unit``'s agent configuration (`ddpg_her.AgentConfig`), as ``ddpg_her.train`` reads its
-    command line with ``extra``."""
-    from ddpg_her import train
-
-    return train.request(train.parse_args(train.make_parser(), unit.run_args(extra)),
-                         resume=True).config
 
 
 def projected_seconds(walls: Sequence[tuple[int, float]], every: int, episodes: int) -> float:
@@ -847,29 +823,30 @@ def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     return spent, walls
 
 
-def layout(unit: Unit) -> tuple:
-    """What makes two units' processes cost alike: the agents they stack (joints, seeds) and
-    their own arguments; not the region (goals cost alike to draw)."""
-    return unit.joints, len(unit.seeds), unit.train_args
-
-
 def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: int,
                      extra: Sequence[str]) -> float:
     """Print the projected wall time (s) of the real run of the unfinished units, and return
     it: by default ("quick") by `EpisodeCosts`, timed on 2 episodes of one process per
-    distinct `layout` (with ``--one-process``, of the one process), run one at a time as the
+    distinct layout (with ``--one-process``, of the one process), run one at a time as the
     real command would run them, then scheduled on --workers (`makespan`); with ``--project
     full``, then by training the first two test intervals of every unit
     (`projected_seconds`), its cost by the quick model printed first."""
     import dataclasses
 
+    from ddpg_her import train
+
     todo = [u for u in units if u.pending()]
     if not todo:
         print("projection: every unit has finished; nothing to run", file=sys.stderr)
         return 0.0
-    configs = [unit_config(u, extra) for u in todo]
+    # each unit's AgentConfig as ddpg_her.train reads its command line
+    configs = [train.request(train.parse_args(train.make_parser(), u.run_args(extra)),
+                             resume=True).config for u in todo]
     done = [u.episodes_done() // len(u.seeds) for u in todo]
-    keys = [("all",) if args.one_process else layout(u) for u in todo]
+    # a layout: what makes two units' processes cost alike, the agents they stack (joints,
+    # seeds) and their own arguments; not the region (goals cost alike to draw)
+    keys = [("all",) if args.one_process else (u.joints, len(u.seeds), u.train_args)
+            for u in todo]
     reps = list(dict.fromkeys(keys))
     timed = [dataclasses.replace(u, episodes=2) for u in
              (todo if args.one_process else [todo[keys.index(k)] for k in reps])]
@@ -981,7 +958,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = [s for s in settings if s[1] == args.part]
         if not settings:
             parser.error(f"--part {args.part}: no setting of the grid has {args.part} joints")
-    units = units_for(settings, args.seeds, args.out, args.episodes)
+    units = [Unit(r, j, tuple(range(args.seeds)), args.out, args.episodes) for r, j in settings]
     if args.dry_run:
         dry_run(units, args, threads, extra)
         return 0
