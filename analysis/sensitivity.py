@@ -384,12 +384,6 @@ def reading_mismatches(reading: Reading, spec: dict[str, Any]) -> list[str]:
     return problems
 
 
-def reading_of(run: Run, root: Path) -> str | None:
-    """The reading folder a run lies in below ``root`` (None: not in ROOT/<reading>/...)."""
-    parts = run.path.resolve().relative_to(root.resolve()).parts
-    return parts[0] if len(parts) >= 2 else None
-
-
 def group_runs(root: Path, known: Mapping[str, Reading] | None = None,
                ) -> dict[str, dict[tuple[str, int], list[Run]]]:
     """The runs with evaluations below ``root``, by reading folder and (region, joints).
@@ -406,9 +400,10 @@ def group_runs(root: Path, known: Mapping[str, Reading] | None = None,
     out: dict[str, dict[tuple[str, int], list[Run]]] = {}
     first: dict[str, tuple[Run, dict[str, str]]] = {}
     for run in find_runs([root]):
-        reading = reading_of(run, root)
-        if reading is None or not len(run.episode):
+        parts = run.path.resolve().relative_to(root.resolve()).parts  # <reading>/.../run
+        if len(parts) < 2 or not len(run.episode):
             continue
+        reading = parts[0]
         if reading in known:
             problems = reading_mismatches(known[reading], run.spec)
             if problems:
@@ -439,10 +434,9 @@ def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level:
         short.append(f"{len(runs)} of {seeds} seeds")
     if curves.end < budget:
         short.append(f"{curves.end:,} of {budget:,} episodes")
-    t = student_t(level)(values, PERCENT)
-    boot_mean, boot_iqm = bootstrap_intervals(values, level, reps, boot_seed)
     return Cell(reading, runs[0].region, runs[0].joints, curves.end,
-                tuple(float(v) for v in values), t, boot_mean, boot_iqm, "; ".join(short))
+                tuple(float(v) for v in values), student_t(level)(values, PERCENT),
+                *bootstrap_intervals(values, level, reps, boot_seed), "; ".join(short))
 
 
 def cut_curves(runs: Sequence[Run], budget: int) -> Curves:

@@ -22,14 +22,16 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import itertools
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -48,7 +50,7 @@ GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
 """Named grids of (region, joints) settings."""
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class Unit:
     """One training process: a setting and the seeds it trains together.
 
@@ -236,8 +238,7 @@ class EpisodeBar:
                    for i, u in enumerate(self.units))
         if done > self.bar.n:
             self.bar.update(done - self.bar.n)
-        ended = len(self.ended) + len(self.failed)
-        self.bar.set_postfix_str(f"{ended}/{len(self.units)} units"
+        self.bar.set_postfix_str(f"{len(self.ended) + len(self.failed)}/{len(self.units)} units"
                                  + (f", {len(self.failed)} FAILED" if self.failed else ""),
                                  refresh=False)
 
@@ -317,9 +318,8 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1, timeout=PROGRESS_POLL_S)
                 bar.refresh()
-                if not done:
-                    continue
-                failed += bar.finish(pending.pop(done[0]), ray.get(done[0]))
+                if done:
+                    failed += bar.finish(pending.pop(done[0]), ray.get(done[0]))
         finally:
             bar.close()
         return failed
@@ -728,7 +728,7 @@ warm-up episode and its test session of one episode per agent, then a learning e
 its session."""
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class EpisodeCosts:
     """The stated model of a training process's wall time (s): ``start`` (imports, envs,
     networks) + every episode one ``rollout`` (one episode of each agent of the process) +
@@ -766,9 +766,6 @@ def projection_folder() -> Path:
     """A new temporary folder for a projection's timed processes, named with this process's
     id; the folders of projections whose process has ended (killed before it could delete
     its own) are deleted first."""
-    import shutil
-    import tempfile
-
     for old in Path(tempfile.gettempdir()).glob(f"{PROJECTION_PREFIX}*-*"):
         pid = old.name[len(PROJECTION_PREFIX):].partition("-")[0]
         try:
@@ -790,9 +787,6 @@ def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     (wall seconds spent, each unit's first seed's eval ``wall_s``). The folder is deleted
     afterwards, also on SIGTERM or Ctrl-C; a process that failed is named with its log's last
     line before (not a path to a deleted log)."""
-    import dataclasses
-    import shutil
-
     tmp = projection_folder()
     timed = [dataclasses.replace(u, root=tmp / f"unit{i}") for i, u in enumerate(units)]
     previous = signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt))
@@ -831,8 +825,6 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     real command would run them, then scheduled on --workers (`makespan`); with ``--project
     full``, then by training the first two test intervals of every unit
     (`projected_seconds`), its cost by the quick model printed first."""
-    import dataclasses
-
     from ddpg_her import train
 
     todo = [u for u in units if u.pending()]
@@ -904,7 +896,6 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
 def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
-    process = backend_args(args)
     refuse_problems(units, extra, args)
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
@@ -918,7 +909,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     try:  # Ctrl-C: the runners said so in one line and stopped their processes
         if args.one_process:
             return run_one_process(todo, args, threads, extra)
-        extra = [*extra, *process]
+        extra = [*extra, *backend_args(args)]
         if args.ray_address:
             failed = run_ray(todo, args.ray_address, threads, extra, args.device)
         else:
