@@ -33,13 +33,12 @@ class Reading:
 READING_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 """Allowed reading names."""
 
-TEXT = Kind("text (a string)", lambda v: isinstance(v, str))
 FIELDS = kinds(
     (Kind(f"a name matching {READING_NAME.pattern} (it names a folder)",
           lambda v: READING_NAME.fullmatch(v)), "name"),
     (Kind("a list of ddpg_her.train arguments (strings)", lambda v: isinstance(v, list | tuple)
           and all(isinstance(a, str) for a in v), tuple), "args"),
-    (TEXT, "paper", "ours"))
+    (Kind("text (a string)", lambda v: isinstance(v, str)), "paper", "ours"))
 """The reading as a gate record (`ur5kin.checks.check_fields`)."""
 
 READINGS: dict[str, Reading] = {r.name: r for r in (

@@ -35,6 +35,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
+from analysis.outputs import check_folder, usage_errors
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.config import Parser
@@ -450,8 +451,6 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
         parser.error("--project times the units on this machine, not on a Ray cluster; drop "
                      "--ray-address")
     if not args.dry_run and getattr(args, "collect", None) is None:  # before any unit starts
-        from analysis.outputs import check_folder, usage_errors
-
         problem = args.ray_address and ray_address_problem(args.ray_address)
         if problem:
             parser.error(f"--ray-address {args.ray_address}: {problem}")
