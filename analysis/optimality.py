@@ -30,14 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import (
-    check_files,
-    pyplot,
-    save_figure,
-    usage_errors,
-    write_csv,
-    write_errors,
-)
+from analysis.outputs import check_files, pyplot, save_figure, usage_errors, write_csv, write_errors
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import missing_fields, task_fields
 from analysis.sweep import parse_setting

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis import sweep
 from analysis.curves import CSV_COLUMNS as SETTING_CURVE_COLUMNS
 from analysis.curves import curve_rows as setting_curve_rows
 from analysis.outputs import (
@@ -65,24 +66,7 @@ from analysis.report import (
     rule_lines,
     student_t,
 )
-from analysis.runs import (
-    CONFIDENCE,
-    LEVEL,
-    PERCENT,
-    Group,
-    Run,
-    find_runs,
-)
-from analysis.sweep import (
-    HelpFormatter,
-    Unit,
-    add_execution_arguments,
-    check_execution_arguments,
-    dry_run,
-    execute,
-    parse_setting,
-    refuse_problems,
-)
+from analysis.runs import CONFIDENCE, LEVEL, PERCENT, Group, Run, find_runs
 from ddpg_her.config import Parser
 from ddpg_her.units import split_passthrough
 from ur5kin.checks import COUNT, integer, known_fields
@@ -194,13 +178,13 @@ def missing_task_fields(reading: Reading, extra: Sequence[str] = ()) -> list[str
 
 
 def units_for(readings: Sequence[Reading], settings: Sequence[tuple[str, int]], seeds: int,
-              root: Path, episodes: int) -> list[Unit]:
+              root: Path, episodes: int) -> list[sweep.Unit]:
     """One unit per reading and setting, reading-major."""
-    return [Unit(region, joints, tuple(range(seeds)), root / r.name, episodes, r.args, r.name)
+    return [sweep.Unit(region, joints, tuple(range(seeds)), root / r.name, episodes, r.args, r.name)
             for r in readings for region, joints in settings]
 
 
-def collect(units: Sequence[Unit], dest: Path) -> tuple[int, list[str]]:
+def collect(units: Sequence[sweep.Unit], dest: Path) -> tuple[int, list[str]]:
     """Copy every finished unit's `COLLECTED_FILES` (and its reading.json) to
     ``dest/runs/<reading>/<region>-j<joints>/s<seed>``.
 
@@ -808,7 +792,7 @@ def report_main(argv: Sequence[str]) -> int:
         description="Judge the paper's claims for every reading below ROOT (ROOT/<reading>/"
                     "<region>-j<joints>/s<seed>, e.g. runs/sensitivity or a --collect "
                     "DEST/runs) and write report.md, verdicts.csv, finals.csv, curves.png/csv.",
-        formatter_class=HelpFormatter)
+        formatter_class=sweep.HelpFormatter)
     parser.add_argument("root", type=Path, metavar="ROOT", help="the study's runs root")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder of the report's files (default: ROOT)")
@@ -854,10 +838,11 @@ def add_study_arguments(parser: argparse.ArgumentParser, settings: Sequence[tupl
     """The flags of a study of readings x settings (this one, `analysis.algorithms`): the
     settings, `analysis.sweep`'s execution flags at the study's budget, and ``--collect``;
     ``what`` names the study's readings in the help."""
-    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
+    parser.add_argument("--setting", type=sweep.parse_setting, action="append",
+                        metavar="REGION:JOINTS",
                         help="a (region, joints) setting, joints in 2..6; repeatable (default: "
                              + ", ".join(f"{r}:{j}" for r, j in settings) + ")")
-    add_execution_arguments(parser, default_out, unit_word="unit")
+    sweep.add_execution_arguments(parser, default_out, unit_word="unit")
     parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
     parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
                         help="train nothing: copy each finished unit's spec.json and eval.csv to "
@@ -874,20 +859,20 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
     """What a study's command line asks of the units of ``readings`` x (``args.setting`` or
     ``settings``): a dry run, ``--collect``, or training them with each reading recorded
     (`write_reading`) in the root."""
-    threads = check_execution_arguments(parser, args)
+    threads = sweep.check_execution_arguments(parser, args)
     if args.collect is not None:
         with usage_errors(parser):
             check_folder(args.collect / "runs", "--collect")
     units = units_for(readings, args.setting or settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        dry_run(units, args, threads, extra)
+        sweep.dry_run(units, args, threads, extra)
         return 0
     if args.collect is None:
-        refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
+        sweep.refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
         with usage_errors(parser, ValueError):
             for reading in readings:
                 write_reading(args.out, reading)
-        return execute(units, args, threads, extra, unit_word="units")
+        return sweep.execute(units, args, threads, extra, unit_word="units")
     root = args.collect / "runs"
     with usage_errors(parser, ValueError), write_errors(parser), \
             unless_replacing(args.force, f"--collect {args.collect}"):  # nothing half-written
@@ -912,7 +897,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                "own). 'python -m analysis.sensitivity report --help' explains the report. "
                "Readings: " + "; ".join(f"{r.name}: {' '.join(r.args) or '(defaults)'}"
                                         for r in READINGS.values()),
-        formatter_class=HelpFormatter)
+        formatter_class=sweep.HelpFormatter)
     parser.add_argument("--readings", nargs="+", default=None, metavar="NAME",
                         help="readings to run (default: the built-in ones, "
                              f"{', '.join(READINGS)}, and every --reading/--readings-file one)")
