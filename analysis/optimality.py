@@ -70,18 +70,16 @@ to this (rad, wrapped)."""
 CHUNK = 2048
 """Most copies rolled out at once (memory: the history of a step is (21, B, 18) floats)."""
 
-CSV_COLUMNS = ("region", "joints", "reading", "goals", "gamma", "share_worth", "ci_low",
-               "ci_high", "share_reachable", "share_worth_if_reachable", "mean_gap",
-               "mean_best_reach_return", "mean_stay_return", "mean_zero_return",
-               "mean_branches", "grid_per_joint", "share_worth_grid", "agreement_grid",
-               "seed", "seconds", "action_penalty_unit", "action_weight",
-               "reward_type", "contact_model", "held_joints", "start_q")
+CSV_COLUMNS = ("region", "joints", "reading", "goals", "gamma", "share_worth", "ci_low", "ci_high",
+               "share_reachable", "share_worth_if_reachable", "mean_gap", "mean_best_reach_return",
+               "mean_stay_return", "mean_zero_return", "mean_branches", "grid_per_joint",
+               "share_worth_grid", "agreement_grid", "seed", "seconds", "action_penalty_unit",
+               "action_weight", "reward_type", "contact_model", "held_joints", "start_q")
 """Columns of the CSV: one row per region x joints x reading. Shares in [0, 1] with the
 :data:`CONFIDENCE` Wilson interval on ``share_worth``; returns are discounted returns (reward
-units); ``mean_gap`` is the mean over goals with both of (best reaching return - best
-non-reaching stay/zero return). The ``*_grid`` columns hold the :func:`brute_force` check (the
-share it finds worth reaching, and the share of goals on which both decisions agree), empty when
-it was not run."""
+units); ``mean_gap`` is the mean over goals with both of (best reaching return - best non-reaching
+stay/zero return). The ``*_grid`` columns hold the :func:`brute_force` check (the share it finds
+worth reaching, and the share of goals on which both decisions agree), empty when it was not run."""
 
 
 # ---------------------------------------------------------------------- candidates

@@ -63,8 +63,7 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
                  "along the plane), impermeable to a stated depth; all else the defaults"),
     Reading("gauss02_nowarmup",
             ("--exploration", "gaussian", "--exploration-rate", "0.2", "--warmup-episodes", "0"),
-            paper="Table I: exploration rate nu = 0.01, its meaning not stated; no warm-up "
-                  "stated",
+            paper="Table I: exploration rate nu = 0.01, its meaning not stated; no warm-up stated",
             ours="Gaussian noise of std 0.2 in actor units (0.63 rad), no warm-up episodes; "
                  "all else the defaults"),
     Reading("lillicrap_nets", ("--batch-norm", "--critic-l2", "0.01"),

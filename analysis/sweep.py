@@ -363,13 +363,12 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
     parser.add_argument("--env-backend", choices=("numpy", "batched", "program"),
                         default="numpy",
-                        help="the training processes' env backend (ddpg_her.train "
-                             "--env-backend): 'batched' steps the envs of all agents of a "
-                             "process whose tasks differ only in their goals in one compiled "
-                             "call, the same goals, trajectories equal to rounding; "
-                             "'program', the training program (ddpg_her.program: all agents "
-                             "of a process as one stack on --device; see --program) "
-                             "(default: numpy, one env per agent)")
+                        help="the training processes' env backend (ddpg_her.train --env-backend): "
+                             "'batched' steps the envs of all agents of a process whose tasks "
+                             "differ only in their goals in one compiled call, the same goals, "
+                             "trajectories equal to rounding; 'program', the training program "
+                             "(ddpg_her.program: all agents of a process as one stack on --device; "
+                             "see --program) (default: numpy, one env per agent)")
     parser.add_argument("--program", action="store_true",
                         help="the training program for every unfinished unit in one process: "
                              "--one-process --env-backend program (the whole grid, or --part, "
@@ -388,17 +387,16 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                         help="print one line per run (status, folder, command) and exit")
     parser.add_argument("--project", nargs="?", const="quick", choices=("quick", "full"),
                         default=None,
-                        help="with --dry-run: print the projected wall time (s and h) of the "
-                             "run. 'quick' (the flag alone): each distinct process layout "
-                             "(joint count, seeds, own arguments), one at a time, trains 2 "
-                             "episodes (a warm-up and a learning episode of 25 updates, each "
-                             "with a test session of 1 episode per agent) as the real command "
-                             "would run it, in a temporary folder deleted afterwards, scaled by "
-                             "a stated model, its processes run --workers at a time without "
-                             "slowing each other (seconds to a minute); 'full': then also train "
-                             "the first two test intervals (2 x --eval-every episodes) of every "
-                             "unfinished unit, its cost by the quick model printed before it "
-                             "starts (about 1 %% of the paper's run)")
+                        help="with --dry-run: print the projected wall time (s and h) of the run. "
+                             "'quick' (the flag alone): each distinct process layout (joint count, "
+                             "seeds, own arguments), one at a time, trains 2 episodes (a warm-up "
+                             "and a learning episode of 25 updates, each with a test session of 1 "
+                             "episode per agent) as the real command would run it, in a temporary "
+                             "folder deleted afterwards, scaled by a stated model, its processes "
+                             "run --workers at a time without slowing each other (seconds to a "
+                             "minute); 'full': then also train the first two test intervals (2 x "
+                             "--eval-every episodes) of every unfinished unit, its cost by the "
+                             "quick model printed before it starts (about 1 %% of the paper's run)")
 
 
 RAY_CONNECT_S = 5.0
@@ -421,8 +419,7 @@ def ray_address_problem(address: str) -> str | None:
     hostport = address.removeprefix("ray://")
     host, sep, port = hostport.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        return ("expected 'local', 'auto', HOST:PORT or ray://HOST:PORT (a port in "
-                "1..65535)")
+        return "expected 'local', 'auto', HOST:PORT or ray://HOST:PORT (a port in 1..65535)"
     try:
         with socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_CONNECT_S):
             return None
@@ -666,11 +663,10 @@ def refuse_problems(units: Sequence[Unit], extra: Sequence[str], args: argparse.
 
 def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str]) -> None:
-    """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
-    trains its unit), tag, setting, seed, folder and the unit's command (with
-    ``--one-process``: its arguments in the one ``ddpg_her.train_many`` process); then, with
-    ``--project``, `print_projection`. Units that could not start are refused first
-    (`refuse_problems`), as a real run would."""
+    """One line per run: status ('done', 'resume', 'new', or 'busy' while another process trains its
+    unit), tag, setting, seed, folder and the unit's command (with ``--one-process``: its arguments
+    in the one ``ddpg_her.train_many`` process); then, with ``--project``, `print_projection`. Units
+    that could not start are refused first (`refuse_problems`), as a real run would."""
     refuse_problems(units, extra, args)
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
@@ -722,9 +718,8 @@ scales the time of one update to each unit's ``--updates-per-episode``."""
 
 QUICK_ARGS = ("--warmup-episodes", "1", "--eval-every", "1", "--eval-episodes", "1",
               "--updates-per-episode", str(QUICK_UPDATES))
-"""Appended (last, so they win) to the quick projection's timed processes of 2 episodes: a
-warm-up episode and its test session of one episode per agent, then a learning episode and
-its session."""
+"""Appended (last, so they win) to the quick projection's timed processes of 2 episodes: a warm-up
+episode and its test session of one episode per agent, then a learning episode and its session."""
 
 
 @dataclasses.dataclass(frozen=True)
