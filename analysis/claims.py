@@ -150,9 +150,8 @@ def table(results: Path) -> list[dict[str, str]]:
                 else "1,000") + (" and success maps" if check.claim == CLAIMS[-1].name else "")
         if check.verdict is Verdict.NOT_RUN:
             ends = []
-        figure = check.detail + (f" (Welch p {check.p_value:.2g})"
-                                 if check.p_value is not None and check.p_value == check.p_value
-                                 else "")
+        figure = check.detail + (f" (Welch p {check.p_value:.2g})" if check.p_value is not None
+                                 and check.p_value == check.p_value else "")
         at = f" at {check.plateau_at:,}" if check.plateau_at else ""
         rows.append({"claim": check.claim, "section": section, "our figure": figure,
                      "rule": rule, "budget run": "-" if not ends else

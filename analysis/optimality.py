@@ -47,8 +47,7 @@ CONFIDENCE = 0.95
 
 READINGS: dict[str, dict[str, Any]] = {
     name: task_fields(reading.args) for name, reading in STUDY_READINGS.items()
-    if not reading.args or task_fields(reading.args)
-}
+    if not reading.args or task_fields(reading.args)}
 """The sensitivity study's readings (:data:`analysis.readings.READINGS`) that change the task,
 as TaskSpec fields over the defaults: ``ours`` (rad^2 action penalty, stopping contact),
 ``actor_penalty`` (eq. 2's ``|a|^2`` in the actor's units ``(a / pi)^2``), ``compliant`` (the
@@ -541,9 +540,8 @@ def brute_force(simulation: Simulation, task: Any | None = None,
         raise ValueError(f"per_joint must be an integer >= 2 with per_joint ** n_joints <= "
                          f"{BRUTE_MAX_COMMANDS}; got per_joint={per_joint!r}, n_joints={n}")
     commands, achieved, actions = _grid_rollout(_motion_key(task), int(per_joint))
-    N = len(simulation.goals)
     reach_best, hold_best = result.best_reach_return.copy(), result.best_hold_return.copy()
-    for i in range(N):
+    for i in range(len(simulation.goals)):
         ret, reached, _ = discounted_returns(task, achieved, simulation.goals[i], actions,
                                              float(gamma))
         if reached.any():

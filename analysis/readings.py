@@ -83,8 +83,7 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
 
 def task_fields(args: Sequence[str]) -> dict[str, Any]:
     """The TaskSpec fields that ``ddpg_her.train`` arguments set (their ``--task`` pairs)."""
-    return dict(task_option(value) for flag, value in itertools.pairwise(args)
-                if flag == "--task")
+    return dict(task_option(value) for flag, value in itertools.pairwise(args) if flag == "--task")
 
 
 def missing_fields(fields: Iterable[str]) -> list[str]:

@@ -74,9 +74,8 @@ from ur5kin.checks import COUNT, integer, known_fields
 # --- readings -----------------------------------------------------------------------------------
 
 
-SETTINGS: tuple[tuple[str, int], ...] = (
-    ("unconstrained", 2), ("unconstrained", 3), ("zheight", 3), ("closebox", 3), ("farbox", 3),
-    ("farbox", 6))
+SETTINGS: tuple[tuple[str, int], ...] = (("unconstrained", 2), ("unconstrained", 3), ("zheight", 3),
+                                         ("closebox", 3), ("farbox", 3), ("farbox", 6))
 """Default (region, joints) settings: one or more settings of each of the paper's claims.
 Far box 3 beside far box 6: the paper's far-box claim covers both, and only far box 3 compares
 with the 3-joint regions at one joint count (far box 6 against unconstrained 3 changes the
@@ -503,8 +502,7 @@ def verdicts(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, int]
         short = {c.setting: c.partial for c in cells if c.reading == reading}
         checks = [judge_claims(mine, fn) for fn in (student_t(level), boot(0), boot(1))]
         for a, b, c in zip(*checks, strict=True):
-            partial = [f"{r} {j}: {short[(r, j)]}" for r, j in needs[a.claim]
-                       if short.get((r, j))]
+            partial = [f"{r} {j}: {short[(r, j)]}" for r, j in needs[a.claim] if short.get((r, j))]
             per.setdefault(a.claim, []).append(VerdictRow(
                 a.claim, reading, a.verdict, b.verdict, c.verdict, a.detail, b.detail, c.detail,
                 "; ".join(partial) if a.verdict is not Verdict.NOT_RUN else "", a.p_value,
@@ -781,8 +779,7 @@ def _user_readings(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
             parser.error(f"--readings-file: {err}")
     clash = [r.name for r in user if r.name in READINGS and READINGS[r.name].args != r.args]
     if clash:
-        parser.error(f"reading(s) {clash} are built in with other arguments; choose another "
-                     "name")
+        parser.error(f"reading(s) {clash} are built in with other arguments; choose another name")
     return user
 
 
@@ -911,14 +908,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown reading(s) {unknown}; known: {', '.join(known)} (define one "
                      "with --reading NAME=ARGS)")
-    readings = []
-    for name in names:
-        lacking = missing_task_fields(known[name], extra)
-        if lacking:
-            print(f"reading {name}: this code's TaskSpec has no field {', '.join(lacking)}; "
-                  "skipped", file=sys.stderr)
-        else:
-            readings.append(known[name])
+    lacking = {name: missing_task_fields(known[name], extra) for name in names}
+    for name in (n for n in names if lacking[n]):
+        print(f"reading {name}: this code's TaskSpec has no field {', '.join(lacking[name])}; "
+              "skipped", file=sys.stderr)
+    readings = [known[n] for n in names if not lacking[n]]
     return run_study(parser, args, readings, SETTINGS, extra)
 
 

@@ -45,9 +45,7 @@ from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passt
 from ur5kin.checks import COUNT
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
-    "paper": PAPER_GRID,
-    "paper+tall": (*PAPER_GRID, ("farbox_tall", 3), ("farbox_tall", 6)),
-}
+    "paper": PAPER_GRID, "paper+tall": (*PAPER_GRID, ("farbox_tall", 3), ("farbox_tall", 6))}
 """Named grids of (region, joints) settings."""
 
 
@@ -269,8 +267,7 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
         while queue or running:
             while queue and len(running) < workers:
                 unit = queue.pop(0)
-                proc, log = start_unit(unit.command(threads, extra, device), unit.log_path,
-                                       threads)
+                proc, log = start_unit(unit.command(threads, extra, device), unit.log_path, threads)
                 running[proc] = (unit, log)
             for proc in [p for p in running if p.poll() is not None]:
                 unit, log = running.pop(proc)
@@ -361,8 +358,7 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
-    parser.add_argument("--env-backend", choices=("numpy", "batched", "program"),
-                        default="numpy",
+    parser.add_argument("--env-backend", choices=("numpy", "batched", "program"), default="numpy",
                         help="the training processes' env backend (ddpg_her.train --env-backend): "
                              "'batched' steps the envs of all agents of a process whose tasks "
                              "differ only in their goals in one compiled call, the same goals, "
@@ -674,8 +670,7 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
                                               args.device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
-            status = "busy" if busy(unit) and unit.status(seed) != "done" \
-                else unit.status(seed)
+            status = "busy" if busy(unit) and unit.status(seed) != "done" else unit.status(seed)
             print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
                   f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
     command = one_process_command("ROOT/logs/one-process-TIME.json", threads, args)
@@ -831,8 +826,7 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
     done = [u.episodes_done() // len(u.seeds) for u in todo]
     # a layout: what makes two units' processes cost alike, the agents they stack (joints,
     # seeds) and their own arguments; not the region (goals cost alike to draw)
-    keys = [("all",) if args.one_process else (u.joints, len(u.seeds), u.train_args)
-            for u in todo]
+    keys = [("all",) if args.one_process else (u.joints, len(u.seeds), u.train_args) for u in todo]
     reps = list(dict.fromkeys(keys))
     timed = [dataclasses.replace(u, episodes=2) for u in
              (todo if args.one_process else [todo[keys.index(k)] for k in reps])]
