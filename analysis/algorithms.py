@@ -15,7 +15,6 @@ last line) draws the curves and judges the paper's claims per algorithm.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -55,11 +54,9 @@ SETTINGS: tuple[tuple[str, int], ...] = (
     ("unconstrained", 3), ("zheight", 3), ("closebox", 3), ("farbox", 3))
 """The paper's regions with 3 joints: every region claim, one joint count (no confound)."""
 
-DEFAULT_OUT = Path("runs/algorithms")
-"""Default root of the study's run folders."""
 
-
-def make_parser() -> argparse.ArgumentParser:
+def main(argv: Sequence[str] | None = None) -> int:
+    argv, extra = split_passthrough(list(sys.argv[1:] if argv is None else argv))
     parser = Parser(
         prog="python -m analysis.algorithms", description=__doc__.split("\n\n")[0],
         epilog="Arguments after -- pass to every python -m ddpg_her.train (after the "
@@ -69,13 +66,7 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", choices=list(ALGORITHMS), default=list(ALGORITHMS),
                         metavar="NAME", help="algorithms to run, of " + ", ".join(ALGORITHMS)
                         + " (default: all)")
-    add_study_arguments(parser, SETTINGS, DEFAULT_OUT, "algorithm")
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    argv, extra = split_passthrough(list(sys.argv[1:] if argv is None else argv))
-    parser = make_parser()
+    add_study_arguments(parser, SETTINGS, Path("runs/algorithms"), "algorithm")
     args = parser.parse_args(argv)
     algos = [ALGORITHMS[name] for name in dict.fromkeys(args.algos)]
     return run_study(parser, args, algos, SETTINGS, extra)

@@ -15,21 +15,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from analysis import report
 from analysis.outputs import write_csv, write_errors, write_text
 from analysis.paper import CLAIMS, PAPER_EPISODES
 from analysis.plateau import plateau
-from analysis.report import (
-    Check,
-    Curves,
-    Verdict,
-    apart,
-    claim_settings,
-    fmt_interval,
-    judge_claims,
-    overall,
-    student_t,
-    welch_p,
-)
+from analysis.report import Check, Curves, Verdict
 from analysis.runs import PERCENT, find_runs, group_by_setting
 from ddpg_her.config import Parser
 
@@ -103,7 +93,7 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
     """The three claims of `EXTRA`, each comparing variants with the default far box 3 cut to
     the variant's budget (each Welch p named in the detail); a variant short of
     `EXTRA_EPISODES` gives *not judgeable* (what it shows so far is said, not judged)."""
-    interval, out = student_t(), []
+    interval, out = report.student_t(), []
     base = curves.get(("farbox", 3))
     for name, _, _, names in EXTRA:
         have = [n for n in names if n in variants]
@@ -118,13 +108,13 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
             b, v = interval(b_level, PERCENT), interval(v_level, PERCENT)
             against = {"sparse": "dense", "per": "uniform"}.get(n, "position")
             parts.append(f"at {end:,} episodes: far box 3 (position, dense, uniform) "
-                         f"{fmt_interval(b)}, {VARIANTS[n]} {fmt_interval(v)} "
+                         f"{report.fmt_interval(b)}, {VARIANTS[n]} {report.fmt_interval(v)} "
                          f"({len(v_level)} seeds; {n} vs {against}: Welch p "
-                         f"{welch_p(b_level, v_level):.2g})")
-            each.append(apart(b, v) if name != EXTRA[0][0] else
+                         f"{report.welch_p(b_level, v_level):.2g})")
+            each.append(report.apart(b, v) if name != EXTRA[0][0] else
                         Verdict.YES if v[2] < NEGLIGIBLE else Verdict.NO if v[1] >= NEGLIGIBLE
                         else Verdict.NOISE)
-        verdict = overall(each)
+        verdict = report.overall(each)
         short = min(variants[n].end for n in have) < EXTRA_EPISODES
         if short:
             parts.insert(0, f"runs short of {EXTRA_EPISODES:,} episodes; so far "
@@ -136,7 +126,7 @@ def judge_extra(curves: dict[tuple[str, int], Curves], variants: dict[str, Curve
 def table(results: Path) -> list[dict[str, str]]:
     """The sixteen claims' rows (keys: `COLUMNS`) from the results below ``results``."""
     curves, variants = load(results)
-    needs = claim_settings()
+    needs = report.claim_settings()
     checks, cut = [], {}
     for i, claim in enumerate(CLAIMS):
         # every setting a claim compares cut to the shortest one's budget: one budget per claim
@@ -144,7 +134,7 @@ def table(results: Path) -> list[dict[str, str]]:
         end = min((curves[k].end for k in keys), default=0)
         cut[claim.name] = {k: curves[k].until(end) for k in keys}
         plateaus = {k: plateau(c.episode, c.percent) for k, c in cut[claim.name].items()}
-        checks.append(judge_claims(cut[claim.name], plateaus=plateaus)[i])
+        checks.append(report.judge_claims(cut[claim.name], plateaus=plateaus)[i])
     checks += judge_extra(curves, variants)
     where = {c.name: (c.where, c.at_end) for c in CLAIMS} | {e[0]: (e[2], False) for e in EXTRA}
     rows = []
@@ -160,9 +150,8 @@ def table(results: Path) -> list[dict[str, str]]:
                 else "1,000") + (" and success maps" if check.claim == CLAIMS[-1].name else "")
         if check.verdict is Verdict.NOT_RUN:
             ends = []
-        figure = check.detail + (f" (Welch p {check.p_value:.2g})"
-                                 if check.p_value is not None and check.p_value == check.p_value
-                                 else "")
+        figure = check.detail + (f" (Welch p {check.p_value:.2g})" if check.p_value is not None
+                                 and check.p_value == check.p_value else "")
         at = f" at {check.plateau_at:,}" if check.plateau_at else ""
         rows.append({"claim": check.claim, "section": section, "our figure": figure,
                      "rule": rule, "budget run": "-" if not ends else
@@ -195,8 +184,7 @@ def block(rows: Sequence[dict[str, str]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = Parser(prog="python -m analysis.claims",
-                                     description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m analysis.claims", description=__doc__.split("\n\n")[0])
     parser.add_argument("--results", type=Path, default=Path("results"),
                         help="the committed results folder to read (default: results)")
     parser.add_argument("--out", type=Path, default=None,

@@ -30,14 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import (
-    check_files,
-    pyplot,
-    save_figure,
-    usage_errors,
-    write_csv,
-    write_errors,
-)
+from analysis.outputs import check_files, pyplot, save_figure, usage_errors, write_csv, write_errors
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import missing_fields, task_fields
 from analysis.sweep import parse_setting
@@ -54,8 +47,7 @@ CONFIDENCE = 0.95
 
 READINGS: dict[str, dict[str, Any]] = {
     name: task_fields(reading.args) for name, reading in STUDY_READINGS.items()
-    if not reading.args or task_fields(reading.args)
-}
+    if not reading.args or task_fields(reading.args)}
 """The sensitivity study's readings (:data:`analysis.readings.READINGS`) that change the task,
 as TaskSpec fields over the defaults: ``ours`` (rad^2 action penalty, stopping contact),
 ``actor_penalty`` (eq. 2's ``|a|^2`` in the actor's units ``(a / pi)^2``), ``compliant`` (the
@@ -67,8 +59,6 @@ EVALUATION_FIELDS = ("reward_type", "distance_weight", "action_weight", "action_
 """TaskSpec fields that change the reward or the episode end but not the motion: rollouts of two
 tasks that differ only here are the same, and one :class:`Simulation` serves both."""
 
-KIND_BRANCH, KIND_STAY, KIND_ZERO = "branch", "stay", "zero"
-
 DUPLICATE_TOL = 1e-6
 """Commands closer than this (rad, every joint, after wrapping) count as one IK branch."""
 
@@ -79,18 +69,16 @@ to this (rad, wrapped)."""
 CHUNK = 2048
 """Most copies rolled out at once (memory: the history of a step is (21, B, 18) floats)."""
 
-CSV_COLUMNS = ("region", "joints", "reading", "goals", "gamma", "share_worth", "ci_low",
-               "ci_high", "share_reachable", "share_worth_if_reachable", "mean_gap",
-               "mean_best_reach_return", "mean_stay_return", "mean_zero_return",
-               "mean_branches", "grid_per_joint", "share_worth_grid", "agreement_grid",
-               "seed", "seconds", "action_penalty_unit", "action_weight",
-               "reward_type", "contact_model", "held_joints", "start_q")
+CSV_COLUMNS = ("region", "joints", "reading", "goals", "gamma", "share_worth", "ci_low", "ci_high",
+               "share_reachable", "share_worth_if_reachable", "mean_gap", "mean_best_reach_return",
+               "mean_stay_return", "mean_zero_return", "mean_branches", "grid_per_joint",
+               "share_worth_grid", "agreement_grid", "seed", "seconds", "action_penalty_unit",
+               "action_weight", "reward_type", "contact_model", "held_joints", "start_q")
 """Columns of the CSV: one row per region x joints x reading. Shares in [0, 1] with the
 :data:`CONFIDENCE` Wilson interval on ``share_worth``; returns are discounted returns (reward
-units); ``mean_gap`` is the mean over goals with both of (best reaching return - best
-non-reaching stay/zero return). The ``*_grid`` columns hold the :func:`brute_force` check (the
-share it finds worth reaching, and the share of goals on which both decisions agree), empty when
-it was not run."""
+units); ``mean_gap`` is the mean over goals with both of (best reaching return - best non-reaching
+stay/zero return). The ``*_grid`` columns hold the :func:`brute_force` check (the share it finds
+worth reaching, and the share of goals on which both decisions agree), empty when it was not run."""
 
 
 # ---------------------------------------------------------------------- candidates
@@ -552,9 +540,8 @@ def brute_force(simulation: Simulation, task: Any | None = None,
         raise ValueError(f"per_joint must be an integer >= 2 with per_joint ** n_joints <= "
                          f"{BRUTE_MAX_COMMANDS}; got per_joint={per_joint!r}, n_joints={n}")
     commands, achieved, actions = _grid_rollout(_motion_key(task), int(per_joint))
-    N = len(simulation.goals)
     reach_best, hold_best = result.best_reach_return.copy(), result.best_hold_return.copy()
-    for i in range(N):
+    for i in range(len(simulation.goals)):
         ret, reached, _ = discounted_returns(task, achieved, simulation.goals[i], actions,
                                              float(gamma))
         if reached.any():
@@ -586,12 +573,11 @@ def check_overrides(overrides: Sequence[tuple[str, Any]], readings: Sequence[str
     ValueError
         Naming the key and what was expected.
     """
-    from ddpg_her.units import json_equal
+    from ddpg_her import units
     from envs.spec import TaskSpec
 
     known = [f.name for f in dataclasses.fields(TaskSpec)]
-    fields: dict[str, Any] = {}
-    for key, value in overrides:
+    for key, _ in overrides:
         if key not in known:
             raise ValueError(f"--task {key}: TaskSpec has no field {key!r}; its fields are "
                              f"{', '.join(known)}")
@@ -602,10 +588,8 @@ def check_overrides(overrides: Sequence[tuple[str, Any]], readings: Sequence[str
         if owners:
             raise ValueError(f"--task {key}: the reading(s) {', '.join(owners)} set it "
                              "themselves; drop it or choose other --readings")
-        if key in fields and not json_equal(fields[key], value):
-            raise ValueError(f"--task {key} given two values ({fields[key]!r}, {value!r}); "
-                             "give it once")
-        fields[key] = value
+    fields = units.task_fields("", None, overrides)  # refuses a key given two values
+    del fields["region"], fields["n_joints"]
     try:
         TaskSpec(**fields)
     except (TypeError, ValueError) as err:
@@ -628,14 +612,10 @@ def study(settings: Sequence[tuple[str, int]], readings: Sequence[str],
 
     from envs.spec import TaskSpec
 
-    skipped, usable = [], []
-    for name in readings:
-        missing = sorted(missing_fields(reading_fields(name)))
-        if missing:
-            skipped.append(f"reading {name!r} skipped: TaskSpec has no field(s) {missing} in "
-                           "this version")
-        else:
-            usable.append(name)
+    missing = [(name, sorted(missing_fields(reading_fields(name)))) for name in readings]
+    skipped = [f"reading {name!r} skipped: TaskSpec has no field(s) {m} in this version"
+               for name, m in missing if m]
+    usable = [name for name, m in missing if not m]
     rows = []
     units = [(r, j, name) for r, j in settings for name in usable]
     cache: dict[Any, Simulation] = {}
@@ -768,15 +748,6 @@ def plot_beside_curves(rows: Sequence[Mapping[str, Any]], roots: Sequence[Path],
     save_figure(fig, out, dpi=120, bbox_inches="tight")
 
 
-def write_outputs(rows: Sequence[Mapping[str, Any]], out: Path, curves: Any) -> None:
-    """optimality.csv and optimality.png in ``out``, and optimality_curves.png when
-    ``curves`` names the runs to draw beside them."""
-    write_csv(out / "optimality.csv", CSV_COLUMNS, rows)
-    plot(rows, out=out / "optimality.png")
-    if curves:
-        plot_beside_curves(rows, curves, out / "optimality_curves.png")
-
-
 def read_csvs(paths: Sequence[Path]) -> list[dict[str, str]]:
     """The rows of optimality.csv files written by earlier runs (``--from-csv``).
 
@@ -883,7 +854,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("nothing to do: every reading was skipped", file=sys.stderr)
         return 1
     with write_errors(parser):
-        write_outputs(rows, args.out, args.curves)
+        write_csv(args.out / "optimality.csv", CSV_COLUMNS, rows)
+        plot(rows, out=args.out / "optimality.png")
+        if args.curves:
+            plot_beside_curves(rows, args.curves, args.out / "optimality_curves.png")
     if args.from_csv:
         print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
         return 0

@@ -33,13 +33,12 @@ class Reading:
 READING_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 """Allowed reading names."""
 
-TEXT = Kind("text (a string)", lambda v: isinstance(v, str))
 FIELDS = kinds(
     (Kind(f"a name matching {READING_NAME.pattern} (it names a folder)",
           lambda v: READING_NAME.fullmatch(v)), "name"),
     (Kind("a list of ddpg_her.train arguments (strings)", lambda v: isinstance(v, list | tuple)
           and all(isinstance(a, str) for a in v), tuple), "args"),
-    (TEXT, "paper", "ours"))
+    (Kind("text (a string)", lambda v: isinstance(v, str)), "paper", "ours"))
 """The reading as a gate record (`ur5kin.checks.check_fields`)."""
 
 READINGS: dict[str, Reading] = {r.name: r for r in (
@@ -64,8 +63,7 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
                  "along the plane), impermeable to a stated depth; all else the defaults"),
     Reading("gauss02_nowarmup",
             ("--exploration", "gaussian", "--exploration-rate", "0.2", "--warmup-episodes", "0"),
-            paper="Table I: exploration rate nu = 0.01, its meaning not stated; no warm-up "
-                  "stated",
+            paper="Table I: exploration rate nu = 0.01, its meaning not stated; no warm-up stated",
             ours="Gaussian noise of std 0.2 in actor units (0.63 rad), no warm-up episodes; "
                  "all else the defaults"),
     Reading("lillicrap_nets", ("--batch-norm", "--critic-l2", "0.01"),
@@ -85,8 +83,7 @@ READINGS: dict[str, Reading] = {r.name: r for r in (
 
 def task_fields(args: Sequence[str]) -> dict[str, Any]:
     """The TaskSpec fields that ``ddpg_her.train`` arguments set (their ``--task`` pairs)."""
-    return dict(task_option(value) for flag, value in itertools.pairwise(args)
-                if flag == "--task")
+    return dict(task_option(value) for flag, value in itertools.pairwise(args) if flag == "--task")
 
 
 def missing_fields(fields: Iterable[str]) -> list[str]:
@@ -123,8 +120,5 @@ def run_choices(spec: dict[str, Any]) -> dict[str, str]:
     spec : a run's ``spec.json`` content (its ``task`` and ``agent`` sections); a field missing
     from an older run reads as the behaviour it had then (`CHOICES`).
     """
-    out = {}
-    for name, section, field, before in CHOICES:
-        value = spec.get(section, {}).get(field)
-        out[name] = before if value is None else str(value)
-    return out
+    return {name: before if (value := spec.get(section, {}).get(field)) is None else str(value)
+            for name, section, field, before in CHOICES}

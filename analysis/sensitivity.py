@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis import sweep
 from analysis.curves import CSV_COLUMNS as SETTING_CURVE_COLUMNS
 from analysis.curves import curve_rows as setting_curve_rows
 from analysis.outputs import (
@@ -65,24 +66,7 @@ from analysis.report import (
     rule_lines,
     student_t,
 )
-from analysis.runs import (
-    CONFIDENCE,
-    LEVEL,
-    PERCENT,
-    Group,
-    Run,
-    find_runs,
-)
-from analysis.sweep import (
-    HelpFormatter,
-    Unit,
-    add_execution_arguments,
-    check_execution_arguments,
-    dry_run,
-    execute,
-    parse_setting,
-    refuse_problems,
-)
+from analysis.runs import CONFIDENCE, LEVEL, PERCENT, Group, Run, find_runs
 from ddpg_her.config import Parser
 from ddpg_her.units import split_passthrough
 from ur5kin.checks import COUNT, integer, known_fields
@@ -90,9 +74,8 @@ from ur5kin.checks import COUNT, integer, known_fields
 # --- readings -----------------------------------------------------------------------------------
 
 
-SETTINGS: tuple[tuple[str, int], ...] = (
-    ("unconstrained", 2), ("unconstrained", 3), ("zheight", 3), ("closebox", 3), ("farbox", 3),
-    ("farbox", 6))
+SETTINGS: tuple[tuple[str, int], ...] = (("unconstrained", 2), ("unconstrained", 3), ("zheight", 3),
+                                         ("closebox", 3), ("farbox", 3), ("farbox", 6))
 """Default (region, joints) settings: one or more settings of each of the paper's claims.
 Far box 3 beside far box 6: the paper's far-box claim covers both, and only far box 3 compares
 with the 3-joint regions at one joint count (far box 6 against unconstrained 3 changes the
@@ -194,13 +177,13 @@ def missing_task_fields(reading: Reading, extra: Sequence[str] = ()) -> list[str
 
 
 def units_for(readings: Sequence[Reading], settings: Sequence[tuple[str, int]], seeds: int,
-              root: Path, episodes: int) -> list[Unit]:
+              root: Path, episodes: int) -> list[sweep.Unit]:
     """One unit per reading and setting, reading-major."""
-    return [Unit(region, joints, tuple(range(seeds)), root / r.name, episodes, r.args, r.name)
+    return [sweep.Unit(region, joints, tuple(range(seeds)), root / r.name, episodes, r.args, r.name)
             for r in readings for region, joints in settings]
 
 
-def collect(units: Sequence[Unit], dest: Path) -> tuple[int, list[str]]:
+def collect(units: Sequence[sweep.Unit], dest: Path) -> tuple[int, list[str]]:
     """Copy every finished unit's `COLLECTED_FILES` (and its reading.json) to
     ``dest/runs/<reading>/<region>-j<joints>/s<seed>``.
 
@@ -304,11 +287,9 @@ def bootstrap_intervals(values: np.ndarray, level: float, reps: int,
     cut = int(0.25 * n)
     stats_ = (draws.mean(axis=1), draws[:, cut:n - cut].mean(axis=1))
     q = 100.0 * np.array([(1.0 - level) / 2.0, (1.0 + level) / 2.0])
-    out = []
-    for point, drawn in zip((values.mean(), iqm(values)), stats_, strict=True):
-        low, high = np.percentile(drawn, q)
-        out.append((float(point), float(low), float(high)))
-    return out[0], out[1]
+    mean, iqm_ = ((float(point), *map(float, np.percentile(drawn, q)))
+                  for point, drawn in zip((values.mean(), iqm(values)), stats_, strict=True))
+    return mean, iqm_
 
 
 def reading_settings(reading: Reading) -> dict[tuple[str, str], str | list[str]]:
@@ -327,15 +308,12 @@ def reading_settings(reading: Reading) -> dict[tuple[str, str], str | list[str]]
             values.append(args[i])
             i += 1
         if flag == "--task":
-            for pair in values:
-                key, _, text = pair.partition("=")
-                out[("task", key)] = text
-        elif values:
-            out[("agent", flag[2:].replace("-", "_"))] = values[0] if len(values) == 1 else values
-        elif flag.startswith("--no-"):  # a switch turned off (argparse.BooleanOptionalAction)
-            out[("agent", flag[5:].replace("-", "_"))] = "False"
-        else:  # a switch turned on, e.g. --batch-norm
-            out[("agent", flag[2:].replace("-", "_"))] = "True"
+            out.update((("task", key), text) for key, _, text in (v.partition("=") for v in values))
+            continue
+        # a switch: --flag-name on (e.g. --batch-norm), --no-flag-name off (BooleanOptionalAction)
+        off = not values and flag.startswith("--no-")
+        out[("agent", flag[5 if off else 2:].replace("-", "_"))] = (
+            (values[0] if len(values) == 1 else values) if values else str(not off))
     return out
 
 
@@ -357,13 +335,9 @@ def _defaults() -> dict[tuple[str, str], Any]:
     from ddpg_her.config import AgentConfig
     from envs.spec import TaskSpec
 
-    out = {}
-    for section, cls in (("task", TaskSpec), ("agent", AgentConfig)):
-        for f in dataclasses.fields(cls):
-            if f.default is not dataclasses.MISSING:
-                value = f.default
-                out[(section, f.name)] = value.value if isinstance(value, enum.Enum) else value
-    return out
+    return {(section, f.name): f.default.value if isinstance(f.default, enum.Enum) else f.default
+            for section, cls in (("task", TaskSpec), ("agent", AgentConfig))
+            for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}
 
 
 def reading_mismatches(reading: Reading, spec: dict[str, Any]) -> list[str]:
@@ -393,12 +367,6 @@ def reading_mismatches(reading: Reading, spec: dict[str, Any]) -> list[str]:
     return problems
 
 
-def reading_of(run: Run, root: Path) -> str | None:
-    """The reading folder a run lies in below ``root`` (None: not in ROOT/<reading>/...)."""
-    parts = run.path.resolve().relative_to(root.resolve()).parts
-    return parts[0] if len(parts) >= 2 else None
-
-
 def group_runs(root: Path, known: Mapping[str, Reading] | None = None,
                ) -> dict[str, dict[tuple[str, int], list[Run]]]:
     """The runs with evaluations below ``root``, by reading folder and (region, joints).
@@ -415,9 +383,10 @@ def group_runs(root: Path, known: Mapping[str, Reading] | None = None,
     out: dict[str, dict[tuple[str, int], list[Run]]] = {}
     first: dict[str, tuple[Run, dict[str, str]]] = {}
     for run in find_runs([root]):
-        reading = reading_of(run, root)
-        if reading is None or not len(run.episode):
+        parts = run.path.resolve().relative_to(root.resolve()).parts  # <reading>/.../run
+        if len(parts) < 2 or not len(run.episode):
             continue
+        reading = parts[0]
         if reading in known:
             problems = reading_mismatches(known[reading], run.spec)
             if problems:
@@ -448,10 +417,9 @@ def make_cell(reading: str, runs: Sequence[Run], budget: int, seeds: int, level:
         short.append(f"{len(runs)} of {seeds} seeds")
     if curves.end < budget:
         short.append(f"{curves.end:,} of {budget:,} episodes")
-    t = student_t(level)(values, PERCENT)
-    boot_mean, boot_iqm = bootstrap_intervals(values, level, reps, boot_seed)
     return Cell(reading, runs[0].region, runs[0].joints, curves.end,
-                tuple(float(v) for v in values), t, boot_mean, boot_iqm, "; ".join(short))
+                tuple(float(v) for v in values), student_t(level)(values, PERCENT),
+                *bootstrap_intervals(values, level, reps, boot_seed), "; ".join(short))
 
 
 def cut_curves(runs: Sequence[Run], budget: int) -> Curves:
@@ -534,8 +502,7 @@ def verdicts(cells: Sequence[Cell], groups: Mapping[str, Mapping[tuple[str, int]
         short = {c.setting: c.partial for c in cells if c.reading == reading}
         checks = [judge_claims(mine, fn) for fn in (student_t(level), boot(0), boot(1))]
         for a, b, c in zip(*checks, strict=True):
-            partial = [f"{r} {j}: {short[(r, j)]}" for r, j in needs[a.claim]
-                       if short.get((r, j))]
+            partial = [f"{r} {j}: {short[(r, j)]}" for r, j in needs[a.claim] if short.get((r, j))]
             per.setdefault(a.claim, []).append(VerdictRow(
                 a.claim, reading, a.verdict, b.verdict, c.verdict, a.detail, b.detail, c.detail,
                 "; ".join(partial) if a.verdict is not Verdict.NOT_RUN else "", a.p_value,
@@ -648,10 +615,7 @@ def plot_worth(cells: Sequence[Cell], settings: Sequence[tuple[str, int]],
 
 
 def _fmt(stat: Interval | None) -> str:
-    if stat is None:
-        return "-"
-    m, lo, hi = stat
-    return f"{m:.1f} [{lo:.1f}, {hi:.1f}]"
+    return "-" if stat is None else "{:.1f} [{:.1f}, {:.1f}]".format(*stat)
 
 
 def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence[str],
@@ -701,11 +665,8 @@ def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence
               "The comparisons whose settings differ in more than the goal region (per reading: "
               "the settings each compares depend on which were run).", "",
               "| claim | reading | confounds |", "|---|---|---|"]
-    confounded = [r for r in rows if r.confounds]
-    for r in confounded:
-        lines.append(f"| {r.claim} | {r.reading} | {'; '.join(r.confounds)} |")
-    if not confounded:
-        lines.append("| (none) | | |")
+    lines += [f"| {r.claim} | {r.reading} | {'; '.join(r.confounds)} |" for r in rows
+              if r.confounds] or ["| (none) | | |"]
     lines += ["", f"## Levels at {budget:,} episodes", "",
               f"Each seed's mean over its last {LAST_SESSIONS} test sessions at or below the "
               "budget, then over seeds.", "",
@@ -719,13 +680,11 @@ def render(cells: Sequence[Cell], rows: Sequence[VerdictRow], readings: Sequence
     lines += ["", worth_note + ".", "", "## Verdict details", "",
               "| claim | reading | Student-t | bootstrap mean | bootstrap IQM |",
               "|---|---|---|---|---|"]
-    for r in rows:
-        if r.t is Verdict.NOT_RUN:
-            lines.append(f"| {r.claim} | {r.reading} | not run: {r.detail_t} | - | - |")
-            continue
-        lines.append(f"| {r.claim} | {r.reading} | {word(r.t, r.partial)}: {r.detail_t} | "
-                     f"{word(r.boot_mean)}: {r.detail_boot_mean} | "
-                     f"{word(r.boot_iqm)}: {r.detail_boot_iqm} |")
+    lines += [f"| {r.claim} | {r.reading} | not run: {r.detail_t} | - | - |"
+              if r.t is Verdict.NOT_RUN else
+              f"| {r.claim} | {r.reading} | {word(r.t, r.partial)}: {r.detail_t} | "
+              f"{word(r.boot_mean)}: {r.detail_boot_mean} | "
+              f"{word(r.boot_iqm)}: {r.detail_boot_iqm} |" for r in rows]
     lines += ["", "Figures: `curves.png` (numbers in `curves.csv`)"
               + (", `worth_reaching.png`" if any(c.worth for c in cells) else "")
               + "; tables: `verdicts.csv`, `finals.csv`."]
@@ -820,8 +779,7 @@ def _user_readings(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
             parser.error(f"--readings-file: {err}")
     clash = [r.name for r in user if r.name in READINGS and READINGS[r.name].args != r.args]
     if clash:
-        parser.error(f"reading(s) {clash} are built in with other arguments; choose another "
-                     "name")
+        parser.error(f"reading(s) {clash} are built in with other arguments; choose another name")
     return user
 
 
@@ -831,7 +789,7 @@ def report_main(argv: Sequence[str]) -> int:
         description="Judge the paper's claims for every reading below ROOT (ROOT/<reading>/"
                     "<region>-j<joints>/s<seed>, e.g. runs/sensitivity or a --collect "
                     "DEST/runs) and write report.md, verdicts.csv, finals.csv, curves.png/csv.",
-        formatter_class=HelpFormatter)
+        formatter_class=sweep.HelpFormatter)
     parser.add_argument("root", type=Path, metavar="ROOT", help="the study's runs root")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder of the report's files (default: ROOT)")
@@ -877,10 +835,11 @@ def add_study_arguments(parser: argparse.ArgumentParser, settings: Sequence[tupl
     """The flags of a study of readings x settings (this one, `analysis.algorithms`): the
     settings, `analysis.sweep`'s execution flags at the study's budget, and ``--collect``;
     ``what`` names the study's readings in the help."""
-    parser.add_argument("--setting", type=parse_setting, action="append", metavar="REGION:JOINTS",
+    parser.add_argument("--setting", type=sweep.parse_setting, action="append",
+                        metavar="REGION:JOINTS",
                         help="a (region, joints) setting, joints in 2..6; repeatable (default: "
                              + ", ".join(f"{r}:{j}" for r, j in settings) + ")")
-    add_execution_arguments(parser, default_out, unit_word="unit")
+    sweep.add_execution_arguments(parser, default_out, unit_word="unit")
     parser.set_defaults(episodes=STUDY_EPISODES, seeds=STUDY_SEEDS)
     parser.add_argument("--collect", type=Path, default=None, metavar="DEST",
                         help="train nothing: copy each finished unit's spec.json and eval.csv to "
@@ -897,20 +856,20 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
     """What a study's command line asks of the units of ``readings`` x (``args.setting`` or
     ``settings``): a dry run, ``--collect``, or training them with each reading recorded
     (`write_reading`) in the root."""
-    threads = check_execution_arguments(parser, args)
+    threads = sweep.check_execution_arguments(parser, args)
     if args.collect is not None:
         with usage_errors(parser):
             check_folder(args.collect / "runs", "--collect")
     units = units_for(readings, args.setting or settings, args.seeds, args.out, args.episodes)
     if args.dry_run:
-        dry_run(units, args, threads, extra)
+        sweep.dry_run(units, args, threads, extra)
         return 0
     if args.collect is None:
-        refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
+        sweep.refuse_problems(units, extra, args)  # a run it would refuse leaves no reading.json
         with usage_errors(parser, ValueError):
             for reading in readings:
                 write_reading(args.out, reading)
-        return execute(units, args, threads, extra, unit_word="units")
+        return sweep.execute(units, args, threads, extra, unit_word="units")
     root = args.collect / "runs"
     with usage_errors(parser, ValueError), write_errors(parser), \
             unless_replacing(args.force, f"--collect {args.collect}"):  # nothing half-written
@@ -935,7 +894,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                "own). 'python -m analysis.sensitivity report --help' explains the report. "
                "Readings: " + "; ".join(f"{r.name}: {' '.join(r.args) or '(defaults)'}"
                                         for r in READINGS.values()),
-        formatter_class=HelpFormatter)
+        formatter_class=sweep.HelpFormatter)
     parser.add_argument("--readings", nargs="+", default=None, metavar="NAME",
                         help="readings to run (default: the built-in ones, "
                              f"{', '.join(READINGS)}, and every --reading/--readings-file one)")
@@ -949,14 +908,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown reading(s) {unknown}; known: {', '.join(known)} (define one "
                      "with --reading NAME=ARGS)")
-    readings = []
-    for name in names:
-        lacking = missing_task_fields(known[name], extra)
-        if lacking:
-            print(f"reading {name}: this code's TaskSpec has no field {', '.join(lacking)}; "
-                  "skipped", file=sys.stderr)
-        else:
-            readings.append(known[name])
+    lacking = {name: missing_task_fields(known[name], extra) for name in names}
+    for name in (n for n in names if lacking[n]):
+        print(f"reading {name}: this code's TaskSpec has no field {', '.join(lacking[name])}; "
+              "skipped", file=sys.stderr)
+    readings = [known[n] for n in names if not lacking[n]]
     return run_study(parser, args, readings, SETTINGS, extra)
 
 

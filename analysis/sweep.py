@@ -22,17 +22,20 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import itertools
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from analysis.outputs import check_folder, usage_errors
 from analysis.paper import PAPER_EPISODES, PAPER_GRID, PAPER_SEEDS
 from analysis.runs import read_run
 from ddpg_her.config import Parser
@@ -42,13 +45,11 @@ from ddpg_her.units import DEFAULT_THREADS, option_dests, overrides, split_passt
 from ur5kin.checks import COUNT
 
 GRIDS: dict[str, tuple[tuple[str, int], ...]] = {
-    "paper": PAPER_GRID,
-    "paper+tall": (*PAPER_GRID, ("farbox_tall", 3), ("farbox_tall", 6)),
-}
+    "paper": PAPER_GRID, "paper+tall": (*PAPER_GRID, ("farbox_tall", 3), ("farbox_tall", 6))}
 """Named grids of (region, joints) settings."""
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class Unit:
     """One training process: a setting and the seeds it trains together.
 
@@ -134,20 +135,12 @@ def parse_setting(text: str) -> tuple[str, int]:
     return region, int(joints)
 
 
-def units_for(settings: Sequence[tuple[str, int]], seeds: int, root: Path,
-              episodes: int) -> list[Unit]:
-    return [Unit(region, joints, tuple(range(seeds)), root, episodes)
-            for region, joints in settings]
-
-
 def child_env(threads: int) -> dict[str, str]:
     """This process's environment with every BLAS and OpenMP pool of a child capped at
     ``threads``: concurrent trainers that each start one pool per core oversubscribe the
     machine (numpy's OpenBLAS in the env's clearance check ran 20x slower so on 2 cores)."""
-    env = dict(os.environ)
-    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        env[name] = str(threads)
-    return env
+    return {**os.environ, **dict.fromkeys(
+        ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"), str(threads))}
 
 
 PR_SET_PDEATHSIG = 1
@@ -244,8 +237,7 @@ class EpisodeBar:
                    for i, u in enumerate(self.units))
         if done > self.bar.n:
             self.bar.update(done - self.bar.n)
-        ended = len(self.ended) + len(self.failed)
-        self.bar.set_postfix_str(f"{ended}/{len(self.units)} units"
+        self.bar.set_postfix_str(f"{len(self.ended) + len(self.failed)}/{len(self.units)} units"
                                  + (f", {len(self.failed)} FAILED" if self.failed else ""),
                                  refresh=False)
 
@@ -275,8 +267,7 @@ def run_local(units: Sequence[Unit], workers: int, threads: int, extra: Sequence
         while queue or running:
             while queue and len(running) < workers:
                 unit = queue.pop(0)
-                proc, log = start_unit(unit.command(threads, extra, device), unit.log_path,
-                                       threads)
+                proc, log = start_unit(unit.command(threads, extra, device), unit.log_path, threads)
                 running[proc] = (unit, log)
             for proc in [p for p in running if p.poll() is not None]:
                 unit, log = running.pop(proc)
@@ -325,9 +316,8 @@ def run_ray(units: Sequence[Unit], address: str, threads: int, extra: Sequence[s
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1, timeout=PROGRESS_POLL_S)
                 bar.refresh()
-                if not done:
-                    continue
-                failed += bar.finish(pending.pop(done[0]), ray.get(done[0]))
+                if done:
+                    failed += bar.finish(pending.pop(done[0]), ray.get(done[0]))
         finally:
             bar.close()
         return failed
@@ -368,15 +358,13 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                         help="torch device of each training process (cuda: networks and replay "
                              "buffers on the GPU; runs are bitwise repeatable only on the cpu)")
-    parser.add_argument("--env-backend", choices=("numpy", "batched", "program"),
-                        default="numpy",
-                        help="the training processes' env backend (ddpg_her.train "
-                             "--env-backend): 'batched' steps the envs of all agents of a "
-                             "process whose tasks differ only in their goals in one compiled "
-                             "call, the same goals, trajectories equal to rounding; "
-                             "'program', the training program (ddpg_her.program: all agents "
-                             "of a process as one stack on --device; see --program) "
-                             "(default: numpy, one env per agent)")
+    parser.add_argument("--env-backend", choices=("numpy", "batched", "program"), default="numpy",
+                        help="the training processes' env backend (ddpg_her.train --env-backend): "
+                             "'batched' steps the envs of all agents of a process whose tasks "
+                             "differ only in their goals in one compiled call, the same goals, "
+                             "trajectories equal to rounding; 'program', the training program "
+                             "(ddpg_her.program: all agents of a process as one stack on --device; "
+                             "see --program) (default: numpy, one env per agent)")
     parser.add_argument("--program", action="store_true",
                         help="the training program for every unfinished unit in one process: "
                              "--one-process --env-backend program (the whole grid, or --part, "
@@ -395,17 +383,16 @@ def add_execution_arguments(parser: argparse.ArgumentParser, default_out: Path,
                         help="print one line per run (status, folder, command) and exit")
     parser.add_argument("--project", nargs="?", const="quick", choices=("quick", "full"),
                         default=None,
-                        help="with --dry-run: print the projected wall time (s and h) of the "
-                             "run. 'quick' (the flag alone): each distinct process layout "
-                             "(joint count, seeds, own arguments), one at a time, trains 2 "
-                             "episodes (a warm-up and a learning episode of 25 updates, each "
-                             "with a test session of 1 episode per agent) as the real command "
-                             "would run it, in a temporary folder deleted afterwards, scaled by "
-                             "a stated model, its processes run --workers at a time without "
-                             "slowing each other (seconds to a minute); 'full': then also train "
-                             "the first two test intervals (2 x --eval-every episodes) of every "
-                             "unfinished unit, its cost by the quick model printed before it "
-                             "starts (about 1 %% of the paper's run)")
+                        help="with --dry-run: print the projected wall time (s and h) of the run. "
+                             "'quick' (the flag alone): each distinct process layout (joint count, "
+                             "seeds, own arguments), one at a time, trains 2 episodes (a warm-up "
+                             "and a learning episode of 25 updates, each with a test session of 1 "
+                             "episode per agent) as the real command would run it, in a temporary "
+                             "folder deleted afterwards, scaled by a stated model, its processes "
+                             "run --workers at a time without slowing each other (seconds to a "
+                             "minute); 'full': then also train the first two test intervals (2 x "
+                             "--eval-every episodes) of every unfinished unit, its cost by the "
+                             "quick model printed before it starts (about 1 %% of the paper's run)")
 
 
 RAY_CONNECT_S = 5.0
@@ -428,8 +415,7 @@ def ray_address_problem(address: str) -> str | None:
     hostport = address.removeprefix("ray://")
     host, sep, port = hostport.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        return ("expected 'local', 'auto', HOST:PORT or ray://HOST:PORT (a port in "
-                "1..65535)")
+        return "expected 'local', 'auto', HOST:PORT or ray://HOST:PORT (a port in 1..65535)"
     try:
         with socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_CONNECT_S):
             return None
@@ -458,8 +444,6 @@ def check_execution_arguments(parser: argparse.ArgumentParser, args: argparse.Na
         parser.error("--project times the units on this machine, not on a Ray cluster; drop "
                      "--ray-address")
     if not args.dry_run and getattr(args, "collect", None) is None:  # before any unit starts
-        from analysis.outputs import check_folder, usage_errors
-
         problem = args.ray_address and ray_address_problem(args.ray_address)
         if problem:
             parser.error(f"--ray-address {args.ray_address}: {problem}")
@@ -541,7 +525,6 @@ def run_one_process(units: Sequence[Unit], args: argparse.Namespace, threads: in
 def busy(unit: Unit) -> bool:
     """Whether another live process trains one of ``unit``'s run folders: it holds the
     folder's lock (`ddpg_her.runfolder.RunFolder.lock`), whatever its command line or cwd."""
-
     return any(RunFolder(unit.run_dir(seed)).holder() is not None for seed in unit.seeds)
 
 
@@ -570,20 +553,17 @@ def owned_flag_problems(parser: argparse.ArgumentParser, unit: Unit,
     problems = []
     for where, args in (("its reading's arguments", unit.train_args),
                         ("the arguments after --", extra)):
-        for flag, dest in option_dests(parser, args):
-            if dest in STUDY_FLAGS:
-                problems.append(f"{unit.name}: {flag} in {where}: the study sets it for every "
-                                "unit (use the study's own option, or drop it)")
+        problems += [f"{unit.name}: {flag} in {where}: the study sets it for every unit (use "
+                     "the study's own option, or drop it)"
+                     for flag, dest in option_dests(parser, args) if dest in STUDY_FLAGS]
         problems += [f"{unit.name}: --task {key}=... in {where}: the study sets it for every "
                      "unit (its setting)" for key in task_keys(args)
                      if key in ("region", "n_joints")]
-    problems += [f"{unit.name}: {flag} after --: the unit's reading sets it "
-                 f"({' '.join(unit.train_args)})"
-                 for flag in overrides(parser, unit.train_args, extra)]
     own_task = task_keys(unit.train_args)
-    problems += [f"{unit.name}: --task {key}=... after --: the unit's reading sets it "
-                 f"({' '.join(unit.train_args)})" for key in task_keys(extra) if key in own_task]
-    return problems
+    return problems + [
+        f"{unit.name}: {flag} after --: the unit's reading sets it ({' '.join(unit.train_args)})"
+        for flag in [*overrides(parser, unit.train_args, extra),
+                     *(f"--task {key}=..." for key in task_keys(extra) if key in own_task)]]
 
 
 def unit_problems(units: Sequence[Unit], extra: Sequence[str],
@@ -676,11 +656,10 @@ def refuse_problems(units: Sequence[Unit], extra: Sequence[str], args: argparse.
 
 def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str]) -> None:
-    """One line per run: status ('done', 'resume', 'new', or 'busy' while another process
-    trains its unit), tag, setting, seed, folder and the unit's command (with
-    ``--one-process``: its arguments in the one ``ddpg_her.train_many`` process); then, with
-    ``--project``, `print_projection`. Units that could not start are refused first
-    (`refuse_problems`), as a real run would."""
+    """One line per run: status ('done', 'resume', 'new', or 'busy' while another process trains its
+    unit), tag, setting, seed, folder and the unit's command (with ``--one-process``: its arguments
+    in the one ``ddpg_her.train_many`` process); then, with ``--project``, `print_projection`. Units
+    that could not start are refused first (`refuse_problems`), as a real run would."""
     refuse_problems(units, extra, args)
     for unit in units:
         cmd = "one process, unit " + " ".join(unit.run_args(extra)) if args.one_process else \
@@ -688,28 +667,15 @@ def dry_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
                                               args.device)[1:])
         tag = f"{unit.tag:<18} " if unit.tag else ""
         for seed in unit.seeds:
-            status = "busy" if busy(unit) and unit.status(seed) != "done" \
-                else unit.status(seed)
+            status = "busy" if busy(unit) and unit.status(seed) != "done" else unit.status(seed)
             print(f"{status:<6} {tag}{unit.region:<14} joints={unit.joints} "
                   f"seed={seed} {unit.run_dir(seed)}  <- {cmd}")
-    runs = f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
-    if args.one_process:
-        command = one_process_command("ROOT/logs/one-process-TIME.json", threads, args)
-        print(f"{runs}, the unfinished ones in one process: python "
-              f"{' '.join(command[1:])}", file=sys.stderr)
-    else:
-        print(f"{runs} (one process each)", file=sys.stderr)
+    command = one_process_command("ROOT/logs/one-process-TIME.json", threads, args)
+    print(f"{sum(len(u.seeds) for u in units)} runs in {len(units)} units"
+          + (f", the unfinished ones in one process: python {' '.join(command[1:])}"
+             if args.one_process else " (one process each)"), file=sys.stderr)
     if args.project:
         print_projection(units, args, threads, extra)
-
-
-def unit_config(unit: Unit, extra: Sequence[str]) -> Any:
-    """``unit``'s agent configuration (`ddpg_her.AgentConfig`), as ``ddpg_her.train`` reads its
-    command line with ``extra``."""
-    from ddpg_her import train
-
-    return train.request(train.parse_args(train.make_parser(), unit.run_args(extra)),
-                         resume=True).config
 
 
 def projected_seconds(walls: Sequence[tuple[int, float]], every: int, episodes: int) -> float:
@@ -744,12 +710,11 @@ scales the time of one update to each unit's ``--updates-per-episode``."""
 
 QUICK_ARGS = ("--warmup-episodes", "1", "--eval-every", "1", "--eval-episodes", "1",
               "--updates-per-episode", str(QUICK_UPDATES))
-"""Appended (last, so they win) to the quick projection's timed processes of 2 episodes: a
-warm-up episode and its test session of one episode per agent, then a learning episode and
-its session."""
+"""Appended (last, so they win) to the quick projection's timed processes of 2 episodes: a warm-up
+episode and its test session of one episode per agent, then a learning episode and its session."""
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class EpisodeCosts:
     """The stated model of a training process's wall time (s): ``start`` (imports, envs,
     networks) + every episode one ``rollout`` (one episode of each agent of the process) +
@@ -787,9 +752,6 @@ def projection_folder() -> Path:
     """A new temporary folder for a projection's timed processes, named with this process's
     id; the folders of projections whose process has ended (killed before it could delete
     its own) are deleted first."""
-    import shutil
-    import tempfile
-
     for old in Path(tempfile.gettempdir()).glob(f"{PROJECTION_PREFIX}*-*"):
         pid = old.name[len(PROJECTION_PREFIX):].partition("-")[0]
         try:
@@ -811,9 +773,6 @@ def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     (wall seconds spent, each unit's first seed's eval ``wall_s``). The folder is deleted
     afterwards, also on SIGTERM or Ctrl-C; a process that failed is named with its log's last
     line before (not a path to a deleted log)."""
-    import dataclasses
-    import shutil
-
     tmp = projection_folder()
     timed = [dataclasses.replace(u, root=tmp / f"unit{i}") for i, u in enumerate(units)]
     previous = signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt))
@@ -844,29 +803,27 @@ def timed_run(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     return spent, walls
 
 
-def layout(unit: Unit) -> tuple:
-    """What makes two units' processes cost alike: the agents they stack (joints, seeds) and
-    their own arguments; not the region (goals cost alike to draw)."""
-    return unit.joints, len(unit.seeds), unit.train_args
-
-
 def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: int,
                      extra: Sequence[str]) -> float:
     """Print the projected wall time (s) of the real run of the unfinished units, and return
     it: by default ("quick") by `EpisodeCosts`, timed on 2 episodes of one process per
-    distinct `layout` (with ``--one-process``, of the one process), run one at a time as the
+    distinct layout (with ``--one-process``, of the one process), run one at a time as the
     real command would run them, then scheduled on --workers (`makespan`); with ``--project
     full``, then by training the first two test intervals of every unit
     (`projected_seconds`), its cost by the quick model printed first."""
-    import dataclasses
+    from ddpg_her import train
 
     todo = [u for u in units if u.pending()]
     if not todo:
         print("projection: every unit has finished; nothing to run", file=sys.stderr)
         return 0.0
-    configs = [unit_config(u, extra) for u in todo]
+    # each unit's AgentConfig as ddpg_her.train reads its command line
+    configs = [train.request(train.parse_args(train.make_parser(), u.run_args(extra)),
+                             resume=True).config for u in todo]
     done = [u.episodes_done() // len(u.seeds) for u in todo]
-    keys = [("all",) if args.one_process else layout(u) for u in todo]
+    # a layout: what makes two units' processes cost alike, the agents they stack (joints,
+    # seeds) and their own arguments; not the region (goals cost alike to draw)
+    keys = [("all",) if args.one_process else (u.joints, len(u.seeds), u.train_args) for u in todo]
     reps = list(dict.fromkeys(keys))
     timed = [dataclasses.replace(u, episodes=2) for u in
              (todo if args.one_process else [todo[keys.index(k)] for k in reps])]
@@ -924,7 +881,6 @@ def print_projection(units: Sequence[Unit], args: argparse.Namespace, threads: i
 def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
             extra: Sequence[str], unit_word: str = "settings") -> int:
     """Run the unfinished units locally or on Ray; 1 when one failed, else 0."""
-    process = backend_args(args)
     refuse_problems(units, extra, args)
     todo = [u for u in units if u.pending()]
     print(f"{len(units) - len(todo)} of {len(units)} {unit_word} already finished; "
@@ -938,7 +894,7 @@ def execute(units: Sequence[Unit], args: argparse.Namespace, threads: int,
     try:  # Ctrl-C: the runners said so in one line and stopped their processes
         if args.one_process:
             return run_one_process(todo, args, threads, extra)
-        extra = [*extra, *process]
+        extra = [*extra, *backend_args(args)]
         if args.ray_address:
             failed = run_ray(todo, args.ray_address, threads, extra, args.device)
         else:
@@ -978,7 +934,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = [s for s in settings if s[1] == args.part]
         if not settings:
             parser.error(f"--part {args.part}: no setting of the grid has {args.part} joints")
-    units = units_for(settings, args.seeds, args.out, args.episodes)
+    units = [Unit(r, j, tuple(range(args.seeds)), args.out, args.episodes) for r, j in settings]
     if args.dry_run:
         dry_run(units, args, threads, extra)
         return 0

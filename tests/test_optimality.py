@@ -232,7 +232,8 @@ def test_the_plot_draws_a_missing_grid_check_as_nothing_and_refuses_a_missing_sh
     (["n_joints=3"], "--task n_joints: the study sets it for every setting"),
     (["action_penalty_unit=command"],
      "--task action_penalty_unit: the reading(s) actor_penalty set it themselves"),
-    (["action_weight=0.5", "action_weight=0.7"], "--task action_weight given two values"),
+    (["action_weight=0.5", "action_weight=0.7"],
+     "give the task field 'action_weight' two values (0.5, 0.7)"),
     (["action_weight=-1"], "--task: "),
     ([], "--curves: "),
 ])
