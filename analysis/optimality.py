@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from analysis.outputs import (
+    add_force,
     check_files,
     pyplot,
     save_figure,
@@ -860,6 +861,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="compute nothing: join these optimality.csv files (e.g. of runs "
                              "made in parallel) into DIR and draw the figures from them")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_force(parser)
     args = parser.parse_args(argv)
     from analysis.runs import find_runs
 
@@ -882,7 +884,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not rows:
         print("nothing to do: every reading was skipped", file=sys.stderr)
         return 1
-    with write_errors(parser):
+    with write_errors(parser, args.force):
         write_outputs(rows, args.out, args.curves)
     if args.from_csv:
         print(f"joined {len(rows)} rows into {args.out / 'optimality.csv'}")
