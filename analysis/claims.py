@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from analysis import report
-from analysis.outputs import write_csv, write_errors, write_text
+from analysis.outputs import add_force, write_csv, write_errors, write_text
 from analysis.paper import CLAIMS, PAPER_EPISODES
 from analysis.plateau import plateau
 from analysis.report import Check, Curves, Verdict
@@ -191,6 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="write claims.md and claims.csv into this folder")
     parser.add_argument("--readme", type=Path, default=None,
                         help=f"replace what this file holds between {BEGIN} and {END}")
+    add_force(parser)
     args = parser.parse_args(argv)
     if not args.results.is_dir():
         parser.error(f"--results {args.results}: not a folder")
@@ -203,7 +204,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as err:
         parser.exit(1, f"error: {err}\n")
     if args.out is not None:
-        with write_errors(parser):
+        with write_errors(parser, args.force):
             write_text(args.out / "claims.md", markdown(rows) + "\n")
             write_csv(args.out / "claims.csv", COLUMNS, rows)
     print(markdown(rows))

@@ -18,7 +18,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis.outputs import figure_outputs, pyplot, save_figure, write_csv, write_errors
+from analysis.outputs import add_force, figure_outputs, pyplot, save_figure, write_csv, write_errors
 from analysis.paper import PAPER_RESULTS
 from analysis.runs import (
     PERCENT,
@@ -126,13 +126,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_runs_arguments(parser)
     parser.add_argument("--out", type=Path, default=Path("curves.png"),
                         help="figure file (.png, .pdf, .svg); the CSV goes beside it")
+    add_force(parser)
     args = parser.parse_args(argv)
     out, csv_path = figure_outputs(parser, args.out, "--out", ".csv")  # before any reading
     groups = groups_from_args(parser, args)
     for line in pooled_lines(groups):
         print(f"note: {line}", file=sys.stderr)
     rows = curve_rows(groups, args.confidence)
-    with write_errors(parser):
+    with write_errors(parser, args.force):
         plot(groups, out, args.confidence, overlay=bool(args.group_by or args.groups))
         write_csv(csv_path, CSV_COLUMNS, rows)
     print(f"{sum(len(g.runs) for g in groups)} runs in {len(groups)} groups -> {out} and "

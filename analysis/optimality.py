@@ -30,7 +30,15 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import check_files, pyplot, save_figure, usage_errors, write_csv, write_errors
+from analysis.outputs import (
+    add_force,
+    check_files,
+    pyplot,
+    save_figure,
+    usage_errors,
+    write_csv,
+    write_errors,
+)
 from analysis.readings import READINGS as STUDY_READINGS
 from analysis.readings import missing_fields, task_fields
 from analysis.sweep import parse_setting
@@ -831,6 +839,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="compute nothing: join these optimality.csv files (e.g. of runs "
                              "made in parallel) into DIR and draw the figures from them")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_force(parser)
     args = parser.parse_args(argv)
     from analysis.runs import find_runs
 
@@ -853,7 +862,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not rows:
         print("nothing to do: every reading was skipped", file=sys.stderr)
         return 1
-    with write_errors(parser):
+    with write_errors(parser, args.force):
         write_csv(args.out / "optimality.csv", CSV_COLUMNS, rows)
         plot(rows, out=args.out / "optimality.png")
         if args.curves:

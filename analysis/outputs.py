@@ -119,12 +119,23 @@ def usage_errors(parser: argparse.ArgumentParser, *kinds: type[Exception]
     return config.usage_errors(parser, *(kinds or (OutputError,)))
 
 
+def add_force(parser: argparse.ArgumentParser, help: str = "replace output files that hold "
+              "something else (refused by default: nothing is written, the files are named)"
+              ) -> None:
+    """The ``--force`` flag of a command whose writes go through `write_errors`."""
+    parser.add_argument("--force", action="store_true", help=help)
+
+
 @contextlib.contextmanager
-def write_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
-    """An OutputError of the block ends the command with ``error: ...``: status 1 (a failed
-    write), or 2 where `unless_replacing` refused (`WouldReplace`, a usage error)."""
+def write_errors(parser: argparse.ArgumentParser, force: bool, what: str = "--out"
+                 ) -> Iterator[None]:
+    """The block's writes, held back by `unless_replacing` (none replaces a file that holds
+    other bytes unless ``force``, the command's ``--force``; ``what`` names the outputs). An
+    OutputError ends the command with ``error: ...``: status 1 (a failed write), or 2 where
+    `unless_replacing` refused (`WouldReplace`, a usage error)."""
     try:
-        yield
+        with unless_replacing(force, what):
+            yield
     except OutputError as err:
         parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
 

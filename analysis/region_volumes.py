@@ -485,6 +485,8 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Sett
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m analysis.region_volumes``."""
     parser = build_parser()
+    outputs.add_force(parser, "with --plot: replace files that hold something else (refused by "
+                              "default: nothing is written, the files are named)")
     args = parser.parse_args(argv)
     settings = _settings(args, parser)
     progress = sys.stderr.isatty()
@@ -516,7 +518,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         print(format_table(study, settings))
     if args.plot is not None:
-        with outputs.write_errors(parser):
+        with outputs.write_errors(parser, args.force, "--plot"):
             written = plot(study, settings, args.plot, n_plot)
         print("wrote " + ", ".join(map(str, written)), file=sys.stderr)
     return 0

@@ -269,7 +269,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.serve:
         serve_until_stopped(f"serving at {vis.url()} (Ctrl-C ends it)")
         return 0
-    with write_errors(parser):
+    with write_errors(parser, force=True):  # a viewer page, rewritten (its ids are random)
         size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)
     print(f"-> {args.out} ({size / 1e6:.1f} MB)", file=sys.stderr)
     return 0

@@ -738,8 +738,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_runs_arguments(parser)
     parser.add_argument("--out", type=Path, default=None,
                         help="also write the Markdown to this file")
+    from analysis.outputs import add_force, check_writable, usage_errors, write_errors, write_text
+
+    add_force(parser)
     args = parser.parse_args(argv)
-    from analysis.outputs import check_writable, usage_errors, write_errors, write_text
 
     if args.out is not None:
         with usage_errors(parser):  # before reading any run
@@ -751,7 +753,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         summaries = {k: summarise(v, args.confidence) for k, v in groups.items()}
         text = render(summaries, args.confidence)
     if args.out is not None:
-        with write_errors(parser):  # whole or not at all: a failed write keeps the old report
+        with write_errors(parser, args.force):  # whole or not at all
             write_text(args.out, text)
     print(text, end="")
     return 0

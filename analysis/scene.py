@@ -386,9 +386,9 @@ class Scene:
             raise TypeError("write_html needs a scene of offline_visualizer()")
         from analysis.outputs import write_text
 
-        out = pathlib.Path(out)
-        write_text(out, meshcat_page(window.commands(), title, caption))  # whole or not at all
-        return out.stat().st_size
+        page = meshcat_page(window.commands(), title, caption)
+        write_text(pathlib.Path(out), page)  # whole or not at all
+        return len(page.encode())
 
 
 def region_mesh(region: regions.Region, base_height: float) -> Any:

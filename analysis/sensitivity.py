@@ -41,11 +41,11 @@ from analysis import sweep
 from analysis.curves import CSV_COLUMNS as SETTING_CURVE_COLUMNS
 from analysis.curves import curve_rows as setting_curve_rows
 from analysis.outputs import (
+    add_force,
     check_files,
     check_folder,
     pyplot,
     save_figure,
-    unless_replacing,
     usage_errors,
     write_csv,
     write_errors,
@@ -812,16 +812,15 @@ def report_main(argv: Sequence[str]) -> int:
                         help="readings shown, in this order (default: the built-in ones, then "
                              "any other folder with runs)")
     _add_reading_arguments(parser)
-    parser.add_argument("--force", action="store_true",
-                        help="replace report files in --out that hold another report "
-                             "(refused by default, naming them)")
+    add_force(parser, "replace report files in --out that hold another report (refused by "
+              "default, naming them)")
     args = parser.parse_args(argv)
     out = args.out or args.root
     with usage_errors(parser):  # before any computing
         check_files(out, ("verdicts.csv", "finals.csv", "curves.csv", "curves.png",
                           "worth_reaching.png", "report.md"), "--out" if args.out else "ROOT")
-    with usage_errors(parser, FileNotFoundError, ValueError), write_errors(parser), \
-            unless_replacing(args.force, f"report {args.root} --out {out}"):
+    with usage_errors(parser, FileNotFoundError, ValueError), \
+            write_errors(parser, args.force, f"report {args.root} --out {out}"):
         result = report(args.root, out, args.episodes, args.seeds, args.confidence, args.reps,
                         args.bootstrap_seed, args.worth_goals, args.readings,
                         _user_readings(parser, args))
@@ -845,9 +844,8 @@ def add_study_arguments(parser: argparse.ArgumentParser, settings: Sequence[tupl
                         help="train nothing: copy each finished unit's spec.json and eval.csv to "
                              f"DEST/runs/<{what}>/<region>-j<joints>/s<seed> (no checkpoints); "
                              "files there that hold other runs are not replaced without --force")
-    parser.add_argument("--force", action="store_true",
-                        help="with --collect: replace runs in DEST that differ (refused by "
-                             "default, naming them)")
+    add_force(parser, "with --collect: replace runs in DEST that differ (refused by default, "
+              "naming them)")
 
 
 def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
@@ -871,8 +869,8 @@ def run_study(parser: argparse.ArgumentParser, args: argparse.Namespace,
                 write_reading(args.out, reading)
         return sweep.execute(units, args, threads, extra, unit_word="units")
     root = args.collect / "runs"
-    with usage_errors(parser, ValueError), write_errors(parser), \
-            unless_replacing(args.force, f"--collect {args.collect}"):  # nothing half-written
+    with usage_errors(parser, ValueError), \
+            write_errors(parser, args.force, f"--collect {args.collect}"):  # nothing half-written
         copied, skipped = collect(units, args.collect)
         done = {u.tag for u in units if all(u.status(s) == "done" for s in u.seeds)}
         for reading in readings:  # units started by hand have no reading.json of their own

@@ -175,6 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("success_map.png"),
                         help="figure file; the CSV goes beside it")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    outputs.add_force(parser)
     args = parser.parse_args(argv)
     # what a map holds: its goals and outcomes per run, and its grid (two histograms and the
     # rate per cell over the slice, at most the reach ball's diameter wide)
@@ -216,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         label = f"{Path(run).as_posix()} (episode {policy.episode})"  # the run, not "s0"
         reached = evaluate(policy, task, goals, args.batch, label, not args.no_progress)
         maps.append(bin_successes(label, goals, reached, args.cell))
-    with outputs.write_errors(parser):
+    with outputs.write_errors(parser, args.force):
         plot(maps, z, out)
         outputs.write_csv(csv_path, CSV_COLUMNS, csv_rows(maps))
     for m in maps:

@@ -342,7 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrowserError as err:
         print(f"benchmarks.browser: {err}", file=sys.stderr)
         return 1
-    with write_errors(parser):
+    with write_errors(parser, force=True):  # a screenshot, rewritten
         write_bytes(args.out, png)
     print(f"-> {args.out}", file=sys.stderr)
     return 0

@@ -209,7 +209,7 @@ def test_report_on_a_full_disk_keeps_the_previous_report(tmp_path, capsys, monke
     monkeypatch.setattr(runfolder.os, "fsync", full)
     _fake_run(tmp_path / "runs" / "farbox-j3" / "s1", "farbox", 3, 1, [50, 70])
     with pytest.raises(SystemExit) as exit_:
-        report.main([str(tmp_path / "runs"), "--out", str(out)])
+        report.main([str(tmp_path / "runs"), "--out", str(out), "--force"])
     assert exit_.value.code == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err and str(out) in err and "No space left on device" in err
@@ -226,3 +226,27 @@ def test_a_plan_file_is_written_whole(tmp_path, monkeypatch):
     units.write_plan(tmp_path / "logs" / "plan.json", [["--region", "farbox"]])
     assert calls == [tmp_path / "logs" / "plan.json"]
     assert units.read_plan(tmp_path / "logs" / "plan.json") == [["--region", "farbox"]]
+
+
+@pytest.mark.parametrize("command, out", [("report", "report.md"), ("curves", "curves.png")])
+def test_a_writer_replaces_another_output_only_with_force(tmp_path, capsys, command, out):
+    """Issue 41: the same output again is written (nothing changes); a different one (a run
+    added) is refused naming the file, exit 2, nothing written; --force replaces it."""
+    import importlib
+
+    from test_analysis import _fake_run
+
+    main = importlib.import_module(f"analysis.{command}").main
+    runs, out = tmp_path / "runs", tmp_path / "out" / out
+    _fake_run(runs / "farbox-j3" / "s0", "farbox", 3, 0, [40, 60])
+    assert main([str(runs), "--out", str(out)]) == 0
+    first = out.read_bytes()
+    assert main([str(runs), "--out", str(out)]) == 0 and out.read_bytes() == first
+    _fake_run(runs / "farbox-j3" / "s1", "farbox", 3, 1, [50, 70])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        main([str(runs), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "would replace" in err and str(out) in err, err
+    assert "give --force" in err and out.read_bytes() == first
+    assert main([str(runs), "--out", str(out), "--force"]) == 0 and out.read_bytes() != first
