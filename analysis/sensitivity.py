@@ -703,14 +703,16 @@ class StudyReport:
 
 
 def known_readings(root: Path, extra: Sequence[Reading] = ()) -> dict[str, Reading]:
-    """Built-in readings, those recorded below ``root`` (reading.json) and ``extra``."""
+    """Built-in readings, those recorded below ``root`` (reading.json) and ``extra``; a
+    reading.json that is not a reading record is a ValueError naming it."""
     known = dict(READINGS)
     for path in sorted(root.glob(f"*/{READING_FILE}")):
         try:
             data = json.loads(path.read_text())
             known.setdefault(data["name"], Reading(**data))
-        except (KeyError, ValueError, TypeError):
-            continue
+        except (KeyError, ValueError, TypeError) as err:
+            raise ValueError(f"{path}: not a reading record ({err!r}); expected the JSON "
+                             '{"name": ..., "args": [...], "text": ...} a study writes') from err
     known.update({r.name: r for r in extra})
     return known
 

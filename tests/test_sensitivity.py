@@ -493,3 +493,17 @@ def test_a_switch_in_a_reading_is_read_as_the_field_it_turns_on(tmp_path):
     assert spec["agent"]["batch_norm"] is True
     assert sens.reading_mismatches(reading, spec) == []
     assert sens.reading_mismatches(sens.READINGS["ours"], spec) != []
+
+
+@pytest.mark.parametrize("text", ["{", '{"args": []}', '{"name": "x", "args": [1], "k": 2}'])
+def test_a_malformed_reading_file_is_refused_naming_it(tmp_path: Path, text: str) -> None:
+    """A reading.json that is not a reading record was skipped without a word, so its runs
+    were reported without their choices."""
+    root = tmp_path / "runs"
+    _write_run(root / "mine" / "zheight-j3" / "s0", "zheight", 3, 0, 20.0)
+    (root / "mine" / "reading.json").write_text(text)
+    proc = run_module("analysis.sensitivity", "report", str(root), "--out",
+                      str(tmp_path / "out"), "--worth-goals", "0", check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert f"{root / 'mine' / 'reading.json'}: not a reading record" in proc.stderr
+    assert not (tmp_path / "out").exists()
