@@ -1300,6 +1300,69 @@ def gate3_cases(fix: Path) -> list[Case]:
     return out
 
 
+def _ran(module: str, argv: list[str], then: Callable[[Path], None] | None = None
+         ) -> Callable[[Path], None]:
+    """A setup: the fixture run copied (`copy_run`), ``module`` run once in the case folder
+    with ``argv`` (its outputs are there before the case runs it again), then ``then``."""
+    def setup(case_dir: Path) -> None:
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        subprocess.run([sys.executable, "-m", module, *argv], check=True, cwd=case_dir, env=env,
+                       capture_output=True)
+        if then is not None:
+            then(case_dir)
+    return setup
+
+
+def gate4_cases(fix: Path) -> list[Case]:
+    """Issue 41, kind 4 for every writer of results (names ``gate: g4 ...``): an output that
+    holds something else is not replaced without --force (refused, naming it, nothing
+    written); the same output again and --force are fine. And a malformed reading.json."""
+    writers = {
+        "report": ("analysis.report", ["run", "--out", "o/r.md"], "o/r.md"),
+        "curves": ("analysis.curves", ["run", "--out", "o/c.png"], "o/c.csv"),
+        "success_map": ("analysis.success_map", ["run/s0", "--goals", "4", "--batch", "4",
+                                                 "--z", "0.1", "0.3", "--out", "o/m.png",
+                                                 "--no-progress"], "o/m.png"),
+        "region_volumes --plot": ("analysis.region_volumes", [
+            "--regions", "farbox", "--joints", "3", "--samples", "1000", "--plot", "o/v.png"],
+            "o/v.json"),
+        "claims": ("analysis.claims", ["--results", str(ROOT / "results"), "--out", "o"],
+                   "o/claims.md"),
+        "optimality": ("analysis.optimality", ["--settings", "unconstrained:2", "--goals", "2",
+                                               "--readings", "ours", "--out", "o",
+                                               "--no-progress"], "o/optimality.csv"),
+        "sensitivity report": ("analysis.sensitivity", ["report", str(fix / "ur5"), "--out",
+                                                        "o", "--worth-goals", "0"],
+                               "o/report.md"),
+    }
+    out: list[Case] = []
+    for name, (module, argv, target) in writers.items():
+        def other(case_dir: Path, t: str = target) -> None:
+            path = case_dir / t
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text("someone else's result\n")
+        out.append(cli(f"gate: g4 {name} over a file that holds something else", module, 4,
+                       argv, "usage", ["would replace", target, "--force"],
+                       setup=lambda d, o=other: (copy_run(fix)(d), o(d))[-1]))
+        out.append(cli(f"gate: g4 {name} --force over a file that holds something else",
+                       module, 4, [*argv, "--force"], "ok",
+                       setup=lambda d, o=other: (copy_run(fix)(d), o(d))[-1]))
+        if name != "optimality":  # its table holds each row's seconds: never the same twice
+            out.append(cli(f"gate: g4 {name} again over its own output", module, 4, argv, "ok",
+                           setup=lambda d, m=module, a=argv: (copy_run(fix)(d),
+                                                              _ran(m, a)(d))[-1]))
+    for text, words in (("{", "not a reading record"), ('{"args": []}', "'name'"),
+                        ('{"name": "x", "args": [], "k": 1}', "k")):
+        out.append(cli(f"gate: g4 sensitivity report over a reading.json of {text}",
+                       "analysis.sensitivity", 6, ["report", "runs", "--out", "o",
+                                                   "--worth-goals", "0"], "usage",
+                       ["runs/mine/reading.json", words],
+                       setup=lambda d, t=text: (shutil.copytree(fix / "ur5", d / "runs" / "mine"
+                                                                / "farbox-j3"),
+                                                write("runs/mine/reading.json", t)(d))[-1]))
+    return out
+
+
 def _check(ok: bool, what: str) -> None:
     if not ok:
         raise WrongAnswer(what)
@@ -1847,7 +1910,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         make_fixtures(fix)
         all_cases = [*old_cases(fix), *reader_cases(fix), *train_cases(fix),
                      *study_cases(fix), *api_cases(fix), *kill_cases(fix),
-                     *gate_cases(fix), *gate2_cases(fix), *gate3_cases(fix)]
+                     *gate_cases(fix), *gate2_cases(fix), *gate3_cases(fix),
+                     *gate4_cases(fix)]
         names = [c.name for c in all_cases]
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:
