@@ -172,8 +172,7 @@ def missing_task_fields(reading: Reading, extra: Sequence[str] = ()) -> list[str
     names another env, whose task fields may differ."""
     if "--env-id" in (*reading.args, *extra):
         return []
-    return missing_fields(reading.args[i + 1].partition("=")[0]
-                          for i, a in enumerate(reading.args[:-1]) if a == "--task")
+    return missing_fields(sweep.task_keys(reading.args))
 
 
 def units_for(readings: Sequence[Reading], settings: Sequence[tuple[str, int]], seeds: int,
@@ -712,7 +711,7 @@ def known_readings(root: Path, extra: Sequence[Reading] = ()) -> dict[str, Readi
             known.setdefault(data["name"], Reading(**data))
         except (KeyError, ValueError, TypeError) as err:
             raise ValueError(f"{path}: not a reading record ({err!r}); expected the JSON "
-                             '{"name": ..., "args": [...], "text": ...} a study writes') from err
+                             "object of name, args, paper and ours that a study writes") from err
     known.update({r.name: r for r in extra})
     return known
 

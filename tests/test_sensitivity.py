@@ -94,6 +94,22 @@ def test_dry_run_lists_every_reading_and_setting_with_its_command(tmp_path: Path
     assert not (tmp_path / "ours").exists()  # a dry run writes nothing
 
 
+@pytest.mark.parametrize("args, said", [
+    (["--task", "nosuch=1"], "reading mine: this code's TaskSpec has no field nosuch; skipped"),
+    (["--task=nosuch=1"], "reading mine: this code's TaskSpec has no field nosuch; skipped"),
+    (["--task", "foo"], "ddpg_her.train refuses its command line: python -m ddpg_her.train: "
+                        "error: argument --task: expected KEY=VALUE, got 'foo'")])
+def test_a_readings_task_field_is_read_as_ddpg_her_train_reads_it(tmp_path: Path, args,
+                                                                    said) -> None:
+    """Both spellings of --task name a field this code lacks (the reading is skipped); a
+    malformed one is train's refusal, not a missing field (one reader: sweep.task_keys)."""
+    (tmp_path / "r.json").write_text(json.dumps({"mine": {"args": args}}))
+    proc = run_module("analysis.sensitivity", "--setting", "farbox:3", "--dry-run", "--out",
+                      str(tmp_path / "o"), "--readings-file", str(tmp_path / "r.json"),
+                      check=False)
+    assert said in proc.stderr, proc.stderr
+
+
 def test_a_one_process_dry_run_puts_every_unit_in_one_train_many_process(tmp_path: Path) -> None:
     proc = run_module("analysis.sensitivity", "--dry-run", "--device", "cuda", "--one-process",
                       "--out", str(tmp_path), "--readings", "ours", "actor_penalty",
