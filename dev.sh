@@ -47,10 +47,11 @@ shift || true
 case "$job" in
   demo)
     # The main job: a short far-box training run (resumable), its learning curve and its
-    # policy replayed in 3D (an offline HTML page).
+    # policy replayed in 3D (an offline HTML page). The curve is of runs/demo itself, so it
+    # replaces the last one (--force) when the run goes on (--episodes 500).
     "$venv/bin/python" -m ddpg_her.train --region farbox --joints 3 --seed 0 --episodes 300 \
       --out runs/demo --resume "$@"
-    "$venv/bin/python" -m analysis.curves runs/demo --out runs/demo/curves.png
+    "$venv/bin/python" -m analysis.curves runs/demo --out runs/demo/curves.png --force
     exec "$venv/bin/python" -m analysis.replay runs/demo --episodes 5 --no-progress \
       --out runs/demo/replay.html ;;
   test)
