@@ -159,7 +159,8 @@ _STAGED: list[dict[Path, bytes]] = []
 def unless_replacing(force: bool, what: str) -> Iterator[None]:
     """Hold back every `write_bytes` of the block, then write them all, unless one would
     replace a file that holds other bytes and ``force`` is false: then write nothing and raise
-    `WouldReplace` naming the files. ``what`` names the command's outputs and its override flag
+    `WouldReplace` naming the files (a viewer page over a viewer page is not refused: its ids
+    are random). ``what`` names the command's outputs and its override flag
     for the message."""
     _STAGED.append({})
     try:
@@ -167,7 +168,9 @@ def unless_replacing(force: bool, what: str) -> Iterator[None]:
         staged = _STAGED[-1]
     finally:
         _STAGED.pop()
-    changed = [p for p, data in staged.items() if p.is_file() and p.read_bytes() != data]
+    page = b"new MeshCat.Viewer("  # a viewer page (random ids each time) may replace another
+    changed = [p for p, data in staged.items() if p.is_file() and (old := p.read_bytes()) != data
+               and not (page in old and page in data)]
     if changed and not force:
         raise WouldReplace(
             f"{what} would replace {len(changed)} file(s) that hold something else, e.g. "
