@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from analysis.outputs import add_force
+from analysis.outputs import add_force, check_writable, usage_errors, write_errors
 from ddpg_her.config import Parser
 from ur5kin.checks import SEED, integer
 
@@ -245,8 +245,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m analysis.replay``."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    from analysis.outputs import check_writable, usage_errors, write_errors
-
     with usage_errors(parser, ReplayError):
         check_run(args.run)
     if not args.serve:
