@@ -1363,6 +1363,41 @@ def gate4_cases(fix: Path) -> list[Case]:
     return out
 
 
+def _written_halfway(failure: str) -> Callable[[Path], None]:
+    """curves --force over someone else's o/c.png and o/c.csv, the CSV's write failing
+    (``failure``: 'full' disk, 'ctrl-c', or 'unreadable': the CSV there cannot be read for the
+    comparison): both files must stay as they were, the failure one line."""
+    def call(case_dir: Path) -> None:
+        import pathlib
+
+        from analysis import curves
+        from ddpg_her import runfolder
+        before, real, read = snapshot(case_dir / "o"), runfolder.atomic_write, Path.read_bytes
+
+        def failing(path: Path, data: bytes) -> None:
+            if path.suffix == ".csv" and failure != "unreadable":
+                raise KeyboardInterrupt if failure == "ctrl-c" else \
+                    runfolder.write_failure(path, OSError(28, "No space left on device"))
+            real(path, data)
+
+        def unreadable(path: Path) -> bytes:
+            if path.suffix == ".csv" and path.parent.name == "o":
+                raise PermissionError(13, "Permission denied", str(path))
+            return read(path)
+
+        runfolder.atomic_write = failing
+        pathlib.Path.read_bytes = unreadable if failure == "unreadable" else read
+        err = io.StringIO()
+        with contextlib.suppress(SystemExit, KeyboardInterrupt), contextlib.redirect_stderr(err):
+            curves.main(["run", "--out", "o/c.png", "--force"])
+        pathlib.Path.read_bytes = read
+        _check(snapshot(case_dir / "o") == before, f"{failure}: the outputs changed")
+        lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
+        _check(failure == "ctrl-c" or (len(lines) == 1 and "c.csv" in lines[0]),
+               f"not one line naming c.csv: {lines[-3:]}")
+    return call
+
+
 def gate5_cases(fix: Path) -> list[Case]:
     """Issue 41, kind 4, the gaps of the replace check (names ``gate: g5 ...``): claims'
     --readme written before its --out was refused; region_volumes --view and replay --out
@@ -1404,7 +1439,11 @@ def gate5_cases(fix: Path) -> list[Case]:
             ["run", "--out", "c.png"], "usage", ["would replace", "c.csv"],
             setup=lambda d: (copy_run(fix)(d), _ran("analysis.curves", ["run", "--out", "c.png"],
                                                     write("c.csv", "someone else's\n"))(d))[-1]),
-    ]
+    ] + [api(f"gate: g5 curves --force, the CSV's write failing ({f}) after the figure's",
+             "analysis.curves", 6, _written_halfway(f), "ok",
+             setup=lambda d: (copy_run(fix)(d), write("o/c.png", "someone's figure")(d),
+                              write("o/c.csv", "someone's table\n")(d))[-1])
+         for f in ("full", "ctrl-c", "unreadable")]
 
 
 def _check(ok: bool, what: str) -> None:
