@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis import report
+from analysis import outputs, report
 from analysis.outputs import add_force, write_csv, write_errors, write_text
 from analysis.paper import CLAIMS, PAPER_EPISODES
 from analysis.plateau import plateau
@@ -195,18 +195,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.results.is_dir():
         parser.error(f"--results {args.results}: not a folder")
+    if args.out is not None:
+        with outputs.usage_errors(parser):  # before reading anything
+            outputs.check_files(args.out, ("claims.md", "claims.csv"), "--out")
     try:
         rows = table(args.results)
-        if args.readme is not None:
+        if args.readme is not None:  # read and checked now, written last
             text = args.readme.read_text()
-            old = readme_block(text)
-            args.readme.write_text(text.replace(BEGIN + old + END, BEGIN + block(rows) + END))
+            text = text.replace(BEGIN + readme_block(text) + END, BEGIN + block(rows) + END)
     except (OSError, ValueError) as err:
         parser.exit(1, f"error: {err}\n")
     if args.out is not None:
         with write_errors(parser, args.force):
             write_text(args.out / "claims.md", markdown(rows) + "\n")
             write_csv(args.out / "claims.csv", COLUMNS, rows)
+    if args.readme is not None:  # its block is --readme's to replace: after --out, not refused
+        with write_errors(parser, True, "--readme"):
+            write_text(args.readme, text)
     print(markdown(rows))
     return 0
 

@@ -136,15 +136,14 @@ def write_errors(parser: argparse.ArgumentParser, force: bool, what: str = "--ou
     try:
         with unless_replacing(force, what):
             yield
-    except OutputError as err:
+    except (OutputError, OSError) as err:  # OSError: e.g. an output there that cannot be read
         parser.exit(2 if isinstance(err, WouldReplace) else 1, f"error: {err}\n")
 
 
 def _read_only(path: Path) -> bool:
-    try:
+    with contextlib.suppress(OSError):
         return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
-    except OSError:
-        return False
+    return False
 
 
 class WouldReplace(OutputError):
@@ -159,22 +158,30 @@ _STAGED: list[dict[Path, bytes]] = []
 def unless_replacing(force: bool, what: str) -> Iterator[None]:
     """Hold back every `write_bytes` of the block, then write them all, unless one would
     replace a file that holds other bytes and ``force`` is false: then write nothing and raise
-    `WouldReplace` naming the files. ``what`` names the command's outputs and its override flag
-    for the message."""
+    `WouldReplace` naming the files (a viewer page over a viewer page is not refused: its ids
+    are random). ``what`` names the command's outputs and its override flag for the message."""
     _STAGED.append({})
     try:
         yield
         staged = _STAGED[-1]
     finally:
         _STAGED.pop()
-    changed = [p for p, data in staged.items() if p.is_file() and p.read_bytes() != data]
+    page = b"new MeshCat.Viewer("  # a viewer page (random ids each time) may replace another
+    old = {p: p.read_bytes() for p in staged if p.is_file()}  # compared; put back on a failure
+    changed = [p for p, data in staged.items() if p in old and old[p] != data
+               and not (page in old[p] and page in data)]
     if changed and not force:
         raise WouldReplace(
             f"{what} would replace {len(changed)} file(s) that hold something else, e.g. "
             + ", ".join(map(str, changed[:3])) + ("" if len(changed) <= 3 else ", ...")
             + "; nothing was written: give --force to replace them, or another destination")
-    for p, data in staged.items():
-        write_bytes(p, data)
+    for i, (p, data) in enumerate(staged.items()):
+        try:
+            write_bytes(p, data)
+        except BaseException:  # a failed write or Ctrl-C: the files written before it as they were
+            for q in list(staged)[:i]:
+                write_bytes(q, old[q]) if q in old else q.unlink()
+            raise
 
 
 def write_bytes(path: Path, data: bytes) -> None:

@@ -485,8 +485,8 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Sett
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m analysis.region_volumes``."""
     parser = build_parser()
-    outputs.add_force(parser, "with --plot: replace files that hold something else (refused by "
-                              "default: nothing is written, the files are named)")
+    outputs.add_force(parser, "with --plot or --view: replace files that hold something else "
+                              "(refused by default: nothing is written, the files are named)")
     args = parser.parse_args(argv)
     settings = _settings(args, parser)
     progress = sys.stderr.isatty()
@@ -506,11 +506,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.plot is not None and n_plot not in settings.joints:
         parser.error(f"--plot-joints {n_plot} must be one of --joints {list(settings.joints)}")
     if args.plot is not None:  # before the study
-        args.plot = outputs.figure_outputs(parser, args.plot, "--plot", ".json", ".csv")[0]
+        plots = outputs.figure_outputs(parser, args.plot, "--plot", ".json", ".csv")
+        if args.view is not None and args.view.resolve() in {p.resolve() for p in plots}:
+            parser.error(f"--view {args.view} is also a file --plot writes; give it its own")
+        args.plot = plots[0]
     if args.view is not None:
         with outputs.usage_errors(parser, ImportError, outputs.OutputError):
             outputs.check_writable(pathlib.Path(args.view), "--view")
-            size = view(settings, args.view)
+            with outputs.write_errors(parser, args.force, "--view"):
+                size = view(settings, args.view)
         print(f"wrote {args.view} ({size / 1e6:.1f} MB)", file=sys.stderr)
     study = run_study(settings, progress)
     if args.json:

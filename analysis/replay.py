@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis.outputs import add_force, check_writable, usage_errors, write_errors
 from ddpg_her.config import Parser
 from ur5kin.checks import SEED, integer
 
@@ -235,6 +236,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "about 100 kB in the page) or its COLLADA visual meshes (96,000 "
                         "triangles, about 9 MB; MeshCat 0.3.2 leaves part of the shoulder out)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_force(parser, "replace an --out that holds something other than a viewer page (refused "
+              "by default: nothing is written, the file is named)")
     return parser
 
 
@@ -242,8 +245,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m analysis.replay``."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    from analysis.outputs import check_writable, usage_errors, write_errors
-
     with usage_errors(parser, ReplayError):
         check_run(args.run)
     if not args.serve:
@@ -269,7 +270,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.serve:
         serve_until_stopped(f"serving at {vis.url()} (Ctrl-C ends it)")
         return 0
-    with write_errors(parser, force=True):  # a viewer page, rewritten (its ids are random)
+    with write_errors(parser, args.force):  # a viewer page over a viewer page is no refusal
         size = scene.write_html(args.out, f"UR5 replay: {args.run.name}", text)
     print(f"-> {args.out} ({size / 1e6:.1f} MB)", file=sys.stderr)
     return 0

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.outputs import add_force, check_writable, usage_errors, write_errors, write_text
 from analysis.paper import (
     CLAIMS,
     FAST_EPISODES,
@@ -738,8 +739,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_runs_arguments(parser)
     parser.add_argument("--out", type=Path, default=None,
                         help="also write the Markdown to this file")
-    from analysis.outputs import add_force, check_writable, usage_errors, write_errors, write_text
-
     add_force(parser)
     args = parser.parse_args(argv)
 

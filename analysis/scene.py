@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import ur5kin
+from analysis.outputs import write_text
 
 if TYPE_CHECKING:
     import meshcat
@@ -384,8 +385,6 @@ class Scene:
         window = self.vis.window
         if not isinstance(window, RecordingWindow):
             raise TypeError("write_html needs a scene of offline_visualizer()")
-        from analysis.outputs import write_text
-
         page = meshcat_page(window.commands(), title, caption)
         write_text(pathlib.Path(out), page)  # whole or not at all
         return len(page.encode())

@@ -47,6 +47,7 @@ from analysis.outputs import (
     pyplot,
     save_figure,
     usage_errors,
+    write_bytes,
     write_csv,
     write_errors,
     write_text,
@@ -193,8 +194,6 @@ def collect(units: Sequence[sweep.Unit], dest: Path) -> tuple[int, list[str]]:
     skipped : list of str
         The unfinished units, each with its seeds' statuses.
     """
-    from analysis.outputs import write_bytes
-
     copied, skipped = 0, []
     for unit in units:
         status = [unit.status(s) for s in unit.seeds]

@@ -615,6 +615,8 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
         try:
             with contextlib.redirect_stderr(err):
                 req = train.request(train.parse_args(parser, args), resume=True)
+            if program:
+                train.check_stack([req], device, tf32)
         except SystemExit:
             message = err.getvalue().strip().splitlines()[-1:] or ["a usage error"]
             problems.append(f"{unit.name}: ddpg_her.train refuses its command line: "
@@ -624,12 +626,6 @@ def unit_problems(units: Sequence[Unit], extra: Sequence[str],
             problems.append(f"{unit.name}: {error}")
             continue
         reqs.append(req)
-        if program:
-            try:
-                train.check_stack([req], device, tf32)
-            except ValueError as error:
-                problems.append(f"{unit.name}: {error}")
-                continue
     from ddpg_her.units import shared_folders
 
     problems += shared_folders((u.run_dir(s), f"{u.name} s{s}") for u in units for s in u.seeds)

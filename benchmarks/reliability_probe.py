@@ -1363,6 +1363,89 @@ def gate4_cases(fix: Path) -> list[Case]:
     return out
 
 
+def _written_halfway(failure: str) -> Callable[[Path], None]:
+    """curves --force over someone else's o/c.png and o/c.csv, the CSV's write failing
+    (``failure``: 'full' disk, 'ctrl-c', or 'unreadable': the CSV there cannot be read for the
+    comparison): both files must stay as they were, the failure one line."""
+    def call(case_dir: Path) -> None:
+        import pathlib
+
+        from analysis import curves
+        from ddpg_her import runfolder
+        before, real, read = snapshot(case_dir / "o"), runfolder.atomic_write, Path.read_bytes
+
+        def failing(path: Path, data: bytes) -> None:
+            if path.suffix == ".csv" and failure != "unreadable":
+                raise KeyboardInterrupt if failure == "ctrl-c" else \
+                    runfolder.write_failure(path, OSError(28, "No space left on device"))
+            real(path, data)
+
+        def unreadable(path: Path) -> bytes:
+            if path.suffix == ".csv" and path.parent.name == "o":
+                raise PermissionError(13, "Permission denied", str(path))
+            return read(path)
+
+        runfolder.atomic_write = failing
+        pathlib.Path.read_bytes = unreadable if failure == "unreadable" else read
+        err = io.StringIO()
+        with contextlib.suppress(SystemExit, KeyboardInterrupt), contextlib.redirect_stderr(err):
+            curves.main(["run", "--out", "o/c.png", "--force"])
+        pathlib.Path.read_bytes = read
+        _check(snapshot(case_dir / "o") == before, f"{failure}: the outputs changed")
+        lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
+        _check(failure == "ctrl-c" or (len(lines) == 1 and "c.csv" in lines[0]),
+               f"not one line naming c.csv: {lines[-3:]}")
+    return call
+
+
+def gate5_cases(fix: Path) -> list[Case]:
+    """Issue 41, kind 4, the gaps of the replace check (names ``gate: g5 ...``): claims'
+    --readme written before its --out was refused; region_volumes --view and replay --out
+    replacing any file; a --view that is also a --plot output; a figure whose CSV alone
+    differs."""
+    readme = write("R.md", "# r\n<!-- claims:begin -->\nold\n<!-- claims:end -->\n")
+    notes = write("notes.md", "# someone's notes\n")
+    claims = ["--results", str(ROOT / "results"), "--readme", "R.md", "--out", "o"]
+    volumes = ["--regions", "farbox", "--joints", "3", "--samples", "200"]
+    replay = ["run/s0", "--episodes", "1", "--no-progress"]
+    return [
+        cli("gate: g5 claims --readme with an --out holding another table", "analysis.claims",
+            4, claims, "usage", ["would replace", "o/claims.md"],
+            setup=lambda d: (readme(d), write("o/claims.md", "another\n")(d))[-1]),
+        cli("gate: g5 claims --readme with an --out that is a file", "analysis.claims", 4,
+            claims, "usage", ["--out", "not a folder"],
+            setup=lambda d: (readme(d), write("o", "a file\n")(d))[-1]),
+        cli("gate: g5 claims --readme and a new --out", "analysis.claims", 4, claims, "ok",
+            setup=readme),
+        cli("gate: g5 region_volumes --view over a file that is not a page",
+            "analysis.region_volumes", 4, [*volumes, "--view", "notes.md"], "usage",
+            ["would replace", "notes.md", "--force"], setup=notes),
+        cli("gate: g5 region_volumes --view --force over a file that is not a page",
+            "analysis.region_volumes", 4, [*volumes, "--view", "notes.md", "--force"], "ok",
+            setup=notes),
+        cli("gate: g5 region_volumes --view over its own page", "analysis.region_volumes", 4,
+            [*volumes, "--view", "v.html"], "ok",
+            setup=_ran("analysis.region_volumes", [*volumes, "--view", "v.html"])),
+        cli("gate: g5 region_volumes --view that is --plot's JSON", "analysis.region_volumes",
+            4, [*volumes, "--view", "v.json", "--plot", "v.png"], "usage", ["--view", "v.json"]),
+        cli("gate: g5 replay --out over a file that is not a page", "analysis.replay", 4,
+            [*replay, "--out", "notes.md"], "usage", ["would replace", "notes.md", "--force"],
+            setup=lambda d: (copy_run(fix)(d), notes(d))[-1]),
+        cli("gate: g5 replay --out over its own page", "analysis.replay", 4,
+            [*replay, "--out", "r.html"], "ok",
+            setup=lambda d: (copy_run(fix)(d),
+                             _ran("analysis.replay", [*replay, "--out", "r.html"])(d))[-1]),
+        cli("gate: g5 curves over its own figure, its CSV another", "analysis.curves", 4,
+            ["run", "--out", "c.png"], "usage", ["would replace", "c.csv"],
+            setup=lambda d: (copy_run(fix)(d), _ran("analysis.curves", ["run", "--out", "c.png"],
+                                                    write("c.csv", "someone else's\n"))(d))[-1]),
+    ] + [api(f"gate: g5 curves --force, the CSV's write failing ({f}) after the figure's",
+             "analysis.curves", 6, _written_halfway(f), "ok",
+             setup=lambda d: (copy_run(fix)(d), write("o/c.png", "someone's figure")(d),
+                              write("o/c.csv", "someone's table\n")(d))[-1])
+         for f in ("full", "ctrl-c", "unreadable")]
+
+
 def _check(ok: bool, what: str) -> None:
     if not ok:
         raise WrongAnswer(what)
@@ -1911,7 +1994,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         all_cases = [*old_cases(fix), *reader_cases(fix), *train_cases(fix),
                      *study_cases(fix), *api_cases(fix), *kill_cases(fix),
                      *gate_cases(fix), *gate2_cases(fix), *gate3_cases(fix),
-                     *gate4_cases(fix)]
+                     *gate4_cases(fix), *gate5_cases(fix)]
         names = [c.name for c in all_cases]
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:

@@ -139,3 +139,28 @@ def test_a_readme_without_markers_is_one_clear_error(tmp_path: Path, capsys) -> 
     assert exc.value.code == 1
     assert "has no <!-- claims:begin --> ... <!-- claims:end --> markers" in \
         capsys.readouterr().err
+
+
+@pytest.mark.parametrize("out_holds", ["another table", "a file"])
+def test_a_refused_out_leaves_the_readme_as_it_was(tmp_path: Path, capsys, out_holds) -> None:
+    """--readme was written before --out was checked: an --out that held another table (or
+    was a file) was refused with 'nothing was written', the README's block already replaced."""
+    _runs(tmp_path / "results/sensitivity/runs/ours/farbox-j3", "farbox", 3, [100, 95, 98, 99])
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# r\n{claims.BEGIN}\nan old table\n{claims.END}\n")
+    out = tmp_path / "out"
+    if out_holds == "a file":
+        out.write_text("a file\n")
+    else:
+        (out / "claims.md").parent.mkdir()
+        (out / "claims.md").write_text("another table\n")
+    with pytest.raises(SystemExit) as exc:
+        claims.main(["--results", str(tmp_path / "results"), "--readme", str(readme),
+                     "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and str(out) in err and err.count("\n") == 1, err
+    assert readme.read_text() == f"# r\n{claims.BEGIN}\nan old table\n{claims.END}\n"
+    assert claims.main(["--results", str(tmp_path / "results"), "--readme", str(readme),
+                        "--out", str(tmp_path / "new")]) == 0
+    assert claims.readme_block(readme.read_text()) == claims.block(
+        claims.table(tmp_path / "results"))

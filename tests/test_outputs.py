@@ -250,3 +250,64 @@ def test_a_writer_replaces_another_output_only_with_force(tmp_path, capsys, comm
     assert exit_.value.code == 2 and "would replace" in err and str(out) in err, err
     assert "give --force" in err and out.read_bytes() == first
     assert main([str(runs), "--out", str(out), "--force"]) == 0 and out.read_bytes() != first
+
+
+@pytest.mark.parametrize("failure", [OSError(28, "No space left on device"), KeyboardInterrupt()])
+def test_a_write_failing_halfway_puts_back_the_files_written_before_it(
+        tmp_path, capsys, monkeypatch, failure):
+    """curves' figure was replaced and its CSV kept when the CSV's write failed (a full disk,
+    Ctrl-C): a figure and a table of different runs. Now both stay as they were."""
+    from test_analysis import _fake_run
+
+    from analysis import curves
+    from ddpg_her import runfolder
+
+    runs, out = tmp_path / "runs", tmp_path / "out" / "c.png"
+    _fake_run(runs / "farbox-j3" / "s0", "farbox", 3, 0, [40, 60])
+    assert curves.main([str(runs), "--out", str(out)]) == 0
+    before = {p: p.read_bytes() for p in out.parent.iterdir()}
+    _fake_run(runs / "farbox-j3" / "s1", "farbox", 3, 1, [50, 70])
+    real = runfolder.atomic_write
+
+    def failing(path, data):
+        if path.suffix == ".csv":
+            raise runfolder.write_failure(path, failure) if isinstance(failure, OSError) \
+                else failure
+        real(path, data)
+
+    monkeypatch.setattr(runfolder, "atomic_write", failing)
+    capsys.readouterr()
+    with pytest.raises((SystemExit, KeyboardInterrupt)) as exc:
+        curves.main([str(runs), "--out", str(out), "--force"])
+    assert {p: p.read_bytes() for p in out.parent.iterdir()} == before
+    if isinstance(failure, OSError):
+        err = capsys.readouterr().err
+        assert exc.value.code == 1 and "No space left" in err and err.count("\n") == 1, err
+
+
+def test_an_output_that_cannot_be_read_is_one_line(tmp_path, capsys, monkeypatch):
+    """The replace check reads the file there to compare it: an unreadable one (another user's,
+    mode 600) was a PermissionError traceback; now one line naming it, nothing written."""
+    import errno
+    import pathlib
+
+    from test_analysis import _fake_run
+
+    from analysis import report
+
+    _fake_run(tmp_path / "runs" / "farbox-j3" / "s0", "farbox", 3, 0, [40, 60])
+    out = tmp_path / "report.md"
+    out.write_text("another user's report\n")
+    real = pathlib.Path.read_bytes
+
+    def unreadable(self):
+        if self == out:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real(self)
+
+    monkeypatch.setattr(pathlib.Path, "read_bytes", unreadable)
+    with pytest.raises(SystemExit) as exc:
+        report.main([str(tmp_path / "runs"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 1 and str(out) in err and "Permission denied" in err, err
+    assert "Traceback" not in err and out.read_text() == "another user's report\n"

@@ -361,3 +361,32 @@ def test_serve_holds_sigterm_before_it_prints_the_address(monkeypatch):
     replay.serve_until_stopped("serving at http://127.0.0.1:7000/static/")
     assert len(seen) == 1 and callable(seen[0]) and seen[0] is not before
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_page_replaces_only_a_page_without_force(tmp_path, capsys):
+    """region_volumes --view (and replay --out: the same write_errors) replaced any file, a
+    README included; now a file that is not a viewer page is refused naming it, nothing
+    written; a page over a page (its ids differ run to run) and --force are written; a --view
+    that is also a --plot output is refused before any work."""
+    from analysis import region_volumes
+
+    argv = ["--regions", "farbox", "--joints", "3", "--samples", "200"]
+    other = tmp_path / "README.md"
+    other.write_text("# someone's notes\n")
+    with pytest.raises(SystemExit) as exc:
+        region_volumes.main([*argv, "--view", str(other)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "would replace" in err and str(other) in err, err
+    assert other.read_text() == "# someone's notes\n"
+    page = tmp_path / "regions.html"
+    assert region_volumes.main([*argv, "--view", str(page)]) == 0
+    first = page.read_bytes()
+    assert region_volumes.main([*argv, "--view", str(page)]) == 0 and page.read_bytes() != first
+    assert region_volumes.main([*argv, "--view", str(other), "--force"]) == 0
+    assert b"MeshCat.Viewer" in other.read_bytes()
+    assert "--force" in replay.build_parser().format_help()
+    with pytest.raises(SystemExit) as exc:
+        region_volumes.main([*argv, "--view", str(tmp_path / "v.json"), "--plot",
+                             str(tmp_path / "v.png")])
+    assert exc.value.code == 2 and "--view" in capsys.readouterr().err
+    assert not list(tmp_path.glob("v.*"))
