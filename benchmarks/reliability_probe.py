@@ -1363,6 +1363,50 @@ def gate4_cases(fix: Path) -> list[Case]:
     return out
 
 
+def _numba_copies_step_as_the_original(_: Path) -> None:
+    """NumbaDynamics builds its kernel's argument tuple once (the state arrays, written in
+    place): a deep copy, a pickled copy and a copy reset between steps must step as a fresh one."""
+    import copy
+    import pickle
+
+    from envs.physics.numba_kernel import NumbaDynamics
+    from envs.spec import make_task
+    task = make_task(None, dict(region="farbox", n_joints=3))
+    fresh, used = NumbaDynamics(task, 2), NumbaDynamics(task, 2)
+    for _ in range(3):
+        used.step(np.full((2, 3), -0.4))
+    used.reset(np.asarray(task.start_q))
+    for dyn in (fresh, used, copy.deepcopy(fresh), pickle.loads(pickle.dumps(fresh))):
+        for _ in range(2):
+            dyn.step(np.full((2, 3), 0.3))
+    for dyn in (used, copy.deepcopy(fresh), pickle.loads(pickle.dumps(fresh))):
+        _check(np.array_equal(dyn.q, fresh.q) and np.array_equal(dyn.tool, fresh.tool),
+               "a copy or a reset NumbaDynamics does not step as a fresh one")
+
+
+def gate5t_cases(fix: Path) -> list[Case]:
+    """This session's cuts seen by a hostile user of the training side (names ``gate: g5t
+    ...``): the stack twin's Gymnasium reset, copies of the numba dynamics, one folder for
+    two units however it is spelled."""
+    def stack_reset(_: Path) -> Any:
+        return gymnasium.make_vec("UR5StackReach-v0", num_envs=2,
+                                  vectorization_mode="vector_entry_point",
+                                  tasks=[dict(region="farbox", n_joints=3)]).reset(seed=0)
+    out = [api("gate: g5t make_vec('UR5StackReach-v0').reset(seed=0)", "StackReach.reset", 6,
+               stack_reset, "usage", ["reset_where", "draw_goals"]),
+           api("gate: g5t NumbaDynamics copied or reset steps as a fresh one", "NumbaDynamics",
+               8, _numba_copies_step_as_the_original, "ok")]
+    for backend in ("numpy", "program"):
+        for a, b in (("x", "./x/"), ("x --seeds 0 1", "x/s0")):
+            out.append(cli(f"gate: g5t train_many --dry-run {backend} --out {a} and --out {b}",
+                           "ddpg_her.train_many", 3, [
+                               "--dry-run", "--env-backend", backend, "--unit",
+                               f"--region farbox --out {a}", "--unit",
+                               f"--region closebox --out {b}"], "usage",
+                           ["would all train in", "--out"]))
+    return out
+
+
 def _check(ok: bool, what: str) -> None:
     if not ok:
         raise WrongAnswer(what)
@@ -1911,7 +1955,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         all_cases = [*old_cases(fix), *reader_cases(fix), *train_cases(fix),
                      *study_cases(fix), *api_cases(fix), *kill_cases(fix),
                      *gate_cases(fix), *gate2_cases(fix), *gate3_cases(fix),
-                     *gate4_cases(fix)]
+                     *gate4_cases(fix), *gate5t_cases(fix)]
         names = [c.name for c in all_cases]
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:
