@@ -1384,6 +1384,19 @@ def _numba_copies_step_as_the_original(_: Path) -> None:
                "a copy or a reset NumbaDynamics does not step as a fresh one")
 
 
+def _copied_vector_env_steps_as_the_original(_: Path) -> None:
+    """A deep copy and a pickle of UR5Reach-v0's vector env step as the original does."""
+    import copy
+    import pickle
+    env = gymnasium.make_vec("UR5Reach-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                             dynamics="numba", region="farbox", n_joints=3)
+    env.reset(seed=0)
+    copies, action = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))], np.full((2, 3), 0.3)
+    want = env.step(action)[0]["observation"]
+    _check(all(np.array_equal(c.step(action)[0]["observation"], want) for c in copies),
+           "a copied UR5Reach-v0 vector env observes another state than the original")
+
+
 def gate5t_cases(fix: Path) -> list[Case]:
     """This session's cuts seen by a hostile user of the training side (names ``gate: g5t
     ...``): the stack twin's Gymnasium reset, copies of the numba dynamics, one folder for
@@ -1395,7 +1408,9 @@ def gate5t_cases(fix: Path) -> list[Case]:
     out = [api("gate: g5t make_vec('UR5StackReach-v0').reset(seed=0)", "StackReach.reset", 6,
                stack_reset, "usage", ["reset_where", "draw_goals"]),
            api("gate: g5t NumbaDynamics copied or reset steps as a fresh one", "NumbaDynamics",
-               8, _numba_copies_step_as_the_original, "ok")]
+               8, _numba_copies_step_as_the_original, "ok"),
+           api("gate: g5t a deep-copied or pickled UR5Reach-v0 vector env steps as the original",
+               "BatchedReach", 8, _copied_vector_env_steps_as_the_original, "ok")]
     for backend in ("numpy", "program"):
         for a, b in (("x", "./x/"), ("x --seeds 0 1", "x/s0")):
             out.append(cli(f"gate: g5t train_many --dry-run {backend} --out {a} and --out {b}",
