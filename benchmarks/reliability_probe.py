@@ -1444,6 +1444,63 @@ def gate5_cases(fix: Path) -> list[Case]:
              setup=lambda d: (copy_run(fix)(d), write("o/c.png", "someone's figure")(d),
                               write("o/c.csv", "someone's table\n")(d))[-1])
          for f in ("full", "ctrl-c", "unreadable")]
+def _numba_copies_step_as_the_original(_: Path) -> None:
+    """NumbaDynamics builds its kernel's argument tuple once (the state arrays, written in
+    place): a deep copy, a pickled copy and a copy reset between steps must step as a fresh one."""
+    import copy
+    import pickle
+
+    from envs.physics.numba_kernel import NumbaDynamics
+    from envs.spec import make_task
+    task = make_task(None, dict(region="farbox", n_joints=3))
+    fresh, used = NumbaDynamics(task, 2), NumbaDynamics(task, 2)
+    for _ in range(3):
+        used.step(np.full((2, 3), -0.4))
+    used.reset(np.asarray(task.start_q))
+    for dyn in (fresh, used, copy.deepcopy(fresh), pickle.loads(pickle.dumps(fresh))):
+        for _ in range(2):
+            dyn.step(np.full((2, 3), 0.3))
+    for dyn in (used, copy.deepcopy(fresh), pickle.loads(pickle.dumps(fresh))):
+        _check(np.array_equal(dyn.q, fresh.q) and np.array_equal(dyn.tool, fresh.tool),
+               "a copy or a reset NumbaDynamics does not step as a fresh one")
+
+
+def _copied_vector_env_steps_as_the_original(_: Path) -> None:
+    """A deep copy and a pickle of UR5Reach-v0's vector env step as the original does."""
+    import copy
+    import pickle
+    env = gymnasium.make_vec("UR5Reach-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                             dynamics="numba", region="farbox", n_joints=3)
+    env.reset(seed=0)
+    copies, action = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))], np.full((2, 3), 0.3)
+    want = env.step(action)[0]["observation"]
+    _check(all(np.array_equal(c.step(action)[0]["observation"], want) for c in copies),
+           "a copied UR5Reach-v0 vector env observes another state than the original")
+
+
+def gate5t_cases(fix: Path) -> list[Case]:
+    """This session's cuts seen by a hostile user of the training side (names ``gate: g5t
+    ...``): the stack twin's Gymnasium reset, copies of the numba dynamics, one folder for
+    two units however it is spelled."""
+    def stack_reset(_: Path) -> Any:
+        return gymnasium.make_vec("UR5StackReach-v0", num_envs=2,
+                                  vectorization_mode="vector_entry_point",
+                                  tasks=[dict(region="farbox", n_joints=3)]).reset(seed=0)
+    out = [api("gate: g5t make_vec('UR5StackReach-v0').reset(seed=0)", "StackReach.reset", 6,
+               stack_reset, "usage", ["reset_where", "draw_goals"]),
+           api("gate: g5t NumbaDynamics copied or reset steps as a fresh one", "NumbaDynamics",
+               8, _numba_copies_step_as_the_original, "ok"),
+           api("gate: g5t a deep-copied or pickled UR5Reach-v0 vector env steps as the original",
+               "BatchedReach", 8, _copied_vector_env_steps_as_the_original, "ok")]
+    for backend in ("numpy", "program"):
+        for a, b in (("x", "./x/"), ("x --seeds 0 1", "x/s0")):
+            out.append(cli(f"gate: g5t train_many --dry-run {backend} --out {a} and --out {b}",
+                           "ddpg_her.train_many", 3, [
+                               "--dry-run", "--env-backend", backend, "--unit",
+                               f"--region farbox --out {a}", "--unit",
+                               f"--region closebox --out {b}"], "usage",
+                           ["would all train in", "--out"]))
+    return out
 
 
 def _check(ok: bool, what: str) -> None:
@@ -1994,7 +2051,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         all_cases = [*old_cases(fix), *reader_cases(fix), *train_cases(fix),
                      *study_cases(fix), *api_cases(fix), *kill_cases(fix),
                      *gate_cases(fix), *gate2_cases(fix), *gate3_cases(fix),
-                     *gate4_cases(fix), *gate5_cases(fix)]
+                     *gate4_cases(fix), *gate5_cases(fix), *gate5t_cases(fix)]
         names = [c.name for c in all_cases]
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:

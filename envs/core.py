@@ -99,8 +99,6 @@ class TaskCopies:
         self.truncated = np.zeros(B, dtype=bool)
         self.elapsed = np.zeros(B, dtype=np.int64)
         self.started = np.zeros(B, dtype=bool)
-        self._obs_views = (self.observation[:, :n], self.observation[:, n : 2 * n],
-                           self.observation[:, 2 * n :])
         self._start_q = np.asarray(task.start_q)
 
     def reset(self, index: Sequence[int] | np.ndarray, rngs: Sequence[np.random.Generator],
@@ -164,10 +162,9 @@ class TaskCopies:
     def _observe(self) -> None:
         """Refresh observation, achieved goal, distance and success from the dynamics."""
         dyn, n = self.dynamics, self.task.n_joints
-        theta, theta_dot, theta_ddot = self._obs_views
-        theta[:] = dyn.q[:, :n]
-        theta_dot[:] = dyn.v[:, :n]
-        theta_ddot[:] = dyn.acceleration[:, :n]
+        # a view taken here, not kept: a deep copy or pickle of the env copies arrays, not views
+        obs = self.observation.reshape(-1, 3, n)  # (B, theta/theta_dot/theta_ddot, n)
+        obs[:, 0], obs[:, 1], obs[:, 2] = dyn.q[:, :n], dyn.v[:, :n], dyn.acceleration[:, :n]
         dyn.tool_positions(self.achieved)
         self.rules.distance(self.achieved, self.goal, out=self.distance)
         self.rules.is_success(self.distance, out=self.success)

@@ -280,6 +280,11 @@ class StackReach:
         return tool, ok
 
     # ------------------------------------------------------------------ episodes
+    def reset(self, **_: Any) -> None:
+        """Refused in one line: the copies start episodes with `reset_where` (no autoreset)."""
+        raise ValueError("StackReach has no Gymnasium reset(); start episodes with "
+                         "reset_where(mask (B,) bool, goal (B, 3) m), goals from draw_goals")
+
     def reset_where(self, mask: torch.Tensor, goal: torch.Tensor) -> None:
         """Start new episodes where ``mask (B,) bool``: the arm at rest at its start pose, the
         goal ``goal (B, 3)`` m (rows outside the mask are ignored)."""

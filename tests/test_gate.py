@@ -502,6 +502,51 @@ def test_make_of_the_stack_twin_refuses_in_one_line_and_make_vec_builds_it():
     assert type(stack).__name__ == "StackReach"
 
 
+def test_the_stack_twins_reset_refuses_in_one_line_naming_reset_where():
+    """make_vec('UR5StackReach-v0').reset(seed=0), a Gymnasium user's first call, ended in
+    "AttributeError: 'StackReach' object has no attribute 'reset'"; it is now refused naming
+    the stack's own start, reset_where, which (the reference) starts every copy at its goal."""
+    import gymnasium
+    import torch
+
+    import envs  # noqa: F401  (registers the ids)
+
+    stack = gymnasium.make_vec("UR5StackReach-v0", num_envs=2,
+                               vectorization_mode="vector_entry_point",
+                               tasks=[dict(region="farbox", n_joints=3)] * 2)
+    with pytest.raises(ValueError, match=r"no Gymnasium reset\(\); start episodes with reset_wh"):
+        stack.reset(seed=0)
+    goal = torch.tensor([[0.4, 0.1, 0.5], [0.3, -0.2, 0.6]], dtype=torch.float64)
+    stack.reset_where(torch.ones(2, dtype=torch.bool), goal)
+    assert torch.equal(stack.goal, goal) and bool((stack.elapsed == 0).all())
+
+
+def test_a_deep_copied_vector_reach_env_steps_as_the_original():
+    """A deep copy or a pickle of UR5Reach-v0's vector env (numba dynamics) copied the
+    observation's three joint-block views as arrays of their own: the copy's arm moved but its
+    observation stayed at the reset pose, forever, without a word. The original env, stepped
+    alike, is the reference."""
+    import copy
+    import pickle
+
+    import gymnasium
+    import numpy as np
+
+    import envs  # noqa: F401  (registers the ids)
+
+    kw = dict(region="farbox", n_joints=3)
+    env = gymnasium.make_vec("UR5Reach-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                             dynamics="numba", **kw)
+    start = env.reset(seed=0)[0]["observation"]
+    copies = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    action = np.full(env.action_space.shape, 0.3)
+    for _ in range(2):
+        want = env.step(action)[0]["observation"]
+        for other in copies:
+            assert np.array_equal(other.step(action)[0]["observation"], want)
+    assert not np.array_equal(want, start)
+
+
 def test_optimality_reads_the_curves_runs_before_computing(tiny_ur5_run, tmp_path):
     """optimality --curves over a truncated eval.csv ended in a traceback after the whole
     study; it is now refused first, in one line naming the file, and nothing is written. The
