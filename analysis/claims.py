@@ -15,8 +15,15 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from analysis import outputs, report
-from analysis.outputs import add_force, write_csv, write_errors, write_text
+from analysis import report
+from analysis.outputs import (
+    add_force,
+    check_files,
+    usage_errors,
+    write_csv,
+    write_errors,
+    write_text,
+)
 from analysis.paper import CLAIMS, PAPER_EPISODES
 from analysis.plateau import plateau
 from analysis.report import Check, Curves, Verdict
@@ -196,8 +203,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.results.is_dir():
         parser.error(f"--results {args.results}: not a folder")
     if args.out is not None:
-        with outputs.usage_errors(parser):  # before reading anything
-            outputs.check_files(args.out, ("claims.md", "claims.csv"), "--out")
+        with usage_errors(parser):  # before reading anything
+            check_files(args.out, ("claims.md", "claims.csv"), "--out")
     try:
         rows = table(args.results)
         if args.readme is not None:  # read and checked now, written last

@@ -180,7 +180,10 @@ def unless_replacing(force: bool, what: str) -> Iterator[None]:
             write_bytes(p, data)
         except BaseException:  # a failed write or Ctrl-C: the files written before it as they were
             for q in list(staged)[:i]:
-                write_bytes(q, old[q]) if q in old else q.unlink()
+                if q in old:
+                    write_bytes(q, old[q])
+                else:
+                    q.unlink()
             raise
 
 
